@@ -1,0 +1,1 @@
+"""rumba-cnc daemon package."""

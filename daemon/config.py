@@ -1,0 +1,332 @@
+"""Machine, artefact and plan files: validated schemas (unknown keys are errors) and loaders.
+
+Every failure raises ``ConfigError`` whose message names the file, the key path and what was
+expected, e.g. ``config/machines/x.yaml: axes.B.travel_deg: expected 2 items, got 3``.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+import numpy as np
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+
+from identification.kinematics import Axis, Machine, TopologyError
+from identification.model import Artefact, Ball, CalibratedDistance
+
+SAFE_NAME = re.compile(r"^[A-Za-z0-9_.-]{1,32}$")
+"""Names that reach G-code (ball ids, machine and plan names) must match this: no spaces,
+parentheses, semicolons, quotes or line breaks, so nothing can be injected into a program."""
+
+
+class ConfigError(ValueError):
+    """A configuration file is unreadable or invalid; the message is one line for the operator."""
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]
+Range2 = Annotated[list[float], Field(min_length=2, max_length=2)]
+
+
+def _finite(v: list[float]) -> list[float]:
+    if not all(math.isfinite(x) for x in v):
+        raise ValueError("values must be finite numbers")
+    return v
+
+
+def _safe_name(v: str) -> str:
+    if not SAFE_NAME.match(v):
+        raise ValueError(
+            "must be 1-32 characters of letters, digits, '_', '.', '-' (it is written into G-code)"
+        )
+    return v
+
+
+# ------------------------------------------------------------------------------------ machine
+
+
+class AxisFile(_Strict):
+    type: Literal["linear", "rotary"]
+    direction: Vec3
+    point_mm: Vec3 | None = None
+    travel_mm: Range2 | None = None
+    travel_deg: Range2 | None = None
+    sign: Literal[1, -1] = 1
+
+    _fin = field_validator("direction", "point_mm", "travel_mm", "travel_deg")(
+        lambda v: v if v is None else _finite(v)
+    )
+
+    @model_validator(mode="after")
+    def _units(self) -> AxisFile:
+        if self.type == "linear":
+            if self.travel_deg is not None or self.point_mm is not None:
+                raise ValueError("a linear axis takes travel_mm and no point_mm / travel_deg")
+            if self.travel_mm is None:
+                raise ValueError("travel_mm [min, max] is required for a linear axis")
+            travel = self.travel_mm
+        else:
+            if self.travel_mm is not None:
+                raise ValueError("a rotary axis takes travel_deg, not travel_mm")
+            if self.travel_deg is None:
+                raise ValueError("travel_deg [min, max] is required for a rotary axis")
+            travel = self.travel_deg
+        if travel[0] >= travel[1]:
+            raise ValueError(f"travel minimum {travel[0]} must be below maximum {travel[1]}")
+        return self
+
+
+class ToolFile(_Strict):
+    tip_mm: Vec3 = [0.0, 0.0, 0.0]
+    spindle_axis: Vec3 = [0.0, 0.0, 1.0]
+
+
+class DynamicsFile(_Strict):
+    rapid_mm_min: float = Field(20000.0, gt=0, le=200000)
+    rotary_rapid_deg_min: float = Field(5400.0, gt=0, le=200000)
+    rotary_clamp_s: float = Field(0.5, ge=0, le=30)
+    max_feed_mm_min: float = Field(5000.0, gt=0, le=100000)
+    max_probe_feed_mm_min: float = Field(1000.0, gt=0, le=10000)
+
+
+class TableFile(_Strict):
+    """The table (pallet) as a keep-out: a disc of ``radius_mm`` whose top is ``surface_z_mm``
+    in the last workpiece frame; nothing of the tool may come below it plus ``clearance_mm``."""
+
+    surface_z_mm: float = 0.0
+    radius_mm: float = Field(250.0, gt=0)
+    clearance_mm: float = Field(5.0, ge=0)
+
+
+class KeepOutBox(_Strict):
+    """An extra keep-out box in the last workpiece frame (a clamp, a fixture)."""
+
+    name: str
+    min_mm: Vec3
+    max_mm: Vec3
+    _n = field_validator("name")(_safe_name)
+
+
+class MachineFile(_Strict):
+    name: str
+    topology: str
+    axes: dict[Literal["X", "Y", "Z", "A", "B", "C"], AxisFile]
+    tool: ToolFile = ToolFile()
+    dynamics: DynamicsFile = DynamicsFile()
+    table: TableFile = TableFile()
+    keep_out: list[KeepOutBox] = []
+    _n = field_validator("name")(_safe_name)
+
+
+# ----------------------------------------------------------------------------------- artefact
+
+
+class BallFile(_Strict):
+    id: str
+    position_mm: Vec3
+    rod_length_mm: float = Field(gt=0, le=1000)
+    ball_diameter_mm: float | None = Field(None, gt=0, le=200)
+    rod_diameter_mm: float | None = Field(None, gt=0, le=100)
+    _n = field_validator("id")(_safe_name)
+    _f = field_validator("position_mm")(_finite)
+
+
+class DistanceFile(_Strict):
+    balls: Annotated[list[str], Field(min_length=2, max_length=2)]
+    distance_mm: float = Field(gt=0)
+    std_um: float = Field(0.5, gt=0, le=100)
+
+
+class ArtefactFile(_Strict):
+    name: str
+    ball_diameter_mm: float = Field(25.4, gt=0, le=200)
+    rod_diameter_mm: float = Field(8.0, gt=0, le=100)
+    balls: list[BallFile] = Field(min_length=1)
+    distances: list[DistanceFile] = []
+    _n = field_validator("name")(_safe_name)
+
+    @model_validator(mode="after")
+    def _ids(self) -> ArtefactFile:
+        ids = [b.id for b in self.balls]
+        dup = sorted({i for i in ids if ids.count(i) > 1})
+        if dup:
+            raise ValueError(f"duplicated ball ids {dup}")
+        for d in self.distances:
+            for b in d.balls:
+                if b not in ids:
+                    raise ValueError(f"distance refers to unknown ball {b!r} (balls: {ids})")
+            if d.balls[0] == d.balls[1]:
+                raise ValueError("a calibrated distance needs two different balls")
+        return self
+
+
+# --------------------------------------------------------------------------------------- plan
+
+
+class GridAxis(_Strict):
+    start_deg: float
+    stop_deg: float
+    step_deg: float = Field(gt=0)
+
+
+class Grid(_Strict):
+    b: GridAxis
+    c: GridAxis
+
+
+class PoseFile(_Strict):
+    b_deg: float
+    c_deg: float
+    role: Literal["estimate", "validate"] = "estimate"
+
+
+class FeedsFile(_Strict):
+    probe_mm_min: float = Field(300.0, gt=0, le=5000)
+    approach_mm_min: float = Field(2000.0, gt=0, le=50000)
+
+
+class PlanFile(_Strict):
+    name: str
+    stylus_diameter_mm: float = Field(gt=0, le=50)
+    poses: list[PoseFile | Range2] | None = None
+    grid: Grid | None = None
+    feeds: FeedsFile = FeedsFile()
+    standoff_mm: float = Field(2.0, gt=0, le=50)
+    overtravel_mm: float = Field(2.0, gt=0, le=20)
+    clearance_mm: float = Field(10.0, gt=0, le=500)
+    dwell_s: float = Field(0.0, ge=0, le=10)
+    repeats: int = Field(1, ge=1, le=20)
+    _n = field_validator("name")(_safe_name)
+
+    @model_validator(mode="after")
+    def _one_pose_source(self) -> PlanFile:
+        if (self.poses is None) == (self.grid is None):
+            raise ValueError("give exactly one of 'poses' (list of [b_deg, c_deg]) or 'grid'")
+        return self
+
+
+# -------------------------------------------------------------------------- loaded, in domain
+
+
+class Plan(_Strict):
+    """A validated plan with its poses expanded."""
+
+    name: str
+    stylus_diameter_mm: float
+    poses: list[PoseFile]
+    feeds: FeedsFile
+    standoff_mm: float
+    overtravel_mm: float
+    clearance_mm: float
+    dwell_s: float
+    repeats: int
+
+    @property
+    def stylus_radius_mm(self) -> float:
+        return self.stylus_diameter_mm / 2.0
+
+    def indices(self, role: str) -> list[int]:
+        return [i for i, p in enumerate(self.poses) if p.role == role]
+
+
+def _grid(g: GridAxis) -> list[float]:
+    n = math.floor((g.stop_deg - g.start_deg) / g.step_deg + 1e-9) + 1
+    return [round(g.start_deg + k * g.step_deg, 9) for k in range(max(n, 0))]
+
+
+def _read_yaml(path: Path) -> Any:
+    try:
+        text = Path(path).read_text(encoding="utf-8")
+    except OSError as e:
+        raise ConfigError(f"{path}: cannot read: {e.strerror}") from None
+    try:
+        return yaml.safe_load(text)
+    except yaml.YAMLError as e:
+        mark = getattr(e, "problem_mark", None)
+        where = f" line {mark.line + 1} column {mark.column + 1}" if mark else ""
+        raise ConfigError(f"{path}:{where}: not valid YAML: {getattr(e, 'problem', e)}") from None
+
+
+def format_validation(path: Path | str, err: ValidationError) -> str:
+    """One line per problem: ``file: key.path: message``."""
+    parts = []
+    for e in err.errors():
+        loc = ".".join(str(x) for x in e["loc"] if not str(x).startswith(("function-after",)))
+        msg = e["msg"].removeprefix("Value error, ")
+        if e["type"] == "extra_forbidden":
+            msg = "unknown key (not in the schema; check spelling)"
+        parts.append(f"{path}: {loc or '<top>'}: {msg}")
+    return "; ".join(parts)
+
+
+def _validate(model: type[BaseModel], path: Path | str, data: Any) -> Any:
+    if not isinstance(data, dict):
+        raise ConfigError(f"{path}: expected a mapping of keys at top level")
+    try:
+        return model.model_validate(data)
+    except ValidationError as e:
+        raise ConfigError(format_validation(path, e)) from None
+
+
+def machine_from_dict(data: Any, path: Path | str = "<machine>") -> tuple[Machine, MachineFile]:
+    mf: MachineFile = _validate(MachineFile, path, data)
+    axes = {}
+    for letter, a in mf.axes.items():
+        travel = a.travel_mm if a.type == "linear" else a.travel_deg
+        axes[letter] = Axis(letter, a.type, tuple(a.direction), tuple(a.point_mm or (0, 0, 0)),
+                            tuple(travel), a.sign)
+    try:
+        m = Machine(mf.name, mf.topology, axes, tuple(mf.tool.tip_mm),
+                    tuple(np.asarray(mf.tool.spindle_axis) / np.linalg.norm(mf.tool.spindle_axis)))
+    except TopologyError as e:
+        raise ConfigError(f"{path}: topology/axes: {e}") from None
+    extra = set(axes) - set(m.workpiece_chain + m.tool_chain)
+    if extra:
+        raise ConfigError(f"{path}: axes: {sorted(extra)} not in topology {mf.topology}")
+    return m, mf
+
+
+def load_machine(path: Path | str) -> tuple[Machine, MachineFile]:
+    """Load a machine file → (kinematic ``Machine``, validated file with dynamics/keep-outs)."""
+    return machine_from_dict(_read_yaml(Path(path)), path)
+
+
+def artefact_from_dict(data: Any, path: Path | str = "<artefact>") -> Artefact:
+    af: ArtefactFile = _validate(ArtefactFile, path, data)
+    balls = tuple(
+        Ball(b.id, tuple(b.position_mm), b.ball_diameter_mm or af.ball_diameter_mm,
+             b.rod_length_mm, b.rod_diameter_mm or af.rod_diameter_mm)
+        for b in af.balls
+    )
+    dists = tuple(CalibratedDistance(d.balls[0], d.balls[1], d.distance_mm, d.std_um)
+                  for d in af.distances)
+    return Artefact(af.name, balls, dists)
+
+
+def load_artefact(path: Path | str) -> Artefact:
+    return artefact_from_dict(_read_yaml(Path(path)), path)
+
+
+def plan_from_dict(data: Any, path: Path | str = "<plan>") -> Plan:
+    pf: PlanFile = _validate(PlanFile, path, data)
+    if pf.grid is not None:
+        poses = [PoseFile(b_deg=b, c_deg=c) for b in _grid(pf.grid.b) for c in _grid(pf.grid.c)]
+    else:
+        poses = [p if isinstance(p, PoseFile) else PoseFile(b_deg=p[0], c_deg=p[1])
+                 for p in pf.poses or []]
+    if not poses:
+        raise ConfigError(f"{path}: poses: the plan has no pose")
+    return Plan(name=pf.name, stylus_diameter_mm=pf.stylus_diameter_mm, poses=poses,
+                feeds=pf.feeds, standoff_mm=pf.standoff_mm, overtravel_mm=pf.overtravel_mm,
+                clearance_mm=pf.clearance_mm, dwell_s=pf.dwell_s, repeats=pf.repeats)
+
+
+def load_plan(path: Path | str) -> Plan:
+    return plan_from_dict(_read_yaml(Path(path)), path)

@@ -1,0 +1,1 @@
+"""rumba-cnc drivers package."""
