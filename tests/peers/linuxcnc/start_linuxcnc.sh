@@ -4,7 +4,7 @@
 # GUI parts (vismach, pyvcp, ngcgui, hal_manualtoolchange) removed.
 #
 #   start_linuxcnc.sh [--kins xyzbc|xyzac] [--port N] [--dir DIR] [--probe-comp FILE.py]
-#                     [--timeout S]
+#                     [--halcmd "HAL COMMAND"]... [--timeout S]
 #       Starts it in the background and prints shell-style lines on stdout:
 #         LCNC_DIR=… LCNC_PORT=… LCNC_PID=… LCNC_INI=… LCNC_LOG=…
 #       Exit 0 once linuxcncrsh accepts connections, non-zero (log tail on stderr) otherwise.
@@ -15,6 +15,8 @@
 # --probe-comp FILE.py: a userspace HAL component (Python, `import hal`) loaded with
 #   `loadusr -Wn rumba-probe /usr/bin/python3 FILE.py` whose bit pin `rumba-probe.out`
 #   is netted to motion.probe-input. The component must call hal.component("rumba-probe").
+# --halcmd "…": an extra [HAL]HALCMD line (repeatable), e.g.
+#   --halcmd "net probe-z joint.2.pos-fb => rumba-probe.z"
 #
 # See ../PEERS_FINDINGS.md for the protocol, pitfalls and the kinematics formulas.
 set -euo pipefail
@@ -39,7 +41,8 @@ EOF
 }
 
 stop_instance() {
-  local dir=$1 pid pgid i
+  local dir=$1 pid pgid i fifo
+  fifo=$(cat "$dir/fifo.path" 2>/dev/null || echo "$dir/fifo")
   [[ -f $dir/linuxcnc.pid ]] || die "no $dir/linuxcnc.pid"
   pid=$(cat "$dir/linuxcnc.pid")
   pgid=$(cat "$dir/linuxcnc.pgid" 2>/dev/null || echo "$pid")
@@ -56,7 +59,7 @@ stop_instance() {
   # RTAPI_FIFO_PATH of this instance in their environment.
   local left=() p
   for p in /proc/[0-9]*; do
-    if grep -qsz "^RTAPI_FIFO_PATH=$dir/fifo/" "$p/environ" 2>/dev/null; then left+=("${p#/proc/}"); fi
+    if grep -qsz "^RTAPI_FIFO_PATH=$fifo/" "$p/environ" 2>/dev/null; then left+=("${p#/proc/}"); fi
   done
   if kill -0 -- "-$pgid" 2>/dev/null || ((${#left[@]})); then
     kill -TERM -- "-$pgid" 2>/dev/null || true
@@ -65,10 +68,11 @@ stop_instance() {
     kill -KILL -- "-$pgid" 2>/dev/null || true
     ((${#left[@]})) && kill -KILL "${left[@]}" 2>/dev/null || true
   fi
+  if [[ $fifo == /tmp/rumba-rtapi.* ]]; then rm -rf -- "$fifo"; fi
   if [[ -f $dir/.created-by-start-linuxcnc ]]; then rm -rf -- "$dir"; fi
 }
 
-KINS=xyzbc PORT="" DIR="" PROBE_COMP="" TIMEOUT=60
+KINS=xyzbc PORT="" DIR="" PROBE_COMP="" TIMEOUT=60 HALCMDS=()
 while (($#)); do
   case $1 in
     --kins) KINS=$2; shift 2 ;;
@@ -76,6 +80,7 @@ while (($#)); do
     --dir) DIR=$2; shift 2 ;;
     --probe-comp) PROBE_COMP=$(readlink -f "$2"); shift 2 ;;
     --timeout) TIMEOUT=$2; shift 2 ;;
+    --halcmd) HALCMDS+=("$2"); shift 2 ;;
     --stop) stop_instance "$2"; exit 0 ;;
     -h|--help) sed -n '2,22p' "$0"; exit 0 ;;
     *) die "unknown argument: $1" ;;
@@ -104,28 +109,38 @@ mkdir -p "$DIR"
 DIR=$(readlink -f "$DIR")
 [[ -n $PORT ]] || PORT=$(free_port)
 
-mkdir -p "$DIR/home" "$DIR/fifo" "$DIR/nc_files"
-chmod 1777 "$DIR/fifo"
-chmod 755 "$DIR"   # rtapi_app may drop to RTAPI_UID: it must reach the fifo dir
+mkdir -p "$DIR/home" "$DIR/nc_files"
+# As root, rtapi_app drops to RTAPI_UID (65534) and binds its fifo socket there: the folder must
+# be writable by that uid and every parent traversable, which a mktemp -d (0700) folder is not.
+# So the fifo folder is its own 1777 folder directly under /tmp.
+FIFO_DIR=$(mktemp -d /tmp/rumba-rtapi.XXXXXX)
+chmod 1777 "$FIFO_DIR"
+echo "$FIFO_DIR" >"$DIR/fifo.path"
 rm -rf "$DIR/config"
 cp -r "$SAMPLE" "$DIR/config"
 chmod -R u+w "$DIR/config"
 INI=$DIR/config/$KINS-trt.ini
 
 # Rewrite the INI: no GUI, linuxcncrsh on PORT, no pyvcp/ngcgui/vismach, no manual tool change.
-/usr/bin/python3 - "$INI" "$PORT" "$KINS" "$DIR/nc_files" "$PROBE_COMP" <<'EOF'
+/usr/bin/python3 - "$INI" "$PORT" "$KINS" "$DIR/nc_files" "$PROBE_COMP" "${HALCMDS[@]}" <<'EOF'
 import re, sys
 ini, port, kins, ncdir, probe = sys.argv[1:6]
+extra = sys.argv[6:]
+added = []
+if probe:
+    added.append(f"HALCMD = loadusr -Wn rumba-probe /usr/bin/python3 {probe}\n")
+    added.append("HALCMD = net rumba-probe-trip rumba-probe.out => motion.probe-input\n")
+added += [f"HALCMD = {c}\n" for c in extra]
 out, section = [], None
-for line in open(ini):
-    s = line.strip()
+for line in [*open(ini), None]:
+    s = line.strip() if line is not None else "[END]"
     m = re.match(r"\[(\w+)\]", s)
     if m:
+        if section == "HAL":  # extra HAL commands go last in [HAL]
+            out.extend(["# added by start_linuxcnc.sh\n", *added, "\n"])
         section = m.group(1)
-        out.append(line)
-        if section == "HAL" and probe:
-            out.append(f"HALCMD = loadusr -Wn rumba-probe /usr/bin/python3 {probe}\n")
-            out.append("HALCMD = net rumba-probe-trip rumba-probe.out => motion.probe-input\n")
+        if line is not None:
+            out.append(line)
         continue
     key = s.split("=", 1)[0].strip() if "=" in s and not s.startswith("#") else None
     if section == "DISPLAY":
@@ -144,6 +159,8 @@ for line in open(ini):
         elif key == "HALCMD" and f"{kins}-trt-gui" in s:
             if "loadusr" in s:
                 line = "#" + line
+            elif re.search(r"\bjoint\.\d+\.pos-fb\b", s):
+                line = "#" + line  # vismach feeders only: leave joint.N.pos-fb free
             else:  # keep the kins pins, drop the vismach ones
                 line = re.sub(rf"\s+{kins}-trt-gui\.\S+", "", line)
     elif section == "APPLICATIONS" and key == "APP":
@@ -156,7 +173,7 @@ LOG=$DIR/linuxcnc.log
 (
   cd "$DIR/config"
   unset DISPLAY WAYLAND_DISPLAY XAUTHORITY
-  export HOME=$DIR/home RTAPI_FIFO_PATH=$DIR/fifo/rtapi_fifo
+  export HOME=$DIR/home RTAPI_FIFO_PATH=$FIFO_DIR/rtapi_fifo
   [[ $(id -u) == 0 ]] && export RTAPI_UID=65534
   # /usr/bin first: LinuxCNC's python modules are built for Debian's python3 only.
   export PATH=/usr/bin:/bin:/usr/sbin:/sbin:$PATH
@@ -172,7 +189,7 @@ deadline=$((SECONDS + TIMEOUT))
 until /usr/bin/python3 -c "import socket,sys; socket.create_connection(('127.0.0.1',$PORT),0.5).close()" 2>/dev/null; do
   if ! kill -0 "$PID" 2>/dev/null || ((SECONDS >= deadline)); then
     echo "start_linuxcnc.sh: linuxcncrsh did not come up on 127.0.0.1:$PORT; log tail:" >&2
-    tail -n 40 "$LOG" >&2 || true
+    grep -v 'Running with fallback_uid' "$LOG" | tail -n 40 >&2 || true
     stop_instance "$DIR" || true
     exit 1
   fi
