@@ -23,7 +23,8 @@ class UserError(Exception):
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
-        prog="rumba", description="Five-axis machine verification with an uncalibrated ball artefact"
+        prog="rumba",
+        description="Five-axis machine verification with an uncalibrated ball artefact",
     )
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for info in sorted(pkgutil.iter_modules(daemon.commands.__path__), key=lambda i: i.name):

@@ -10,6 +10,7 @@ simulator and the gap diagnosis, act just after the motion. All lengths in mm, a
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 
@@ -163,13 +164,23 @@ def _small_htm(e: np.ndarray) -> np.ndarray:
     return m
 
 
+@functools.lru_cache(maxsize=64)
+def _location_slots(axis: Axis) -> tuple[tuple[str, int], ...]:
+    """(ISO name, slot in [ex, ey, ez, ea, eb, ec]) of the axis' location errors (cached: this
+    runs for every axis of every chain evaluation)."""
+    out = []
+    for name in axis.location_error_names():
+        c = name[1]  # EX0C → translation along x; EA0C → rotation about x
+        out.append((name, _TRANS_NAMES.index(c) if c in _TRANS_NAMES else 3 + _ROT_NAMES.index(c)))
+    return tuple(out)
+
+
 def _location_htm(axis: Axis, links: Mapping[str, float], n: int) -> np.ndarray | None:
     e = np.zeros(6)
-    for name in axis.location_error_names():
+    for name, slot in _location_slots(axis):
         v = links.get(name, 0.0)
         if v:
-            c = name[1]  # EX0C → translation along x; EA0C → rotation about x
-            e[_TRANS_NAMES.index(c) if c in _TRANS_NAMES else 3 + _ROT_NAMES.index(c)] = v
+            e[slot] = v
     if not e.any():
         return None
     return _small_htm(np.broadcast_to(e, (n, 6)))

@@ -14,15 +14,16 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from identification.kinematics import (
+    Axis,
     ChainState,
     Machine,
     MotionErrorFn,
+    axis_htm,
+    frames,
     rotary_columns,
     tip_minus_ball,
     to_model,
 )
-
-_FD_STEP = 1e-6  # central-difference step for link columns (rad or mm)
 
 
 @dataclass(frozen=True)
@@ -146,15 +147,20 @@ def predict(
     balls_w = artefact.nominal_mm[centres.ball] + dballs[centres.ball]
     rot_model = to_model(machine, rotary_columns(machine, centres.b_deg, centres.c_deg))
     q = centres.xyz_mm.copy()  # the measurement is an excellent first guess
+    jq = None
+    g0 = _g(machine, rot_model, balls_w, q, state)
     for _ in range(20):
-        g0 = _g(machine, rot_model, balls_w, q, state)
-        jq = np.empty((len(centres), 3, 3))
-        for k in range(3):
-            dq = q.copy()
-            dq[:, k] += 1.0  # g is affine in the linear joints: a unit step is exact
-            jq[:, :, k] = _g(machine, rot_model, balls_w, dq, state) - g0
+        if jq is None or state.motion_errors:
+            # Without motion errors g is affine in the linear joints: dg/dq is constant and a
+            # unit step gives it exactly, so it is built once (chord = Newton here).
+            jq = np.empty((len(centres), 3, 3))
+            for k in range(3):
+                dq = q.copy()
+                dq[:, k] += 1.0
+                jq[:, :, k] = _g(machine, rot_model, balls_w, dq, state) - g0
         step = np.linalg.solve(jq, -g0[..., None])[..., 0]
         q += step
+        g0 = _g(machine, rot_model, balls_w, q, state)
         if np.max(np.abs(step)) < 1e-11:
             break
     if not jacobian:
@@ -163,23 +169,17 @@ def predict(
     # dg/dp at the solution, then dq/dp = -(dg/dq)^-1 dg/dp.
     k_obs = len(centres)
     dg = np.zeros((k_obs, 3, layout.size))
-    for j, name in enumerate(layout.links):
-        for sgn in (1.0, -1.0):
-            st = ChainState({**links, name: links[name] + sgn * _FD_STEP}, dtip, scale,
-                            state.motion_errors)
-            dg[:, :, j] += sgn * _g(machine, rot_model, balls_w, q, st)
-        dg[:, :, j] /= 2 * _FD_STEP
-    # Setup columns are exact: a ball offset moves the ball with F_T_W, the tip offset with F_T_T.
+    qm = {**to_model(machine, {k: q[:, i] for i, k in enumerate("XYZ")}, state.linear_scale),
+          **rot_model}
+    if layout.links:
+        dg[:, :, : len(layout.links)] = _link_columns(machine, qm, state, balls_w, layout.links)
+    # Setup columns are exact: g = F_T_T·tip − F_T_W·ball is linear in both offsets, so a ball
+    # offset enters as −R_W and a tip offset as +R_T (rotation parts at the solution).
+    f_w, f_t = frames(machine, qm, state)
+    rows = np.arange(k_obs)
     for a in range(3):
-        e = np.zeros(3)
-        e[a] = 1.0
-        d_ball = (_g(machine, rot_model, balls_w + e, q, state)
-                  - _g(machine, rot_model, balls_w, q, state))
-        cols = layout.ball_slice.start + 3 * centres.ball + a
-        dg[np.arange(k_obs), :, cols] = d_ball
-        st = ChainState(links, dtip + e, scale, state.motion_errors)
-        dg[:, :, layout.tip_slice.start + a] = _g(machine, rot_model, balls_w, q, st) - \
-            _g(machine, rot_model, balls_w, q, state)
+        dg[rows, :, layout.ball_slice.start + 3 * centres.ball + a] = -f_w[:, :3, a]
+        dg[:, :, layout.tip_slice.start + a] = f_t[:, :3, a]
     if layout.scale:
         h = 1e-6
         st_p = ChainState(links, dtip, scale + h, state.motion_errors)
@@ -188,3 +188,79 @@ def predict(
                         - _g(machine, rot_model, balls_w, q, st_m)) / (2 * h)
     dq = -np.linalg.solve(jq, dg)
     return q, dq
+
+
+_GEN = np.zeros((3, 4, 4))  # generators of the rotations about x, y, z (4×4 skew parts)
+_GEN[0, 2, 1], _GEN[0, 1, 2] = 1.0, -1.0
+_GEN[1, 0, 2], _GEN[1, 2, 0] = 1.0, -1.0
+_GEN[2, 1, 0], _GEN[2, 0, 1] = 1.0, -1.0
+
+
+def _rot1(index: int, angle: float) -> np.ndarray:
+    c, s = np.cos(angle), np.sin(angle)
+    m = np.eye(4)
+    i, j = [(1, 2), (2, 0), (0, 1)][index]
+    m[i, i] = m[j, j] = c
+    m[i, j], m[j, i] = -s, s
+    return m
+
+
+def _location_derivatives(axis: Axis, links: Mapping[str, float]) -> dict[str, np.ndarray]:
+    """Exact d(L)/d(e) of the location HTM L = Trans(t)·Rot_x(a)·Rot_y(b)·Rot_z(c) of ``axis``
+    at the current link values, per ISO name (4×4, the same for every centre)."""
+    e = np.zeros(6)
+    slot = {}
+    for name in axis.location_error_names():
+        c = name[1]
+        slot[name] = "XYZ".index(c) if c in "XYZ" else 3 + "ABC".index(c)
+        e[slot[name]] = links.get(name, 0.0)
+    t = np.eye(4)
+    t[:3, 3] = e[:3]
+    r = [_rot1(k, e[3 + k]) for k in range(3)]
+    out = {}
+    for name, k in slot.items():
+        if k < 3:
+            d = np.zeros((4, 4))
+            d[k, 3] = 1.0  # d(T·R)/dt_k = E_k3 · R = E_k3
+        else:
+            f = [r[0], r[1], r[2]]
+            f[k - 3] = f[k - 3] @ _GEN[k - 3]  # d Rot_k / d angle = Rot_k · K_k
+            d = t @ f[0] @ f[1] @ f[2]
+        out[name] = d
+    return out
+
+
+def _link_columns(machine: Machine, q_model: Mapping[str, np.ndarray], state: ChainState,
+                  balls_w: np.ndarray, names: Sequence[str]) -> np.ndarray:
+    """dg/d(link) (K, 3, L) analytically: an error of axis k enters its chain as
+    P_k · dL_k · R_k · S_k · point (P: the axes before k, R_k: axis k without its location
+    error, S: the axes after k), with a minus sign on the workpiece branch (g = tip − ball)."""
+    k_obs = balls_w.shape[0]
+    out = np.zeros((k_obs, 3, len(names)))
+    col = {n: i for i, n in enumerate(names)}
+    tip = np.broadcast_to(np.asarray(machine.tool_tip_mm, float) + state.tip_offset_mm,
+                          (k_obs, 3))
+    for chain, point, sign in ((machine.workpiece_chain, balls_w, -1.0),
+                               (machine.tool_chain, tip, 1.0)):
+        wanted = [a for a in chain
+                  if any(n in col for n in machine.axes[a].location_error_names())]
+        if not wanted:
+            continue
+        full = [axis_htm(machine.axes[a], np.asarray(q_model[a], float), state.links,
+                         state.motion_errors.get(a)) for a in chain]
+        # suffix[k] = A_k ⋯ A_n · point (homogeneous), prefix[k] = A_1 ⋯ A_{k-1}
+        v = np.concatenate([point, np.ones((k_obs, 1))], axis=1)[..., None]
+        suffix = [v] * (len(chain) + 1)
+        for k in range(len(chain) - 1, -1, -1):
+            suffix[k] = full[k] @ suffix[k + 1]
+        prefix = np.broadcast_to(np.eye(4), (k_obs, 4, 4))
+        for k, a in enumerate(chain):
+            if a in wanted:
+                bare = axis_htm(machine.axes[a], np.asarray(q_model[a], float), None,
+                                state.motion_errors.get(a))
+                tail = bare @ suffix[k + 1]
+                for name, d in _location_derivatives(machine.axes[a], state.links).items():
+                    if name in col:
+                        out[:, :, col[name]] = sign * (prefix @ (d @ tail))[:, :3, 0]
+            prefix = prefix @ full[k]
+    return out

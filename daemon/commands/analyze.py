@@ -1,0 +1,296 @@
+"""`rumba analyze`: identify setup + link errors from a probing log, print a summary, write JSON."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import warnings
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from rich.console import Console
+from rich.table import Table
+
+from daemon.config import load_artefact, load_machine
+from daemon.probelog import ProbeLogError, read_log, rows_to_centres
+from identification.analyses import clusters, distance_analysis, validate, volumetric
+from identification.estimate import RankDeficientError, estimate
+from identification.model import predict
+
+DEFAULT_STYLUS_DIAMETER_MM = 6.0  # the shipped plans' stylus; used for the radius health figure
+
+_THESIS = {  # thesis Table B.2 / Fig B.2 names of the WCBXFZYT link errors
+    "EB0Z": "βZ squareness ZX", "EA0Y": "αY squareness YZ", "EC0Y": "γY squareness YX",
+    "EA0B": "αB orientation BZ", "EC0B": "γB orientation BX", "EX0C": "δxC offset CB",
+    "EA0C": "αC orientation CB", "EB0C": "βC orientation CX",
+}
+_GREEK = {"A": "α", "B": "β", "C": "γ"}
+
+
+def thesis_name(iso: str) -> str:
+    """Thesis-style name of an ISO 230-1 location error (Table B.2 where it has one)."""
+    if iso in _THESIS:
+        return _THESIS[iso]
+    err, axis = iso[1], iso[3]
+    if err in "XYZ":
+        return f"δ{err.lower()}{axis} offset of {axis}"
+    return f"{_GREEK[err]}{axis} {'squareness' if axis in 'XYZ' else 'orientation'} of {axis}"
+
+
+def _user_error(msg: str) -> Exception:
+    from daemon.cli import UserError  # late import: cli imports every command module
+
+    return UserError(msg)
+
+
+def parse_links(text: str, candidates: Sequence[str]) -> tuple[str, ...] | None:
+    """``all`` → None (the identifiable set), ``none`` → (), else a comma list of ISO names."""
+    t = text.strip()
+    if t.lower() == "all":
+        return None
+    if t.lower() == "none":
+        return ()
+    names = tuple(n.strip().upper() for n in t.split(",") if n.strip())
+    bad = [n for n in names if n not in candidates]
+    if bad or not names:
+        raise _user_error(f"--links: unknown link error(s) {bad or [text]}; this machine has "
+                          f"{', '.join(candidates)} (or 'all' / 'none')")
+    return names
+
+
+def parse_poses(text: str | None) -> list[int]:
+    if not text:
+        return []
+    try:
+        return sorted({int(x) for x in text.split(",") if x.strip()})
+    except ValueError:
+        raise _user_error(f"--validate-poses: expected a comma list of pose numbers as in the "
+                          f"log's pose column, got {text!r}") from None
+
+
+def parse_repeatability(text: str | None) -> list[float] | None:
+    if not text:
+        return None
+    try:
+        v = [float(x) for x in text.split(",")]
+    except ValueError:
+        v = []
+    if len(v) not in (1, 3) or not all(np.isfinite(x) and x > 0 for x in v):
+        raise _user_error(f"--repeatability-um: expected one or three positive numbers "
+                          f"(x,y,z centre std in µm), got {text!r}")
+    return v * 3 if len(v) == 1 else v
+
+
+def _v(a: Any) -> list[float]:
+    return [round(float(x), 6) for x in np.asarray(a).ravel()]
+
+
+def run_analysis(log: Path | str, machine_path: Path | str, artefact_path: Path | str,
+                 validate_poses: Sequence[int] = (), links: str = "all",
+                 fixed_radius: bool = False,
+                 stylus_diameter_mm: float = DEFAULT_STYLUS_DIAMETER_MM,
+                 repeatability_um: Sequence[float] | None = None) -> dict[str, Any]:
+    """The whole analysis as a JSON-ready dict (keys of issue 2, plus a few more)."""
+    machine, _ = load_machine(machine_path)
+    artefact = load_artefact(artefact_path)
+    chosen = parse_links(links, machine.location_error_names())
+    try:
+        rows = read_log(log, artefact)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # returned in data.warnings and reported below
+            data = rows_to_centres(rows, artefact, stylus_diameter_mm / 2, fixed_radius,
+                                   source=str(log))
+    except ProbeLogError as e:
+        raise _user_error(str(e)) from None
+    c = data.centres
+    poses = sorted(int(x) for x in np.unique(c.pose))
+    missing = sorted(set(validate_poses) - set(poses))
+    if missing:
+        raise _user_error(f"--validate-poses: poses {missing} are not in {log} (poses {poses})")
+    held = np.isin(c.pose, list(validate_poses))
+    if held.all():
+        raise _user_error("--validate-poses: every pose is held out; nothing left to estimate")
+    est_c = c.subset(~held)
+    try:
+        est = estimate(machine, artefact, est_c, chosen, sigma_um=repeatability_um)
+    except RankDeficientError as e:
+        raise _user_error(f"{log}: {e}") from None
+    ids = artefact.ids
+    vol = volumetric(machine, artefact, est, c)
+    pred_setup, _ = predict(machine, artefact, est.layout, est.setup_only(), c)
+    group = c.pose * 1000 + data.repeat
+    cl = clusters(c, pred_setup, vol.before_um, ids, group)
+    rep_of_group = {int(g): int(r) for g, r in zip(group, data.repeat, strict=True)}
+    dist = distance_analysis(c, ids, group)
+    balls_v, balls_s = est.balls_um
+    probe_v, probe_s = est.probe_um
+    out: dict[str, Any] = {
+        "log": str(log), "machine": machine.name, "artefact": artefact.name,
+        "links": {k: {"value": round(v, 4), "std": round(s, 4), "unit": u,
+                      "thesis_name": thesis_name(k)} for k, (v, s, u) in est.links_si().items()},
+        "setup": {"probe": {"value": _v(probe_v), "std": _v(probe_s)},
+                  "balls": {b: {"value": _v(balls_v[i]), "std": _v(balls_s[i])}
+                            for i, b in enumerate(ids)}},
+        "residual_rms_um": round(est.residual_rms_um, 4),
+        "condition_number": round(est.condition_number, 3),
+        "unobservable": list(est.unobservable),
+        "unobservable_absorbed_by": dict(est.absorbed_by),
+        "estimation": {"status": est.status, "iterations": est.iterations,
+                       "centres": len(est_c), "sigma_um": _v(est.sigma_um),
+                       "sigma_from": "given" if est.sigma_given else "residuals",
+                       "fixed_radius": fixed_radius},
+        "volumetric": [
+            {"pose": int(c.pose[k]), "repeat": int(data.repeat[k]), "b_deg": float(c.b_deg[k]),
+             "c_deg": float(c.c_deg[k]), "ball": ids[c.ball[k]],
+             "role": "validate" if held[k] else "estimate",
+             "error_um": _v(vol.before_um[k]), "error_after_links_um": _v(vol.after_um[k])}
+            for k in range(len(c))],
+        "volumetric_max_um": {"before_links": round(vol.max_before_um, 4),
+                              "after_links": round(vol.max_after_um, 4)},
+        "cluster": [
+            {"pose": x.pose, "repeat": rep_of_group[int(g)],
+             "linear_um": None if x.linear_um is None else _v(x.linear_um),
+             "angular_urad": None if x.angular_urad is None else _v(x.angular_urad),
+             "local_um": {b: _v(v) for b, v in x.local_um.items()}, "note": x.note}
+            for x, g in zip(cl, np.unique(group), strict=True)],
+        "distances": [{"pose": d.pose, "balls": [d.ball_a, d.ball_b],
+                       "distance_mm": round(d.distance_mm, 7),
+                       "deviation_um": round(d.deviation_um, 4)} for d in dist],
+        "health": [{"pose": h.pose, "repeat": h.repeat, "ball": h.ball,
+                    "radius_dev_um": round(h.radius_dev_um, 4),
+                    "form_rms_um": round(h.form_rms_um, 4)} for h in data.health],
+        "warnings": list(data.warnings) + list(est.warnings),
+        "conventions": {
+            "volumetric": "measured − predicted centre, controller X Y Z, µm (thesis Eq. 3.22)",
+            "cluster": "rigid motion predicted → measured: ε ≈ linear + angular × P (P: "
+                       "predicted centre, mm, controller origin); the thesis' D, R of Eq. 4.4 "
+                       "are the negatives; local = ε − rigid part",
+            "setup": "ball offsets in the last workpiece frame, probe offset in the last tool "
+                     "frame, µm",
+        },
+    }
+    sc = est.scale_um_per_m
+    if sc is not None:
+        out["scale_um_per_m"] = {"value": round(sc[0], 4), "std": round(sc[1], 4)}
+    if held.any():
+        val = validate(machine, artefact, est, c.subset(held))
+        out["validation"] = {
+            "poses": val.poses, "rms_before_um": round(val.rms_before_um, 4),
+            "rms_after_um": round(val.rms_after_um, 4),
+            "max_before_um": round(val.max_before_um, 4),
+            "max_after_um": round(val.max_after_um, 4),
+            "explained_fraction": round(val.explained_fraction, 4),
+            "explained_fraction_rms": round(val.explained_fraction_rms, 4)}
+    return out
+
+
+def _norm(v: list[float] | None) -> str:
+    return "—" if v is None else f"{np.linalg.norm(v):.2f}"
+
+
+def render(r: dict[str, Any], console: Console) -> None:
+    """The readable summary (rich tables, units everywhere)."""
+    e = r["estimation"]
+    console.print(f"[bold]RUMBA analysis[/] of {r['log']} — machine {r['machine']}, artefact "
+                  f"{r['artefact']}: {e['centres']} centres, {e['status']} in "
+                  f"{e['iterations']} iterations")
+    t = Table(title="Link errors (ISO 230-1)")
+    for h in ("ISO", "thesis", "value", "± std", "unit"):
+        t.add_column(h, justify="right" if h in ("value", "± std") else "left")
+    for k, v in r["links"].items():
+        t.add_row(k, v["thesis_name"], f"{v['value']:.2f}", f"{v['std']:.2f}",
+                  "µrad" if v["unit"] == "urad" else "µm")
+    if r["links"]:
+        console.print(t)
+    else:
+        console.print("Link errors: none estimated (setup errors only, thesis ch. 3)")
+    t = Table(title="Setup errors (µm)")
+    for h in ("", "dx", "dy", "dz", "± std x", "± std y", "± std z"):
+        t.add_column(h, justify="right")
+    rows = [("probe", r["setup"]["probe"]), *r["setup"]["balls"].items()]
+    for name, s in rows:
+        t.add_row(name, *(f"{x:.2f}" for x in s["value"]), *(f"{x:.2f}" for x in s["std"]))
+    console.print(t)
+    t = Table(title="Fit")
+    t.add_column("figure")
+    t.add_column("value", justify="right")
+    t.add_row("residual RMS", f"{r['residual_rms_um']:.3f} µm")
+    t.add_row("centre std used", " / ".join(f"{x:.3f}" for x in e["sigma_um"])
+              + f" µm ({e['sigma_from']})")
+    t.add_row("condition number (normalised)", f"{r['condition_number']:.1f}")
+    if "scale_um_per_m" in r:
+        s = r["scale_um_per_m"]
+        t.add_row("isotropic scale", f"{s['value']:.2f} ± {s['std']:.2f} µm/m")
+    vm = r["volumetric_max_um"]
+    t.add_row("max volumetric distortion, setup only", f"{vm['before_links']:.2f} µm")
+    t.add_row("max volumetric distortion, with links", f"{vm['after_links']:.2f} µm")
+    h = r["health"]
+    t.add_row("max |radius deviation|", f"{max(abs(x['radius_dev_um']) for x in h):.2f} µm")
+    t.add_row("max form residual RMS", f"{max(x['form_rms_um'] for x in h):.2f} µm")
+    console.print(t)
+    t = Table(title="Not observable")
+    t.add_column("direction")
+    t.add_column("absorbed by")
+    for u in r["unobservable"]:
+        t.add_row(u, r["unobservable_absorbed_by"].get(u, ""))
+    console.print(t)
+    t = Table(title="Cluster analysis per pose (setup-only prediction)")
+    for hd in ("pose", "b°", "c°", "|relocalisation| µm", "|rotation| µrad", "max local µm"):
+        t.add_column(hd, justify="right")
+    bc = {(v["pose"], v["repeat"]): (v["b_deg"], v["c_deg"]) for v in r["volumetric"]}
+    for x in r["cluster"]:
+        b, c = bc[(x["pose"], x["repeat"])]
+        loc = max(np.linalg.norm(v) for v in x["local_um"].values())
+        pose = str(x["pose"]) + (f" r{x['repeat']}" if x["repeat"] else "")
+        t.add_row(pose, f"{b:g}", f"{c:g}", _norm(x["linear_um"]), _norm(x["angular_urad"]),
+                  f"{loc:.2f}")
+    console.print(t)
+    if "validation" in r:
+        v = r["validation"]
+        console.print(
+            f"[bold]Validation[/] on poses {v['poses']}: max |ε| {v['max_before_um']:.2f} → "
+            f"{v['max_after_um']:.2f} µm, RMS {v['rms_before_um']:.2f} → "
+            f"{v['rms_after_um']:.2f} µm; link errors explain "
+            f"{100 * v['explained_fraction']:.1f} % (max) / "
+            f"{100 * v['explained_fraction_rms']:.1f} % (RMS)")
+    for w in r["warnings"]:
+        console.print(f"[yellow]warning:[/] {w}")
+
+
+def _cmd(args: argparse.Namespace) -> int:
+    result = run_analysis(args.log, args.machine, args.artefact,
+                          parse_poses(args.validate_poses), args.links, args.fixed_radius,
+                          args.stylus_diameter, parse_repeatability(args.repeatability_um))
+    render(result, Console())
+    if args.json:
+        try:
+            Path(args.json).write_text(json.dumps(result, indent=1, ensure_ascii=False) + "\n",
+                                       encoding="utf-8")
+        except OSError as e:
+            raise _user_error(f"--json {args.json}: cannot write: {e.strerror}") from None
+    return 0
+
+
+def register(subparsers: Any) -> None:
+    p = subparsers.add_parser("analyze", help="identify setup and link errors from a probing log",
+                              description=__doc__)
+    p.add_argument("--log", required=True, help="probing-log CSV (rumba-probing-log v1)")
+    p.add_argument("--machine", required=True, help="machine YAML")
+    p.add_argument("--artefact", required=True, help="artefact YAML")
+    p.add_argument("--validate-poses", default=None, metavar="LIST",
+                   help="comma list of pose numbers (log's pose column) held out for validation")
+    p.add_argument("--links", default="all", metavar="all|none|LIST",
+                   help="link errors to estimate: the identifiable set (all), none (setup only) "
+                        "or a comma list of ISO names")
+    p.add_argument("--fixed-radius", action="store_true",
+                   help="fit spheres with radius = ball + stylus radius (default: free radius)")
+    p.add_argument("--stylus-diameter", type=float, default=DEFAULT_STYLUS_DIAMETER_MM,
+                   metavar="MM", help="stylus diameter for the radius health figure and "
+                   f"--fixed-radius (default {DEFAULT_STYLUS_DIAMETER_MM})")
+    p.add_argument("--repeatability-um", default=None, metavar="S|SX,SY,SZ",
+                   help="probing repeatability of a centre (µm) for the uncertainties, e.g. "
+                        "0.66,0.98,0.44 (thesis §3.4); default: from the residuals")
+    p.add_argument("--json", default=None, metavar="OUT.json", help="write the results as JSON")
+    p.set_defaults(func=_cmd)

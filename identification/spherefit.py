@@ -1,0 +1,89 @@
+"""Batched sphere-centre fit of the five stylus-centre points per (pose, ball) (METHOD.md §1).
+
+The touches latch the stylus-centre position, so the points lie on a sphere of radius
+ball radius + stylus radius around the ball centre. Free radius (default): an algebraic
+(Kåsa) solve gives the start, then Gauss-Newton on the geometric distances |p - c| - R;
+fixed radius: Gauss-Newton on the centre only. Everything is vectorised over the groups.
+Health figures per group (thesis §3.4: a damaged or dirty ball shows up here first):
+radius deviation = fitted − nominal radius (µm) and form residual RMS (µm).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+_GN_ITER = 10
+_GN_TOL_MM = 1e-12
+
+
+class SphereFitError(ValueError):
+    """The points of a group cannot define a sphere (too few or degenerate)."""
+
+
+@dataclass(frozen=True)
+class SphereFit:
+    """Per-group results, all arrays of length G (groups)."""
+
+    centre_mm: np.ndarray  # (G, 3)
+    radius_mm: np.ndarray  # (G,) fitted (= nominal in fixed-radius mode)
+    radius_dev_um: np.ndarray  # (G,) fitted − nominal (0 in fixed-radius mode)
+    form_rms_um: np.ndarray  # (G,) RMS of the geometric residuals |p - c| - R
+
+
+def _algebraic(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """|p|² = 2 c·p + (R² − |c|²): linear in (c, k); solved per group by normal equations."""
+    a = np.concatenate([2.0 * points, np.ones((*points.shape[:2], 1))], axis=2)  # (G, n, 4)
+    rhs = np.sum(points**2, axis=2)
+    ata = a.transpose(0, 2, 1) @ a
+    atb = (a.transpose(0, 2, 1) @ rhs[..., None])[..., 0]
+    cond = np.linalg.cond(ata)
+    if np.any(~np.isfinite(cond) | (cond > 1e14)):
+        bad = np.flatnonzero(~np.isfinite(cond) | (cond > 1e14))
+        raise SphereFitError(f"degenerate point sets (coplanar/collinear) in groups {bad[:10]}")
+    sol = np.linalg.solve(ata, atb[..., None])[..., 0]
+    c = sol[:, :3]
+    r = np.sqrt(np.maximum(sol[:, 3] + np.sum(c**2, axis=1), 0.0))
+    return c, r
+
+
+def fit_spheres(points_mm: np.ndarray, nominal_radius_mm: np.ndarray | float,
+                fixed_radius: bool = False) -> SphereFit:
+    """Fit one sphere per group. ``points_mm`` (G, n, 3) with n ≥ 4 (free) or n ≥ 3 (fixed);
+    ``nominal_radius_mm`` scalar or (G,) = ball radius + stylus radius."""
+    pts = np.asarray(points_mm, float)
+    if pts.ndim != 3 or pts.shape[2] != 3:
+        raise SphereFitError(f"points must be (groups, n, 3), got {pts.shape}")
+    g, n, _ = pts.shape
+    need = 3 if fixed_radius else 4
+    if n < need:
+        raise SphereFitError(f"{n} points per group; a {'fixed' if fixed_radius else 'free'}"
+                             f"-radius sphere needs at least {need}")
+    r_nom = np.broadcast_to(np.asarray(nominal_radius_mm, float), (g,)).copy()
+    # Work relative to the group mean: better conditioned normal equations.
+    mean = pts.mean(axis=1, keepdims=True)
+    p = pts - mean
+    if fixed_radius and n < 4:
+        c = np.zeros((g, 3))
+    else:
+        c, _ = _algebraic(p)
+    r = r_nom.copy()
+    for _ in range(_GN_ITER):
+        diff = p - c[:, None, :]
+        dist = np.linalg.norm(diff, axis=2)
+        u = diff / np.where(dist > 0, dist, 1.0)[..., None]  # d(dist)/dc = -u
+        res = dist - r[:, None]
+        # (G, n, 3) fixed radius, (G, n, 4) free radius
+        jac = -u if fixed_radius else np.concatenate([-u, -np.ones((g, n, 1))], axis=2)
+        jtj = jac.transpose(0, 2, 1) @ jac
+        jtr = (jac.transpose(0, 2, 1) @ res[..., None])[..., 0]
+        step = -np.linalg.solve(jtj, jtr[..., None])[..., 0]
+        c = c + step[:, :3]
+        if not fixed_radius:
+            r = r + step[:, 3]
+        if np.max(np.abs(step)) < _GN_TOL_MM:
+            break
+    res = np.linalg.norm(p - c[:, None, :], axis=2) - r[:, None]
+    form = np.sqrt(np.mean(res**2, axis=1)) * 1e3
+    return SphereFit(c + mean[:, 0, :], r, (r - r_nom) * 1e3, form)
