@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test lint bench golden peers ci-peers clean
+.PHONY: demo test test-linuxcnc lint bench golden peers clean
 
 $(BIN)/python:
 	@command -v $(PYTHON) >/dev/null 2>&1 || { echo "error: $(PYTHON) not found (Python 3.11 is required)"; exit 2; }
@@ -20,6 +20,9 @@ demo: $(STAMP)
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q
+
+test-linuxcnc: $(STAMP)
+	$(BIN)/python -m pytest -q -m linuxcnc
 
 lint: $(STAMP)
 	$(BIN)/ruff check .

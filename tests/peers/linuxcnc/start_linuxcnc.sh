@@ -9,8 +9,10 @@
 #         LCNC_DIR=… LCNC_PORT=… LCNC_PID=… LCNC_INI=… LCNC_LOG=…
 #       Exit 0 once linuxcncrsh accepts connections, non-zero (log tail on stderr) otherwise.
 #   start_linuxcnc.sh --stop DIR
-#       Stops the instance started with that DIR (SIGTERM to the linuxcnc script, which runs its
-#       own cleanup; SIGKILL to its process group after 15 s) and removes DIR if we created it.
+#       Stops the instance started with that DIR (SIGTERM to its linuxcncrsh, after which the
+#       linuxcnc script runs its own cleanup, ~2 s; then TERM/KILL to whatever of this instance
+#       is left, by PID) and removes DIR if this script created it. `shutdown` sent over
+#       linuxcncrsh ends it too; --stop is still needed then to remove the folders.
 #
 # --probe-comp FILE.py: a userspace HAL component (Python, `import hal`) loaded with
 #   `loadusr -Wn rumba-probe /usr/bin/python3 FILE.py` whose bit pin `rumba-probe.out`
@@ -40,25 +42,40 @@ s.close()
 EOF
 }
 
+lcnc_running() {  # a live (not zombie) LinuxCNC daemon anywhere on the machine?
+  ps -C milltask,linuxcncsvr,rtapi_app -o stat= 2>/dev/null | grep -qv '^Z'
+}
+
+alive() {  # process exists and is not a zombie
+  local st
+  st=$(awk '{print $3}' "/proc/$1/stat" 2>/dev/null) && [[ -n $st && $st != Z ]]
+}
+
 stop_instance() {
   local dir=$1 pid pgid i fifo
   fifo=$(cat "$dir/fifo.path" 2>/dev/null || echo "$dir/fifo")
   [[ -f $dir/linuxcnc.pid ]] || die "no $dir/linuxcnc.pid"
   pid=$(cat "$dir/linuxcnc.pid")
   pgid=$(cat "$dir/linuxcnc.pgid" 2>/dev/null || echo "$pid")
-  if kill -0 "$pid" 2>/dev/null; then
+  if alive "$pid"; then
     # The linuxcnc script runs its display (linuxcncrsh) in the foreground and defers its TERM
     # trap until that returns: end linuxcncrsh, and the script runs its own Cleanup (~2 s).
     local rsh
-    rsh=$(ps -o pid= -o comm= --ppid "$pid" | awk '$2 == "linuxcncrsh" {print $1}')
+    rsh=$( (ps -o pid= -o comm= --ppid "$pid" || true) | awk '$2 == "linuxcncrsh" {print $1}')
     if [[ -n $rsh ]]; then kill -TERM $rsh 2>/dev/null || true; else kill -TERM "$pid" || true; fi
-    for i in $(seq 150); do kill -0 "$pid" 2>/dev/null || break; sleep 0.1; done
+    for i in $(seq 150); do alive "$pid" || break; sleep 0.1; done
   fi
   # anything left: the process group (milltask, io, halui, linuxcncrsh, loadusr components) and
   # the daemons that detach into their own sessions (rtapi_app, linuxcncsvr), found by the
   # RTAPI_FIFO_PATH of this instance in their environment.
-  local left=() p
+  # Never this script or its callers, which may have exported the same RTAPI_FIFO_PATH (halcmd).
+  local left=() p mine=" " q=$$
+  while [[ $q =~ ^[0-9]+$ ]] && ((q > 1)); do
+    mine+="$q "
+    q=$(awk '{print $4}' "/proc/$q/stat" 2>/dev/null || echo 1)
+  done
   for p in /proc/[0-9]*; do
+    [[ $mine == *" ${p#/proc/} "* || ${p#/proc/} == "$BASHPID" ]] && continue
     if grep -qsz "^RTAPI_FIFO_PATH=$fifo/" "$p/environ" 2>/dev/null; then left+=("${p#/proc/}"); fi
   done
   if kill -0 -- "-$pgid" 2>/dev/null || ((${#left[@]})); then
@@ -67,6 +84,18 @@ stop_instance() {
     sleep 1
     kill -KILL -- "-$pgid" 2>/dev/null || true
     ((${#left[@]})) && kill -KILL "${left[@]}" 2>/dev/null || true
+    for i in $(seq 20); do lcnc_running || break; sleep 0.1; done
+  fi
+  # A hard kill skips the script's own Cleanup: if no LinuxCNC is left, drop its lock and its
+  # shared memory (NML keys 1001-1005, RTAPI/HAL keys 100, 'HAL2', 'HHL4'); stale segments make
+  # the next instance hang.
+  if ! lcnc_running; then
+    rm -f /tmp/linuxcnc.lock
+    local key
+    for key in 0x000003e9 0x000003ea 0x000003eb 0x000003ec 0x000003ed 0x00000064 0x48414c32 \
+      0x48484c34; do
+      ipcs -m | awk -v k="$key" '$1 == k && $6 == 0 {print $2}' | xargs -r -n1 ipcrm -m
+    done
   fi
   if [[ $fifo == /tmp/rumba-rtapi.* ]]; then rm -rf -- "$fifo"; fi
   if [[ -f $dir/.created-by-start-linuxcnc ]]; then rm -rf -- "$dir"; fi
@@ -82,7 +111,7 @@ while (($#)); do
     --timeout) TIMEOUT=$2; shift 2 ;;
     --halcmd) HALCMDS+=("$2"); shift 2 ;;
     --stop) stop_instance "$2"; exit 0 ;;
-    -h|--help) sed -n '2,22p' "$0"; exit 0 ;;
+    -h|--help) sed -n '2,24p' "$0"; exit 0 ;;
     *) die "unknown argument: $1" ;;
   esac
 done
@@ -97,7 +126,7 @@ done
 
 # One LinuxCNC per machine: the linuxcnc script keeps /tmp/linuxcnc.lock, and a second start
 # without a tty "cleans up the other instance" (kills every milltask/linuxcncrsh by name).
-if [[ -e /tmp/linuxcnc.lock ]] && ps -C milltask,linuxcncsvr,rtapi_app -o pid= >/dev/null 2>&1; then
+if [[ -e /tmp/linuxcnc.lock ]] && lcnc_running; then
   die "another LinuxCNC is running (/tmp/linuxcnc.lock); only one instance per machine"
 fi
 
@@ -178,7 +207,8 @@ LOG=$DIR/linuxcnc.log
   # /usr/bin first: LinuxCNC's python modules are built for Debian's python3 only.
   export PATH=/usr/bin:/bin:/usr/sbin:/sbin:$PATH
   # -r: keep stdout/stderr (without a tty linuxcnc sends them to /tmp/linuxcnc.*.XXXXXX files
-  #     that it deletes at exit). setsid: own session and process group (pgid == pid of linuxcnc), so --stop can end it all
+  #     that it deletes at exit). setsid: own session and process group (pgid == pid of the
+  #     linuxcnc script), so --stop can find all of it.
   exec setsid /bin/bash -c 'echo $$ >"$1/linuxcnc.pid"; echo $$ >"$1/linuxcnc.pgid"; shift; exec "$@"' \
     _ "$DIR" linuxcnc -r "$INI" </dev/null >"$LOG" 2>&1
 ) &

@@ -1,0 +1,115 @@
+#!/usr/bin/env bash
+# Install the independent peers the tests talk to (see tests/peers/PEERS_FINDINGS.md).
+#
+#   bash .ci/install-peers.sh [PEER...]       PEER: socat mbpoll node-opcua chromium linuxcnc
+#                                             (default: all of them)
+#
+# Idempotent: what is installed already is skipped (a second run with everything present takes
+# well under a second); `apt-get update` runs once, and only when a Debian package is missing.
+# Debian packages come from Debian's own bookworm repositories, without recommends (linuxcnc-uspace
+# would otherwise pull an RT kernel, Qt and OpenCV). node-opcua goes to .peers/node/ (git-ignored;
+# RUMBA_PEERS_DIR=DIR puts it in DIR/node instead).
+# Prints one timing line per peer and a version summary at the end.
+set -euo pipefail
+cd "$(dirname "${BASH_SOURCE[0]}")/.."
+
+# 2.183+ declare engines node>=22.13; the machine's Node is 20 (Debian's would be 18).
+NODE_OPCUA_VERSION=2.182.2
+NODE_PREFIX=${RUMBA_PEERS_DIR:-.peers}/node
+
+ALL_PEERS=(socat mbpoll node-opcua chromium linuxcnc)
+declare -A APT_PKGS=(
+  [socat]="socat"
+  [mbpoll]="mbpoll libmodbus-dev pkg-config"
+  [chromium]="chromium chromium-driver"
+  [linuxcnc]="linuxcnc-uspace"
+)
+
+log() { printf 'install-peers: %s\n' "$*"; }
+now() { date +%s.%N; }
+since() { awk -v a="$1" -v b="$(now)" 'BEGIN { printf "%.1fs", b - a }'; }
+
+SUDO=()
+if [[ $(id -u) != 0 ]]; then
+  command -v sudo >/dev/null || { log "not root and no sudo: cannot apt-get install"; exit 1; }
+  SUDO=(sudo)
+fi
+export DEBIAN_FRONTEND=noninteractive
+
+peers=("$@")
+((${#peers[@]})) || peers=("${ALL_PEERS[@]}")
+for p in "${peers[@]}"; do
+  case " ${ALL_PEERS[*]} " in
+    *" $p "*) ;;
+    *) log "unknown peer '$p' (known: ${ALL_PEERS[*]})"; exit 2 ;;
+  esac
+done
+
+deb_installed() {  # all given Debian packages installed?
+  local pkg
+  for pkg in "$@"; do
+    [[ $(dpkg-query -W -f='${Status}' "$pkg" 2>/dev/null) == "install ok installed" ]] || return 1
+  done
+}
+
+APT_UPDATED=0
+apt_install() {  # apt_install PKG... (apt-get update first, once per run)
+  if ((APT_UPDATED == 0)); then
+    local t0
+    t0=$(now)
+    "${SUDO[@]}" apt-get update -q -o DPkg::Lock::Timeout=300 >/dev/null
+    APT_UPDATED=1
+    log "apt-get update: $(since "$t0")"
+  fi
+  "${SUDO[@]}" apt-get install -y -q --no-install-recommends -o DPkg::Lock::Timeout=300 "$@" \
+    >/dev/null
+}
+
+node_opcua_version() {
+  local pj=$NODE_PREFIX/node_modules/node-opcua/package.json
+  [[ -f $pj ]] && node -p "require(process.argv[1]).version" "$(readlink -f "$pj")" 2>/dev/null || true
+}
+
+install_peer() {
+  local peer=$1 t0 pkgs
+  t0=$(now)
+  if [[ $peer == node-opcua ]]; then
+    if [[ $(node_opcua_version) == "$NODE_OPCUA_VERSION" ]]; then
+      log "node-opcua: already installed ($NODE_OPCUA_VERSION in $NODE_PREFIX) $(since "$t0")"
+      return
+    fi
+    if ! command -v npm >/dev/null || ! command -v node >/dev/null; then
+      apt_install nodejs npm
+    fi
+    mkdir -p "$NODE_PREFIX"
+    npm install --prefix "$NODE_PREFIX" --no-audit --no-fund --save-exact --engine-strict \
+      --loglevel=error "node-opcua@$NODE_OPCUA_VERSION" >/dev/null
+    [[ $(node_opcua_version) == "$NODE_OPCUA_VERSION" ]] || { log "node-opcua: install failed"; exit 1; }
+    log "node-opcua: installed $NODE_OPCUA_VERSION into $NODE_PREFIX in $(since "$t0")"
+    return
+  fi
+  read -r -a pkgs <<<"${APT_PKGS[$peer]}"
+  if deb_installed "${pkgs[@]}"; then
+    log "$peer: already installed (${pkgs[*]}) $(since "$t0")"
+    return
+  fi
+  apt_install "${pkgs[@]}"
+  deb_installed "${pkgs[@]}" || { log "$peer: install of ${pkgs[*]} failed"; exit 1; }
+  log "$peer: installed ${pkgs[*]} in $(since "$t0")"
+}
+
+T_ALL=$(now)
+for p in "${peers[@]}"; do install_peer "$p"; done
+
+# Versions (each command answers in well under a second).
+for p in "${peers[@]}"; do
+  case $p in
+    socat) v=$(socat -V | awk '/socat version/ {print $3; exit}') ;;
+    mbpoll) v="mbpoll $(dpkg-query -W -f='${Version}' mbpoll), libmodbus $(pkg-config --modversion libmodbus)" ;;
+    node-opcua) v="node-opcua $(node_opcua_version) on node $(node --version)" ;;
+    chromium) v="$(chromium --version 2>/dev/null | head -n1); $(chromedriver --version | cut -d' ' -f1-2)" ;;
+    linuxcnc) v="linuxcnc-uspace $(dpkg-query -W -f='${Version}' linuxcnc-uspace)" ;;
+  esac
+  log "version $p: $v"
+done
+log "done (${peers[*]}) in $(since "$T_ALL")"
