@@ -195,6 +195,9 @@ class FeedsFile(_Strict):
 class PlanFile(_Strict):
     name: str
     stylus_diameter_mm: float = Field(gt=0, le=50)
+    # the stylus stem, checked by the safety check as a cylinder from the tip along the spindle
+    stylus_length_mm: float = Field(50.0, gt=0, le=300)
+    stem_diameter_mm: float | None = Field(None, gt=0, le=50)  # default: 0.75 × ball diameter
     poses: list[PoseFile | Range2] | None = None
     grid: Grid | None = None
     feeds: FeedsFile = FeedsFile()
@@ -220,6 +223,8 @@ class Plan(_Strict):
 
     name: str
     stylus_diameter_mm: float
+    stylus_length_mm: float = 50.0
+    stem_diameter_mm: float | None = None
     poses: list[PoseFile]
     feeds: FeedsFile
     standoff_mm: float
@@ -231,6 +236,12 @@ class Plan(_Strict):
     @property
     def stylus_radius_mm(self) -> float:
         return self.stylus_diameter_mm / 2.0
+
+    @property
+    def stem_radius_mm(self) -> float:
+        d = self.stem_diameter_mm if self.stem_diameter_mm is not None else \
+            0.75 * self.stylus_diameter_mm
+        return d / 2.0
 
     def indices(self, role: str) -> list[int]:
         return [i for i, p in enumerate(self.poses) if p.role == role]
@@ -323,7 +334,9 @@ def plan_from_dict(data: Any, path: Path | str = "<plan>") -> Plan:
                  for p in pf.poses or []]
     if not poses:
         raise ConfigError(f"{path}: poses: the plan has no pose")
-    return Plan(name=pf.name, stylus_diameter_mm=pf.stylus_diameter_mm, poses=poses,
+    return Plan(name=pf.name, stylus_diameter_mm=pf.stylus_diameter_mm,
+                stylus_length_mm=pf.stylus_length_mm, stem_diameter_mm=pf.stem_diameter_mm,
+                poses=poses,
                 feeds=pf.feeds, standoff_mm=pf.standoff_mm, overtravel_mm=pf.overtravel_mm,
                 clearance_mm=pf.clearance_mm, dwell_s=pf.dwell_s, repeats=pf.repeats)
 

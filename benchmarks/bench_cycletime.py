@@ -1,0 +1,54 @@
+"""Cycle time of the thesis 14-pose plan (4 balls, rapid 20 m/min, probing 300 mm/min) against
+its targets (≤ 10 min, ≤ 1.5 × the lower bound) and generation + safety-check time of the
+175-pose plan. Run: ``python -m benchmarks cycletime``."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+from daemon.config import load_artefact, load_machine, load_plan
+from daemon.cycletime import estimate
+from daemon.dialects import DIALECTS, get_dialect
+from daemon.program import build_program
+from daemon.safety import check_program
+
+CONFIG = Path(__file__).resolve().parent.parent / "config"
+
+
+def _load(plan: str):
+    machine, mf = load_machine(CONFIG / "machines" / "thesis_wcbxfzyt.yaml")
+    return machine, mf, load_artefact(CONFIG / "artefacts" / "thesis_4ball.yaml"), \
+        load_plan(CONFIG / "plans" / f"{plan}.yaml")
+
+
+def main() -> None:
+    machine, mf, art, plan = _load("thesis_annexB_14poses")
+    assert mf.dynamics.rapid_mm_min == 20000 and plan.feeds.probe_mm_min == 300
+    prog = build_program(machine, mf, art, plan)
+    ct = estimate(prog)
+    ok_time = ct.estimate_s <= 600
+    ok_ratio = ct.ratio <= 1.5
+    print(f"thesis 14 poses × 4 balls = {len(prog.touches)} touches: {ct.summary()}")
+    print("  parts: " + ", ".join(f"{k} {v:.1f} s" for k, v in ct.parts_s.items()))
+    print(f"  target ≤ 10 min: {'met' if ok_time else 'MISSED'}; "
+          f"≤ 1.5 × lower bound: {'met' if ok_ratio else 'MISSED'}")
+
+    machine, mf, art, plan = _load("thesis_ch4_175poses")
+    t0 = time.perf_counter()
+    prog = build_program(machine, mf, art, plan)
+    t1 = time.perf_counter()
+    report = check_program(prog)  # raises SafetyError if the shipped plan were unsafe
+    t2 = time.perf_counter()
+    texts = {name: get_dialect(name).render(prog) for name in sorted(DIALECTS)}
+    t3 = time.perf_counter()
+    ct = estimate(prog)
+    print(f"thesis 175 poses: {len(prog.touches)} touches, {len(prog.moves)} blocks; "
+          f"tool path {t1 - t0:.2f} s, safety check {t2 - t1:.2f} s "
+          f"({report.segments} segments), render 4 dialects {t3 - t2:.2f} s "
+          f"({', '.join(f'{k} {len(v) / 1e6:.1f} MB' for k, v in texts.items())}); "
+          f"{ct.summary()}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,70 @@
+"""``rumba gcode``: generate a probing program, check it, print touch count and cycle time."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+from daemon.cli import UserError
+from daemon.config import load_artefact, load_machine, load_plan
+from daemon.dialects import DIALECTS
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "gcode", help="generate a checked probing program for one controller dialect",
+        description="Generate the probing program of a plan (every pose: index, then five "
+                    "touches per ball), refuse it when it leaves the travel or enters a keep-out "
+                    "volume, and print the touch count, the estimated cycle time and its lower "
+                    "bound.")
+    p.add_argument("--machine", type=Path, required=True, metavar="M.yaml")
+    p.add_argument("--artefact", type=Path, required=True, metavar="A.yaml")
+    p.add_argument("--plan", type=Path, required=True, metavar="P.yaml")
+    p.add_argument("--dialect", required=True, choices=[*sorted(DIALECTS), "haas"])
+    p.add_argument("-o", "--output", type=Path, metavar="FILE",
+                   help="write the program here (auxiliary files next to it); default: stdout")
+    p.add_argument("--targets", type=Path, metavar="estimate.json",
+                   help="ball/stylus setup errors of the last run (`rumba analyze --json`): "
+                        "targets from the estimate, smaller standoff and overtravel")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from daemon.cycletime import estimate
+    from daemon.dialects import get_dialect
+    from daemon.program import ProgramError, build_program, load_targets
+    from daemon.safety import SafetyError, check_program
+
+    machine, mfile = load_machine(args.machine)
+    artefact = load_artefact(args.artefact)
+    plan = load_plan(args.plan)
+    targets = load_targets(args.targets, artefact) if args.targets else None
+    t0 = time.perf_counter()
+    try:
+        dialect = get_dialect(args.dialect)
+        prog = build_program(machine, mfile, artefact, plan, targets)
+        report = check_program(prog)
+        text = dialect.render(prog)
+    except SafetyError as e:
+        raise UserError(f"unsafe program refused: {e}") from None
+    except ProgramError as e:
+        raise UserError(f"cannot generate the program: {e}") from None
+    gen_s = time.perf_counter() - t0
+    ct = estimate(prog)
+    if args.output:
+        try:
+            args.output.write_text(text, encoding="ascii")
+            for name, body in dialect.aux_files(prog).items():
+                (args.output.parent / name).write_text(body, encoding="ascii")
+        except OSError as e:
+            raise UserError(f"{args.output}: cannot write: {e.strerror}") from None
+    else:
+        sys.stdout.write(text)
+    out = sys.stderr if not args.output else sys.stdout
+    print(f"{dialect.name}: {len(prog.touches)} touches, {len(plan.poses)} poses × "
+          f"{len(artefact.balls)} balls × {plan.repeats} repeat(s), targets {prog.targets.source}"
+          f"; {ct.summary()}; safety: {report.moves} blocks checked, smallest margin "
+          f"{report.min_slack_mm:.3f} mm; generated in {gen_s:.2f} s", file=out)
+    return 0

@@ -1,0 +1,547 @@
+"""Probing-program generator: touch targets and the tool path for a plan × machine × artefact.
+
+Geometry (METHOD.md §1): at every pose each ball is touched four times on its equator, approached
+diagonally in the machine X-Y plane (``messages.TOUCH_DIRECTIONS`` 1-4) and once at the accessible
+pole against the spindle axis. A touch is planned in *relative* coordinates ``r = tip − ball
+centre`` (foundation frame, mm); for fixed rotary joints ``r`` is affine in the controller linear
+axes (identification.kinematics.solve_centre), so ``q = q_centre + J⁻¹ r`` is exact and a straight
+controller move is a straight relative move. The path: rapid to a corner of a square around the
+ball (edges tangent to ball + stylus + standoff + approach gap, so square edges and radial moves are
+rapids of one or two axes that stay clear even as non-linear "dog-leg" rapids), rapid in along the
+probing line to the clearance point, feed the approach gap to the start point (standoff outside
+ball + stylus radius), probe to the expected contact + overtravel, retract along the same line.
+Heights are controller values of the retract axis (the one running along the spindle): before
+every index the tool retracts above everything the rotary sweep can raise; between balls it
+retracts to a transit height clearing every keep-out near the way; the four equator touches are
+visited in the cheapest order around the square whose moves (checked with the safety module's
+keep-out test, stem included) are clear, an edge blocked by a neighbour being lifted over it.
+"""
+
+from __future__ import annotations
+
+import itertools
+import json
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from daemon.config import SAFE_NAME, ConfigError, MachineFile, Plan
+from daemon.messages import TOUCH_DIRECTIONS, TouchId
+from daemon.program_geometry import (
+    PoseFrame,
+    ProgramError,
+    keepout_tops,
+    pose_frame,
+    retract_axis,
+    sweep_grid,
+    sweep_required,
+)
+from identification.kinematics import ChainState, Machine
+from identification.model import Artefact
+
+APPROACH_GAP_MM = 0.5  # fed at approach feed between clearance and start point
+ESTIMATE_STANDOFF_MM = 1.0  # standoff / overtravel cap when targets come from a last estimate
+ESTIMATE_OVERTRAVEL_MM = 1.0
+
+
+@dataclass(frozen=True)
+class Targets:
+    """Where the balls and the stylus really are: nominal, or the last run's setup estimate."""
+
+    source: str = "nominal"  # "nominal" | "estimate"
+    ball_offsets_mm: Mapping[str, tuple[float, float, float]] = field(default_factory=dict)
+    tip_offset_mm: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+
+def load_targets(path: Path | str, artefact: Artefact) -> Targets:
+    """Read ``setup.balls.<id>.value`` and ``setup.probe.value`` (µm, as `rumba analyze --json`)."""
+    try:
+        data = json.loads(Path(path).read_text(encoding="utf-8"))
+    except OSError as e:
+        raise ConfigError(f"{path}: cannot read: {e.strerror}") from None
+    except json.JSONDecodeError as e:
+        raise ConfigError(f"{path}: line {e.lineno}: not valid JSON: {e.msg}") from None
+
+    def vec(node: object, key: str) -> tuple[float, float, float]:
+        v = node.get("value") if isinstance(node, dict) else None
+        if (not isinstance(v, list) or len(v) != 3
+                or not all(isinstance(x, int | float) and math.isfinite(x) for x in v)):
+            raise ConfigError(f"{path}: {key}.value: expected 3 finite numbers (µm)")
+        if max(abs(x) for x in v) > 5000:
+            raise ConfigError(f"{path}: {key}.value: {v} µm is beyond 5 mm: not a setup error")
+        return (v[0] / 1000.0, v[1] / 1000.0, v[2] / 1000.0)
+
+    setup = data.get("setup") if isinstance(data, dict) else None
+    if not isinstance(setup, dict) or not isinstance(setup.get("balls"), dict):
+        raise ConfigError(f"{path}: setup.balls: missing (expected the JSON of `rumba analyze`)")
+    balls = setup["balls"]
+    missing = [b for b in artefact.ids if b not in balls]
+    if missing:
+        raise ConfigError(f"{path}: setup.balls: no estimate for balls {missing}")
+    offsets = {b: vec(balls[b], f"setup.balls.{b}") for b in artefact.ids}
+    tip = vec(setup.get("probe"), "setup.probe")
+    return Targets("estimate", offsets, tip)
+
+
+@dataclass(frozen=True)
+class Touch:
+    """One touch: identity, intended relative direction and its controller points (X, Y, Z)."""
+
+    id: TouchId
+    ball_number: int  # 1-based, artefact file order
+    direction: tuple[float, float, float]  # tool relative to workpiece, machine frame
+    b_deg: float
+    c_deg: float
+    centre: tuple[float, float, float]  # controller X Y Z putting the tip on the ball centre
+    start: tuple[float, float, float]
+    contact: tuple[float, float, float]
+    end: tuple[float, float, float]
+    feed_mm_min: float
+
+
+@dataclass(frozen=True)
+class Move:
+    """One block: ``target`` is the full controller state X Y Z r1 r2 after it; ``words`` are the
+    programmed axes. Kinds: rapid; feed (linear at ``feed_mm_min``: to the start point, or a
+    radial move whose dog-legs would not be clear); probe; retract (back out along a probing
+    line: rapid, or linear when ``feed_mm_min`` > 0); dwell."""
+
+    block: int
+    kind: str
+    target: tuple[float, float, float, float, float]
+    words: tuple[str, ...]
+    feed_mm_min: float = 0.0
+    pose: int = -1
+    ball: str = ""
+    touch: Touch | None = None
+    dwell_s: float = 0.0
+
+
+@dataclass
+class Program:
+    """A generated program, dialect-free: the moves a dialect renders and safety simulates."""
+
+    machine: Machine
+    machine_file: MachineFile
+    artefact: Artefact
+    plan: Plan
+    targets: Targets
+    rotary: tuple[str, str]
+    retract_axis: int  # index 0..2 of the controller linear axis along the spindle
+    standoff_mm: float
+    overtravel_mm: float
+    moves: list[Move] = field(default_factory=list)
+    touches: list[Touch] = field(default_factory=list)
+
+    @property
+    def axis_letters(self) -> tuple[str, str, str, str, str]:
+        return ("X", "Y", "Z", *self.rotary)
+
+    @property
+    def state(self) -> ChainState:
+        return chain_state(self.targets)
+
+    def ball_positions_mm(self) -> np.ndarray:
+        """Ball centres in the last workpiece frame used as targets and keep-outs (mm)."""
+        return ball_positions(self.artefact, self.targets)
+
+
+def chain_state(targets: Targets) -> ChainState:
+    return ChainState(tip_offset_mm=np.asarray(targets.tip_offset_mm, float))
+
+
+def ball_positions(artefact: Artefact, targets: Targets) -> np.ndarray:
+    off = np.array([targets.ball_offsets_mm.get(b.id, (0.0, 0.0, 0.0)) for b in artefact.balls])
+    return artefact.nominal_mm + off
+
+
+# ------------------------------------------------------------------------------- generator
+
+
+def _tour(points: np.ndarray, start: np.ndarray) -> list[int]:
+    """Open tour through ``points`` from ``start`` (unknown: NaN → best of every first point):
+    nearest neighbour, then 2-opt (a handful of balls: this finds the optimum in practice)."""
+    n = len(points)
+    known = not np.any(np.isnan(start))
+
+    def length(o: list[int]) -> float:
+        seq = ([start] if known else []) + [points[i] for i in o]
+        return sum(float(np.linalg.norm(a - b)) for a, b in itertools.pairwise(seq))
+
+    def improve(order: list[int]) -> list[int]:
+        lo = 0 if known else 1  # with an unknown start the first point is the choice
+        improved = True
+        while improved:
+            improved = False
+            for i in range(lo, n - 1):
+                for k in range(i + 1, n):
+                    cand = order[:i] + order[i:k + 1][::-1] + order[k + 1:]
+                    if length(cand) < length(order) - 1e-9:
+                        order, improved = cand, True
+        return order
+
+    def nearest(first: int | None) -> list[int]:
+        left = set(range(n))
+        order: list[int] = []
+        cur = start
+        if first is not None:
+            order, cur = [first], points[first]
+            left.remove(first)
+        while left:
+            j = min(left, key=lambda i: (round(float(np.linalg.norm(points[i] - cur)), 9), i))
+            order.append(j)
+            left.remove(j)
+            cur = points[j]
+        return order
+
+    if known:
+        return improve(nearest(None))
+    tours = [improve(nearest(f)) for f in range(n)]
+    return min(tours, key=lambda o: (round(length(o), 6), o))
+
+
+class _Builder:
+    def __init__(self, prog: Program, start: tuple[float, ...]) -> None:
+        self.p = prog
+        self.pos = list(start)
+        self.block = 0
+
+    def emit(self, kind: str, target: Sequence[float | None], **kw: object) -> None:
+        new = [self.pos[i] if v is None else float(v) for i, v in enumerate(target)]
+        letters = self.p.axis_letters
+        words = tuple(letters[i] for i in range(5)
+                      if target[i] is not None and (kind in ("probe", "feed") or i >= 3
+                                                    or not abs(new[i] - self.pos[i]) <= 1e-12))
+        if not words and kind not in ("dwell",):
+            return
+        self.block += 1
+        self.pos = new
+        self.p.moves.append(Move(self.block, kind, tuple(new), words, **kw))  # type: ignore[arg-type]
+
+
+def build_program(machine: Machine, machine_file: MachineFile, artefact: Artefact, plan: Plan,
+                  targets: Targets | None = None) -> Program:
+    """Generate the tool path of every repeat × pose × ball × touch (dialect-free)."""
+    targets = targets or Targets()
+    for b in artefact.balls:
+        if not SAFE_NAME.match(b.id):
+            raise ProgramError(f"ball id {b.id!r} is not a safe name")
+    est = targets.source == "estimate"
+    standoff = min(plan.standoff_mm, ESTIMATE_STANDOFF_MM) if est else plan.standoff_mm
+    overtravel = min(plan.overtravel_mm, ESTIMATE_OVERTRAVEL_MM) if est else plan.overtravel_mm
+    if len(machine.rotary_axes) != 2:
+        raise ProgramError(f"machine {machine.name}: needs two rotary axes")
+    prog = Program(machine, machine_file, artefact, plan, targets, tuple(machine.rotary_axes),
+                   2, standoff, overtravel)
+    state = chain_state(targets)
+    balls_w = ball_positions(artefact, targets)
+    rs = plan.stylus_radius_mm
+    clr = plan.clearance_mm
+    r1, r2 = prog.rotary
+
+    frames_ = [pose_frame(machine, {r1: p.b_deg, r2: p.c_deg}, state) for p in plan.poses]
+    k_ret, rate = retract_axis(frames_[0])
+    prog.retract_axis = k_ret
+    sgn = 1.0 if rate > 0 else -1.0
+
+    def z_required(pf: PoseFrame) -> np.ndarray:
+        """Retract-axis value above each keep-out top (+ stylus radius + clearance)."""
+        pts, _, up = keepout_tops(machine_file, artefact, balls_w, pf)
+        q = pf.solve(machine, pts, state)
+        return q[:, k_ret] + (up + rs + clr) / rate
+
+    def sweep_height(a: tuple[float, float], b: tuple[float, float]) -> float:
+        """Highest retract value over the rectangle of rotary values between two poses (any
+        interpolation of a two-axis rotary rapid stays inside it)."""
+        u, v = np.meshgrid(sweep_grid(a[0], b[0]), sweep_grid(a[1], b[1]), indexing="ij")
+        z = sweep_required(machine, machine_file, artefact, balls_w, state, k_ret,
+                           u.ravel(), v.ravel(), rs + clr)
+        best = float(z.max() if sgn > 0 else z.min())
+        return best + sgn * 1.0  # sampling margin (chord sag at 2° and 300 mm ≈ 0.05 mm)
+
+    ax_lo, ax_hi = machine.axes["XYZ"[k_ret]].travel
+    # The rotary pose at program start is unknown: retract to the end of travel first.
+    z_start = ax_hi if sgn > 0 else ax_lo
+    builder = _Builder(prog, (math.nan, math.nan, math.nan, math.nan, math.nan))
+    tgt: list[float | None] = [None] * 5
+    tgt[k_ret] = z_start
+    builder.emit("rapid", tgt, pose=0)
+    prev_rot: tuple[float, float] | None = None
+    seq = 0
+    for rep in range(plan.repeats):
+        for ip, (pose, pf) in enumerate(zip(plan.poses, frames_, strict=True)):
+            rot = (pose.b_deg, pose.c_deg)
+            if prev_rot is not None and rot != prev_rot:
+                z_idx = sweep_height(prev_rot, rot)
+                if sgn * z_idx > sgn * builder.pos[k_ret]:
+                    tgt = [None] * 5
+                    tgt[k_ret] = z_idx
+                    builder.emit("rapid", tgt, pose=ip)
+            if rot != prev_rot:
+                builder.emit("rapid", [None, None, None, rot[0], rot[1]], pose=ip)
+            prev_rot = rot
+            k2, rate2 = retract_axis(pf)
+            if k2 != k_ret or abs(rate2 - rate) > 1e-9:
+                raise ProgramError(f"pose {ip}: the retract axis changes with the rotary pose")
+            seq = _pose_touches(prog, builder, pf, ip, rep, seq, balls_w, state, z_required)
+    tgt = [None] * 5
+    tgt[k_ret] = z_start
+    builder.emit("rapid", tgt, pose=len(plan.poses) - 1)
+    return prog
+
+
+def _pose_touches(prog: Program, bld: _Builder, pf: PoseFrame, ip: int, rep: int, seq: int,
+                  balls_w: np.ndarray, state: ChainState, z_required) -> int:
+    from daemon.safety import keepout_slack, tip_in_workpiece  # safety imports this module
+
+    machine, plan, artefact = prog.machine, prog.plan, prog.artefact
+    k = prog.retract_axis
+    rate = 1.0 / float((pf.jinv @ pf.spindle)[k])
+    sgn = 1.0 if rate > 0 else -1.0
+    hz = [i for i in range(3) if i != k]
+    u_w = pf.r_fw.T @ pf.spindle  # stem direction in the workpiece frame
+    centres = pf.solve(machine, balls_w, state)
+    z_top = z_required(pf)  # per keep-out top
+    pts, ext, _ = keepout_tops(prog.machine_file, artefact, balls_w, pf)
+    q_pts = pf.solve(machine, pts, state)
+    rs, clr = plan.stylus_radius_mm, plan.clearance_mm
+    table_i = len(pts) - 1 - 8 * len(prog.machine_file.keep_out)
+    order = _tour(centres[:, hz], np.array([bld.pos[i] for i in hz]))
+    pose = plan.poses[ip]
+    rot = (bld.pos[3], bld.pos[4])
+
+    # The table plane in controller terms: retract value = alpha + beta · (horizontal axes).
+    t = prog.machine_file.table
+    plane_w = np.array([[0.0, 0.0, t.surface_z_mm], [1.0, 0.0, t.surface_z_mm],
+                        [0.0, 1.0, t.surface_z_mm]])
+    qp = pf.solve(machine, plane_w, state)
+    coef = np.linalg.lstsq(np.column_stack([np.ones(3), qp[:, hz]]), qp[:, k], rcond=None)[0]
+    lift = (t.clearance_mm + rs + clr) / rate
+
+    def higher(*zs: float) -> float:
+        return max(zs) if sgn > 0 else min(zs)
+
+    def transit(a: np.ndarray, b: np.ndarray) -> float:
+        """Retract value clearing every keep-out whose footprint is near the rectangle a-b
+        (a two-axis rapid, even non-linear, stays in that rectangle)."""
+        need = []
+        lo, hi = np.minimum(a, b), np.maximum(a, b)
+        for i in range(len(pts)):
+            if i == table_i:
+                corners = [coef[0] + coef[1:] @ np.array([x, y]) for x in (lo[0], hi[0])
+                           for y in (lo[1], hi[1])]
+                widen = float(np.linalg.norm(coef[1:])) * (rs + clr)
+                z = (max(corners) + widen) if sgn > 0 else (min(corners) - widen)
+                rim = z_top[i]
+                need.append(min(z + lift, rim) if sgn > 0 else max(z + lift, rim))
+            else:
+                d = float(np.linalg.norm(np.maximum(np.maximum(lo - q_pts[i, hz],
+                                                               q_pts[i, hz] - hi), 0.0)))
+                if d <= ext[i] + rs + clr:
+                    need.append(z_top[i])
+        return higher(*need)
+
+    def slack(path: list[tuple[np.ndarray, np.ndarray]],
+              owns: Sequence[int] | None = None) -> np.ndarray:
+        """Per move: keep-out slack of the straight move and, if it moves two axes, of both
+        dog-legs (a non-linear rapid). ``owns``: ball a move may touch (radial moves), or -1."""
+        qa, qb, parent = [], [], []
+        for n, (p0, p1) in enumerate(path):
+            qa.append(p0)
+            qb.append(p1)
+            parent.append(n)
+            changed = [i for i in range(3) if abs(p1[i] - p0[i]) > 1e-12]
+            if len(changed) == 2:
+                for first in changed:
+                    mid = p0.copy()
+                    mid[first] = p1[first]
+                    qa += [p0, mid]
+                    qb += [mid, p1]
+                    parent += [n, n]
+        def full(q: list) -> np.ndarray:
+            return np.column_stack([np.array(q), np.broadcast_to(rot, (len(q), 2))])
+        pa, pb = tip_in_workpiece(prog, full(qa)), tip_in_workpiece(prog, full(qb))
+        own = np.full(len(qa), -1) if owns is None else np.asarray(owns)[parent]
+        sl = keepout_slack(prog, pa, pb, own, np.broadcast_to(u_w, pa.shape))[0]
+        out = np.full(len(path), np.inf)
+        np.minimum.at(out, np.array(parent), sl)
+        return out
+
+    def with_z(p: np.ndarray, z: float) -> np.ndarray:
+        q = p.copy()
+        q[k] = z
+        return q
+
+    for j in order:
+        ball = artefact.balls[j]
+        r_env = ball.diameter_mm / 2 + plan.stylus_radius_mm
+        a = r_env + prog.standoff_mm + APPROACH_GAP_MM  # square half side (edges clear by gap)
+        c = centres[j]
+
+        def at(r: np.ndarray, _c: np.ndarray = c) -> np.ndarray:
+            return _c + pf.jinv @ r
+
+        dirs = {tt: (np.asarray(TOUCH_DIRECTIONS[tt]) if tt < 5 else -pf.spindle)
+                for tt in (1, 2, 3, 4, 5)}
+        for tt in (1, 2, 3, 4):
+            if abs(float(dirs[tt] @ pf.spindle)) > 1e-9:
+                raise ProgramError(f"pose {ip}: equator directions are not ⊥ the spindle axis")
+        corner = {tt: at(-dirs[tt] * a * math.sqrt(2)) for tt in (1, 2, 3, 4)}
+        clear5 = at(-dirs[5] * a)
+        z_pole = clear5[k]
+        here = np.array(bld.pos[:3])
+        known = not np.any(np.isnan(here))  # unknown right after the program start
+        # Repeats revisit the same pose from the same place: reuse the decision.
+        memo: dict = prog.__dict__.setdefault("_decisions", {})
+        key = (ip, j, tuple(np.round(here, 9)) if known else None)
+        if key in memo:
+            visit, edges, f_in, f_out, z_in = memo[key]
+        else:
+            z_in = {tt: higher(transit(here[hz] if known else corner[tt][hz], corner[tt][hz]),
+                               corner[tt][k], z_pole) for tt in (1, 2, 3, 4)}
+
+            # Visiting order of the equator touches: the cheapest rotation/direction around the
+            # square whose moves stay clear; an edge blocked by a neighbour is lifted over it.
+            up_pole = {tt: [(corner[tt], with_z(corner[tt], z_pole)),
+                            (with_z(corner[tt], z_pole), clear5)] for tt in (1, 2, 3, 4)}
+            down = {tt: [(with_z(corner[tt], z_in[tt]), corner[tt])] for tt in (1, 2, 3, 4)}
+            sides = [(1, 2), (2, 3), (3, 4), (4, 1)]
+            groups = ([down[tt] for tt in (1, 2, 3, 4)] + [up_pole[tt] for tt in (1, 2, 3, 4)]
+                      + [[(corner[ta], corner[tb])] for ta, tb in sides])
+            # Radial moves (corner ⇄ probing line) are rapids when both dog-legs are clear of the
+            # other balls, else linear moves at the machine's max feed: checked in the same batch.
+            ends = {tt: at(-dirs[tt] * (r_env - prog.overtravel_mm)) for tt in (1, 2, 3, 4)}
+            clears = {tt: at(-dirs[tt] * a) for tt in (1, 2, 3, 4)}
+            radial = [(corner[tt], clears[tt]) for tt in (1, 2, 3, 4)] + \
+                [(ends[tt], corner[tt]) for tt in (1, 2, 3, 4)]
+            flat = [seg for g in groups for seg in g]
+            sl = slack(flat + radial, [-1] * len(flat) + [j] * len(radial))
+            ok, i0 = [], 0
+            for g in groups:
+                ok.append(bool(sl[i0:i0 + len(g)].min() >= 0))
+                i0 += len(g)
+            fmax = prog.machine_file.dynamics.max_feed_mm_min
+            f_in = {tt: 0.0 if sl[i0 + tt - 1] >= 0 else fmax for tt in (1, 2, 3, 4)}
+            f_out = {tt: 0.0 if sl[i0 + tt + 3] >= 0 else fmax for tt in (1, 2, 3, 4)}
+            down_ok = dict(zip((1, 2, 3, 4), ok[:4], strict=True))
+            up_ok = dict(zip((1, 2, 3, 4), ok[4:8], strict=True))
+            edges: dict[tuple[int, int], list] = {}
+            edge_ok: dict[tuple[int, int], bool] = {}
+            for (ta, tb), good in zip(sides, ok[8:], strict=True):
+                path, good_path = [(corner[ta], corner[tb])], good
+                if not good:
+                    for z in (z_pole, higher(transit(corner[ta][hz], corner[tb][hz]), z_pole)):
+                        u, o = with_z(corner[ta], z), with_z(corner[tb], z)
+                        path = [(corner[ta], u), (u, o), (o, corner[tb])]
+                        if slack(path).min() >= 0:
+                            good_path = True
+                            break
+                edges[(ta, tb)], edge_ok[(ta, tb)] = path, good_path
+                edges[(tb, ta)] = [(p1, p0) for p0, p1 in reversed(path)]
+                edge_ok[(tb, ta)] = good_path
+
+            best = None
+            for first in (1, 2, 3, 4):
+                for step in (1, -1):
+                    visit = [(first - 1 + step * i) % 4 + 1 for i in range(4)]
+                    path = down[visit[0]] + [seg for ta, tb in itertools.pairwise(visit)
+                                             for seg in edges[(ta, tb)]] + up_pole[visit[-1]]
+                    good = (down_ok[visit[0]] and up_ok[visit[-1]]
+                            and all(edge_ok[e] for e in itertools.pairwise(visit)))
+                    cost = sum(float(np.linalg.norm(p1 - p0)) for p0, p1 in path)
+                    cost += float(np.linalg.norm(here - path[0][0])) if known else 0.0
+                    key = (not good, round(cost, 6))  # rounded: ties break by order, not noise
+                    if best is None or key < best[0]:
+                        best = (key, visit)
+            visit = best[1]
+            memo[key] = (visit, edges, f_in, f_out, z_in)
+
+        kw0 = {"pose": ip, "ball": ball.id}
+        first = corner[visit[0]]
+        if known:  # else stay at the start retract (the end of travel) for the first move
+            bld.emit("rapid", _axes({k: z_in[visit[0]]}), **kw0)
+        bld.emit("rapid", _axes({i: first[i] for i in hz}), **kw0)
+        bld.emit("rapid", _axes({k: first[k]}), **kw0)
+        for tt in [*visit, 5]:
+            seq += 1
+            d = dirs[tt]
+            start = at(-d * (r_env + prog.standoff_mm))
+            clear = at(-d * a)
+            contact = at(-d * r_env)
+            end = at(-d * (r_env - prog.overtravel_mm))
+            touch = Touch(TouchId(seq, ip, ball.id, tt, rep), j + 1, _t3(d),
+                          pose.b_deg, pose.c_deg, _t3(c), _t3(start), _t3(contact),
+                          _t3(end), plan.feeds.probe_mm_min)
+            prog.touches.append(touch)
+            kw = {**kw0, "touch": touch}
+            if tt < 5:
+                prev = np.array(bld.pos[:3])
+                if np.linalg.norm(prev - corner[tt]) > 1e-9:
+                    ta = next(x for x in visit if np.linalg.norm(prev - corner[x]) < 1e-9)
+                    for _, p1 in edges[(ta, tt)]:
+                        bld.emit("rapid", [*p1, None, None], **kw)  # around the square
+                bld.emit("feed" if f_in[tt] else "rapid", [*clear, None, None],
+                         feed_mm_min=f_in[tt], **kw)  # in along the probing line
+            else:
+                bld.emit("rapid", _axes({k: z_pole}), **kw)  # up beside the ball
+                bld.emit("rapid", [*clear, None, None], **kw)  # across over the pole
+            if plan.dwell_s > 0:
+                bld.emit("dwell", [None] * 5, dwell_s=plan.dwell_s, **kw)
+            bld.emit("feed", [*start, None, None], feed_mm_min=plan.feeds.approach_mm_min, **kw)
+            bld.emit("probe", [*end, None, None], feed_mm_min=plan.feeds.probe_mm_min, **kw)
+            if tt < 5:
+                bld.emit("retract", [*corner[tt], None, None], feed_mm_min=f_out[tt],
+                         **kw)
+            else:
+                bld.emit("retract", _axes({k: higher(z_in[visit[0]], z_pole)}), **kw)
+    return seq
+
+
+def _axes(values: Mapping[int, float]) -> list[float | None]:
+    out: list[float | None] = [None] * 5
+    for i, v in values.items():
+        out[i] = float(v)
+    return out
+
+
+def _t3(v: np.ndarray) -> tuple[float, float, float]:
+    return (float(v[0]), float(v[1]), float(v[2]))
+
+
+@dataclass
+class GeneratedProgram:
+    """A checked program ready for a link: text, auxiliary files, touch table and times."""
+
+    text: str
+    aux_files: dict[str, str]
+    program: Program
+    dialect: str
+    estimated_s: float
+    lower_bound_s: float
+    safety: object  # daemon.safety.SafetyReport
+
+    @property
+    def touches(self) -> list[Touch]:
+        return self.program.touches
+
+
+def generate(machine: Machine, machine_file: MachineFile, artefact: Artefact, plan: Plan,
+             dialect: str, run_id: str | None = None,
+             targets: Targets | None = None) -> GeneratedProgram:
+    """Generate, check (``daemon.safety.SafetyError`` when unsafe), render and time a program.
+    ``run_id`` is accepted for the session's call and not written into the program."""
+    from daemon.cycletime import estimate
+    from daemon.dialects import get_dialect
+    from daemon.safety import check_program
+
+    d = get_dialect(dialect)
+    prog = build_program(machine, machine_file, artefact, plan, targets)
+    report = check_program(prog)
+    text = d.render(prog)
+    ct = estimate(prog)
+    _ = run_id
+    return GeneratedProgram(text, d.aux_files(prog), prog, d.name, ct.estimate_s,
+                            ct.lower_bound_s, report)

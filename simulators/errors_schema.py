@@ -1,0 +1,104 @@
+"""Errors YAML of the simulated machine: the "truth" it carries (validated, unknown keys fail).
+
+Units in the file: link rotations (EA0B, EB0Z …) in µrad, link translations (EX0C …) in µm,
+setup errors in µm, noise in µm, positions of obstacles in mm. Effect parameters are given in the
+units the effect model declares (``identification.effects``); the loader converts to mm / rad.
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+from typing import Annotated, Any
+
+from pydantic import BaseModel, ConfigDict, Field, field_validator
+
+from daemon.config import ConfigError, _read_yaml, _validate
+
+Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]
+ISO_LINK = re.compile(r"^E[XYZABC]0[XYZABC]$")
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class SetupFile(_Strict):
+    """Setup errors: where each ball and the stylus tip really are, relative to nominal."""
+
+    balls_um: dict[str, Vec3] = {}  # ball id → offset in the last workpiece frame
+    probe_um: Vec3 = [0.0, 0.0, 0.0]  # stylus-tip offset in the last tool frame
+    random_balls_std_um: float = Field(0.0, ge=0, le=5000)  # drawn by seed, added to balls_um
+    random_probe_std_um: float = Field(0.0, ge=0, le=5000)
+
+
+class ProbeFile(_Strict):
+    """The probing system: true stylus size, pre-travel and repeatability."""
+
+    stylus_diameter_mm: float = Field(6.0, gt=0, le=50)
+    pretravel_um: float = Field(0.0, ge=0, le=200)  # along the move, after contact
+    touch_noise_um: float = Field(0.0, ge=0, le=100)  # per touch, along the approach
+    # Per visit of a ball (the five touches share it): the centre repeatability (thesis §3.4).
+    centre_noise_um: Vec3 = [0.0, 0.0, 0.0]
+
+    @field_validator("centre_noise_um")
+    @classmethod
+    def _nonneg(cls, v: list[float]) -> list[float]:
+        if any(x < 0 for x in v):
+            raise ValueError("noise standard deviations must be >= 0")
+        return v
+
+
+class ObstacleFile(_Strict):
+    """A sphere in the last workpiece frame the stylus can hit early (a chip, a clamp edge)."""
+
+    name: str
+    centre_mm: Vec3
+    radius_mm: float = Field(gt=0, le=500)
+
+
+class EffectFile(_Strict):
+    """One effect family instance, e.g. ``{family: straightness, axis: X, params: {...}}``."""
+
+    family: str
+    axis: str | None = None
+    params: dict[str, float] = {}
+    options: dict[str, Any] = {}
+
+
+class ErrorsFile(_Strict):
+    machine: str | None = None  # name of the machine file these errors belong to (checked)
+    seed: int = 0  # default random seed (``--seed`` overrides)
+    links: dict[str, float] = {}  # ISO 230-1 name → µrad (rotations) or µm (translations)
+    setup: SetupFile = SetupFile()
+    probe: ProbeFile = ProbeFile()
+    absent_balls: list[str] = []  # balls not on the table: their touches do not trigger
+    obstacles: list[ObstacleFile] = []
+    effects: list[EffectFile] = []
+
+    @field_validator("links")
+    @classmethod
+    def _iso(cls, v: dict[str, float]) -> dict[str, float]:
+        for name in v:
+            if not ISO_LINK.match(name):
+                raise ValueError(f"{name!r} is not an ISO 230-1 location error name (e.g. EB0Z)")
+        return v
+
+
+def link_to_model(name: str, value: float) -> float:
+    """µm → mm for translations (EX0C), µrad → rad for rotations (EB0C)."""
+    return value * 1e-3 if name[1] in "XYZ" else value * 1e-6
+
+
+def errors_from_dict(data: Any, path: Path | str = "<errors>") -> ErrorsFile:
+    if data is None:
+        data = {}
+    return _validate(ErrorsFile, path, data)
+
+
+def load_errors(path: Path | str) -> ErrorsFile:
+    """Load and validate an errors file; ``ConfigError`` names file, key and reason."""
+    return errors_from_dict(_read_yaml(Path(path)), path)
+
+
+__all__ = ["ConfigError", "ErrorsFile", "errors_from_dict", "link_to_model", "load_errors"]

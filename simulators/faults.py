@@ -1,0 +1,102 @@
+"""Switchable faults of the simulated controller, by block number, machine time or touch number.
+
+Machine-side faults are applied by the controller itself (no trigger = ball removed, early
+trigger, dropped result line, alarm, feed hold, restart); transport faults (disconnect, late or
+missing XON, garbled bytes) are raised as flags and events that the protocol front-ends act on.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+from daemon.config import ConfigError, _validate
+
+FaultKind = Literal[
+    "disconnect", "late_xon", "missing_xon", "garbled",  # front-end (transport) faults
+    "drop_result_line", "no_trigger", "early_trigger", "alarm", "feed_hold", "restart",
+]
+FRONT_END_KINDS = frozenset({"disconnect", "late_xon", "missing_xon", "garbled"})
+
+
+class Fault(BaseModel):
+    """One fault. Exactly one of ``at_block`` (1-based program line), ``at_time_s`` (machine
+    time since program start) or ``at_touch`` (touch sequence number) says when it fires;
+    ``count`` how many consecutive touches / lines / blocks it affects."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    kind: FaultKind
+    at_block: int | None = Field(None, ge=1)
+    at_time_s: float | None = Field(None, ge=0)
+    at_touch: int | None = Field(None, ge=1)
+    count: int = Field(1, ge=1)
+    duration_s: float = Field(0.0, ge=0, le=3600)  # feed hold / late XON / disconnect length
+    fraction: float = Field(0.5, gt=0, lt=1)  # early trigger: where along the probing move
+    message: str = "simulated fault"
+    params: dict[str, Any] = {}
+
+    @model_validator(mode="after")
+    def _one_when(self) -> Fault:
+        n = sum(x is not None for x in (self.at_block, self.at_time_s, self.at_touch))
+        if n != 1:
+            raise ValueError("give exactly one of at_block, at_time_s, at_touch")
+        return self
+
+
+class FaultsFile(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+    faults: list[Fault] = []
+
+
+@dataclass
+class FaultPlan:
+    """The faults of one session; each fires once (``count`` touches/blocks from its start)."""
+
+    faults: list[Fault] = field(default_factory=list)
+    fired: list[tuple[Fault, str]] = field(default_factory=list)  # (fault, where) for reports
+    _used: set[int] = field(default_factory=set)
+
+    @classmethod
+    def load(cls, path: Path | str) -> FaultPlan:
+        try:
+            data = yaml.safe_load(Path(path).read_text(encoding="utf-8"))
+        except (OSError, yaml.YAMLError) as e:
+            raise ConfigError(f"{path}: cannot read faults: {e}") from None
+        return cls(list(_validate(FaultsFile, path, data).faults))
+
+    def reset(self) -> None:
+        self.fired.clear()
+        self._used.clear()
+
+    def _hit(self, f: Fault, block: int | None, t_s: float | None, touch: int | None) -> bool:
+        if f.at_block is not None and block is not None:
+            return f.at_block <= block < f.at_block + f.count
+        if f.at_touch is not None and touch is not None:
+            return f.at_touch <= touch < f.at_touch + f.count
+        if f.at_time_s is not None and t_s is not None:
+            return t_s >= f.at_time_s
+        return False
+
+    def due(self, kinds: set[str] | frozenset[str], *, block: int | None = None,
+            t_s: float | None = None, touch: int | None = None) -> list[Fault]:
+        """Faults of ``kinds`` that fire at this block / time / touch (time faults fire once,
+        except ``no_trigger``: a removed ball stays removed; block and touch faults on each of
+        their ``count`` blocks or touches)."""
+        out = []
+        for i, f in enumerate(self.faults):
+            if f.kind not in kinds or not self._hit(f, block, t_s, touch):
+                continue
+            if f.at_time_s is not None and f.kind != "no_trigger":  # a removed ball stays away
+                if i in self._used:
+                    continue
+                self._used.add(i)
+            where = (f"block {block}" if f.at_block is not None else
+                     f"touch {touch}" if f.at_touch is not None else f"t={t_s:.1f}s")
+            self.fired.append((f, where))
+            out.append(f)
+        return out

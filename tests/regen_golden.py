@@ -1,0 +1,51 @@
+"""Regenerate the golden programs (tests/golden/<dialect>.<ext>) after a deliberate change to the
+generator or a template: ``make golden`` (= ``python -m tests.regen_golden``). Review the diff."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from daemon.config import artefact_from_dict, load_machine, plan_from_dict
+from daemon.dialects import DIALECTS, get_dialect
+from daemon.program import Program, build_program
+
+ROOT = Path(__file__).resolve().parent.parent
+GOLDEN = Path(__file__).resolve().parent / "golden"
+
+
+def golden_program() -> Program:
+    """A small plan: thesis machine, two balls of the thesis artefact, two poses, one dwell."""
+    machine, mf = load_machine(ROOT / "config" / "machines" / "thesis_wcbxfzyt.yaml")
+    art = artefact_from_dict({"name": "golden-2ball", "ball_diameter_mm": 25.4,
+                              "rod_diameter_mm": 8,
+                              "balls": [{"id": "B1", "position_mm": [-100, -80, 152],
+                                         "rod_length_mm": 152},
+                                        {"id": "B3", "position_mm": [90, 110, 62],
+                                         "rod_length_mm": 62}]})
+    plan = plan_from_dict({"name": "golden-2poses", "stylus_diameter_mm": 6,
+                           "poses": [[0, 0], [30, 60]], "dwell_s": 0.2,
+                           "feeds": {"probe_mm_min": 300, "approach_mm_min": 2000}})
+    return build_program(machine, mf, art, plan)
+
+
+def golden_files() -> dict[str, str]:
+    """File name → expected text, for every dialect (plus Heidenhain's format files)."""
+    prog = golden_program()
+    out = {}
+    for name in sorted(DIALECTS):
+        d = get_dialect(name)
+        out[f"{name}.{d.extension}"] = d.render(prog)
+        for aux, text in d.aux_files(prog).items():
+            out[f"{name}.{aux}"] = text
+    return out
+
+
+def main() -> None:
+    GOLDEN.mkdir(exist_ok=True)
+    for name, text in golden_files().items():
+        (GOLDEN / name).write_text(text, encoding="ascii")
+        print(f"wrote {GOLDEN / name}")
+
+
+if __name__ == "__main__":
+    main()
