@@ -16,7 +16,7 @@ $(STAMP): pyproject.toml | $(BIN)/python
 	@touch $(STAMP)
 
 demo: $(STAMP)
-	$(BIN)/python -m daemon.demo
+	$(BIN)/python -m daemon.demo_e2e
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q

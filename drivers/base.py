@@ -12,7 +12,7 @@ from collections.abc import AsyncIterator
 from dataclasses import dataclass, field
 from typing import Literal
 
-from daemon.messages import ProbeHit
+from daemon.messages import ProbeHit, TouchId
 
 VerdictStatus = Literal["PASS", "WARN", "FAIL", "ERROR"]
 VERDICT_CODES: dict[str, int] = {"PASS": 1, "WARN": 2, "FAIL": 3, "ERROR": 4}
@@ -58,6 +58,10 @@ class ProgramJob:
     dialect: str  # fanuc | siemens | heidenhain | linuxcnc
     touch_count: int
     meta: dict[str, str] = field(default_factory=dict)
+    touches: tuple[TouchId, ...] = ()  # touch table by seq (seq k at index k-1): lets a link
+    # that only receives (seq, axes) from the controller (OPC UA, Modbus) name pose/ball/touch
+    files: dict[str, str] = field(default_factory=dict)  # auxiliary files the program needs on
+    # the control (Heidenhain FN 16 format files); OPC UA transfers them with the program
 
 
 class LinkError(Exception):

@@ -1,0 +1,144 @@
+"""``rumba history``: list runs and trends of the journal; export a run to the probing-log CSV
+(``--export RUN --csv OUT``) or import one (``--import CSV --machine NAME``, then analysed,
+judged and reported like a live run)."""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+from rich.console import Console
+from rich.table import Table
+
+from daemon.cli import UserError
+from daemon.daemon_config import DaemonConfig, load_daemon_config
+from daemon.judge import judge, volumetric_max_um
+from daemon.pipeline import PipelineError, analyse
+from daemon.probelog import ProbeLogError
+from daemon.store import Store, StoreError, export_csv, import_csv
+
+STYLE = {"PASS": "green", "WARN": "yellow", "FAIL": "red"}
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("history", help="list runs and trends; export/import probing logs")
+    p.add_argument("--config", required=True, help="daemon.yaml (names the journal)")
+    p.add_argument("--machine", help="only this machine (required with --import)")
+    p.add_argument("--limit", type=int, default=20, help="runs to list (default 20)")
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--export", metavar="RUN", help="export run RUN to --csv")
+    g.add_argument("--import", dest="import_csv", metavar="CSV", help="import a probing log")
+    p.add_argument("--csv", metavar="OUT", help="output file for --export")
+    p.add_argument("--no-analyse", action="store_true", help="--import: journal only")
+    p.set_defaults(func=cmd_history)
+
+
+def _open(cfg: DaemonConfig) -> Store:
+    try:
+        return Store(cfg.store_path, cfg.synchronous)  # type: ignore[arg-type]
+    except StoreError as e:
+        raise UserError(str(e)) from None
+
+
+def cmd_history(args: argparse.Namespace) -> int:
+    cfg = load_daemon_config(args.config)
+    if args.machine is not None and args.machine not in cfg.machines:
+        raise UserError(f"{args.config}: no machine {args.machine!r} "
+                        f"(configured: {', '.join(cfg.machines)})")
+    store = _open(cfg)
+    try:
+        if args.export:
+            return _export(cfg, store, args)
+        if args.import_csv:
+            return _import(cfg, store, args)
+        _list(store, args.machine, args.limit)
+        return 0
+    finally:
+        store.close()
+
+
+def _export(cfg: DaemonConfig, store: Store, args: argparse.Namespace) -> int:
+    if not args.csv:
+        raise UserError("--export needs --csv OUT")
+    try:
+        run = store.run(args.export)
+        n = export_csv(store, args.export, args.csv, cfg.machines[run.machine].machine
+                       if run.machine in cfg.machines else _unknown(run.machine, args.config))
+    except (StoreError, PipelineError, OSError) as e:
+        raise UserError(str(e)) from None
+    print(f"{args.csv}: {n} touches of run {args.export}")
+    return 0
+
+
+def _unknown(machine: str, config: str) -> None:
+    raise UserError(f"run belongs to machine {machine!r}, not configured in {config}")
+
+
+def _import(cfg: DaemonConfig, store: Store, args: argparse.Namespace) -> int:
+    if not args.machine:
+        raise UserError("--import needs --machine NAME (whose artefact and plan the log uses)")
+    setup = cfg.machines[args.machine]
+    try:
+        run_id, n = import_csv(store, args.import_csv, setup.name, setup.machine,
+                               setup.artefact)
+    except (StoreError, ProbeLogError, OSError) as e:
+        raise UserError(str(e)) from None
+    print(f"imported run {run_id}: {n} touches")
+    if args.no_analyse:
+        return 0
+    from daemon import report
+
+    try:
+        a = analyse(setup, store.hits(run_id), run_id)
+    except PipelineError as e:
+        store.set_state(run_id, "FAILED", str(e))
+        raise UserError(f"run {run_id}: {e}") from None
+    store.save_centres(run_id, a.centre_rows)
+    store.save_analysis(run_id, a.data)
+    ref = store.last_good(setup.name, before=run_id)
+    j = judge(a.data, setup.tolerances, ref[1] if ref else None)
+    store.save_verdict(run_id, j.status, list(j.reasons), [c.as_dict() for c in j.checks],
+                       j.summary)
+    store.set_state(run_id, "DONE")
+    html, _ = report.write_report(store, run_id, cfg.reports_dir, setup)
+    store.save_report(run_id, html, html.with_suffix(".json"))
+    print(f"{j.summary}\nreport: {html}")
+    return 0
+
+
+def _list(store: Store, machine: str | None, limit: int) -> None:
+    console = Console()
+    if not console.is_terminal:
+        console = Console(width=200)  # piped output: do not squeeze the tables to 80 columns
+    t = Table(title="Runs (most recent first)")
+    for h in ("started", "run", "machine", "trigger", "state", "verdict", "touches",
+              "max distortion µm", "reason / summary"):
+        t.add_column(h)
+    for r in store.runs(machine, limit):
+        a = store.analysis(r.id)
+        vmax = volumetric_max_um(a) if a else None
+        t.add_row(time.strftime("%Y-%m-%d %H:%M", time.localtime(r.started_at)), r.id,
+                  r.machine, r.trigger, r.state,
+                  f"[{STYLE.get(r.verdict or '', 'white')}]{r.verdict or '—'}[/]",
+                  f"{r.hits}/{r.touch_total}", "—" if vmax is None else f"{vmax:.1f}",
+                  r.reason or r.summary)
+    console.print(t)
+    machines = [machine] if machine else sorted({r.machine for r in store.runs(None, 500)})
+    for m in machines:
+        trend = store.trend(m, limit)
+        if len(trend) < 2:
+            continue
+        names = sorted({n for x in trend for n in (x["analysis"].get("links") or {})})
+        tt = Table(title=f"Trend of {m} (oldest first; µrad / µm)")
+        tt.add_column("run")
+        tt.add_column("verdict")
+        for n in names:
+            tt.add_column(n, justify="right")
+        tt.add_column("max dist.", justify="right")
+        for x in trend:
+            links = x["analysis"].get("links") or {}
+            v = volumetric_max_um(x["analysis"])
+            tt.add_row(x["run_id"], x["verdict"],
+                       *(f"{links[n]['value']:+.1f}" if n in links else "—" for n in names),
+                       "—" if v is None else f"{v:.1f}")
+        console.print(tt)

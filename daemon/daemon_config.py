@@ -1,0 +1,301 @@
+"""``daemon.yaml``: the validated schema of the service configuration (unknown keys are errors)
+and its loader, which also loads every machine's machine / artefact / plan files.
+
+Every failure is one ``ConfigError`` line naming the file and key, e.g.
+``daemon.yaml: machines.0.tolerances.links.EX0Q: not a location error of thesis-wcbxfzyt``.
+Relative paths are resolved against the directory of ``daemon.yaml``.
+"""
+
+from __future__ import annotations
+
+import ipaddress
+import os
+import stat
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+
+from daemon.config import (
+    ConfigError,
+    MachineFile,
+    Plan,
+    _read_yaml,
+    _safe_name,
+    _validate,
+    format_validation,
+    load_artefact,
+    load_machine,
+    load_plan,
+)
+from daemon.judge import Limit, Tolerances
+from identification.kinematics import Machine
+from identification.model import Artefact
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class LimitFile(_Strict):
+    warn: float | None = Field(None, gt=0)
+    fail: float | None = Field(None, gt=0)
+    drift_warn: float | None = Field(None, gt=0)
+    drift_fail: float | None = Field(None, gt=0)
+
+    @model_validator(mode="after")
+    def _order(self) -> LimitFile:
+        if self.warn is not None and self.fail is not None and self.warn > self.fail:
+            raise ValueError(f"warn {self.warn} must not exceed fail {self.fail}")
+        if (self.drift_warn is not None and self.drift_fail is not None
+                and self.drift_warn > self.drift_fail):
+            raise ValueError("drift_warn must not exceed drift_fail")
+        return self
+
+    def to_limit(self) -> Limit:
+        return Limit(self.warn, self.fail, self.drift_warn, self.drift_fail)
+
+
+class TolerancesFile(_Strict):
+    links: dict[str, LimitFile] = {}
+    default_translation_um: LimitFile | None = None
+    default_rotation_urad: LimitFile | None = None
+    volumetric_max_um: LimitFile | None = None
+    residual_rms_um: float | None = Field(None, gt=0)
+    sphere_radius_spread_um: float | None = Field(5.0, gt=0)
+    sphere_form_um: float | None = Field(None, gt=0)
+    coverage_k: float = Field(2.0, ge=0, le=5)
+
+    def to_tolerances(self) -> Tolerances:
+        conv = (lambda x: x.to_limit() if x is not None else None)  # noqa: E731
+        return Tolerances({k: v.to_limit() for k, v in self.links.items()},
+                          conv(self.default_translation_um), conv(self.default_rotation_urad),
+                          conv(self.volumetric_max_um), self.residual_rms_um,
+                          self.sphere_radius_spread_um, self.sphere_form_um, self.coverage_k)
+
+
+class TriggersFile(_Strict):
+    cnc: bool = True  # the controller's start-of-shift request (if the link supports it)
+    hmi: bool = True
+    can: bool = True
+
+
+class MachineEntry(_Strict):
+    name: str
+    machine: str  # path to the machine YAML
+    artefact: str
+    plan: str
+    dialect: Literal["fanuc", "haas", "siemens", "heidenhain", "linuxcnc"]
+    link: dict[str, Any]  # transport section, validated by drivers.registry
+    triggers: TriggersFile = TriggersFile()
+    tolerances: TolerancesFile = TolerancesFile()
+    touch_timeout_s: float = Field(300.0, gt=0, le=3600)
+    # Plan pose indices held out for prediction (Annexe B); default: the plan's 'validate' poses.
+    validate_poses: list[int] | None = None
+    rerun_interrupted: bool = False  # start a new run at startup if one was interrupted
+    # Touch targets: nominal artefact, or the setup estimated by the last PASS run (smaller
+    # standoff, faster cycle; a re-mounted artefact then needs one nominal run).
+    program_targets: Literal["nominal", "last_good"] = "nominal"
+    _n = field_validator("name")(_safe_name)
+
+    @field_validator("link")
+    @classmethod
+    def _link_type(cls, v: dict[str, Any]) -> dict[str, Any]:
+        if not isinstance(v.get("transport"), str):
+            raise ValueError("link needs a 'transport' (serial, opcua, modbus, linuxcnc)")
+        return v
+
+
+class TlsFile(_Strict):
+    cert: str
+    key: str
+
+
+class HmiFile(_Strict):
+    enabled: bool = True
+    host: str = "127.0.0.1"
+    port: int = Field(8470, ge=0, le=65535)  # 0 = any free port (tests, demo)
+    token: str | None = Field(None, min_length=16)
+    token_file: str | None = None
+    allow_remote: bool = False  # must be true to bind anything but loopback
+    tls: TlsFile | None = None
+
+    @model_validator(mode="after")
+    def _checks(self) -> HmiFile:
+        if self.enabled and (self.token is None) == (self.token_file is None):
+            raise ValueError("give exactly one of 'token' or 'token_file'")
+        try:
+            loopback = ipaddress.ip_address(self.host).is_loopback
+        except ValueError:
+            loopback = self.host == "localhost"
+        if not loopback and not self.allow_remote:
+            raise ValueError(f"host {self.host} is not loopback; set allow_remote: true to "
+                             "expose the HMI on the network (and configure tls)")
+        return self
+
+
+class StoreFile(_Strict):
+    path: str = "rumba.sqlite"
+    synchronous: Literal["FULL", "NORMAL"] = "FULL"
+
+
+class DaemonFile(_Strict):
+    store: StoreFile = StoreFile()
+    reports_dir: str = "reports"
+    hmi: HmiFile = HmiFile(token_file="hmi.token")
+    can_panel: dict[str, Any] | None = None  # validated by drivers.can_panel
+    machines: list[MachineEntry] = Field(min_length=1)
+
+    @model_validator(mode="after")
+    def _unique(self) -> DaemonFile:
+        names = [m.name for m in self.machines]
+        dup = sorted({n for n in names if names.count(n) > 1})
+        if dup:
+            raise ValueError(f"duplicated machine names {dup}")
+        return self
+
+
+# ------------------------------------------------------------------------------ loaded form
+
+
+@dataclass(frozen=True)
+class MachineSetup:
+    """Everything one session needs, loaded and cross-checked."""
+
+    name: str
+    machine: Machine
+    machine_file: MachineFile
+    artefact: Artefact
+    plan: Plan
+    dialect: str
+    link: Any  # drivers.link_config.LinkConfig (one of the transport schemas)
+    triggers: TriggersFile
+    tolerances: Tolerances
+    touch_timeout_s: float
+    validate_poses: tuple[int, ...]
+    rerun_interrupted: bool
+    program_targets: str = "nominal"
+
+
+@dataclass(frozen=True)
+class DaemonConfig:
+    path: Path
+    store_path: Path
+    synchronous: str
+    reports_dir: Path
+    hmi: HmiFile
+    hmi_token: str | None
+    hmi_tls: tuple[Path, Path] | None
+    can_panel: dict[str, Any] | None
+    machines: dict[str, MachineSetup]
+
+
+def _resolve(base: Path, p: str) -> Path:
+    q = Path(os.path.expandvars(os.path.expanduser(p)))
+    return q if q.is_absolute() else (base / q)
+
+
+def read_token_file(path: Path, where: str) -> str:
+    """A token file must be private (no group/other permission bits) and ≥ 16 characters."""
+    try:
+        st = path.stat()
+        text = path.read_text(encoding="utf-8").strip()
+    except OSError as e:
+        raise ConfigError(f"{where}: cannot read token file {path}: {e.strerror}") from None
+    if stat.S_IMODE(st.st_mode) & 0o077:
+        raise ConfigError(f"{where}: token file {path} is readable by others "
+                          f"(mode {stat.S_IMODE(st.st_mode):04o}); chmod 600 it")
+    if len(text) < 16:
+        raise ConfigError(f"{where}: token in {path} is shorter than 16 characters")
+    return text
+
+
+def _validate_link(link: dict[str, Any], where: str, base: Path) -> Any:
+    """The transport section, validated by the drivers' own schema (drivers/link_config.py);
+    relative certificate paths are resolved against daemon.yaml's directory."""
+    from drivers.registry import link_config
+
+    link = dict(link)
+    for k in ("certificate", "private_key", "server_certificate"):
+        if isinstance(link.get(k), str):
+            link[k] = str(_resolve(base, link[k]))
+    cfg = link_config(link, where)
+    for k in ("certificate", "private_key", "server_certificate"):
+        p = getattr(cfg, k, None)
+        if p is not None and not Path(p).is_file():
+            raise ConfigError(f"{where}.{k}: file {p} not found")
+    return cfg
+
+
+def _check_identifiable(machine: Machine, artefact: Artefact, plan: Plan, names: Any,
+                        key: str) -> None:
+    """A tolerance on a link error the plan cannot identify would never be checked."""
+    from identification.identifiability import identifiable_links, nominal_centres
+
+    centres = nominal_centres(machine, artefact, [(p.b_deg, p.c_deg) for p in plan.poses])
+    ident = identifiable_links(machine, artefact, centres)
+    for name in names:
+        if name not in ident.links:
+            why = ident.dropped.get(name, "not identifiable")
+            raise ConfigError(f"{key}.tolerances.links.{name}: not identifiable with plan "
+                              f"{plan.name} (absorbed by {why}); identifiable: "
+                              f"{', '.join(ident.links)}")
+
+
+def load_daemon_config(path: Path | str) -> DaemonConfig:
+    path = Path(path)
+    df: DaemonFile = _validate(DaemonFile, path, _read_yaml(path))
+    base = path.parent
+    machines: dict[str, MachineSetup] = {}
+    for i, m in enumerate(df.machines):
+        key = f"{path}: machines.{i}"
+        machine, mfile = load_machine(_resolve(base, m.machine))
+        artefact = load_artefact(_resolve(base, m.artefact))
+        plan = load_plan(_resolve(base, m.plan))
+        known = set(machine.location_error_names())
+        for name in m.tolerances.links:
+            if name not in known:
+                raise ConfigError(f"{key}.tolerances.links.{name}: not a location error of "
+                                  f"{machine.name} (known: {', '.join(sorted(known))})")
+        if m.tolerances.links:
+            _check_identifiable(machine, artefact, plan, m.tolerances.links, key)
+        held = plan.indices("validate") if m.validate_poses is None else m.validate_poses
+        bad = [p for p in held if not 0 <= p < len(plan.poses)]
+        if bad:
+            raise ConfigError(f"{key}.validate_poses: {bad} outside the plan's "
+                              f"{len(plan.poses)} poses (0-based)")
+        machines[m.name] = MachineSetup(
+            m.name, machine, mfile, artefact, plan, m.dialect,
+            _validate_link(m.link, f"{key}.link", base), m.triggers,
+            m.tolerances.to_tolerances(), m.touch_timeout_s, tuple(held),
+            m.rerun_interrupted, m.program_targets)
+    if df.can_panel is not None:
+        from pydantic import ValidationError
+
+        from drivers.link_config import CanPanelConfig
+
+        try:
+            panel = CanPanelConfig.model_validate(df.can_panel)
+        except ValidationError as e:
+            raise ConfigError(format_validation(f"{path}: can_panel", e)) from None
+        if panel.machine is not None and panel.machine not in machines:
+            raise ConfigError(f"{path}: can_panel.machine: {panel.machine!r} is not a "
+                              f"configured machine ({', '.join(machines)})")
+    token, tls = None, None
+    if df.hmi.enabled:
+        token = df.hmi.token or read_token_file(_resolve(base, df.hmi.token_file or ""),
+                                                f"{path}: hmi.token_file")
+        if df.hmi.tls is not None:
+            for k in ("cert", "key"):
+                p = _resolve(base, getattr(df.hmi.tls, k))
+                if not p.is_file():
+                    raise ConfigError(f"{path}: hmi.tls.{k}: file {p} not found")
+            tls = (_resolve(base, df.hmi.tls.cert), _resolve(base, df.hmi.tls.key))
+    return DaemonConfig(path, _resolve(base, df.store.path), df.store.synchronous,
+                        _resolve(base, df.reports_dir), df.hmi, token, tls, df.can_panel, machines)
+
+
+def config_from_dict(data: Any, path: Path) -> DaemonFile:
+    """Validate only (used by tests and `rumba run --check`)."""
+    return _validate(DaemonFile, path, data)

@@ -1,0 +1,1 @@
+"""The daemon's operator web page (see ``daemon.hmi.app``)."""

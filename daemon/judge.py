@@ -1,0 +1,186 @@
+"""The verdict: identified link errors and volumetric distortion against tolerances, absolute and
+relative to the last good run → PASS / WARN / FAIL with one reason per violated limit.
+
+Decision rule (ISO 14253-1 spirit, stated in every reason): a value whose magnitude exceeds a
+``fail`` limit fails; one that exceeds ``warn`` — or whose magnitude plus ``k`` standard
+uncertainties reaches ``fail`` (conformance not proven) — warns. Units follow the analysis JSON:
+µm for translations and distortions, µrad for rotations.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+STATUS_ORDER = {"PASS": 0, "WARN": 1, "FAIL": 2, "ERROR": 3}
+"""ERROR: the measurement itself is not trusted (health limits), so no statement on the machine."""
+
+
+@dataclass(frozen=True)
+class Limit:
+    """Bounds on |value| (``warn``/``fail``) and on |value − last good| (``drift_*``)."""
+
+    warn: float | None = None
+    fail: float | None = None
+    drift_warn: float | None = None
+    drift_fail: float | None = None
+
+
+@dataclass(frozen=True)
+class Tolerances:
+    links: dict[str, Limit] = field(default_factory=dict)  # ISO name → limit (µm or µrad)
+    default_translation_um: Limit | None = None  # for identified links without an own limit
+    default_rotation_urad: Limit | None = None
+    volumetric_max_um: Limit | None = None  # on max over poses and balls of |distortion|
+    # Health (measurement validity; exceeded → ERROR, the run says nothing about the machine):
+    residual_rms_um: float | None = None  # estimation residual (probe, balls, fixture, drift)
+    sphere_radius_spread_um: float | None = 5.0  # |fitted radius − run median| per ball-pose
+    sphere_form_um: float | None = None  # sphere-fit form residual RMS per ball-pose
+    coverage_k: float = 2.0  # uncertainty guard band for the WARN-on-doubt rule
+
+
+@dataclass(frozen=True)
+class Check:
+    quantity: str
+    value: float
+    std: float | None
+    unit: str
+    status: str
+    limit: str  # human-readable limit that decided
+    reference: float | None = None  # last good value (drift checks)
+
+    def as_dict(self) -> dict[str, Any]:
+        return self.__dict__.copy()
+
+
+@dataclass(frozen=True)
+class Judgement:
+    status: str  # PASS | WARN | FAIL | ERROR (measurement not trusted)
+    reasons: tuple[str, ...]
+    checks: tuple[Check, ...]
+    summary: str
+
+
+def volumetric_max_um(analysis: dict[str, Any], key: str = "error_um") -> float | None:
+    """Largest distortion vector norm over all poses and balls (µm), or None if absent."""
+    vol = analysis.get("volumetric") or []
+    norms = [math.hypot(*v[key]) for v in vol if v.get(key) is not None]
+    return max(norms) if norms else None
+
+
+def _grade(quantity: str, value: float, std: float | None, unit: str, lim: Limit,
+           k: float, reference: float | None) -> list[Check]:
+    out = []
+    mag = abs(value)
+    u = std or 0.0
+    status, why = "PASS", _fmt_limit(lim.warn, lim.fail, unit)
+    if lim.fail is not None and mag > lim.fail:
+        status, why = "FAIL", f"|value| > fail {lim.fail:g} {unit}"
+    elif lim.warn is not None and mag > lim.warn:
+        status, why = "WARN", f"|value| > warn {lim.warn:g} {unit}"
+    elif lim.fail is not None and u > 0 and mag + k * u > lim.fail:
+        status, why = "WARN", (f"|value| + {k:g}u ≥ fail {lim.fail:g} {unit} "
+                               "(conformance not proven)")
+    if lim.warn is not None or lim.fail is not None:
+        out.append(Check(quantity, value, std, unit, status, why))
+    if reference is not None and (lim.drift_warn is not None or lim.drift_fail is not None):
+        d = value - reference
+        status, why = "PASS", _fmt_limit(lim.drift_warn, lim.drift_fail, unit, "drift ")
+        if lim.drift_fail is not None and abs(d) > lim.drift_fail:
+            status, why = "FAIL", f"drift > {lim.drift_fail:g} {unit}"
+        elif lim.drift_warn is not None and abs(d) > lim.drift_warn:
+            status, why = "WARN", f"drift > {lim.drift_warn:g} {unit}"
+        out.append(Check(f"{quantity} drift", d, std, unit, status, why, reference))
+    return out
+
+
+def _fmt_limit(warn: float | None, fail: float | None, unit: str, prefix: str = "") -> str:
+    parts = [f"{prefix}warn {warn:g}" if warn is not None else "",
+             f"{prefix}fail {fail:g}" if fail is not None else ""]
+    return " / ".join(p for p in parts if p) + f" {unit}"
+
+
+def _reason(c: Check) -> str:
+    std = f" ± {c.std:.2f}" if c.std else ""
+    if c.reference is not None:
+        return (f"{c.quantity}: {c.value:+.2f}{std} {c.unit} since last good run "
+                f"(was {c.reference:+.2f}); {c.limit}")
+    return f"{c.quantity} = {c.value:+.2f}{std} {c.unit}: {c.limit}"
+
+
+def judge(analysis: dict[str, Any], tol: Tolerances,
+          last_good: dict[str, Any] | None = None) -> Judgement:
+    """Grade one run's analysis (the ``rumba analyze`` JSON) against ``tol``.
+
+    ``last_good`` is the analysis of the last PASS run of the same machine (drift reference)."""
+    checks: list[Check] = []
+    ref_links = (last_good or {}).get("links", {})
+    for name, est in sorted((analysis.get("links") or {}).items()):
+        unit = est.get("unit", "")
+        lim = tol.links.get(name) or (
+            tol.default_rotation_urad if unit == "urad" else tol.default_translation_um)
+        if lim is None:
+            continue
+        ref = ref_links.get(name, {}).get("value")
+        checks += _grade(name, float(est["value"]), est.get("std"), _unit(unit), lim,
+                         tol.coverage_k, ref)
+    if tol.volumetric_max_um is not None:
+        vmax = volumetric_max_um(analysis)
+        if vmax is None:
+            checks.append(Check("volumetric distortion max", float("nan"), None, "µm", "FAIL",
+                                "no volumetric distortion in the analysis"))
+        else:
+            ref = volumetric_max_um(last_good) if last_good else None
+            checks += _grade("volumetric distortion max", vmax, None, "µm",
+                             tol.volumetric_max_um, tol.coverage_k, ref)
+    checks += _health(analysis, tol)
+    missing = sorted(set(tol.links) - set(analysis.get("links") or {}))
+    status = max((c.status for c in checks), key=STATUS_ORDER.__getitem__, default="PASS")
+    if status == "ERROR":  # health first: the other numbers come from a suspect measurement
+        checks.sort(key=lambda c: c.status != "ERROR")
+    reasons = [_reason(c) for c in checks if c.status != "PASS"]
+    reasons += [f"{n}: tolerance given but not identified in this run" for n in missing]
+    n_bad = sum(c.status != "PASS" for c in checks)
+    vmax = volumetric_max_um(analysis)
+    summary = f"{status}: {len(checks)} checks, {n_bad} outside limits"
+    if vmax is not None:
+        summary += f"; max volumetric distortion {vmax:.1f} µm"
+    return Judgement(status, tuple(reasons), tuple(checks), summary)
+
+
+def _health(analysis: dict[str, Any], tol: Tolerances) -> list[Check]:
+    """Is the measurement trustworthy? A ball-pose whose sphere radius departs from the run's
+    median (thesis §3.4: dirt, a chip, a damaged ball, an early trigger) or a large estimation
+    residual makes every identified number suspect: ERROR, naming where."""
+    out = []
+    health = analysis.get("health") or []
+    devs = [h["radius_dev_um"] for h in health if h.get("radius_dev_um") is not None]
+    if tol.sphere_radius_spread_um is not None and devs:
+        med = sorted(devs)[len(devs) // 2]
+        worst = max(health, key=lambda h: abs((h.get("radius_dev_um") or med) - med))
+        d = worst["radius_dev_um"] - med
+        bad = abs(d) > tol.sphere_radius_spread_um
+        out.append(Check(f"sphere radius, ball {worst['ball']} pose {worst['pose']}", d, None,
+                         "µm", "ERROR" if bad else "PASS",
+                         f"spread limit {tol.sphere_radius_spread_um:g} µm around the run median"
+                         + (": dirt, chip, damaged ball or early trigger" if bad else "")))
+    forms = [h for h in health if h.get("form_rms_um") is not None]
+    if tol.sphere_form_um is not None and forms:
+        worst = max(forms, key=lambda h: h["form_rms_um"])
+        bad = worst["form_rms_um"] > tol.sphere_form_um
+        out.append(Check(f"sphere form, ball {worst['ball']} pose {worst['pose']}",
+                         worst["form_rms_um"], None, "µm", "ERROR" if bad else "PASS",
+                         f"health limit {tol.sphere_form_um:g} µm"))
+    # the residual last: a bad sphere (named above) is usually what inflates it
+    rms = analysis.get("residual_rms_um")
+    if tol.residual_rms_um is not None and rms is not None:
+        ok = rms <= tol.residual_rms_um
+        out.append(Check("residual RMS", float(rms), None, "µm", "PASS" if ok else "ERROR",
+                         f"health limit {tol.residual_rms_um:g} µm: measurement not trusted"
+                         if not ok else f"health limit {tol.residual_rms_um:g} µm"))
+    return out
+
+
+def _unit(unit: str) -> str:
+    return {"um": "µm", "urad": "µrad"}.get(unit, unit)

@@ -1,0 +1,265 @@
+"""The computing steps of a run, kept out of the state machine: the checked program (PREPARE)
+and hits → centres → estimate → analyses (IDENTIFY), giving the ``rumba analyze`` JSON shape.
+
+Both are plain functions run in a worker thread; they raise ``PipelineError`` with a reason the
+operator can act on (unsafe program, rank-deficient data, incomplete ball-poses).
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+
+from daemon.daemon_config import MachineSetup
+from daemon.messages import ProbeHit, TouchId
+from daemon.probelog import LogRow, ProbeLogError, rows_to_centres
+from drivers.base import ProgramJob
+from identification.kinematics import Machine
+
+
+class PipelineError(Exception):
+    """A run cannot go on (program refused by the safety check, data not identifiable …)."""
+
+
+# ------------------------------------------------------------------------------------ PREPARE
+
+
+@dataclass(frozen=True)
+class TouchInfo:
+    """What the program says about one touch: identity, commanded pose, approach, feed."""
+
+    id: TouchId
+    b_cmd_deg: float
+    c_cmd_deg: float
+    direction: tuple[float, float, float]
+    feed_mm_min: float
+
+
+@dataclass
+class Prepared:
+    job: ProgramJob
+    touches: dict[int, TouchInfo]
+    estimated_s: float | None = None
+    notes: list[str] = field(default_factory=list)
+
+    def complete(self, hit: ProbeHit, t_s: float) -> ProbeHit:
+        """Fill the fields a transport cannot know from the program's touch table."""
+        info = self.touches.get(hit.seq)
+        if info is None:
+            return hit
+        changes: dict[str, Any] = {}
+        if not hit.ball:
+            changes.update(pose=info.id.pose, ball=info.id.ball, touch=info.id.touch,
+                           repeat=info.id.repeat)
+        if hit.direction == (0.0, 0.0, 0.0):
+            changes["direction"] = info.direction
+        if hit.b_cmd_deg == 0.0 and hit.c_cmd_deg == 0.0:
+            changes.update(b_cmd_deg=info.b_cmd_deg, c_cmd_deg=info.c_cmd_deg)
+        if hit.feed_mm_min == 0.0:
+            changes["feed_mm_min"] = info.feed_mm_min
+        if hit.t_s == 0.0:
+            changes["t_s"] = t_s
+        return replace(hit, **changes) if changes else hit
+
+    def mismatch(self, hit: ProbeHit) -> str:
+        """Why ``hit`` does not belong to this program ('' when it does): identities are
+        carried through the program, never guessed."""
+        info = self.touches.get(hit.seq)
+        if info is None:
+            return f"controller reported touch seq {hit.seq}, not in the program"
+        t = info.id
+        if (hit.pose, hit.ball, hit.touch, hit.repeat) != (t.pose, t.ball, t.touch, t.repeat):
+            return (f"touch seq {hit.seq} reported as pose {hit.pose} ball {hit.ball} touch "
+                    f"{hit.touch}, program has pose {t.pose} ball {t.ball} touch {t.touch}")
+        return ""
+
+
+def targets_from(analysis: dict[str, Any] | None) -> Any:
+    """Program targets: the setup estimated by the last good run when there is one (smaller
+    standoffs, faster cycles), else nominal."""
+    from daemon.program import Targets
+
+    if not analysis or "setup" not in analysis:
+        return Targets()
+    balls = {b: tuple(v * 1e-3 for v in d["value"])
+             for b, d in analysis["setup"]["balls"].items()}
+    tip = tuple(v * 1e-3 for v in analysis["setup"]["probe"]["value"])
+    return Targets("estimate", balls, tip)
+
+
+def prepare(setup: MachineSetup, run_id: str, last_good: dict[str, Any] | None = None
+            ) -> Prepared:
+    """Generate the program for ``setup``, check it against travel limits and keep-outs, and
+    render it in the machine's dialect. Nothing leaves the daemon without passing here."""
+    from daemon import dialects, safety
+    from daemon import program as gen
+
+    try:
+        targets = targets_from(last_good if setup.program_targets == "last_good" else None)
+        prog = gen.build_program(setup.machine, setup.machine_file, setup.artefact, setup.plan,
+                                 targets)
+        report = safety.check_program(prog)
+        dialect = dialects.get_dialect(setup.dialect)
+        text = dialect.render(prog)
+        files = dialect.aux_files(prog)
+    except safety.SafetyError as e:
+        raise PipelineError(f"program refused by the safety check: {e}") from None
+    except (gen.ProgramError, ValueError) as e:
+        raise PipelineError(f"program not generated: {e}") from None
+    prepared = prepared_from_program(prog, text, run_id, setup.dialect, files)
+    prepared.notes.append(f"safety: {report.moves} moves checked, min slack "
+                          f"{report.min_slack_mm:.2f} mm")
+    return prepared
+
+
+def prepared_from_program(prog: Any, text: str, run_id: str, dialect: str,
+                          files: dict[str, str] | None = None) -> Prepared:
+    """The job and its touch table from a generated ``daemon.program.Program``."""
+    touches = {t.id.seq: TouchInfo(t.id, float(t.b_deg), float(t.c_deg),
+                                   tuple(map(float, t.direction)), float(t.feed_mm_min))
+               for t in prog.touches}
+    ids = tuple(touches[k].id for k in sorted(touches))
+    job = ProgramJob(run_id=run_id, text=text, dialect=dialect, touch_count=len(ids),
+                     touches=ids, meta={"program": "rumba"}, files=dict(files or {}))
+    est = getattr(prog, "estimated_s", None)
+    return Prepared(job, touches, float(est) if est is not None else None)
+
+
+# ----------------------------------------------------------------------------------- IDENTIFY
+
+
+def _axis(axes: dict[str, float], keys: Sequence[str]) -> float:
+    for k in keys:
+        if k in axes:
+            return float(axes[k])
+    raise KeyError(keys[0])
+
+
+def hit_to_row(run_id: str, hit: ProbeHit, machine: Machine) -> LogRow:
+    """A journaled hit as a probing-log row (latched X Y Z and rotary axes, controller units)."""
+    r1, r2 = machine.rotary_axes
+    ax = hit.axes
+    try:
+        b = _axis(ax, (r1, r1.lower(), "b")) if any(k in ax for k in (r1, r1.lower(), "b")) \
+            else hit.b_cmd_deg
+        c = _axis(ax, (r2, r2.lower(), "c")) if any(k in ax for k in (r2, r2.lower(), "c")) \
+            else hit.c_cmd_deg
+        xyz = [_axis(ax, (k, k.lower())) for k in "XYZ"]
+    except KeyError as e:
+        raise PipelineError(f"touch seq {hit.seq}: latched axis {e.args[0]} missing "
+                            f"(got {sorted(ax)})") from None
+    return LogRow(run_id, hit.seq, hit.t_s, hit.repeat, hit.pose, hit.b_cmd_deg, hit.c_cmd_deg,
+                  hit.ball, hit.touch, *map(float, hit.direction), *xyz, b, c, hit.feed_mm_min)
+
+
+def row_to_hit(row: LogRow, machine: Machine) -> ProbeHit:
+    r1, r2 = machine.rotary_axes
+    return ProbeHit(seq=row.seq, pose=row.pose, ball=row.ball, touch=row.touch,
+                    axes={"X": row.x_mm, "Y": row.y_mm, "Z": row.z_mm, r1: row.b_deg,
+                          r2: row.c_deg}, triggered=True, t_s=row.t_s, repeat=row.repeat,
+                    raw="imported", b_cmd_deg=row.b_cmd_deg, c_cmd_deg=row.c_cmd_deg,
+                    direction=(row.dir_x, row.dir_y, row.dir_z), feed_mm_min=row.feed_mm_min)
+
+
+@dataclass
+class Analysis:
+    data: dict[str, Any]  # the analyze-JSON shape (links, setup, volumetric, cluster, …)
+    centre_rows: list[tuple]  # for the store: pose, ball, b, c, x, y, z, radius dev, form
+
+
+def _vec(a: np.ndarray, nd: int = 3) -> list[float]:
+    return [round(float(x), nd) for x in a]
+
+
+def analyse(setup: MachineSetup, hits: Sequence[ProbeHit], run_id: str = "run") -> Analysis:
+    """Centres (sphere fit) → estimate (setup + identifiable links) → analyses."""
+    from identification import analyses
+    from identification.estimate import RankDeficientError, estimate
+
+    rows = [hit_to_row(run_id, h, setup.machine) for h in hits if h.triggered]
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        try:
+            cd = rows_to_centres(rows, setup.artefact, setup.plan.stylus_radius_mm,
+                                 source=f"run {run_id}")
+        except ProbeLogError as e:
+            raise PipelineError(str(e)) from None
+    notes = [str(w.message) for w in caught]
+    centres, ids = cd.centres, setup.artefact.ids
+    held = np.isin(centres.pose, list(setup.validate_poses))
+    try:
+        est = estimate(setup.machine, setup.artefact, centres.subset(~held))
+    except (RankDeficientError, ValueError) as e:
+        raise PipelineError(f"identification impossible: {e}") from None
+    vol = analyses.volumetric(setup.machine, setup.artefact, est, centres)
+    pred_setup = centres.xyz_mm - vol.before_um * 1e-3
+    group = centres.pose * 1000 + cd.repeat  # one cluster per pose and repeat (as analyze)
+    clus = analyses.clusters(centres, pred_setup, vol.before_um, ids, group)
+    dists = analyses.distance_analysis(centres, ids, group)
+    ball_v, ball_s = est.balls_um
+    probe_v, probe_s = est.probe_um
+    poses = setup.plan.poses
+    data: dict[str, Any] = {
+        "run_id": run_id, "machine": setup.name, "topology": setup.machine.topology,
+        "artefact": setup.artefact.name, "plan": setup.plan.name,
+        "links": {k: {"value": v, "std": s, "unit": u}
+                  for k, (v, s, u) in est.links_si().items()},
+        "setup": {"probe": {"value": _vec(probe_v), "std": _vec(probe_s)},
+                  "balls": {b: {"value": _vec(ball_v[i]), "std": _vec(ball_s[i])}
+                            for i, b in enumerate(ids)}},
+        "scale_um_per_m": est.scale_um_per_m,
+        "residual_rms_um": est.residual_rms_um, "condition_number": est.condition_number,
+        "unobservable": est.unobservable, "absorbed_by": est.absorbed_by,
+        "status": est.status, "warnings": est.warnings + notes,
+        "volumetric": [
+            {"pose": int(centres.pose[k]), "b_deg": float(centres.b_deg[k]),
+             "c_deg": float(centres.c_deg[k]), "ball": ids[int(centres.ball[k])],
+             "repeat": int(cd.repeat[k]),
+             "error_um": _vec(vol.before_um[k]), "error_after_links_um": _vec(vol.after_um[k]),
+             "held_out": bool(held[k])}
+            for k in range(len(centres))],
+        "cluster": [
+            {"pose": c.pose, "b_deg": poses[c.pose].b_deg, "c_deg": poses[c.pose].c_deg,
+             "linear_um": None if c.linear_um is None else _vec(c.linear_um),
+             "angular_urad": None if c.angular_urad is None else _vec(c.angular_urad),
+             "local_um": {b: _vec(v) for b, v in c.local_um.items()}, "note": c.note}
+            for c in clus],
+        "distances": [{"pose": d.pose, "balls": [d.ball_a, d.ball_b],
+                       "deviation_um": round(d.deviation_um, 3)} for d in dists],
+        "health": [{"pose": h.pose, "ball": h.ball, "repeat": h.repeat,
+                    "radius_dev_um": round(h.radius_dev_um, 3),
+                    "form_rms_um": round(h.form_rms_um, 3)} for h in cd.health],
+        "touches": len(rows),
+    }
+    if held.any():
+        v = analyses.validate(setup.machine, setup.artefact, est, centres.subset(held))
+        data["validation"] = {"poses": v.poses, "rms_before_um": v.rms_before_um,
+                              "rms_after_um": v.rms_after_um, "max_before_um": v.max_before_um,
+                              "max_after_um": v.max_after_um,
+                              "explained_fraction": v.explained_fraction}
+    health = {(h.pose, h.ball, h.repeat): h for h in cd.health}
+    centre_rows = []
+    for k in range(len(centres)):
+        if int(cd.repeat[k]) != 0:
+            continue  # the store keeps one centre per pose and ball: the first repeat
+        h = health[(int(centres.pose[k]), ids[int(centres.ball[k])], 0)]
+        centre_rows.append((int(centres.pose[k]), ids[int(centres.ball[k])],
+                            float(centres.b_deg[k]), float(centres.c_deg[k]),
+                            *map(float, centres.xyz_mm[k]), h.radius_dev_um, h.form_rms_um))
+    return Analysis(_finite(data), centre_rows)
+
+
+def _finite(obj: Any) -> Any:
+    """JSON has no NaN/inf: replace them by None so reports never show a silent number."""
+    if isinstance(obj, float):
+        return obj if math.isfinite(obj) else None
+    if isinstance(obj, dict):
+        return {k: _finite(v) for k, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return [_finite(v) for v in obj]
+    return obj

@@ -1,0 +1,212 @@
+"""``rumba run``: the asyncio service — one session per configured machine, its link, the
+triggers (CNC start-of-shift request, HMI button, CAN panel button, ``rumba verify``) and the HMI.
+
+Startup is strict (a bad config, an unreachable controller or a busy port is a one-line
+``ServiceError``); afterwards a lost link is reconnected with backoff and the service keeps
+serving. Runs that a crash left half-done are marked INTERRUPTED, hits kept.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import errno
+import logging
+import ssl
+from collections.abc import Callable
+from typing import Any
+
+from aiohttp import web
+
+from daemon.daemon_config import DaemonConfig, MachineSetup
+from daemon.session import Refused, Session
+from daemon.store import Store
+from drivers.base import CncLink, LinkError
+
+log = logging.getLogger("rumba.service")
+
+RECONNECT_TIMEOUT_S = 3600.0 * 24  # keep trying; the HMI shows the link as down meanwhile
+
+
+class ServiceError(Exception):
+    """The service cannot start; the message is one line naming the cause."""
+
+
+LinkFactory = Callable[[MachineSetup], CncLink]
+
+
+def make_link(setup: MachineSetup) -> CncLink:
+    """The transport object for a machine's ``link`` section (drivers.registry)."""
+    from drivers.registry import make_link as registry_link
+
+    return registry_link(setup.link)
+
+
+def _connect_timeout(setup: MachineSetup) -> float:
+    return float(getattr(setup.link, "connect_timeout_s", 10.0))
+
+
+class Service:
+    def __init__(self, config: DaemonConfig, link_factory: LinkFactory = make_link,
+                 **session_kw: Any) -> None:
+        self.config = config
+        self.link_factory = link_factory
+        self.session_kw = session_kw  # e.g. prepare= for tests that replay a log
+        self.store: Store | None = None
+        self.sessions: dict[str, Session] = {}
+        self.links: dict[str, CncLink] = {}
+        self.interrupted: list[str] = []
+        self.hmi_url: str | None = None
+        self._runner: web.AppRunner | None = None
+        self._tasks: list[asyncio.Task] = []
+        self.panel: Any = None
+
+    # ------------------------------------------------------------------------------ startup
+    async def start(self) -> None:
+        cfg = self.config
+        self.store = Store(cfg.store_path, cfg.synchronous)  # type: ignore[arg-type]
+        self.interrupted = self.store.mark_interrupted()
+        for rid in self.interrupted:
+            log.warning("run %s was interrupted (daemon stopped mid-run); hits kept", rid)
+        try:
+            for name, setup in cfg.machines.items():
+                link = self.link_factory(setup)
+                self.links[name] = link
+                try:
+                    await asyncio.wait_for(link.connect(), _connect_timeout(setup) + 5.0)
+                except (LinkError, OSError, TimeoutError) as e:
+                    raise ServiceError(f"machine {name}: controller unreachable: "
+                                       f"{e or type(e).__name__}") from None
+                if any(self.store.run(r).machine == name for r in self.interrupted):
+                    await self._stop_leftover(name, link)
+                session = Session(setup, link, self.store, cfg.reports_dir, **self.session_kw)
+                session.reconnect = self._reconnector(name)
+                self.sessions[name] = session
+            if cfg.hmi.enabled:
+                await self._start_hmi()
+            await self._start_panel()
+        except BaseException:
+            await self.stop()
+            raise
+        for name, session in self.sessions.items():
+            setup = session.setup
+            if setup.triggers.cnc and session.link.capabilities.start_request:
+                self._tasks.append(asyncio.create_task(self._cnc_trigger(name),
+                                                       name=f"cnc-trigger-{name}"))
+            if setup.rerun_interrupted and any(
+                    self.store.run(r).machine == name for r in self.interrupted):
+                log.info("%s: starting a new run after the interrupted one", name)
+                session.start("rerun")
+
+    async def _stop_leftover(self, name: str, link: CncLink) -> None:
+        """The controller may still run the interrupted program, whose results nobody reads
+        any more: stop it, so the next run starts from a known state."""
+        try:
+            await asyncio.wait_for(link.abort(), 10.0)
+            log.warning("%s: stopped the program left running by the interrupted run", name)
+        except Exception as e:
+            log.warning("%s: could not stop a leftover program: %s", name, e)
+
+    async def _start_hmi(self) -> None:
+        from daemon.hmi.app import create_app
+
+        cfg = self.config
+        ctx = None
+        if cfg.hmi_tls is not None:
+            ctx = ssl.create_default_context(ssl.Purpose.CLIENT_AUTH)
+            try:
+                ctx.load_cert_chain(*map(str, cfg.hmi_tls))
+            except (OSError, ssl.SSLError) as e:
+                raise ServiceError(f"{cfg.path}: hmi.tls: cannot load certificate/key: "
+                                   f"{e}") from None
+        app = create_app(self.sessions, self.store, cfg.hmi_token or "",  # type: ignore[arg-type]
+                         secure_cookie=ctx is not None)
+        self._runner = web.AppRunner(app, access_log=None, handle_signals=False)
+        await self._runner.setup()
+        site = web.TCPSite(self._runner, cfg.hmi.host, cfg.hmi.port, ssl_context=ctx)
+        try:
+            await site.start()
+        except OSError as e:
+            why = "address already in use" if e.errno == errno.EADDRINUSE else e.strerror
+            raise ServiceError(f"{cfg.path}: hmi: cannot listen on {cfg.hmi.host}:"
+                               f"{cfg.hmi.port}: {why}") from None
+        port = site._server.sockets[0].getsockname()[1]  # type: ignore[union-attr]
+        scheme = "https" if ctx else "http"
+        self.hmi_url = f"{scheme}://{cfg.hmi.host}:{port}/"
+
+    async def _start_panel(self) -> None:
+        """The CAN operator panel: its button starts/aborts, its lamps show the state."""
+        if not self.config.can_panel:
+            return
+        try:
+            from drivers import can_panel
+        except ImportError as e:
+            raise ServiceError(f"{self.config.path}: can_panel: driver unavailable: {e}") from None
+        self.panel = can_panel.attach(self.config.can_panel, self)
+
+    # ----------------------------------------------------------------------------- triggers
+    def trigger(self, machine: str, source: str) -> str:
+        """Start a run from ``source`` (hmi, can, cli …); raises Refused with the reason."""
+        session = self.sessions.get(machine)
+        if session is None:
+            raise Refused(f"no machine {machine!r} (configured: {', '.join(self.sessions)})")
+        return session.start(source)
+
+    async def abort(self, machine: str, source: str) -> bool:
+        session = self.sessions.get(machine)
+        return bool(session and await session.abort(source))
+
+    async def _cnc_trigger(self, name: str) -> None:
+        session, link = self.sessions[name], self.links[name]
+        while True:
+            try:
+                req = await link.wait_start_request()
+            except asyncio.CancelledError:
+                raise
+            except Exception as e:
+                log.warning("%s: waiting for the start request failed: %s", name, e)
+                session.link_ok = False
+                session._publish()
+                await self._reconnector(name)()
+                continue
+            try:
+                run_id = session.start("cnc")
+                log.info("%s: start-of-shift request %s → run %s", name, req.detail, run_id)
+            except Refused as e:
+                log.warning("%s", e)
+            await session.wait()
+
+    def _reconnector(self, name: str) -> Callable[[], Any]:
+        async def reconnect() -> None:
+            from drivers.hits import with_backoff
+
+            link, session = self.links[name], self.sessions.get(name)
+            with contextlib.suppress(Exception):
+                await link.close()
+            await with_backoff(link.connect, what=f"{name} controller",
+                               timeout_s=RECONNECT_TIMEOUT_S)
+            if session is not None:
+                session.link_ok = True
+                session._publish()
+        return reconnect
+
+    # ----------------------------------------------------------------------------- shutdown
+    async def stop(self) -> None:
+        for t in self._tasks:
+            t.cancel()
+        for t in self._tasks:
+            with contextlib.suppress(BaseException):
+                await t
+        for s in self.sessions.values():
+            with contextlib.suppress(Exception):
+                await s.abort("daemon shutdown")
+        if self.panel is not None:
+            with contextlib.suppress(Exception):
+                await self.panel.close()
+        if self._runner is not None:
+            await self._runner.cleanup()
+        for link in self.links.values():
+            with contextlib.suppress(Exception):
+                await link.close()
+        if self.store is not None:
+            self.store.close()

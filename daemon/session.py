@@ -1,0 +1,303 @@
+"""One verification session per machine: the run state machine of DESIGN.md.
+
+IDLE → PREPARE → STREAM → CAPTURE → IDENTIFY → JUDGE → REPORT → WRITE-BACK → IDLE, or ABORTED /
+FAILED with a reason. Raw hits are journaled before anything else looks at them; a probe that
+does not trigger, a hit that does not match the program, a silent controller or a lost link stop
+the run; a second trigger during a run is refused with a reason; abort works from any source.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import dataclasses
+import logging
+import secrets
+import time
+from collections.abc import Callable
+from enum import StrEnum
+from pathlib import Path
+from typing import Any
+
+from daemon import pipeline
+from daemon.daemon_config import MachineSetup
+from daemon.judge import judge
+from daemon.messages import ProbeHit
+from daemon.store import Store
+from drivers.base import CncLink, ControllerAlarm, LinkError, Verdict
+
+log = logging.getLogger("rumba.session")
+
+ABORT_TIMEOUT_S = 10.0
+WRITE_BACK_TIMEOUT_S = 30.0
+
+
+class State(StrEnum):
+    IDLE = "IDLE"
+    PREPARE = "PREPARE"
+    STREAM = "STREAM"
+    CAPTURE = "CAPTURE"
+    IDENTIFY = "IDENTIFY"
+    JUDGE = "JUDGE"
+    REPORT = "REPORT"
+    WRITE_BACK = "WRITE-BACK"
+    ABORTED = "ABORTED"
+    FAILED = "FAILED"
+
+
+READY_STATES = (State.IDLE, State.ABORTED, State.FAILED)
+"""States in which a new run may start (the last outcome stays visible until then)."""
+
+
+class Refused(Exception):
+    """A start request was refused; the message says why (e.g. a run is in progress)."""
+
+
+class RunFailed(Exception):
+    """The run cannot continue; the message is the reason stored with the run."""
+
+
+def new_run_id() -> str:
+    """Sortable, unique and G-code safe (letters, digits, '-'), 21 characters."""
+    return time.strftime("%Y%m%dT%H%M%SZ", time.gmtime()) + "-" + secrets.token_hex(2)
+
+
+class Session:
+    """Runs verification programs on one machine through one link, one at a time."""
+
+    def __init__(self, setup: MachineSetup, link: CncLink, store: Store, reports_dir: Path,
+                 *, analyse: Callable[..., pipeline.Analysis] = pipeline.analyse,
+                 prepare: Callable[..., pipeline.Prepared] = pipeline.prepare) -> None:
+        self.setup = setup
+        self.link = link
+        self.store = store
+        self.reports_dir = Path(reports_dir)
+        self._analyse = analyse
+        self._prepare = prepare
+        self.state = State.IDLE
+        self.reason = ""
+        self.run_id: str | None = None
+        self.trigger = ""
+        self.done = 0
+        self.total = 0
+        self.started_at = 0.0
+        self.first_hit_at: float | None = None
+        self.estimated_s: float | None = None
+        self.verdict: dict[str, Any] | None = None
+        self._task: asyncio.Task | None = None
+        self._abort_reason: str | None = None
+        self._queues: set[asyncio.Queue] = set()
+        self.listeners: list[Callable[[dict[str, Any]], None]] = []
+        self.link_ok = True  # the service reconnects before the next run when False
+        self.reconnect: Callable[[], Any] | None = None
+
+    # ------------------------------------------------------------------------------- status
+    @property
+    def busy(self) -> bool:
+        return self.state not in READY_STATES
+
+    def status(self) -> dict[str, Any]:
+        now = time.time()
+        return {
+            "machine": self.setup.name, "state": str(self.state), "reason": self.reason,
+            "run_id": self.run_id, "trigger": self.trigger, "done": self.done,
+            "total": self.total, "elapsed_s": round(now - self.started_at, 1)
+            if self.run_id else None, "eta_s": self.eta_s(now), "verdict": self.verdict,
+            "busy": self.busy, "link_ok": self.link_ok,
+        }
+
+    def eta_s(self, now: float | None = None) -> float | None:
+        """Time left: measured pace once touches arrive, else the program's estimate."""
+        if not self.busy:
+            return None
+        now = time.time() if now is None else now
+        if self.first_hit_at is not None and self.done >= 2:
+            pace = (now - self.first_hit_at) / (self.done - 1)
+            return round(max(self.total - self.done, 0) * pace, 1)
+        if self.estimated_s is not None:
+            return round(max(self.estimated_s - (now - self.started_at), 0.0), 1)
+        return None
+
+    def subscribe(self) -> asyncio.Queue:
+        q: asyncio.Queue = asyncio.Queue(maxsize=64)
+        self._queues.add(q)
+        q.put_nowait(self.status())
+        return q
+
+    def unsubscribe(self, q: asyncio.Queue) -> None:
+        self._queues.discard(q)
+
+    def _publish(self) -> None:
+        st = self.status()
+        for q in self._queues:
+            if q.full():  # a slow browser loses intermediate frames, never the latest
+                with contextlib.suppress(asyncio.QueueEmpty):
+                    q.get_nowait()
+            q.put_nowait(st)
+        for fn in self.listeners:
+            try:
+                fn(st)
+            except Exception:  # a lamp must never break a run
+                log.exception("status listener failed")
+
+    def _enter(self, state: State, reason: str | None = None) -> None:
+        self.state = state
+        if reason is not None:
+            self.reason = reason
+        if self.run_id is not None:
+            self.store.set_state(self.run_id,
+                                 "DONE" if state == State.IDLE else str(state), reason)
+        log.info("%s %s %s%s", self.setup.name, self.run_id, state,
+                 f": {reason}" if reason else "")
+        self._publish()
+
+    # ----------------------------------------------------------------------------- commands
+    def start(self, trigger: str) -> str:
+        """Start a run now (returns its id) or raise ``Refused`` with the reason."""
+        if trigger not in ("cli", "rerun") and not getattr(self.setup.triggers, trigger, True):
+            raise Refused(f"{self.setup.name}: trigger '{trigger}' is disabled in the config")
+        if self.busy:
+            raise Refused(f"{self.setup.name}: run {self.run_id} in progress "
+                          f"(state {self.state}, started by {self.trigger}); "
+                          f"{trigger} request refused")
+        self.run_id = new_run_id()
+        self.trigger = trigger
+        self.done, self.total = 0, 0
+        self.started_at, self.first_hit_at, self.estimated_s = time.time(), None, None
+        self.verdict, self.reason, self._abort_reason = None, "", None
+        self.store.new_run(self.run_id, self.setup.name, trigger, plan=self.setup.plan.name,
+                           artefact=self.setup.artefact.name, dialect=self.setup.dialect)
+        self._enter(State.PREPARE, "")
+        self._task = asyncio.get_running_loop().create_task(self._run(self.run_id),
+                                                            name=f"run-{self.run_id}")
+        return self.run_id
+
+    async def abort(self, source: str) -> bool:
+        """Abort the current run (from any trigger source); False when nothing runs."""
+        if not self.busy or self._task is None:
+            return False
+        self._abort_reason = f"aborted by {source}"
+        self._task.cancel()
+        with contextlib.suppress(asyncio.CancelledError):
+            await asyncio.shield(self._task)
+        return True
+
+    async def wait(self) -> dict[str, Any]:
+        """Wait for the current run to end; returns the final status."""
+        if self._task is not None:
+            with contextlib.suppress(asyncio.CancelledError):
+                await asyncio.shield(self._task)
+        return self.status()
+
+    # ---------------------------------------------------------------------------------- run
+    async def _run(self, run_id: str) -> None:
+        s = self.setup
+        try:
+            if not self.link_ok and self.reconnect is not None:
+                await self.reconnect()
+            ref = self.store.last_good(s.name, before=run_id)
+            prepared = await asyncio.to_thread(self._prepare, s, run_id, ref[1] if ref else None)
+            self.total, self.estimated_s = prepared.job.touch_count, prepared.estimated_s
+            self.store.set_state(run_id, "PREPARE", touch_total=self.total)
+            self._enter(State.STREAM)
+            hits = await self._capture(prepared)
+            self._enter(State.IDENTIFY)
+            analysis = await asyncio.to_thread(self._analyse, s, hits, run_id)
+            analysis.data["reference_run"] = ref[0] if ref else None
+            self.store.save_centres(run_id, analysis.centre_rows)
+            self.store.save_analysis(run_id, analysis.data)
+            self._enter(State.JUDGE)
+            j = judge(analysis.data, s.tolerances, ref[1] if ref else None)
+            self.store.save_verdict(run_id, j.status, list(j.reasons),
+                                    [c.as_dict() for c in j.checks], j.summary)
+            self.verdict = {"status": j.status, "summary": j.summary, "reasons": list(j.reasons)}
+            self._enter(State.REPORT)
+            from daemon import report  # matplotlib import is slow: only when a run gets here
+            paths = await asyncio.to_thread(report.write_report, self.store, run_id,
+                                            self.reports_dir, s)
+            self.store.save_report(run_id, *paths)
+            self.verdict["report"] = str(paths[0])
+            self._enter(State.WRITE_BACK)
+            await self._write_back(Verdict(j.status, run_id, j.summary, j.reasons), strict=True)
+            self.store.mark_written_back(run_id)
+            self._enter(State.IDLE, "")
+        except asyncio.CancelledError:
+            reason = self._abort_reason or "daemon shutting down"
+            await self._stop_controller()
+            self._enter(State.ABORTED, reason)
+            await self._write_back(Verdict("ERROR", run_id, reason), strict=False)
+            if self._abort_reason is None:
+                raise
+        except (RunFailed, LinkError, ControllerAlarm, pipeline.PipelineError) as e:
+            reason = str(e) or type(e).__name__
+            if isinstance(e, LinkError):
+                self.link_ok = False
+            if isinstance(e, RunFailed | pipeline.PipelineError):
+                await self._stop_controller()
+            self._enter(State.FAILED, reason)
+            await self._write_back(Verdict("ERROR", run_id, reason), strict=False)
+        except Exception as e:  # a bug must not kill the daemon: the run fails with the cause
+            log.exception("run %s crashed", run_id)
+            self._enter(State.FAILED, f"internal error: {type(e).__name__}: {e}")
+            await self._write_back(Verdict("ERROR", run_id, str(e)), strict=False)
+
+    async def _capture(self, prepared: pipeline.Prepared) -> list[ProbeHit]:
+        run_id = prepared.job.run_id
+        hits: list[ProbeHit] = []
+        agen = self.link.run(prepared.job)
+        try:
+            while True:
+                try:
+                    hit = await asyncio.wait_for(anext(agen), self.setup.touch_timeout_s)
+                except StopAsyncIteration:
+                    break
+                except TimeoutError:
+                    raise RunFailed(f"no probe result for {self.setup.touch_timeout_s:g} s after "
+                                    f"touch {len(hits)} of {self.total}: controller silent "
+                                    "(feed hold, alarm or lost results)") from None
+                hit = prepared.complete(hit, time.time() - self.started_at)
+                self.store.journal_hit(run_id, hit)  # raw data first, always
+                hits.append(hit)
+                self.done = len(hits)
+                if self.first_hit_at is None:
+                    self.first_hit_at = time.time()
+                    self._enter(State.CAPTURE)
+                else:
+                    self._publish()
+                mismatch = prepared.mismatch(hit)
+                if mismatch:
+                    raise RunFailed(mismatch)
+                if not hit.triggered:
+                    raise RunFailed(f"probe did not trigger at touch {hit.seq} (pose {hit.pose}, "
+                                    f"ball {hit.ball}, touch {hit.touch}): ball missing or "
+                                    "moved; run stopped")
+        finally:
+            with contextlib.suppress(Exception):
+                await agen.aclose()
+        if len(hits) != self.total:
+            raise RunFailed(f"program ended after {len(hits)} of {self.total} touches")
+        return hits
+
+    async def _stop_controller(self) -> None:
+        try:
+            await asyncio.wait_for(asyncio.shield(self.link.abort()), ABORT_TIMEOUT_S)
+        except Exception as e:
+            log.error("%s: abort on the controller failed: %s", self.setup.name, e)
+            self.reason = f"{self.reason}; controller abort failed: {e}".lstrip("; ")
+
+    async def _write_back(self, verdict: Verdict, strict: bool) -> None:
+        """Write the verdict where the CNC reads it; when ``strict`` a failure fails the run."""
+        if not self.link.capabilities.writes_verdict:
+            return
+        try:
+            await asyncio.wait_for(self.link.write_verdict(verdict), WRITE_BACK_TIMEOUT_S)
+        except Exception as e:
+            if strict:
+                raise LinkError(f"verdict {verdict.status} computed but not written back "
+                                f"to the controller: {e}") from None
+            log.warning("%s: could not write %s to the controller: %s", self.setup.name,
+                        verdict.status, e)
+
+
+def replace_hit(hit: ProbeHit, **changes: Any) -> ProbeHit:
+    return dataclasses.replace(hit, **changes)

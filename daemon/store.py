@@ -1,0 +1,339 @@
+"""The run journal: one SQLite file (WAL) holding runs, every raw hit, centres, estimates,
+verdicts and reports, with numbered schema migrations.
+
+Raw data first, always: ``journal_hit`` commits each hit in its own transaction before the
+session looks at it, so a ``kill -9`` (or, with ``synchronous=FULL``, a power cut) loses nothing
+already received. Measured in ``benchmarks/bench_daemon.py``.
+"""
+
+from __future__ import annotations
+
+import json
+import sqlite3
+import time
+from collections.abc import Iterable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Literal
+
+from daemon.messages import ProbeHit
+
+FINAL_STATES = ("DONE", "ABORTED", "FAILED", "INTERRUPTED", "IMPORTED")
+"""A run in any other state was cut short by a crash (marked INTERRUPTED on the next start)."""
+
+Synchronous = Literal["FULL", "NORMAL"]
+
+
+class StoreError(Exception):
+    """The journal cannot be opened or used; the message is one line for the operator."""
+
+
+# Each migration is applied once, in order, inside one transaction, and recorded in
+# schema_version. Never edit a released step: add a new one.
+MIGRATIONS: list[list[str]] = [
+    [  # 1: initial schema
+        """CREATE TABLE runs (
+            id TEXT PRIMARY KEY, machine TEXT NOT NULL, trigger TEXT NOT NULL,
+            state TEXT NOT NULL, reason TEXT NOT NULL DEFAULT '',
+            plan TEXT NOT NULL DEFAULT '', artefact TEXT NOT NULL DEFAULT '',
+            dialect TEXT NOT NULL DEFAULT '', touch_total INTEGER NOT NULL DEFAULT 0,
+            started_at REAL NOT NULL, ended_at REAL,
+            verdict TEXT, summary TEXT NOT NULL DEFAULT '', imported INTEGER NOT NULL DEFAULT 0)""",
+        "CREATE INDEX runs_machine ON runs(machine, started_at)",
+        """CREATE TABLE hits (
+            run_id TEXT NOT NULL REFERENCES runs(id), seq INTEGER NOT NULL,
+            t_s REAL NOT NULL, repeat INTEGER NOT NULL, pose INTEGER NOT NULL,
+            b_cmd_deg REAL NOT NULL, c_cmd_deg REAL NOT NULL, ball TEXT NOT NULL,
+            touch INTEGER NOT NULL, dir_x REAL NOT NULL, dir_y REAL NOT NULL, dir_z REAL NOT NULL,
+            axes TEXT NOT NULL, triggered INTEGER NOT NULL, feed_mm_min REAL NOT NULL,
+            raw TEXT NOT NULL, extra TEXT NOT NULL, received_at REAL NOT NULL,
+            PRIMARY KEY (run_id, seq))""",
+        """CREATE TABLE centres (
+            run_id TEXT NOT NULL REFERENCES runs(id), pose INTEGER NOT NULL, ball TEXT NOT NULL,
+            b_deg REAL NOT NULL, c_deg REAL NOT NULL, x_mm REAL NOT NULL, y_mm REAL NOT NULL,
+            z_mm REAL NOT NULL, radius_dev_um REAL, form_um REAL,
+            PRIMARY KEY (run_id, pose, ball))""",
+        """CREATE TABLE estimates (
+            run_id TEXT PRIMARY KEY REFERENCES runs(id), analysis TEXT NOT NULL)""",
+        """CREATE TABLE verdicts (
+            run_id TEXT PRIMARY KEY REFERENCES runs(id), status TEXT NOT NULL,
+            reasons TEXT NOT NULL, checks TEXT NOT NULL,
+            written_back INTEGER NOT NULL DEFAULT 0)""",
+        """CREATE TABLE reports (
+            run_id TEXT PRIMARY KEY REFERENCES runs(id), html_path TEXT NOT NULL,
+            json_path TEXT NOT NULL)""",
+    ],
+]
+SCHEMA_VERSION = len(MIGRATIONS)
+
+
+@dataclass(frozen=True)
+class RunRow:
+    id: str
+    machine: str
+    trigger: str
+    state: str
+    reason: str
+    plan: str
+    artefact: str
+    dialect: str
+    touch_total: int
+    started_at: float
+    ended_at: float | None
+    verdict: str | None
+    summary: str
+    imported: bool
+    hits: int = 0
+
+    @property
+    def final(self) -> bool:
+        return self.state in FINAL_STATES
+
+
+class Store:
+    """The journal of one daemon. Single writer (the daemon's event loop); readers may be other
+    processes (``rumba history``) thanks to WAL."""
+
+    def __init__(self, path: Path | str, synchronous: Synchronous = "FULL") -> None:
+        self.path = Path(path)
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            # Autocommit mode: every statement outside an explicit BEGIN is its own transaction.
+            self.db = sqlite3.connect(self.path, isolation_level=None, check_same_thread=False)
+            mode = self.db.execute("PRAGMA journal_mode=WAL").fetchone()[0]
+            if str(mode).lower() != "wal":
+                raise StoreError(f"{self.path}: cannot switch the journal to WAL (got {mode})")
+            self.db.execute(f"PRAGMA synchronous={'FULL' if synchronous == 'FULL' else 'NORMAL'}")
+            self.db.execute("PRAGMA foreign_keys=ON")
+            self.db.execute("PRAGMA busy_timeout=5000")
+            self._migrate()
+        except sqlite3.Error as e:
+            raise StoreError(f"{self.path}: cannot open the journal: {e}") from None
+
+    # ------------------------------------------------------------------------------- schema
+    def _migrate(self) -> None:
+        self.db.execute("CREATE TABLE IF NOT EXISTS schema_version "
+                        "(version INTEGER PRIMARY KEY, applied_at REAL NOT NULL)")
+        current = self.schema_version()
+        if current > SCHEMA_VERSION:
+            raise StoreError(f"{self.path}: journal schema v{current} is newer than this rumba "
+                             f"(v{SCHEMA_VERSION}); upgrade rumba")
+        for version in range(current + 1, SCHEMA_VERSION + 1):
+            self.db.execute("BEGIN IMMEDIATE")
+            try:
+                for stmt in MIGRATIONS[version - 1]:
+                    self.db.execute(stmt)
+                self.db.execute("INSERT INTO schema_version VALUES (?, ?)", (version, time.time()))
+                self.db.execute("COMMIT")
+            except BaseException:
+                self.db.execute("ROLLBACK")
+                raise
+
+    def schema_version(self) -> int:
+        row = self.db.execute("SELECT MAX(version) FROM schema_version").fetchone()
+        return int(row[0] or 0)
+
+    def close(self) -> None:
+        self.db.close()
+
+    # --------------------------------------------------------------------------------- runs
+    def new_run(self, run_id: str, machine: str, trigger: str, *, plan: str = "",
+                artefact: str = "", dialect: str = "", touch_total: int = 0,
+                state: str = "PREPARE", imported: bool = False,
+                started_at: float | None = None) -> None:
+        self.db.execute(
+            "INSERT INTO runs (id, machine, trigger, state, plan, artefact, dialect, touch_total,"
+            " started_at, imported) VALUES (?,?,?,?,?,?,?,?,?,?)",
+            (run_id, machine, trigger, state, plan, artefact, dialect, touch_total,
+             time.time() if started_at is None else started_at, int(imported)))
+
+    def set_state(self, run_id: str, state: str, reason: str | None = None, *,
+                  touch_total: int | None = None) -> None:
+        ended = time.time() if state in FINAL_STATES else None
+        self.db.execute(
+            "UPDATE runs SET state=?, reason=COALESCE(?, reason), ended_at=COALESCE(?, ended_at),"
+            " touch_total=COALESCE(?, touch_total) WHERE id=?",
+            (state, reason, ended, touch_total, run_id))
+
+    def mark_interrupted(self) -> list[str]:
+        """Runs left in a non-final state by a crash → INTERRUPTED (their hits stay)."""
+        rows = self.db.execute(
+            f"SELECT id FROM runs WHERE state NOT IN ({','.join('?' * len(FINAL_STATES))})",
+            FINAL_STATES).fetchall()
+        ids = [r[0] for r in rows]
+        for run_id in ids:
+            state = self.run(run_id).state
+            self.set_state(run_id, "INTERRUPTED",
+                           f"daemon stopped unexpectedly during {state}; "
+                           f"{self.hit_count(run_id)} hits kept")
+        return ids
+
+    def run(self, run_id: str) -> RunRow:
+        rows = self._runs("WHERE r.id = ?", (run_id,))
+        if not rows:
+            raise StoreError(f"no run {run_id!r} in {self.path}")
+        return rows[0]
+
+    def runs(self, machine: str | None = None, limit: int = 50) -> list[RunRow]:
+        """Most recent first."""
+        if machine is None:
+            return self._runs("ORDER BY r.started_at DESC LIMIT ?", (limit,))
+        return self._runs("WHERE r.machine = ? ORDER BY r.started_at DESC LIMIT ?",
+                          (machine, limit))
+
+    def _runs(self, where: str, args: tuple) -> list[RunRow]:
+        q = ("SELECT r.id, r.machine, r.trigger, r.state, r.reason, r.plan, r.artefact, r.dialect,"
+             " r.touch_total, r.started_at, r.ended_at, r.verdict, r.summary, r.imported,"
+             " (SELECT COUNT(*) FROM hits h WHERE h.run_id = r.id) FROM runs r " + where)
+        return [RunRow(*row[:13], bool(row[13]), row[14]) for row in self.db.execute(q, args)]
+
+    # --------------------------------------------------------------------------------- hits
+    def journal_hit(self, run_id: str, hit: ProbeHit) -> None:
+        """Commit one hit now (its own transaction): raw data first, before anything else."""
+        self.db.execute(
+            "INSERT INTO hits VALUES (?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?)",
+            (run_id, hit.seq, hit.t_s, hit.repeat, hit.pose, hit.b_cmd_deg, hit.c_cmd_deg,
+             hit.ball, hit.touch, *map(float, hit.direction), json.dumps(hit.axes),
+             int(hit.triggered), hit.feed_mm_min, hit.raw, json.dumps(hit.extra), time.time()))
+
+    def journal_hits(self, run_id: str, hits: Iterable[ProbeHit]) -> int:
+        """Bulk insert in one transaction (imports only, never live capture)."""
+        n = 0
+        self.db.execute("BEGIN")
+        try:
+            for hit in hits:
+                self.journal_hit(run_id, hit)
+                n += 1
+            self.db.execute("COMMIT")
+        except BaseException:
+            self.db.execute("ROLLBACK")
+            raise
+        return n
+
+    def hit_count(self, run_id: str) -> int:
+        return int(self.db.execute("SELECT COUNT(*) FROM hits WHERE run_id=?",
+                                   (run_id,)).fetchone()[0])
+
+    def hits(self, run_id: str) -> list[ProbeHit]:
+        rows = self.db.execute(
+            "SELECT seq, t_s, repeat, pose, b_cmd_deg, c_cmd_deg, ball, touch, dir_x, dir_y,"
+            " dir_z, axes, triggered, feed_mm_min, raw, extra FROM hits WHERE run_id=?"
+            " ORDER BY seq", (run_id,))
+        return [ProbeHit(seq=r[0], pose=r[3], ball=r[6], touch=r[7], axes=json.loads(r[11]),
+                         triggered=bool(r[12]), t_s=r[1], repeat=r[2], raw=r[14],
+                         b_cmd_deg=r[4], c_cmd_deg=r[5], direction=(r[8], r[9], r[10]),
+                         feed_mm_min=r[13], extra=json.loads(r[15])) for r in rows]
+
+    # ----------------------------------------------------------------------------- results
+    def save_centres(self, run_id: str, rows: Iterable[tuple]) -> None:
+        """rows: (pose, ball, b_deg, c_deg, x_mm, y_mm, z_mm, radius_dev_um, form_um)."""
+        self.db.execute("BEGIN")
+        try:
+            self.db.executemany("INSERT OR REPLACE INTO centres VALUES (?,?,?,?,?,?,?,?,?,?)",
+                                [(run_id, *r) for r in rows])
+            self.db.execute("COMMIT")
+        except BaseException:
+            self.db.execute("ROLLBACK")
+            raise
+
+    def centres(self, run_id: str) -> list[tuple]:
+        return self.db.execute(
+            "SELECT pose, ball, b_deg, c_deg, x_mm, y_mm, z_mm, radius_dev_um, form_um"
+            " FROM centres WHERE run_id=? ORDER BY pose, ball", (run_id,)).fetchall()
+
+    def save_analysis(self, run_id: str, analysis: dict[str, Any]) -> None:
+        self.db.execute("INSERT OR REPLACE INTO estimates VALUES (?, ?)",
+                        (run_id, json.dumps(analysis)))
+
+    def analysis(self, run_id: str) -> dict[str, Any] | None:
+        row = self.db.execute("SELECT analysis FROM estimates WHERE run_id=?",
+                              (run_id,)).fetchone()
+        return json.loads(row[0]) if row else None
+
+    def save_verdict(self, run_id: str, status: str, reasons: list[str],
+                     checks: list[dict[str, Any]], summary: str) -> None:
+        self.db.execute("BEGIN")
+        try:
+            self.db.execute("INSERT OR REPLACE INTO verdicts VALUES (?,?,?,?,0)",
+                            (run_id, status, json.dumps(reasons), json.dumps(checks)))
+            self.db.execute("UPDATE runs SET verdict=?, summary=? WHERE id=?",
+                            (status, summary, run_id))
+            self.db.execute("COMMIT")
+        except BaseException:
+            self.db.execute("ROLLBACK")
+            raise
+
+    def mark_written_back(self, run_id: str) -> None:
+        self.db.execute("UPDATE verdicts SET written_back=1 WHERE run_id=?", (run_id,))
+
+    def verdict(self, run_id: str) -> dict[str, Any] | None:
+        row = self.db.execute("SELECT status, reasons, checks, written_back FROM verdicts"
+                              " WHERE run_id=?", (run_id,)).fetchone()
+        if row is None:
+            return None
+        return {"status": row[0], "reasons": json.loads(row[1]), "checks": json.loads(row[2]),
+                "written_back": bool(row[3])}
+
+    def save_report(self, run_id: str, html_path: Path, json_path: Path) -> None:
+        self.db.execute("INSERT OR REPLACE INTO reports VALUES (?,?,?)",
+                        (run_id, str(html_path), str(json_path)))
+
+    def report(self, run_id: str) -> tuple[Path, Path] | None:
+        row = self.db.execute("SELECT html_path, json_path FROM reports WHERE run_id=?",
+                              (run_id,)).fetchone()
+        return (Path(row[0]), Path(row[1])) if row else None
+
+    def last_good(self, machine: str, before: str | None = None) -> tuple[str, dict] | None:
+        """The most recent PASS run of ``machine`` with its analysis (the drift reference)."""
+        q = ("SELECT r.id, e.analysis FROM runs r JOIN estimates e ON e.run_id = r.id"
+             " WHERE r.machine=? AND r.verdict='PASS' AND r.state='DONE'")
+        args: tuple = (machine,)
+        if before is not None:
+            q += " AND r.id != ?"
+            args += (before,)
+        row = self.db.execute(q + " ORDER BY r.started_at DESC LIMIT 1", args).fetchone()
+        return (row[0], json.loads(row[1])) if row else None
+
+    def trend(self, machine: str, limit: int = 30) -> list[dict[str, Any]]:
+        """Completed runs with an analysis, oldest first: run id, time, verdict, analysis."""
+        rows = self.db.execute(
+            "SELECT r.id, r.started_at, r.verdict, e.analysis FROM runs r"
+            " JOIN estimates e ON e.run_id = r.id WHERE r.machine=? AND r.verdict IS NOT NULL"
+            " ORDER BY r.started_at DESC LIMIT ?", (machine, limit)).fetchall()
+        return [{"run_id": r[0], "started_at": r[1], "verdict": r[2],
+                 "analysis": json.loads(r[3])} for r in reversed(rows)]
+
+
+# ---------------------------------------------------------------------------- probing-log CSV
+
+
+def export_csv(store: Store, run_id: str, path: Path | str, machine: Any) -> int:
+    """Write the journaled hits of ``run_id`` as a probing log (DESIGN.md contract); returns
+    the number of rows. Untriggered hits are left out (the log holds latched touches only)."""
+    from daemon.pipeline import hit_to_row
+    from daemon.probelog import write_log
+
+    store.run(run_id)  # raises StoreError for an unknown run
+    rows = [hit_to_row(run_id, h, machine) for h in store.hits(run_id) if h.triggered]
+    write_log(path, rows)
+    return len(rows)
+
+
+def import_csv(store: Store, path: Path | str, machine_name: str, machine: Any,
+               artefact: Any) -> tuple[str, int]:
+    """Journal a probing log as a new (imported) run of ``machine_name``; returns (run id, rows).
+    The log's run id is kept unless the store has it already."""
+    from daemon.pipeline import row_to_hit
+    from daemon.probelog import read_log
+
+    rows = read_log(path, artefact)
+    run_ids = sorted({r.run_id for r in rows})
+    if len(run_ids) != 1:
+        raise StoreError(f"{path}: contains runs {run_ids}; import one run at a time")
+    run_id = run_ids[0]
+    if store.db.execute("SELECT 1 FROM runs WHERE id=?", (run_id,)).fetchone():
+        raise StoreError(f"{path}: run {run_id} is already in the journal")
+    store.new_run(run_id, machine_name, "import", artefact=getattr(artefact, "name", ""),
+                  touch_total=len(rows), state="IMPORTED", imported=True)
+    n = store.journal_hits(run_id, (row_to_hit(r, machine) for r in rows))
+    return run_id, n

@@ -1,0 +1,78 @@
+"""Turning what a controller reports (seq + latched axes) into ``ProbeHit``s, for every link."""
+
+from __future__ import annotations
+
+import asyncio
+import time
+from collections.abc import Awaitable, Callable
+from dataclasses import replace
+from typing import TypeVar
+
+from daemon.messages import TOUCH_DIRECTIONS, ProbeHit
+from drivers.base import LinkError, ProgramJob
+
+T = TypeVar("T")
+
+
+class HitFactory:
+    """Names a result by its sequence number using the job's touch table (``job.touches``)."""
+
+    def __init__(self, job: ProgramJob) -> None:
+        self.job = job
+        self.t0 = time.monotonic()
+        self._by_seq = {t.seq: t for t in job.touches}
+
+    def t_s(self) -> float:
+        return time.monotonic() - self.t0
+
+    def make(self, seq: int, axes: dict[str, float], triggered: bool, raw: str) -> ProbeHit:
+        tid = self._by_seq.get(seq)
+        if self._by_seq and tid is None:
+            raise LinkError(f"controller reported touch seq {seq}, not in the program "
+                            f"(1..{len(self._by_seq)})")
+        return ProbeHit(
+            seq=seq, pose=tid.pose if tid else -1, ball=tid.ball if tid else "",
+            touch=tid.touch if tid else 0, repeat=tid.repeat if tid else 0,
+            axes=axes, triggered=triggered, t_s=self.t_s(), raw=raw,
+            direction=TOUCH_DIRECTIONS.get(tid.touch, (0.0, 0.0, 0.0)) if tid else (0.0, 0.0, 0.0),
+        )
+
+    def complete(self, hit: ProbeHit, raw: str) -> ProbeHit:
+        """Fill what a dialect's line parser could not know (time, raw line, pose/ball/touch)."""
+        tid = self._by_seq.get(hit.seq)
+        changes: dict = {"t_s": self.t_s(), "raw": hit.raw or raw}
+        if tid is not None and not hit.ball:
+            changes.update(pose=tid.pose, ball=tid.ball, touch=tid.touch, repeat=tid.repeat)
+        return replace(hit, **changes)
+
+
+async def wait_event(event: asyncio.Event, timeout_s: float | None) -> bool:
+    """Wait for ``event`` up to ``timeout_s``; True if set. Unlike ``asyncio.wait_for`` on
+    Python 3.11, a cancellation arriving together with the timeout is never swallowed."""
+    waiter = asyncio.ensure_future(event.wait())
+    try:
+        done, _ = await asyncio.wait({waiter}, timeout=timeout_s)
+    finally:
+        waiter.cancel()
+    return bool(done)
+
+
+async def with_backoff(
+    attempt: Callable[[], Awaitable[T]], *, what: str, timeout_s: float,
+    first_delay_s: float = 0.25, max_delay_s: float = 5.0,
+) -> T:
+    """Retry ``attempt`` with exponential backoff until it succeeds or ``timeout_s`` passes.
+
+    The last failure's message is kept so the operator sees why (refused, bad certificate …)."""
+    deadline = time.monotonic() + timeout_s
+    delay = first_delay_s
+    while True:
+        try:
+            return await attempt()
+        except (TimeoutError, OSError, LinkError, ConnectionError) as e:
+            last = f"{type(e).__name__}: {e}" if str(e) else type(e).__name__
+        left = deadline - time.monotonic()
+        if left <= 0:
+            raise LinkError(f"{what}: unreachable after {timeout_s:g} s ({last})")
+        await asyncio.sleep(min(delay, left))
+        delay = min(delay * 2, max_delay_s)

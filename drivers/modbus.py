@@ -1,0 +1,249 @@
+"""Modbus TCP link (pymodbus client) for the rumba register map (drivers/modbus_map.py):
+request/busy/done/verdict handshake, block streaming through the mailbox, results from the ring.
+
+Modbus has no notifications, so the link polls one 17-register status block (state, handshake,
+counter, mailbox); it re-polls at once after a write and backs off to ``poll_interval_s`` while
+nothing changes. Every slot between the last seen counter and the current one is read, so no touch
+is lost between polls (ring of 16).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import time
+from collections.abc import AsyncIterator
+
+from pymodbus.client import AsyncModbusTcpClient
+from pymodbus.exceptions import ModbusException
+
+from daemon.messages import ProbeHit
+from drivers.base import (
+    Capabilities,
+    CncLink,
+    ControllerAlarm,
+    LinkError,
+    ProgramJob,
+    StartRequest,
+    Verdict,
+)
+from drivers.hits import HitFactory, with_backoff
+from drivers.link_config import ModbusLinkConfig
+from drivers.modbus_map import (
+    ALARM_CODES,
+    ALARM_TEXT_WORDS,
+    COMMANDS,
+    MAP_ID,
+    MAP_VERSION,
+    MBX_DATA_WORDS,
+    RING_SLOTS,
+    SLOT_WORDS,
+    STATE_CODES,
+    STATUS_WORDS,
+    addr,
+    decode_slot,
+    slot_address,
+    text_words,
+    words_text,
+)
+
+logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
+STATE_NAMES = {v: k for k, v in STATE_CODES.items()}
+
+
+def program_blocks(text: str) -> list[str]:
+    """The blocks to stream: no ``%`` framing, no empty lines, each ≤ 160 ASCII characters."""
+    blocks = []
+    for n, line in enumerate(text.replace("\r\n", "\n").split("\n"), 1):
+        block = line.strip()
+        if not block or block == "%":
+            continue
+        if len(block) > 2 * MBX_DATA_WORDS or not block.isascii():
+            raise LinkError(f"program line {n}: a mailbox block holds at most "
+                            f"{2 * MBX_DATA_WORDS} ASCII characters")
+        blocks.append(block)
+    return blocks
+
+
+class ModbusLink(CncLink):
+    capabilities = Capabilities(start_request=True, streams_blocks=True, loads_program=False,
+                                writes_verdict=True, can_abort=True)
+
+    def __init__(self, cfg: ModbusLinkConfig) -> None:
+        self.cfg = cfg
+        self._client: AsyncModbusTcpClient | None = None
+        self.blocks_sent = 0
+
+    # ------------------------------------------------------------------ register I/O
+
+    async def _connect_once(self) -> AsyncModbusTcpClient:
+        client = AsyncModbusTcpClient(self.cfg.host, port=self.cfg.port, retries=1,
+                                      timeout=self.cfg.request_timeout_s, reconnect_delay=0)
+        if not await client.connect():
+            client.close()
+            raise LinkError("connection refused or timed out")
+        return client
+
+    async def connect(self) -> None:
+        if self._client is not None:
+            return
+        self._client = await with_backoff(
+            self._connect_once, what=f"modbus {self.cfg.host}:{self.cfg.port}",
+            timeout_s=self.cfg.connect_timeout_s)
+        head = await self._read(addr("MAP_ID"), 2)
+        if head != [MAP_ID, MAP_VERSION]:
+            await self.close()
+            raise LinkError(f"modbus {self.cfg.host}:{self.cfg.port}: registers "
+                            f"{self.cfg.base_address}..+1 hold {head}, expected the rumba map "
+                            f"[{MAP_ID:#06x}, {MAP_VERSION}] (check base_address / device_id)")
+
+    async def _reconnect(self) -> None:
+        if self._client is not None:
+            self._client.close()
+        self._client = None
+        self._client = await with_backoff(
+            self._connect_once, what=f"modbus {self.cfg.host}:{self.cfg.port}",
+            timeout_s=self.cfg.connect_timeout_s)
+
+    async def _read(self, address: int, count: int) -> list[int]:
+        if self._client is None:
+            raise LinkError("modbus link not connected")
+        try:
+            rr = await self._client.read_holding_registers(
+                self.cfg.base_address + address, count=count, device_id=self.cfg.device_id)
+        except (TimeoutError, ModbusException, OSError) as e:
+            raise LinkError(f"modbus read {address}+{count}: {e}") from None
+        if rr.isError():
+            raise LinkError(f"modbus read {address}+{count}: exception response {rr}")
+        return list(rr.registers)
+
+    async def _write(self, address: int, values: list[int]) -> None:
+        if self._client is None:
+            raise LinkError("modbus link not connected")
+        try:
+            rr = await self._client.write_registers(
+                self.cfg.base_address + address, values, device_id=self.cfg.device_id)
+        except (TimeoutError, ModbusException, OSError) as e:
+            raise LinkError(f"modbus write {address}: {e}") from None
+        if rr.isError():
+            raise LinkError(f"modbus write {address}: refused by the controller ({rr})")
+
+    async def _status(self) -> dict[str, int]:
+        r = await self._read(0, STATUS_WORDS)
+        return {"state": r[addr("STATE")], "alarm": r[addr("ALARM_CODE")],
+                "request": r[addr("REQUEST")], "done": r[addr("DONE")],
+                "command": r[addr("COMMAND")], "counter": r[addr("RESULT_COUNTER")],
+                "ready": r[addr("MBX_READY")], "ack": r[addr("MBX_ACK")]}
+
+    # ------------------------------------------------------------------ handshake
+
+    async def wait_start_request(self) -> StartRequest:
+        while True:
+            try:
+                st = await self._status()
+            except LinkError:
+                await self._reconnect()  # controller restarted or cable pulled: back off, retry
+                continue
+            if st["done"] and not st["request"]:
+                await self._write(addr("DONE"), [0])
+                await self._write(addr("VERDICT"), [0])
+                continue
+            if st["request"] and not st["done"]:
+                await self._write(addr("BUSY"), [1])
+                return StartRequest(source="cnc", detail="REQUEST register = 1")
+            await asyncio.sleep(max(self.cfg.poll_interval_s, 0.05))
+
+    async def write_verdict(self, verdict: Verdict) -> None:
+        await self._write(addr("VERDICT"), [verdict.code])  # verdict first, then DONE
+        await self._write(addr("BUSY"), [0, 1])  # BUSY=0, DONE=1 (adjacent registers)
+
+    # ------------------------------------------------------------------ program
+
+    async def _command(self, name: str) -> None:
+        await self._write(addr("COMMAND"), [COMMANDS[name]])
+        deadline = time.monotonic() + self.cfg.block_timeout_s
+        while (await self._read(addr("COMMAND"), 1))[0] != 0:
+            if time.monotonic() > deadline:
+                raise LinkError(f"controller did not execute command {name} within "
+                                f"{self.cfg.block_timeout_s:g} s")
+            await asyncio.sleep(0.001)
+
+    async def _send_block(self, seq: int, block: str) -> None:
+        data = text_words(block, (len(block) + 1) // 2) if block else []
+        await self._write(addr("MBX_LEN"), [len(block), *data])  # payload (with its length)
+        await self._write(addr("MBX_SEQ"), [seq])  # then the sequence number
+        await self._write(addr("MBX_READY"), [1])  # then the ready flag, last
+
+    async def _alarm_text(self, code: int) -> str:
+        text = words_text(await self._read(addr("ALARM_TEXT"), ALARM_TEXT_WORDS))
+        return text or ALARM_CODES.get(code, f"code {code}")
+
+    async def run(self, job: ProgramJob) -> AsyncIterator[ProbeHit]:
+        blocks = program_blocks(job.text)
+        hits = HitFactory(job)
+        await self._command("BEGIN")
+        last = got = 0
+        i, seq, end_sent = 0, 0, False
+        poll = 0.0
+        progress_t = time.monotonic()
+        self.blocks_sent = 0
+        while True:
+            st = await self._status()
+            new = (st["counter"] - last) & 0xFFFF
+            if new:
+                if new > RING_SLOTS:
+                    raise LinkError(f"result ring overrun: {new} touches since the last poll, "
+                                    f"ring holds {RING_SLOTS}")
+                for n in range(last + 1, last + new + 1):
+                    slot = (n - 1) % RING_SLOTS
+                    regs = await self._read(slot_address(slot), SLOT_WORDS)
+                    tseq, axes, triggered = decode_slot(regs)
+                    hit = hits.make(tseq, axes, triggered, f"slot={slot} regs={regs[:13]}")
+                    got += 1
+                    yield hit
+                    if not triggered:
+                        raise ControllerAlarm(f"probe did not trigger at touch seq {tseq}")
+                last = (last + new) & 0xFFFF
+                progress_t = time.monotonic()
+                poll = 0.0
+                continue
+            if st["state"] == STATE_CODES["alarm"]:
+                raise ControllerAlarm(f"controller alarm {st['alarm']}: "
+                                      f"{await self._alarm_text(st['alarm'])}")
+            if i < len(blocks):
+                if st["ready"] == 0 and st["ack"] == seq:
+                    seq = seq % 65535 + 1
+                    await self._send_block(seq, blocks[i])
+                    i += 1
+                    self.blocks_sent = i
+                    progress_t = time.monotonic()
+                    poll = 0.0
+                    continue
+                if time.monotonic() - progress_t > self.cfg.block_timeout_s:
+                    raise LinkError(f"controller did not take block {seq} within "
+                                    f"{self.cfg.block_timeout_s:g} s")
+            elif not end_sent:
+                await self._command("END")
+                end_sent = True
+                continue
+            elif st["state"] == STATE_CODES["done"]:
+                if got < job.touch_count:
+                    raise LinkError(f"program ended with {got} of {job.touch_count} touches")
+                return
+            elif time.monotonic() - progress_t > self.cfg.result_timeout_s:
+                raise LinkError(f"no touch result for {self.cfg.result_timeout_s:g} s (state "
+                                f"{STATE_NAMES.get(st['state'], st['state'])})")
+            # Nothing changed: poll again soon, backing off to the configured interval.
+            await asyncio.sleep(poll)
+            poll = min(max(poll * 2, 0.0005), self.cfg.poll_interval_s)
+
+    async def abort(self) -> None:
+        if self._client is not None and self._client.connected:
+            with contextlib.suppress(LinkError):
+                await self._write(addr("COMMAND"), [COMMANDS["ABORT"]])
+
+    async def close(self) -> None:
+        client, self._client = self._client, None
+        if client is not None:
+            client.close()

@@ -1,0 +1,268 @@
+"""OPC UA link (asyncua client): program transfer + start by method call, subscriptions to the
+start request, the touch counter and the controller state, result ring reads, verdict write-back
+with the request/busy/done handshake, certificate + user authentication, reconnect with backoff.
+
+Address space: drivers/opcua_space.py (table in drivers/README.md). No touch is lost when
+notifications coalesce or the connection drops: on every wake-up the counter is read and every
+slot between the last seen and the current counter is read (ring of 32).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import logging
+import time
+from collections.abc import AsyncIterator
+from typing import Any
+
+from asyncua import Client, ua
+from asyncua.crypto.security_policies import SecurityPolicyBasic256Sha256
+
+from daemon.messages import ProbeHit
+from drivers.base import (
+    Capabilities,
+    CncLink,
+    ControllerAlarm,
+    LinkError,
+    ProgramJob,
+    StartRequest,
+    Verdict,
+)
+from drivers.hits import HitFactory, wait_event, with_backoff
+from drivers.link_config import OpcUaLinkConfig
+from drivers.opcua_space import BY_ROLE, RESULT_ROLES, RING_SLOTS, node_id
+
+logging.getLogger("asyncua").setLevel(logging.ERROR)
+SUBSCRIBED = ("request", "touch_counter", "state")
+NODE_ROLES = tuple(BY_ROLE)
+"""Roles whose node id may be overridden in the link config (``nodes: {role: id}``)."""
+POLL_S = 0.5  # fallback re-read when no notification arrives (a lost publish, a reconnect)
+
+
+class _Fatal(Exception):
+    """A connect failure retrying cannot fix (bad password, untrusted certificate)."""
+
+
+class _Notify:
+    def __init__(self, event: asyncio.Event) -> None:
+        self.event = event
+
+    def datachange_notification(self, node: Any, val: Any, data: Any) -> None:
+        self.event.set()
+
+    def status_change_notification(self, status: Any) -> None:
+        self.event.set()
+
+
+def _double(value: float) -> ua.DataValue:
+    return ua.DataValue(ua.Variant(float(value), ua.VariantType.Double))
+
+
+class OpcUaLink(CncLink):
+    capabilities = Capabilities(start_request=True, streams_blocks=False, loads_program=True,
+                                writes_verdict=True, can_abort=True)
+
+    def __init__(self, cfg: OpcUaLinkConfig) -> None:
+        unknown = set(cfg.nodes) - set(NODE_ROLES)
+        if unknown:
+            raise LinkError(f"opcua nodes: unknown role(s) {sorted(unknown)} "
+                            f"(known: {', '.join(NODE_ROLES)})")
+        self.cfg = cfg
+        self._client: Client | None = None
+        self._n: dict[str, Any] = {}
+        self._wake = asyncio.Event()
+        self._sub: Any = None
+
+    # ------------------------------------------------------------------ connection
+
+    async def _connect_once(self) -> Client:
+        cfg = self.cfg
+        client = Client(cfg.url, timeout=cfg.request_timeout_s, watchdog_intervall=2.0)
+        client.application_uri = cfg.application_uri
+        client.name = "rumba-cnc daemon"
+        try:
+            if cfg.security != "none":
+                mode = (ua.MessageSecurityMode.SignAndEncrypt if cfg.security.endswith("Encrypt")
+                        else ua.MessageSecurityMode.Sign)
+                await client.set_security(
+                    SecurityPolicyBasic256Sha256, certificate=str(cfg.certificate),
+                    private_key=str(cfg.private_key),
+                    server_certificate=str(cfg.server_certificate)
+                    if cfg.server_certificate else None, mode=mode)
+            if cfg.user is not None:
+                client.set_user(cfg.user.name)
+                client.set_password(cfg.user.secret())
+        except (OSError, ValueError) as e:
+            raise _Fatal(f"opcua {cfg.url}: security setup: {e}") from None
+        try:
+            await client.connect(auto_reconnect=True, reconnect_max_delay=10.0,
+                                 reconnect_request_timeout=cfg.request_timeout_s)
+        except ua.UaError as e:  # status codes (bad password, untrusted) and policy mismatch
+            with contextlib.suppress(Exception):
+                await client.disconnect()
+            raise _Fatal(f"opcua {cfg.url}: rejected: {type(e).__name__} ({e})") from None
+        except (TimeoutError, OSError, ConnectionError) as e:
+            with contextlib.suppress(Exception):
+                await client.disconnect()
+            raise LinkError(str(e) or type(e).__name__) from None
+        return client
+
+    async def connect(self) -> None:
+        if self._client is not None:
+            return
+        try:
+            client = await with_backoff(self._connect_once, what=f"opcua {self.cfg.url}",
+                                        timeout_s=self.cfg.connect_timeout_s)
+        except _Fatal as e:
+            raise LinkError(str(e)) from None
+        try:
+            ns = 0
+            if len(self.cfg.nodes) < len(NODE_ROLES):
+                ns = await client.get_namespace_index(self.cfg.namespace_uri)
+            self._n = {r: client.get_node(node_id(r, ns, self.cfg.nodes)) for r in NODE_ROLES}
+            for role in NODE_ROLES:  # every node must exist: a typo fails now, not mid-run
+                if BY_ROLE[role].kind != "Method":
+                    try:
+                        await self._n[role].read_value()
+                    except ua.UaStatusCodeError as e:
+                        raise ValueError(f"{role} = {node_id(role, ns, self.cfg.nodes)}: "
+                                         f"{type(e).__name__}") from None
+            self._sub = await client.create_subscription(50, _Notify(self._wake))
+            await self._sub.subscribe_data_change([self._n[r] for r in SUBSCRIBED])
+        except (ua.UaError, ValueError, OSError, ConnectionError) as e:
+            with contextlib.suppress(Exception):
+                await client.disconnect()
+            raise LinkError(f"opcua {self.cfg.url}: address space: {e}") from None
+        self._client = client
+
+    async def _read(self, roles: tuple[str, ...]) -> list[Any]:
+        assert self._client is not None
+        try:
+            return await self._client.read_values([self._n[r] for r in roles])
+        except (TimeoutError, ua.UaError, OSError, ConnectionError) as e:
+            raise LinkError(f"opcua {self.cfg.url}: read {', '.join(roles)}: "
+                            f"{e or type(e).__name__}") from None
+
+    async def _read_during_run(self, roles: tuple[str, ...]) -> list[Any]:
+        """A read that rides out a connection drop: asyncua reconnects in the background and
+        the results wait in the ring (the CNC holds while it is full), so retry until
+        ``connect_timeout_s`` has passed without success."""
+        deadline = time.monotonic() + self.cfg.connect_timeout_s
+        while True:
+            try:
+                return await self._read(roles)
+            except LinkError:
+                if time.monotonic() > deadline:
+                    raise
+                await asyncio.sleep(0.2)
+
+    async def _write(self, role: str, value: float) -> None:
+        try:
+            await self._n[role].write_value(_double(value))
+        except (TimeoutError, ua.UaError, OSError, ConnectionError) as e:
+            raise LinkError(f"opcua {self.cfg.url}: write {role}: "
+                            f"{e or type(e).__name__}") from None
+
+    async def _call(self, role: str, *args: ua.Variant) -> None:
+        try:
+            await self._n["methods"].call_method(self._n[role], *args)
+        except (TimeoutError, ua.UaError, OSError, ConnectionError) as e:
+            raise LinkError(f"opcua {self.cfg.url}: {BY_ROLE[role].path} refused: "
+                            f"{e or type(e).__name__}") from None
+
+    async def _sleep_for_change(self, timeout_s: float) -> None:
+        self._wake.clear()
+        await wait_event(self._wake, timeout_s)
+
+    # ------------------------------------------------------------------ handshake
+
+    async def wait_start_request(self) -> StartRequest:
+        """Wait for REQUEST=1 with DONE=0; answer BUSY=1. DONE is cleared once REQUEST drops."""
+        while True:
+            request, done = await self._read_handshake()
+            if done >= 0.5 and request < 0.5:
+                await self._write("done", 0.0)
+                await self._write("verdict", 0.0)
+                done = 0.0
+            if request >= 0.5 and done < 0.5:
+                await self._write("busy", 1.0)
+                return StartRequest(source="cnc", detail=f"{BY_ROLE['request'].path} = 1")
+            await self._sleep_for_change(POLL_S)
+
+    async def _read_handshake(self) -> tuple[float, float]:
+        # While the connection is down asyncua reconnects with backoff in the background;
+        # waiting for a start request simply keeps trying until it is back.
+        while True:
+            try:
+                request, done = await self._read(("request", "done"))
+                return float(request), float(done)
+            except LinkError:
+                await asyncio.sleep(POLL_S)
+
+    async def write_verdict(self, verdict: Verdict) -> None:
+        await self._write("verdict", float(verdict.code))
+        await self._write("done", 1.0)
+        await self._write("busy", 0.0)
+
+    # ------------------------------------------------------------------ program
+
+    async def run(self, job: ProgramJob) -> AsyncIterator[ProbeHit]:
+        if self._client is None:
+            raise LinkError("opcua link not connected")
+        await self._call("load_program", ua.Variant(job.text, ua.VariantType.String),
+                         ua.Variant(job.dialect, ua.VariantType.String),
+                         ua.Variant(json.dumps(job.files) if job.files else "",
+                                    ua.VariantType.String))
+        (last,) = await self._read(("touch_counter",))
+        last = int(last)
+        hits = HitFactory(job)
+        await self._call("start")
+        got = 0
+        progress_t = time.monotonic()
+        while True:
+            counter, state, alarm = await self._read_during_run(("touch_counter", "state",
+                                                                 "alarm"))
+            counter = int(counter)
+            if counter > last:
+                progress_t = time.monotonic()
+                if counter - last > RING_SLOTS:
+                    raise LinkError(f"result ring overrun: {counter - last} touches since the "
+                                    f"last read, ring holds {RING_SLOTS}")
+                rows = await self._read_during_run(RESULT_ROLES)
+                for n in range(last + 1, counter + 1):
+                    slot = (n - 1) % RING_SLOTS
+                    seq, x, y, z, b, c, trig = (r[slot] for r in rows)
+                    axes = {"X": float(x), "Y": float(y), "Z": float(z), "b": float(b),
+                            "c": float(c)}
+                    raw = (f"slot={slot} counter={n} seq={seq} X={x!r} Y={y!r} Z={z!r} "
+                           f"b={b!r} c={c!r} trig={trig}")
+                    hit = hits.make(int(seq), axes, bool(trig), raw)
+                    last, got = n, got + 1
+                    yield hit
+                    if not hit.triggered:
+                        raise ControllerAlarm(f"probe did not trigger at touch seq {hit.seq}")
+                with contextlib.suppress(LinkError):  # re-sent with the next batch anyway
+                    await self._write("touch_ack", float(last))  # frees the slots for the CNC
+                continue  # re-read: more may have arrived meanwhile
+            if state == "alarm":
+                raise ControllerAlarm(f"controller alarm: {alarm or 'unknown'}")
+            if state == "done":
+                if got < job.touch_count:
+                    raise LinkError(f"program ended with {got} of {job.touch_count} touches")
+                return
+            if time.monotonic() - progress_t >= self.cfg.result_timeout_s:
+                raise LinkError(f"no touch result for {self.cfg.result_timeout_s:g} s "
+                                f"(state {state}, {got} of {job.touch_count} touches)")
+            await self._sleep_for_change(POLL_S)
+
+    async def abort(self) -> None:
+        if self._client is not None:
+            await self._call("abort")
+
+    async def close(self) -> None:
+        client, self._client = self._client, None
+        if client is not None:
+            with contextlib.suppress(Exception):
+                await client.disconnect()

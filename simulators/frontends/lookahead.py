@@ -1,0 +1,40 @@
+"""The controller's block look-ahead for streamed programs: a drip-fed control takes the next
+block from its input only when fewer than N blocks wait for execution, which is what makes a DNC
+receive buffer fill up and a Modbus mailbox wait."""
+
+from __future__ import annotations
+
+import asyncio
+from typing import Any
+
+RUNNING = ("running", "hold")
+
+
+class Lookahead:
+    def __init__(self, controller: Any, blocks: int = 8) -> None:
+        self.ctrl, self.blocks = controller, blocks
+        self.fed = 0
+        self.started = 0
+        self._progress = asyncio.Event()
+
+    def reset(self) -> None:
+        self.fed = self.started = 0
+
+    def on_event(self, ev: Any) -> None:
+        """Feed every controller event here (Block numbers count executed blocks)."""
+        kind = type(ev).__name__
+        if kind == "Block":
+            self.started = max(self.started, int(ev.number))
+            self._progress.set()
+        elif kind == "StateChange":
+            self._progress.set()
+
+    async def feed(self, line: str) -> None:
+        """Wait for room in the look-ahead, then hand the block to the controller."""
+        while self.fed - self.started >= self.blocks and self.ctrl.state in RUNNING:
+            self._progress.clear()
+            await self._progress.wait()  # set by every Block and StateChange event
+        if self.ctrl.state not in RUNNING:
+            self.reset()  # the first block of a stream starts a new program
+        await self.ctrl.feed_block(line)
+        self.fed += 1

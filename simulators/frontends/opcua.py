@@ -1,0 +1,381 @@
+"""Controller side of OPC UA: an asyncua server exposing one VirtualController through the rumba
+address space (drivers/opcua_space.py): program transfer, start, abort, state, touch counter +
+result ring, request/busy/done/verdict handshake.
+
+Security is explicit: one policy per server (Basic256Sha256 SignAndEncrypt by default, with a
+certificate generated on first start), user/password checked by a user manager, anonymous only
+when ``security="none"`` is asked for (tests). asyncua's defaults (every policy, every user) are
+never used.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import hmac
+import json
+import logging
+from collections import deque
+from pathlib import Path
+from typing import Any
+
+from asyncua import Server, ua
+from asyncua.common.methods import uamethod
+from asyncua.common.utils import ServiceError
+from asyncua.crypto.permission_rules import User, UserRole
+from asyncua.crypto.security_policies import SecurityPolicyNone
+from asyncua.crypto.truststore import TrustStore
+from asyncua.crypto.validator import CertificateValidator, CertificateValidatorOptions
+from asyncua.server.binary_server_asyncio import BinaryServer
+from asyncua.server.user_managers import UserManager
+
+from drivers.opcua_certs import ensure_certificate
+from drivers.opcua_space import BY_ROLE, NAMESPACE_URI, RESULT_ROLES, RING_SLOTS, STATES
+
+POLICIES = {
+    "Basic256Sha256_SignAndEncrypt": ua.SecurityPolicyType.Basic256Sha256_SignAndEncrypt,
+    "Basic256Sha256_Sign": ua.SecurityPolicyType.Basic256Sha256_Sign,
+    "none": ua.SecurityPolicyType.NoSecurity,
+}
+VTYPE = {"Double": ua.VariantType.Double, "Int32": ua.VariantType.Int32,
+         "String": ua.VariantType.String}
+HANDSHAKE = ("request", "busy", "done", "verdict")
+
+for _name in ("asyncua.server", "asyncua.uaprotocol", "asyncua.common"):
+    logging.getLogger(_name).setLevel(logging.ERROR)  # one line per rejected client is enough
+
+
+class PasswordUsers(UserManager):
+    """User/password check (constant-time); ``users=None`` admits anonymous sessions."""
+
+    def __init__(self, users: dict[str, str] | None) -> None:
+        self.users = users
+
+    def get_user(self, iserver: Any, username: str | None = None, password: Any = None,
+                 certificate: Any = None) -> User | None:
+        if self.users is None:
+            return User(role=UserRole.User)
+        if username is None or username not in self.users:
+            return None
+        given = password.encode() if isinstance(password, str) else bytes(password or b"")
+        if hmac.compare_digest(given, self.users[username].encode()):
+            return User(role=UserRole.User, name=username)
+        return None
+
+
+DISCOVERY = (ua.NodeId(ua.ObjectIds.GetEndpointsRequest_Encoding_DefaultBinary),
+             ua.NodeId(ua.ObjectIds.FindServersRequest_Encoding_DefaultBinary))
+
+
+class _SecureOnlyBinaryServer(BinaryServer):
+    """Refuses every service but discovery on an unsecured channel.
+
+    asyncua's server (2.1) lets a client open a None channel and then create and activate a
+    session on it even when only Basic256Sha256 endpoints are published - with the password in
+    plain text. OPC UA allows None only for GetEndpoints/FindServers; enforce that here."""
+
+    def _make_protocol(self) -> Any:
+        proto = super()._make_protocol()
+        made = proto.connection_made
+
+        def connection_made(transport: Any) -> None:
+            made(transport)
+            if proto.processor is not None:
+                _guard(proto.processor)
+        proto.connection_made = connection_made
+        return proto
+
+
+def _guard(processor: Any) -> None:
+    inner = processor._process_message
+
+    async def process(typeid: Any, requesthdr: Any, seqhdr: Any, body: Any) -> Any:
+        if (processor._connection.security_policy.URI == SecurityPolicyNone.URI
+                and typeid not in DISCOVERY):
+            raise ServiceError(ua.StatusCodes.BadSecurityModeRejected)
+        return await inner(typeid, requesthdr, seqhdr, body)
+    processor._process_message = process
+
+
+class _SecureServer(Server):
+    async def start(self) -> None:
+        # Server.start with the guarded binary server (same steps as asyncua 2.1).
+        await self._setup_server_nodes()
+        await self.iserver.start()
+        try:
+            host, port = self._get_bind_socket_info()
+            self.bserver = _SecureOnlyBinaryServer(self.iserver, host, port, self.limits)
+            self.bserver.set_policies(self._policies)
+            await self.bserver.start()
+        except Exception:
+            await self.iserver.stop()
+            raise
+
+
+class OpcUaFrontend:
+    """One asyncua server for one controller; ``await start()`` returns the endpoint URL."""
+
+    def __init__(self, controller: Any, *, security: str = "Basic256Sha256_SignAndEncrypt",
+                 cert_dir: Path | None = None, users: dict[str, str] | None = None,
+                 trusted_client_certs: list[Path] | None = None,
+                 application_uri: str = "urn:rumba-cnc:simulator") -> None:
+        if security not in POLICIES:
+            raise ValueError(f"security {security!r}: expected one of {sorted(POLICIES)}")
+        if security != "none" and cert_dir is None:
+            raise ValueError(f"security {security} needs a certificate folder (cert_dir)")
+        if security != "none" and not users:
+            raise ValueError(f"security {security} needs users (user/password authentication)")
+        self.ctrl = controller
+        self.security = security
+        self.cert_dir = cert_dir
+        self.users = users
+        self.trusted = trusted_client_certs
+        self.application_uri = application_uri
+        self.endpoint = ""
+        self.server_certificate: Path | None = None
+        self.counter = 0
+        self.ack = 0
+        self._pending: deque = deque()
+        self.states_seen: list[str] = []  # controller states in publication order
+        self._held = False
+        self._ring: dict[str, list] = {}
+        self._nodes: dict[str, Any] = {}
+        self._mirror: dict[str, float] = {}
+        self._server: Server | None = None
+        self._tasks: list[asyncio.Task] = []
+
+    async def start(self, host: str = "127.0.0.1", port: int = 0) -> str:
+        """Build the server and listen; returns the endpoint URL."""
+        await self.prepare(host, port)
+        return await self.listen()
+
+    async def prepare(self, host: str = "127.0.0.1", port: int = 0) -> None:
+        """Everything but listening (the slow part: asyncua loads its standard nodes)."""
+        if port == 0:
+            port = _free_port(host)
+        cls = Server if self.security == "none" else _SecureServer
+        server = cls(user_manager=PasswordUsers(self.users or None))
+        await server.init()
+        server.set_endpoint(f"opc.tcp://{host}:{port}/rumba/")
+        server.set_server_name("rumba-cnc simulated controller")
+        await server.set_application_uri(self.application_uri)
+        server.set_security_policy([POLICIES[self.security]])
+        tokens: list[type] = [ua.UserNameIdentityToken] if self.users else [
+            ua.AnonymousIdentityToken]
+        server.set_identity_tokens(tokens)
+        if self.security != "none":
+            assert self.cert_dir is not None
+            cert, key = self.cert_dir / "server_cert.der", self.cert_dir / "server_key.pem"
+            await ensure_certificate(cert, key, self.application_uri, server=True)
+            await server.load_certificate(str(cert))
+            await server.load_private_key(str(key))
+            self.server_certificate = cert
+            if self.trusted is not None:
+                store = TrustStore(list(self.trusted), [])
+                await store.load()
+                validator = CertificateValidator(
+                    CertificateValidatorOptions.TRUSTED_VALIDATION
+                    | CertificateValidatorOptions.PEER_CLIENT, store)
+            else:
+                validator = CertificateValidator(CertificateValidatorOptions.EXT_VALIDATION
+                                                 | CertificateValidatorOptions.PEER_CLIENT)
+            server.set_certificate_validator(validator)
+        ns = await server.register_namespace(NAMESPACE_URI)
+        await self._build(server, ns)
+        self._server = server
+        self.endpoint = f"opc.tcp://{host}:{port}/rumba/"
+
+    async def listen(self) -> str:
+        assert self._server is not None, "prepare() first"
+        await self._server.start()
+        self._tasks = [asyncio.create_task(self._events()), asyncio.create_task(self._sync())]
+        return self.endpoint
+
+    async def stop(self) -> None:
+        for t in self._tasks:
+            t.cancel()
+        for t in self._tasks:
+            with contextlib.suppress(asyncio.CancelledError, Exception):
+                await t
+        if self._server is not None:
+            await self._server.stop()
+            self._server = None
+
+    # ------------------------------------------------------------------ address space
+
+    async def _build(self, server: Server, ns: int) -> None:
+        objects = server.nodes.objects
+        folders: dict[str, Any] = {}
+
+        async def folder(path: str) -> Any:
+            if path in folders:
+                return folders[path]
+            parent_path, _, name = path.rpartition("/")
+            parent = objects if not parent_path else await folder(parent_path)
+            folders[path] = await parent.add_folder(ua.NodeId(path, ns), ua.QualifiedName(name, ns))
+            return folders[path]
+
+        for spec in BY_ROLE.values():
+            if spec.kind == "Method":
+                continue
+            parent = await folder(spec.path.rpartition("/")[0])
+            name = spec.path.rpartition("/")[2]
+            base = spec.kind.rstrip("[]")
+            if spec.kind.endswith("[]"):
+                zero = 0.0 if base == "Double" else 0
+                self._ring[spec.role] = [zero] * RING_SLOTS
+                value = ua.Variant(list(self._ring[spec.role]), VTYPE[base])
+            else:
+                value = ua.Variant("idle" if spec.role == "state" else
+                                   "" if base == "String" else 0.0, VTYPE[base])
+            node = await parent.add_variable(ua.NodeId(spec.path, ns), ua.QualifiedName(name, ns),
+                                             value)
+            if spec.kind.endswith("[]"):
+                await node.write_value_rank(1)
+                await node.write_array_dimensions([RING_SLOTS])
+            if spec.writer == "daemon" or spec.role == "request":
+                await node.set_writable()  # request: lets a test client play the part program
+            self._nodes[spec.role] = node
+        methods = await objects.add_object(ua.NodeId(BY_ROLE["methods"].path, ns),
+                                           ua.QualifiedName("Methods", ns))
+        string_arg = ua.Argument(Name="text", DataType=ua.NodeId(ua.ObjectIds.String),
+                                 ValueRank=-1)
+        dialect_arg = ua.Argument(Name="dialect", DataType=ua.NodeId(ua.ObjectIds.String),
+                                  ValueRank=-1)
+        files_arg = ua.Argument(Name="files", DataType=ua.NodeId(ua.ObjectIds.String),
+                                ValueRank=-1)
+        await methods.add_method(ua.NodeId(BY_ROLE["load_program"].path, ns),
+                                 ua.QualifiedName("LoadProgram", ns), uamethod(self._load),
+                                 [string_arg, dialect_arg, files_arg], [])
+        await methods.add_method(ua.NodeId(BY_ROLE["start"].path, ns),
+                                 ua.QualifiedName("Start", ns), uamethod(self._start), [], [])
+        await methods.add_method(ua.NodeId(BY_ROLE["abort"].path, ns),
+                                 ua.QualifiedName("Abort", ns), uamethod(self._abort), [], [])
+        self._mirror = {r: 0.0 for r in HANDSHAKE}
+
+    async def _write(self, role: str, value: Any) -> None:
+        base = BY_ROLE[role].kind.rstrip("[]")
+        await self._nodes[role].write_value(ua.DataValue(ua.Variant(value, VTYPE[base])))
+
+    # ------------------------------------------------------------------ methods
+
+    async def _load(self, parent: Any, text: str, dialect: str, files: str = "") -> None:
+        if self.ctrl.state in ("running", "hold"):
+            raise ua.UaStatusCodeError(ua.StatusCodes.BadInvalidState)
+        try:
+            aux = json.loads(files) if files else {}
+            if not isinstance(aux, dict) or not all(
+                    isinstance(k, str) and isinstance(v, str) for k, v in aux.items()):
+                raise ValueError("files must be a JSON object of name: text")
+            if aux:
+                self.ctrl.files.update(aux)
+            await self.ctrl.load_program(text, dialect)
+        except Exception as e:
+            logging.getLogger(__name__).warning("LoadProgram refused: %s", e)
+            raise ua.UaStatusCodeError(ua.StatusCodes.BadInvalidArgument) from None
+        self.counter = self.ack = 0
+        self._pending.clear()
+        self._held = False
+        await self._write("touch_ack", 0.0)
+        for role in RESULT_ROLES:
+            self._ring[role] = [0.0 if isinstance(v, float) else 0 for v in self._ring[role]]
+            await self._write(role, list(self._ring[role]))
+        await self._write("touch_counter", 0.0)
+        await self._write("state", "idle")
+        await self._write("alarm", "")
+
+    async def _start(self, parent: Any) -> None:
+        if self.ctrl.state in ("running", "hold"):
+            raise ua.UaStatusCodeError(ua.StatusCodes.BadInvalidState)
+        try:
+            await self.ctrl.start()
+        except RuntimeError:  # no program loaded
+            raise ua.UaStatusCodeError(ua.StatusCodes.BadInvalidState) from None
+
+    async def _abort(self, parent: Any) -> None:
+        await self.ctrl.abort()
+
+    # ------------------------------------------------------------------ controller ↔ nodes
+
+    async def _events(self) -> None:
+        q = self.ctrl.subscribe()
+        while True:
+            ev = await q.get()
+            if (type(ev).__name__ == "FaultEvent" and ev.kind == "disconnect"
+                    and self._server is not None):
+                for transport in list(self._server.iserver.asyncio_transports):
+                    transport.close()  # connections drop; clients reconnect, ring intact
+            if type(ev).__name__ in ("TouchResult", "StateChange"):
+                self._pending.append(ev)
+                await self._publish()
+
+    async def _publish(self) -> None:
+        """Publish results and state changes in order; a result waits while the ring is full
+        (counter - ack = 32) and the control is held meanwhile, as the CNC program waits in
+        its loop before overwriting an unread slot."""
+        while self._pending:
+            ev = self._pending[0]
+            if type(ev).__name__ == "TouchResult":
+                if self.counter - self.ack >= RING_SLOTS:
+                    if self.ctrl.state == "running":
+                        self.ctrl.feed_hold()
+                        self._held = True
+                    return
+                await self._write_result(ev)
+            else:
+                state = ev.state if ev.state in STATES else "alarm"
+                self.states_seen.append(state)
+                await self._write("alarm", ev.alarm or "")
+                await self._write("state", state)
+            self._pending.popleft()
+        if self._held:
+            self._held = False
+            if self.ctrl.state == "hold":
+                await self.ctrl.start()  # resume
+
+    async def _write_result(self, ev: Any) -> None:
+        # Slot first, counter last: a client that sees the counter finds the data.
+        self.counter += 1
+        slot = (self.counter - 1) % RING_SLOTS
+        v = ev.values
+        row = {"result_seq": int(ev.seq), "result_x": float(v.get("X", 0.0)),
+               "result_y": float(v.get("Y", 0.0)), "result_z": float(v.get("Z", 0.0)),
+               "result_b": float(v.get("b", 0.0)), "result_c": float(v.get("c", 0.0)),
+               "result_triggered": int(bool(getattr(ev, "triggered",
+                                                    v.get("triggered", 1.0))))}
+        for role, value in row.items():
+            self._ring[role][slot] = value
+            await self._write(role, list(self._ring[role]))
+        await self._write("touch_counter", float(self.counter))
+
+    async def _sync(self) -> None:
+        """Mirror the handshake both ways: a client write wins, else the controller's value."""
+        while True:
+            for role in HANDSHAKE:
+                node_value = float(await self._nodes[role].read_value())
+                ctrl_value = float(getattr(self.ctrl, role))
+                if node_value != self._mirror[role]:
+                    setattr(self.ctrl, role, int(node_value) if role == "verdict"
+                            else node_value >= 0.5)
+                    self._mirror[role] = node_value
+                elif ctrl_value != self._mirror[role]:
+                    await self._write(role, ctrl_value)
+                    self._mirror[role] = ctrl_value
+            ack = int(await self._nodes["touch_ack"].read_value())
+            if ack != self.ack:
+                self.ack = min(ack, self.counter)
+                await self._publish()
+            t = float(getattr(self.ctrl, "machine_time_s", 0.0))
+            if t != self._mirror.get("machine_time"):
+                await self._write("machine_time", t)
+                self._mirror["machine_time"] = t
+            await asyncio.sleep(0.02)
+
+
+def _free_port(host: str) -> int:
+    """A free port for the endpoint URL (the URL must name the port clients will use)."""
+    import socket
+
+    with socket.socket() as s:
+        s.bind((host, 0))
+        return s.getsockname()[1]

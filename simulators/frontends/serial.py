@@ -1,0 +1,344 @@
+"""Controller side of RS-232 DNC: a pty or TCP endpoint with a bounded, baud-paced receive buffer,
+XON/XOFF, ``%`` framing, result lines (DPRNT/WRITE/F-PRINT) sent back and alarms on overflow.
+
+Ptys and sockets deliver bytes instantly and enforce nothing, so the line is simulated here: bytes
+enter the receive buffer no faster than the baud rate (bits per character from the framing), the
+controller drains it one block at a time at its own execution pace, XOFF is sent at the high-water
+mark and XON at the low-water mark; a byte arriving into a full buffer is an overflow alarm, as on
+a Fanuc (alarm SR0001-like "overrun"). drivers/README.md documents the serial settings.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import os
+import termios
+import time
+import tty
+from dataclasses import dataclass
+from typing import Any, Literal
+
+from simulators.frontends.lookahead import Lookahead
+
+XON, XOFF = 0x11, 0x13
+FRAME_BITS = {"7E1": 10, "8N1": 10, "7E2": 11, "8N2": 11}
+"""Bits on the line per character: start + data + parity + stop."""
+
+
+@dataclass
+class SerialSettings:
+    baudrate: int = 9600
+    framing: Literal["7E1", "8N1", "7E2", "8N2"] = "7E1"
+    eol: Literal["LF", "CRLF"] = "CRLF"  # end of line of what the controller sends back
+    rx_buffer_bytes: int = 256
+    high_water: int | None = None  # default: half the buffer (room for what is in flight)
+    low_water: int | None = None  # default: buffer / 4
+    xon_delay_s: float = 0.0  # fault: late XON
+    xon_missing: bool = False  # fault: XON never sent
+    disconnect_after_bytes: int | None = None  # fault: drop the line mid-stream
+    lookahead_blocks: int = 8  # blocks the control takes ahead of execution
+
+    @property
+    def chars_per_s(self) -> float:
+        return self.baudrate / FRAME_BITS[self.framing]
+
+    def marks(self) -> tuple[int, int]:
+        high = self.high_water if self.high_water is not None else self.rx_buffer_bytes // 2
+        low = self.low_water if self.low_water is not None else self.rx_buffer_bytes // 4
+        if not 0 <= low < high <= self.rx_buffer_bytes:
+            raise ValueError(f"need 0 <= low_water {low} < high_water {high} <= buffer")
+        return high, low
+
+
+class SerialFrontend:
+    """Serves one VirtualController over a pty (``open_pty``) and/or a TCP port (``open_tcp``)."""
+
+    def __init__(self, controller: Any, settings: SerialSettings | None = None) -> None:
+        self.ctrl = controller
+        self.s = settings or SerialSettings()
+        self.high, self.low = self.s.marks()
+        self.alarms: list[str] = []  # every alarm reported on the line, in order
+        self.max_fill = 0  # highest receive-buffer level seen (bytes)
+        self.rx_bytes = 0
+        self.xoff_sent = 0
+        self._buf = bytearray()
+        self._have_line = asyncio.Event()
+        self._xoff = False
+        self._discard = False
+        self._in_program = False
+        self._t_line = 0.0
+        self._writer: asyncio.StreamWriter | None = None
+        self._out: asyncio.Queue[bytes] = asyncio.Queue()
+        self._tasks: list[asyncio.Task] = []
+        self._server: asyncio.base_events.Server | None = None
+        self._fds: list[int] = []
+        self._pipes: list[asyncio.BaseTransport] = []
+        self._session_lock = asyncio.Lock()
+        self._closing = False
+        self._garble_lines = 0
+        self._unplugged_until = 0.0
+        self._tcp_writer: asyncio.StreamWriter | None = None
+        self._look = Lookahead(controller, self.s.lookahead_blocks)
+        self._tasks.append(asyncio.create_task(self._events()))
+
+    # ------------------------------------------------------------------ endpoints
+
+    async def open_pty(self) -> str:
+        """Create a pty pair; return the device path the DNC sender opens."""
+        master, slave = os.openpty()
+        tty.setraw(slave)  # no echo, no line discipline: all byte values pass
+        self._fds += [master, slave]  # keep the slave open: no EIO when the sender closes
+        await self._attach_fd(master)
+        return os.ttyname(slave)
+
+    async def open_device(self, path: str) -> None:
+        """Serve on an existing serial device (a USB-RS232 adapter, one end of a socat pair)."""
+        fd = os.open(path, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
+        with contextlib.suppress(termios.error):
+            tty.setraw(fd)
+        self._fds.append(fd)
+        await self._attach_fd(fd)
+
+    async def _attach_fd(self, fd: int) -> None:
+        loop = asyncio.get_running_loop()
+        reader = asyncio.StreamReader()
+        rt, _ = await loop.connect_read_pipe(lambda: asyncio.StreamReaderProtocol(reader),
+                                             os.fdopen(os.dup(fd), "rb", 0))
+        self._pipes.append(rt)
+        wt, wp = await loop.connect_write_pipe(asyncio.streams.FlowControlMixin,
+                                               os.fdopen(os.dup(fd), "wb", 0))
+        writer = asyncio.StreamWriter(wt, wp, None, loop)
+        self._tasks.append(asyncio.create_task(self._session(reader, writer)))
+
+    async def open_tcp(self, host: str = "127.0.0.1", port: int = 0) -> int:
+        """Listen for a ``socket://host:port`` sender (one at a time); return the bound port."""
+        self._server = await asyncio.start_server(self._on_client, host, port)
+        return self._server.sockets[0].getsockname()[1]
+
+    async def _on_client(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        if self._session_lock.locked():
+            writer.close()  # one DNC sender at a time, as on a real port
+            return
+        self._tcp_writer = writer
+        try:
+            await self._session(reader, writer)
+        finally:
+            self._tcp_writer = None
+
+    async def close(self) -> None:
+        self._closing = True
+        for t in self._tasks:
+            t.cancel()
+        for t in self._tasks:
+            with contextlib.suppress(asyncio.CancelledError, Exception):
+                await t
+        if self._server is not None:
+            self._server.close()
+            with contextlib.suppress(Exception):
+                await self._server.wait_closed()
+        if self._writer is not None:
+            self._writer.close()
+        for pipe in self._pipes:
+            pipe.close()
+        for fd in self._fds:
+            with contextlib.suppress(OSError):
+                os.close(fd)
+        self._fds.clear()
+
+    # ------------------------------------------------------------------ one connection
+
+    async def _session(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        async with self._session_lock:
+            self._writer = writer
+            self._buf.clear()
+            self._xoff = self._discard = False
+            consumer = asyncio.create_task(self._consume())
+            sender = asyncio.create_task(self._send())
+            try:
+                await self._receive(reader)
+                # EOF: what already crossed the line is still executed (bounded wait).
+                unplugged = time.monotonic() < self._unplugged_until
+                for _ in range(0 if unplugged else 200):
+                    if b"\n" not in self._buf or self._discard or consumer.done():
+                        break
+                    await asyncio.sleep(0.01)
+            finally:
+                consumer.cancel()
+                sender.cancel()
+                await asyncio.wait({consumer, sender}, timeout=2.0)
+                if self._in_program and not self._discard and not self._closing:
+                    await self._alarm("DNC stream interrupted (line closed mid-program)")
+                self._in_program = False
+                writer.close()
+                self._writer = None
+
+    async def _receive(self, reader: asyncio.StreamReader) -> None:
+        cps = self.s.chars_per_s
+        while True:
+            try:
+                data = await reader.read(1024)
+            except (ConnectionError, OSError):
+                return
+            if not data:
+                return
+            for i in range(0, len(data), 8):
+                piece = data[i:i + 8]
+                # The line carries one character per 1/cps s; a sender writing faster only
+                # fills the OS buffer, it does not reach the controller sooner.
+                # Scheduling jitter (the control's own computation shares this event loop)
+                # may make us late; catching up by up to 64 character times keeps the average
+                # at the line rate without lagging behind a sender that paces itself.
+                now = time.monotonic()
+                self._t_line = max(self._t_line, now - 64 / cps) + len(piece) / cps
+                if self._t_line > now:
+                    await asyncio.sleep(self._t_line - now)
+                self.rx_bytes += len(piece)
+                if time.monotonic() < self._unplugged_until:
+                    continue  # cable pulled: the bytes are lost
+                if self.s.disconnect_after_bytes and self.rx_bytes >= self.s.disconnect_after_bytes:
+                    return
+                await self._admit(piece)
+
+    async def _admit(self, piece: bytes) -> None:
+        if self._discard:
+            return
+        if self.s.framing.startswith("7") and any(b > 0x7F for b in piece):
+            await self._alarm("parity error on the serial line (8-bit byte on a 7E1 port)")
+            return
+        if len(self._buf) + len(piece) > self.s.rx_buffer_bytes:
+            await self._alarm(f"serial receive buffer overflow ({self.s.rx_buffer_bytes} bytes): "
+                              "the sender ignored XOFF")
+            return
+        self._buf.extend(piece)
+        self.max_fill = max(self.max_fill, len(self._buf))
+        if b"\n" in piece:
+            self._have_line.set()
+        if len(self._buf) >= self.high and not self._xoff:
+            self._xoff = True
+            self.xoff_sent += 1
+            self._put_flow(XOFF)
+
+    def _put_flow(self, byte: int) -> None:
+        # Flow-control characters go out at once, ahead of any queued result line.
+        if self._writer is not None and not self._writer.is_closing():
+            self._writer.write(bytes([byte]))
+
+    def _spawn(self, coro: Any) -> None:
+        task = asyncio.create_task(coro)
+        self._tasks.append(task)
+        task.add_done_callback(lambda t: t in self._tasks and self._tasks.remove(t))
+
+    async def _xon_later(self) -> None:
+        if self.s.xon_missing:
+            return
+        if self.s.xon_delay_s:
+            await asyncio.sleep(self.s.xon_delay_s)
+        self._put_flow(XON)
+
+    async def _consume(self) -> None:
+        while True:
+            nl = self._buf.find(b"\n")
+            if nl < 0:
+                if self._xoff:
+                    # A block longer than the low-water mark is half in: ask for the rest,
+                    # or sender and control would wait for each other forever.
+                    self._xoff = False
+                    self._spawn(self._xon_later())
+                self._have_line.clear()
+                await self._have_line.wait()
+                continue
+            raw = bytes(self._buf[:nl + 1])
+            del self._buf[:nl + 1]
+            if self._xoff and len(self._buf) <= self.low:
+                self._xoff = False
+                self._spawn(self._xon_later())
+            line = raw.decode("ascii", "replace").strip("\r\n").replace(chr(XON), "").replace(
+                chr(XOFF), "")
+            await self._block(line)
+
+    async def _block(self, line: str) -> None:
+        stripped = line.strip()
+        if stripped.startswith("%"):
+            if not self._in_program:
+                self._in_program, self._discard = True, False
+                self._look.reset()
+            else:
+                self._in_program = False
+                await self.ctrl.end_of_stream()
+            return
+        if not self._in_program or self._discard or not stripped:
+            return  # leader before the first '%' is skipped, as a tape reader does
+        await self._look.feed(stripped)
+
+    # ------------------------------------------------------------------ controller → line
+
+    async def _alarm(self, text: str) -> None:
+        if self._discard:
+            return
+        self._discard = True
+        self._buf.clear()
+        self.alarms.append(text)
+        raise_alarm = getattr(self.ctrl, "raise_alarm", None)
+        if callable(raise_alarm):
+            raise_alarm(text)
+        else:
+            await self.ctrl.abort()
+        self._line(f"ALARM: {text}")
+
+    def _fault(self, fault: Any) -> None:
+        """Transport faults of the controller's fault plan (simulators/faults.py)."""
+        if fault.kind == "late_xon":
+            self.s.xon_delay_s = fault.duration_s or 2.0
+        elif fault.kind == "missing_xon":
+            self.s.xon_missing = True
+        elif fault.kind == "garbled":
+            self._garble_lines += fault.count
+        elif fault.kind == "disconnect":
+            self._unplugged_until = time.monotonic() + (fault.duration_s or 1e9)
+            if self._tcp_writer is not None:
+                self._tcp_writer.transport.abort()  # TCP: the connection drops at once
+
+    def _garble(self, text: str) -> str:
+        self._garble_lines -= 1
+        # Line noise after the first word: every third character replaced, as a bad cable does.
+        return text[:6] + "".join("~" if i % 3 == 1 else ch for i, ch in enumerate(text[6:]))
+
+    def _line(self, text: str) -> None:
+        if time.monotonic() < self._unplugged_until:
+            return
+        eol = "\r\n" if self.s.eol == "CRLF" else "\n"
+        self._out.put_nowait((text + eol).encode("ascii", "replace"))
+
+    async def _events(self) -> None:
+        q = self.ctrl.subscribe()
+        while True:
+            ev = await q.get()
+            kind = type(ev).__name__
+            self._look.on_event(ev)
+            if kind == "PrintLine":
+                self._line(self._garble(ev.text) if self._garble_lines else ev.text)
+            elif kind == "FaultEvent":
+                self._fault(ev.fault)
+            elif kind == "StateChange" and ev.state == "alarm":
+                # The control stopped: what is still on the line is not executed.
+                self._discard = self._in_program
+                self._buf.clear()
+                if ev.alarm and ev.alarm not in self.alarms:
+                    self.alarms.append(ev.alarm)
+                    self._line(f"ALARM: {ev.alarm}")
+
+    async def _send(self) -> None:
+        cps = self.s.chars_per_s
+        t = time.monotonic()
+        while True:
+            data = await self._out.get()
+            if self._writer is None:
+                continue
+            for i in range(0, len(data), 16):
+                piece = data[i:i + 16]
+                t = max(t, time.monotonic()) + len(piece) / cps
+                self._writer.write(piece)
+                delay = t - time.monotonic()
+                if delay > 0:
+                    await asyncio.sleep(delay)

@@ -1,0 +1,164 @@
+"""``rumba sim --serve serial|opcua|modbus|can``: one VirtualController behind one protocol
+front-end, listening on loopback until interrupted; prints where it listens (one ``listening:``
+line per endpoint, flushed, so a script can read it). Typing ``request`` on stdin raises the
+start-of-shift request as the CNC's PLC would; ``abort`` resets the control; ``quit`` stops.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import os
+import secrets
+import signal
+import sys
+from pathlib import Path
+from typing import Any
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    g = p.add_argument_group("serve (controller-side protocol front-ends)")
+    g.add_argument("--serve", choices=["serial", "opcua", "modbus", "can"],
+                   help="serve the simulated controller over this transport")
+    g.add_argument("--host", default="127.0.0.1", help="bind address (default 127.0.0.1)")
+    g.add_argument("--port", type=int, default=0, help="TCP port (default: a free one)")
+    g.add_argument("--raise-request", type=float, metavar="S",
+                   help="raise the start-of-shift request S seconds after start")
+    g.add_argument("--baud", type=int, default=115200, help="serial: baud rate (pacing)")
+    g.add_argument("--framing", choices=["7E1", "8N1", "7E2", "8N2"], default="7E1",
+                   help="serial: character framing (default 7E1)")
+    g.add_argument("--rx-buffer", type=int, default=256, help="serial: receive buffer bytes")
+    g.add_argument("--security", default="Basic256Sha256_SignAndEncrypt",
+                   choices=["Basic256Sha256_SignAndEncrypt", "Basic256Sha256_Sign", "none"],
+                   help="opcua: security policy (none only for tests)")
+    g.add_argument("--cert-dir", type=Path, default=Path("sim-pki"),
+                   help="opcua: folder for the server certificate (made on first start)")
+    g.add_argument("--trust", type=Path, metavar="DIR",
+                   help="opcua: accept only client certificates found in DIR")
+    g.add_argument("--user", default="rumba", help="opcua: user name (password from "
+                   "$RUMBA_SIM_PASSWORD, else generated and printed)")
+    g.add_argument("--device-id", type=int, default=1, help="modbus: unit id")
+    g.add_argument("--can-interface", default="virtual", help="can: python-can interface")
+    g.add_argument("--can-channel", default="rumba", help="can: channel")
+    g.add_argument("--can-base-id", type=lambda s: int(s, 0), default=0x640,
+                   help="can: base identifier of the panel frames")
+
+
+def serve(args: argparse.Namespace) -> int:
+    """Entry point used by daemon/commands/sim.py (synchronous: runs its own event loop)."""
+    return asyncio.run(serve_async(args))
+
+
+def _say(text: str) -> None:
+    print(text, flush=True)
+
+
+async def serve_async(args: argparse.Namespace) -> int:
+    from daemon.cli import UserError
+    from simulators.controller import VirtualController
+
+    truth = args.truth
+    seed = args.seed if args.seed is not None else getattr(truth, "seed", 0)
+    ctrl = VirtualController(truth, time_scale=args.time_scale, rng_seed=seed or 0,
+                             faults=getattr(args, "fault_plan", None))
+    stop = asyncio.Event()
+    loop = asyncio.get_running_loop()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        loop.add_signal_handler(sig, stop.set)
+    try:
+        closer, panel = await _start(args, ctrl)
+    except (OSError, ValueError) as e:
+        raise UserError(f"--serve {args.serve}: {e}") from None
+    tasks = [asyncio.create_task(_stdin(ctrl, stop, panel))]
+    if args.raise_request is not None:
+        async def later() -> None:
+            await asyncio.sleep(args.raise_request)
+            ctrl.raise_start_request()
+            _say("start-of-shift request raised")
+        tasks.append(asyncio.create_task(later()))
+    try:
+        await stop.wait()
+    finally:
+        for t in tasks:
+            t.cancel()
+        await closer()
+    return 0
+
+
+async def _start(args: argparse.Namespace, ctrl: Any) -> tuple[Any, Any]:
+    kind = args.serve
+    if kind == "serial":
+        from simulators.frontends.serial import SerialFrontend, SerialSettings
+
+        fe = SerialFrontend(ctrl, SerialSettings(baudrate=args.baud, framing=args.framing,
+                                                 rx_buffer_bytes=args.rx_buffer))
+        path = await fe.open_pty()
+        port = await fe.open_tcp(args.host, args.port)
+        _say(f"listening: {path}")
+        _say(f"listening: socket://{args.host}:{port}")
+        _say(f"serial: {args.baud} baud {args.framing}, XON/XOFF, receive buffer "
+             f"{args.rx_buffer} bytes")
+        return fe.close, None
+    if kind == "opcua":
+        from simulators.frontends.opcua import OpcUaFrontend
+
+        users = None
+        if args.security != "none":
+            password = os.environ.get("RUMBA_SIM_PASSWORD") or secrets.token_urlsafe(12)
+            users = {args.user: password}
+            if "RUMBA_SIM_PASSWORD" not in os.environ:
+                _say(f"opcua user: {args.user} password: {password}")
+        trusted = [args.trust] if args.trust else None
+        fe = OpcUaFrontend(ctrl, security=args.security, cert_dir=args.cert_dir, users=users,
+                           trusted_client_certs=trusted)
+        url = await fe.start(args.host, args.port)
+        _say(f"listening: {url}")
+        if fe.server_certificate is not None:
+            _say(f"server certificate: {fe.server_certificate}")
+        if args.security != "none" and trusted is None:
+            _say("note: any valid client certificate is accepted (give --trust DIR to pin)")
+        return fe.stop, None
+    if kind == "modbus":
+        from simulators.frontends.modbus import ModbusFrontend
+
+        fe = ModbusFrontend(ctrl, device_id=args.device_id)
+        port = await fe.start(args.host, args.port)
+        _say(f"listening: modbus-tcp://{args.host}:{port} unit {args.device_id}")
+        return fe.stop, None
+    import can
+
+    from simulators.frontends.can import SimulatedPanel
+
+    try:
+        bus = can.Bus(interface=args.can_interface, channel=args.can_channel)
+    except (can.CanError, ImportError) as e:
+        raise OSError(f"cannot open {args.can_interface} bus {args.can_channel!r}: {e}") from None
+    panel = SimulatedPanel(bus, base_id=args.can_base_id)
+    _say(f"listening: can {args.can_interface}:{args.can_channel} base id "
+         f"{args.can_base_id:#05x} (type 'start' or 'abort' to press a button)")
+    return panel.close, panel
+
+
+async def _stdin(ctrl: Any, stop: asyncio.Event, panel: Any = None) -> None:
+    if sys.stdin is None or sys.stdin.closed:
+        return
+    loop = asyncio.get_running_loop()
+    reader = asyncio.StreamReader()
+    try:
+        await loop.connect_read_pipe(lambda: asyncio.StreamReaderProtocol(reader), sys.stdin)
+    except (ValueError, OSError):
+        return  # stdin is a file or closed: no interactive commands
+    while line := await reader.readline():
+        cmd = line.decode(errors="replace").strip().lower()
+        if cmd == "request":
+            ctrl.raise_start_request()
+            _say("start-of-shift request raised")
+        elif cmd in ("start", "abort") and panel is not None:
+            panel.press(cmd)
+        elif cmd == "abort":
+            await ctrl.abort()
+        elif cmd == "quit":
+            stop.set()
+            return
+        elif cmd:
+            _say(f"unknown command {cmd!r} (request, abort, quit)")

@@ -1,0 +1,254 @@
+"""The HMI over real HTTP on a free loopback port: auth (bearer, login cookie), CSRF, start /
+refuse / abort, live progress over SSE, reports; and in headless Chromium (peer)."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import shutil
+
+import aiohttp
+import pytest
+
+from daemon.daemon_config import load_daemon_config
+from daemon.service import Service
+from tests.daemon_helpers import thesis_rows, thesis_setup, write_daemon_yaml
+from tests.replay_link import ReplayLink, prepare_from_rows
+
+TOKEN = "t0k3n-for-tests-0123456789"
+
+
+@pytest.fixture
+async def service(tmp_path):
+    cfg = load_daemon_config(write_daemon_yaml(tmp_path, token=TOKEN))
+    setup = thesis_setup()
+    rows = thesis_rows(setup)
+    links: list[ReplayLink] = []
+
+    def factory(s):
+        links.append(ReplayLink(rows, s.machine, delay_s=0.01))
+        return links[-1]
+
+    svc = Service(cfg, factory, prepare=prepare_from_rows(rows))
+    await svc.start()
+    svc.test_links = links  # type: ignore[attr-defined]
+    yield svc
+    await svc.stop()
+
+
+@pytest.fixture
+async def sim_service(tmp_path):
+    """The service against the simulated CNC over OPC UA (real asyncua server and driver)."""
+    from simulators.controller import VirtualController
+    from simulators.frontends.opcua import OpcUaFrontend
+    from simulators.truth import TruthModel
+    from tests.daemon_helpers import CONFIG
+
+    truth = TruthModel.from_files(CONFIG / "machines/thesis_wcbxfzyt.yaml",
+                                  CONFIG / "artefacts/thesis_4ball.yaml",
+                                  CONFIG / "errors/thesis_tableB2.yaml")
+    ctrl = VirtualController(truth, time_scale=0.03, dialect="fanuc")
+    sim = OpcUaFrontend(ctrl, security="none")
+    url = await sim.start()
+    cfg = load_daemon_config(write_daemon_yaml(
+        tmp_path, token=TOKEN, link=f"{{transport: opcua, url: '{url}', security: none}}"))
+    svc = Service(cfg)
+    await svc.start()
+    yield svc
+    await svc.stop()
+    await sim.stop()
+
+
+def bearer(token: str = TOKEN) -> dict[str, str]:
+    return {"Authorization": f"Bearer {token}"}
+
+
+async def test_binds_loopback_and_requires_a_token(service):
+    assert service.hmi_url.startswith("http://127.0.0.1:")
+    async with aiohttp.ClientSession() as http:
+        r = await http.get(service.hmi_url + "api/status")
+        assert r.status == 401
+        r = await http.get(service.hmi_url + "api/status", headers=bearer("x" * 26))
+        assert r.status == 401
+        r = await http.post(service.hmi_url + "api/machines/mill1/start",
+                            headers=bearer(TOKEN[:-1] + "X"))
+        assert r.status == 401
+        r = await http.get(service.hmi_url, allow_redirects=False)
+        assert r.status == 302 and r.headers["Location"] == "/login"
+        r = await http.get(service.hmi_url + "api/status", headers=bearer())
+        assert r.status == 200 and (await r.json())["mill1"]["state"] == "IDLE"
+
+
+async def test_login_cookie_csrf_and_origin(service):
+    jar = aiohttp.CookieJar(unsafe=True)
+    async with aiohttp.ClientSession(cookie_jar=jar) as http:
+        r = await http.post(service.hmi_url + "login", data={"token": "wrong"})
+        assert r.status == 401 and "Wrong token" in await r.text()
+        r = await http.post(service.hmi_url + "login", data={"token": TOKEN},
+                            allow_redirects=False)
+        assert r.status == 303
+        cookie = r.headers["Set-Cookie"]
+        assert "HttpOnly" in cookie and "SameSite=Strict" in cookie
+        page = await (await http.get(service.hmi_url)).text()
+        csrf = page.split('name="csrf-token" content="')[1].split('"')[0]
+        assert len(csrf) > 20
+        url = service.hmi_url + "api/machines/mill1/start"
+        assert (await http.post(url)).status == 403  # cookie alone: no CSRF token
+        r = await http.post(url, headers={"X-CSRF-Token": csrf, "Origin": "http://evil.example"})
+        assert r.status == 403
+        r = await http.post(url, headers={"X-CSRF-Token": csrf})
+        assert r.status == 202
+        run_id = (await r.json())["run_id"]
+        r = await http.post(url, headers={"X-CSRF-Token": csrf})
+        assert r.status == 409 and run_id in (await r.json())["error"]
+        r = await http.post(service.hmi_url + "api/machines/mill1/abort",
+                            headers={"X-CSRF-Token": csrf})
+        assert r.status == 200 and (await r.json())["reason"] == "aborted by hmi"
+
+
+async def test_sse_progress_verdict_and_report(service):
+    async with aiohttp.ClientSession(headers=bearer()) as http:
+        events = await http.get(service.hmi_url + "api/events")
+        assert events.headers["Content-Type"].startswith("text/event-stream")
+        r = await http.post(service.hmi_url + "api/machines/mill1/start")
+        run_id = (await r.json())["run_id"]
+        seen_done, states = [], []
+        async with asyncio.timeout(60):
+            async for line in events.content:
+                if line.startswith(b"data: "):
+                    st = json.loads(line[6:])
+                    seen_done.append(st["done"])
+                    states.append(st["state"])
+                    if st["state"] == "IDLE" and st["run_id"] == run_id:
+                        break
+        events.close()
+        assert "CAPTURE" in states and "IDENTIFY" in states
+        progress = [d for d in seen_done if 0 < d < 140]
+        assert len(progress) > 10 and progress == sorted(progress)
+        assert st["verdict"]["status"] == "PASS"
+        r = await http.get(service.hmi_url + f"reports/{run_id}.html")
+        assert r.status == 200 and run_id in await r.text()
+        assert "default-src 'none'" in r.headers["Content-Security-Policy"]
+        doc = await (await http.get(service.hmi_url + f"reports/{run_id}.json")).json()
+        assert doc["verdict"]["status"] == "PASS" and "EX0C" in doc["analysis"]["links"]
+        runs = await (await http.get(service.hmi_url + "api/runs")).json()
+        assert runs[0]["id"] == run_id and runs[0]["report"] == f"/reports/{run_id}.html"
+        for bad in ("nope", "..%2F..%2Fetc%2Fpasswd"):
+            assert (await http.get(service.hmi_url + f"reports/{bad}.html")).status == 404
+    assert service.test_links[0].verdicts[-1].status == "PASS"
+
+
+# ------------------------------------------------------------------------ headless browser
+
+
+class Cdp:
+    """A tiny Chrome DevTools Protocol client over aiohttp websockets."""
+
+    def __init__(self, ws: aiohttp.ClientWebSocketResponse) -> None:
+        self.ws, self.n = ws, 0
+
+    async def call(self, method: str, session: str | None = None, **params) -> dict:
+        self.n += 1
+        msg = {"id": self.n, "method": method, "params": params}
+        if session:
+            msg["sessionId"] = session
+        await self.ws.send_json(msg)
+        while True:
+            reply = await self.ws.receive_json()
+            if reply.get("id") == self.n:
+                if "error" in reply:
+                    raise RuntimeError(f"{method}: {reply['error']}")
+                return reply["result"]
+
+    async def eval(self, session: str, expr: str):
+        r = await self.call("Runtime.evaluate", session, expression=expr, awaitPromise=True,
+                            returnByValue=True)
+        return r["result"].get("value")
+
+    async def wait_for(self, session: str, expr: str, timeout_s: float = 60.0):
+        async with asyncio.timeout(timeout_s):
+            while True:
+                v = await self.eval(session, expr)
+                if v:
+                    return v
+                await asyncio.sleep(0.05)
+
+
+@pytest.mark.peer
+@pytest.mark.slow
+async def test_browser_start_progress_verdict_report(sim_service, tmp_path):
+    """Chromium, driven over the DevTools protocol: sign in, press Start, watch the progress
+    advance while the simulated CNC probes over OPC UA, see the verdict, open the report."""
+    service = sim_service
+    exe = shutil.which("chromium") or shutil.which("chromium-browser")
+    if exe is None:
+        pytest.skip("chromium not installed (make peers)")
+    profile = tmp_path / "profile"
+    proc = await asyncio.create_subprocess_exec(
+        exe, "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+        "--disable-background-networking", "--disable-component-update", "--disable-sync",
+        f"--user-data-dir={profile}", "--remote-debugging-port=0", "--window-size=1280,900",
+        "about:blank", stdout=asyncio.subprocess.DEVNULL, stderr=asyncio.subprocess.DEVNULL)
+    try:
+        port_file = profile / "DevToolsActivePort"
+        async with asyncio.timeout(30):
+            while not port_file.is_file() or len(port_file.read_text().split()) < 2:
+                await asyncio.sleep(0.05)
+        port, path = port_file.read_text().split()[:2]
+        async with aiohttp.ClientSession() as http, \
+                http.ws_connect(f"ws://127.0.0.1:{port}{path}", max_msg_size=0) as ws:
+            cdp = Cdp(ws)
+            target = (await cdp.call("Target.createTarget", url="about:blank"))["targetId"]
+            sid = (await cdp.call("Target.attachToTarget", targetId=target,
+                                  flatten=True))["sessionId"]
+            await cdp.call("Page.enable", sid)
+            await cdp.call("Page.navigate", sid, url=service.hmi_url)
+            await cdp.wait_for(sid, "location.pathname === '/login' && "
+                                    "document.readyState === 'complete'")
+            await cdp.eval(sid, f"document.getElementById('token').value = '{TOKEN}';"
+                                "document.querySelector('form').submit(); true")
+            await cdp.wait_for(sid, "!!document.querySelector('.machine .start')")
+            await cdp.wait_for(sid, "document.getElementById('conn').textContent === 'live'")
+            assert await cdp.eval(sid, "document.querySelector('.machine .state').textContent"
+                                  ) == "IDLE"
+            await cdp.eval(sid, "document.querySelector('.machine .start').click(); true")
+            progress = set()
+            async with asyncio.timeout(60):
+                while True:
+                    st = await cdp.eval(sid, "[document.querySelector('.machine .state')"
+                                             ".textContent, document.querySelector("
+                                             "'.machine .progress-text').textContent]")
+                    if st[0] == "CAPTURE":
+                        progress.add(st[1])
+                        if len(progress) == 5:
+                            shot = await cdp.call("Page.captureScreenshot", sid)
+                            (tmp_path / "hmi-running.png").write_bytes(
+                                __import__("base64").b64decode(shot["data"]))
+                    if st[0] == "IDLE" and progress:
+                        break
+                    await asyncio.sleep(0.03)
+            assert len(progress) >= 3, progress  # the progress text advanced while running
+            assert any("touches" in p and "left" in p for p in progress)
+            badge = await cdp.wait_for(sid, "document.querySelector('.machine .badge')"
+                                            ".textContent.replace('none yet', '')")
+            assert badge == "PASS"
+            assert await cdp.eval(sid, "getComputedStyle(document.querySelector("
+                                       "'.machine .badge')).backgroundColor"
+                                  ) == "rgb(27, 135, 63)"
+            await cdp.wait_for(sid, "document.querySelectorAll('#history tbody tr').length > 0")
+            shot = await cdp.call("Page.captureScreenshot", sid)
+            (tmp_path / "hmi-done.png").write_bytes(__import__("base64").b64decode(shot["data"]))
+            href = await cdp.eval(sid, "document.querySelector('.machine .report').href")
+            assert href.endswith(".html")
+            await cdp.call("Page.navigate", sid, url=href)
+            await cdp.wait_for(sid, "document.readyState === 'complete' && "
+                                    "document.title.startsWith('rumba run')")
+            assert await cdp.eval(sid, "document.querySelector('.badge').textContent") == "PASS"
+            n_img = await cdp.eval(sid, "[...document.images].filter(i => i.naturalWidth > 0)"
+                                        ".length")
+            assert n_img >= 3  # embedded plots decoded
+            await cdp.call("Browser.close")
+    finally:
+        if proc.returncode is None:
+            proc.kill()
+        await proc.wait()

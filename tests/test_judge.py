@@ -1,0 +1,89 @@
+"""The verdict rules: absolute limits, guard band on uncertainty, drift vs last good run."""
+
+from __future__ import annotations
+
+import math
+
+from daemon.judge import Limit, Tolerances, judge, volumetric_max_um
+
+
+def analysis(eb0c=10.0, std=1.0, ex0c=-20.0, vol=(30.0, 40.0, 0.0), rms=0.8):
+    return {
+        "links": {"EB0C": {"value": eb0c, "std": std, "unit": "urad"},
+                  "EX0C": {"value": ex0c, "std": 0.2, "unit": "um"}},
+        "volumetric": [{"pose": 0, "ball": "B1", "error_um": [1.0, 2.0, 2.0]},
+                       {"pose": 1, "ball": "B2", "error_um": list(vol)}],
+        "residual_rms_um": rms,
+    }
+
+
+TOL = Tolerances(links={"EB0C": Limit(warn=20, fail=40, drift_warn=5, drift_fail=10)},
+                 default_translation_um=Limit(warn=50, fail=100),
+                 volumetric_max_um=Limit(warn=60, fail=80), residual_rms_um=3.0)
+
+
+def test_volumetric_max_is_the_largest_vector_norm():
+    assert math.isclose(volumetric_max_um(analysis()), 50.0)
+    assert volumetric_max_um({}) is None
+
+
+def test_pass_within_every_limit():
+    j = judge(analysis(), TOL)
+    assert j.status == "PASS" and j.reasons == ()
+    assert {c.quantity for c in j.checks} == {"EB0C", "EX0C", "volumetric distortion max",
+                                              "residual RMS"}
+    assert "max volumetric distortion 50.0 µm" in j.summary
+
+
+def test_warn_and_fail_on_absolute_limits_with_sign():
+    j = judge(analysis(eb0c=-25.0), TOL)
+    assert j.status == "WARN" and j.reasons[0].startswith("EB0C = -25.00 ± 1.00 µrad")
+    j = judge(analysis(eb0c=-25.0, ex0c=120.0), TOL)
+    assert j.status == "FAIL"
+    assert any(r.startswith("EX0C = +120.00") and "fail 100" in r for r in j.reasons)
+
+
+def test_uncertainty_guard_band_warns_when_conformance_not_proven():
+    # 15 µrad is inside warn 20, but 15 + 2 × 13 > fail 40: the data cannot prove conformance
+    j = judge(analysis(eb0c=15.0, std=13.0), TOL)
+    assert j.status == "WARN" and "conformance not proven" in j.reasons[0]
+    assert judge(analysis(eb0c=15.0, std=2.0), TOL).status == "PASS"
+
+
+def test_drift_against_last_good_run():
+    ref = analysis(eb0c=10.0)
+    assert judge(analysis(eb0c=13.0), TOL, ref).status == "PASS"
+    j = judge(analysis(eb0c=17.0), TOL, ref)
+    assert j.status == "WARN" and "EB0C drift: +7.00" in j.reasons[0]
+    assert "(was +10.00)" in j.reasons[0]
+    assert judge(analysis(eb0c=-1.0), TOL, ref).status == "FAIL"
+    assert judge(analysis(eb0c=17.0), TOL, None).status == "PASS"  # no reference: no drift
+
+
+def test_volumetric_and_health_limits():
+    assert judge(analysis(vol=(0, 70.0, 0)), TOL).status == "WARN"
+    j = judge(analysis(vol=(0, 0, -90.0)), TOL)
+    assert j.status == "FAIL" and "volumetric distortion max = +90.00 µm" in j.reasons[0]
+    j = judge(analysis(rms=4.0), TOL)
+    assert j.status == "ERROR" and "residual RMS" in j.reasons[0]
+    assert "measurement not trusted" in j.reasons[0]
+    j = judge({"links": {}}, Tolerances(volumetric_max_um=Limit(fail=10)))
+    assert j.status == "FAIL"  # a limit on something missing never passes silently
+
+
+def test_tolerance_on_unidentified_link_is_reported():
+    tol = Tolerances(links={"EA0Y": Limit(fail=10)})
+    j = judge(analysis(), tol)
+    assert j.status == "PASS"
+    assert j.reasons == ("EA0Y: tolerance given but not identified in this run",)
+
+
+def test_one_bad_sphere_makes_the_measurement_untrusted():
+    a = analysis()
+    a["health"] = [{"pose": p, "ball": b, "radius_dev_um": 1.0 + 0.1 * p, "form_rms_um": 0.3}
+                   for p in range(5) for b in ("B1", "B2")]
+    assert judge(a, TOL).status == "PASS"  # a common radius offset (pre-travel) is fine
+    a["health"][7]["radius_dev_um"] = 9.0  # pose 3, ball B2: a chip or an early trigger
+    j = judge(a, TOL)
+    assert j.status == "ERROR" and j.checks[0].status == "ERROR"
+    assert j.reasons[0].startswith("sphere radius, ball B2 pose 3 = +7.80 µm")

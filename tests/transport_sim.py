@@ -1,0 +1,52 @@
+"""Real VirtualController + a real program from the daemon's generator (daemon/program.py) for
+the transport tests: generator → link → front-end → controller → dialect parser, no test double."""
+
+from __future__ import annotations
+
+from daemon.config import plan_from_dict
+from daemon.program import generate
+from drivers.base import ProgramJob
+from simulators.controller import VirtualController
+from simulators.truth import TruthModel
+from tests.test_sim_probe import TABLE_B2, truth_with
+
+
+def make_truth(errors: dict | None = None) -> TruthModel:
+    """The thesis machine and 4-ball artefact, Table B.2 link errors by default."""
+    return truth_with(TABLE_B2 if errors is None else errors)
+
+
+def make_job(truth: TruthModel, dialect: str, poses=((0.0, 0.0),)) -> ProgramJob:
+    """The generated, safety-checked program for ``poses`` (4 balls × 5 touches each)."""
+    plan = plan_from_dict({"name": "transport-test", "poses": [list(p) for p in poses],
+                           "stylus_diameter_mm": truth.errors.probe.stylus_diameter_mm})
+    g = generate(truth.machine, truth.machine_file, truth.artefact, plan, dialect)
+    ids = tuple(sorted((t.id for t in g.touches), key=lambda i: i.seq))
+    return ProgramJob(run_id="t", text=g.text, dialect=dialect, touch_count=len(ids),
+                      touches=ids, files=dict(g.aux_files))
+
+
+def real_setup(dialect: str, poses=((0.0, 0.0),), errors: dict | None = None,
+               time_scale: float = 0.0) -> tuple[VirtualController, ProgramJob]:
+    truth = make_truth(errors)
+    job = make_job(truth, dialect, poses)
+    vc = VirtualController(truth, time_scale=time_scale, dialect=dialect)
+    vc.files.update(job.files)  # what an operator copied to the control beforehand
+    return vc, job
+
+
+def latched_equal(hits, vc: VirtualController, job: ProgramJob, tol_mm: float) -> None:
+    """Every hit is the controller's latch (within the transport's resolution), in order."""
+    assert [h.seq for h in hits] == list(range(1, job.touch_count + 1))
+    r1, r2 = vc.axes[3], vc.axes[4]
+    for h, t, tid in zip(hits, vc.touches, job.touches, strict=True):
+        assert (h.pose, h.ball, h.touch) == (tid.pose, tid.ball, tid.touch)
+        assert h.triggered == t.triggered
+        for k in "XYZ":
+            assert abs(h.axes[k] - t.latched[k]) <= tol_mm
+        assert abs(h.axes["b"] - t.latched[r1]) <= tol_mm
+        assert abs(h.axes["c"] - t.latched[r2]) <= tol_mm
+
+
+def first_touch_of(job: ProgramJob, ball: str) -> int:
+    return min(t.seq for t in job.touches if t.ball == ball)
