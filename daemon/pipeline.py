@@ -7,14 +7,12 @@ operator can act on (unsafe program, rank-deficient data, incomplete ball-poses)
 
 from __future__ import annotations
 
-import math
 import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
 
-import numpy as np
-
+from daemon.analysis import AnalysisError, analyse_centres
 from daemon.daemon_config import MachineSetup
 from daemon.messages import ProbeHit, TouchId
 from daemon.probelog import LogRow, ProbeLogError, rows_to_centres
@@ -172,15 +170,9 @@ class Analysis:
     centre_rows: list[tuple]  # for the store: pose, ball, b, c, x, y, z, radius dev, form
 
 
-def _vec(a: np.ndarray, nd: int = 3) -> list[float]:
-    return [round(float(x), nd) for x in a]
-
-
 def analyse(setup: MachineSetup, hits: Sequence[ProbeHit], run_id: str = "run") -> Analysis:
-    """Centres (sphere fit) → estimate (setup + identifiable links) → analyses."""
-    from identification import analyses
-    from identification.estimate import RankDeficientError, estimate
-
+    """Centres (sphere fit) → estimate (setup + identifiable links) → analyses, as the shared
+    ``daemon.analysis`` JSON plus the run's identity."""
     rows = [hit_to_row(run_id, h, setup.machine) for h in hits if h.triggered]
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
@@ -189,59 +181,16 @@ def analyse(setup: MachineSetup, hits: Sequence[ProbeHit], run_id: str = "run") 
                                  source=f"run {run_id}")
         except ProbeLogError as e:
             raise PipelineError(str(e)) from None
-    notes = [str(w.message) for w in caught]
-    centres, ids = cd.centres, setup.artefact.ids
-    held = np.isin(centres.pose, list(setup.validate_poses))
     try:
-        est = estimate(setup.machine, setup.artefact, centres.subset(~held))
-    except (RankDeficientError, ValueError) as e:
+        data = analyse_centres(setup.machine, setup.artefact, cd,
+                               validate_poses=setup.validate_poses, source=f"run {run_id}")
+    except (AnalysisError, ValueError) as e:
         raise PipelineError(f"identification impossible: {e}") from None
-    vol = analyses.volumetric(setup.machine, setup.artefact, est, centres)
-    pred_setup = centres.xyz_mm - vol.before_um * 1e-3
-    group = centres.pose * 1000 + cd.repeat  # one cluster per pose and repeat (as analyze)
-    clus = analyses.clusters(centres, pred_setup, vol.before_um, ids, group)
-    dists = analyses.distance_analysis(centres, ids, group)
-    ball_v, ball_s = est.balls_um
-    probe_v, probe_s = est.probe_um
-    poses = setup.plan.poses
-    data: dict[str, Any] = {
-        "run_id": run_id, "machine": setup.name, "topology": setup.machine.topology,
-        "artefact": setup.artefact.name, "plan": setup.plan.name,
-        "links": {k: {"value": v, "std": s, "unit": u}
-                  for k, (v, s, u) in est.links_si().items()},
-        "setup": {"probe": {"value": _vec(probe_v), "std": _vec(probe_s)},
-                  "balls": {b: {"value": _vec(ball_v[i]), "std": _vec(ball_s[i])}
-                            for i, b in enumerate(ids)}},
-        "scale_um_per_m": est.scale_um_per_m,
-        "residual_rms_um": est.residual_rms_um, "condition_number": est.condition_number,
-        "unobservable": est.unobservable, "absorbed_by": est.absorbed_by,
-        "status": est.status, "warnings": est.warnings + notes,
-        "volumetric": [
-            {"pose": int(centres.pose[k]), "b_deg": float(centres.b_deg[k]),
-             "c_deg": float(centres.c_deg[k]), "ball": ids[int(centres.ball[k])],
-             "repeat": int(cd.repeat[k]),
-             "error_um": _vec(vol.before_um[k]), "error_after_links_um": _vec(vol.after_um[k]),
-             "held_out": bool(held[k])}
-            for k in range(len(centres))],
-        "cluster": [
-            {"pose": c.pose, "b_deg": poses[c.pose].b_deg, "c_deg": poses[c.pose].c_deg,
-             "linear_um": None if c.linear_um is None else _vec(c.linear_um),
-             "angular_urad": None if c.angular_urad is None else _vec(c.angular_urad),
-             "local_um": {b: _vec(v) for b, v in c.local_um.items()}, "note": c.note}
-            for c in clus],
-        "distances": [{"pose": d.pose, "balls": [d.ball_a, d.ball_b],
-                       "deviation_um": round(d.deviation_um, 3)} for d in dists],
-        "health": [{"pose": h.pose, "ball": h.ball, "repeat": h.repeat,
-                    "radius_dev_um": round(h.radius_dev_um, 3),
-                    "form_rms_um": round(h.form_rms_um, 3)} for h in cd.health],
-        "touches": len(rows),
-    }
-    if held.any():
-        v = analyses.validate(setup.machine, setup.artefact, est, centres.subset(held))
-        data["validation"] = {"poses": v.poses, "rms_before_um": v.rms_before_um,
-                              "rms_after_um": v.rms_after_um, "max_before_um": v.max_before_um,
-                              "max_after_um": v.max_after_um,
-                              "explained_fraction": v.explained_fraction}
+    data = {"run_id": run_id, "machine": setup.name, "plan": setup.plan.name,
+            **{k: v for k, v in data.items() if k != "machine"}, "touches": len(rows)}
+    data["warnings"] = data["warnings"] + [str(w.message) for w in caught
+                                           if str(w.message) not in data["warnings"]]
+    centres, ids = cd.centres, setup.artefact.ids
     health = {(h.pose, h.ball, h.repeat): h for h in cd.health}
     centre_rows = []
     for k in range(len(centres)):
@@ -251,15 +200,5 @@ def analyse(setup: MachineSetup, hits: Sequence[ProbeHit], run_id: str = "run") 
         centre_rows.append((int(centres.pose[k]), ids[int(centres.ball[k])],
                             float(centres.b_deg[k]), float(centres.c_deg[k]),
                             *map(float, centres.xyz_mm[k]), h.radius_dev_um, h.form_rms_um))
-    return Analysis(_finite(data), centre_rows)
+    return Analysis(data, centre_rows)
 
-
-def _finite(obj: Any) -> Any:
-    """JSON has no NaN/inf: replace them by None so reports never show a silent number."""
-    if isinstance(obj, float):
-        return obj if math.isfinite(obj) else None
-    if isinstance(obj, dict):
-        return {k: _finite(v) for k, v in obj.items()}
-    if isinstance(obj, list | tuple):
-        return [_finite(v) for v in obj]
-    return obj

@@ -13,31 +13,11 @@ import numpy as np
 from rich.console import Console
 from rich.table import Table
 
+from daemon.analysis import AnalysisError, analyse_centres
 from daemon.config import load_artefact, load_machine
 from daemon.probelog import ProbeLogError, read_log, rows_to_centres
-from identification.analyses import clusters, distance_analysis, validate, volumetric
-from identification.estimate import RankDeficientError, estimate
-from identification.model import predict
 
 DEFAULT_STYLUS_DIAMETER_MM = 6.0  # the shipped plans' stylus; used for the radius health figure
-
-_THESIS = {  # thesis Table B.2 / Fig B.2 names of the WCBXFZYT link errors
-    "EB0Z": "βZ squareness ZX", "EA0Y": "αY squareness YZ", "EC0Y": "γY squareness YX",
-    "EA0B": "αB orientation BZ", "EC0B": "γB orientation BX", "EX0C": "δxC offset CB",
-    "EA0C": "αC orientation CB", "EB0C": "βC orientation CX",
-}
-_GREEK = {"A": "α", "B": "β", "C": "γ"}
-
-
-def thesis_name(iso: str) -> str:
-    """Thesis-style name of an ISO 230-1 location error (Table B.2 where it has one)."""
-    if iso in _THESIS:
-        return _THESIS[iso]
-    err, axis = iso[1], iso[3]
-    if err in "XYZ":
-        return f"δ{err.lower()}{axis} offset of {axis}"
-    return f"{_GREEK[err]}{axis} {'squareness' if axis in 'XYZ' else 'orientation'} of {axis}"
-
 
 def _user_error(msg: str) -> Exception:
     from daemon.cli import UserError  # late import: cli imports every command module
@@ -83,16 +63,12 @@ def parse_repeatability(text: str | None) -> list[float] | None:
     return v * 3 if len(v) == 1 else v
 
 
-def _v(a: Any) -> list[float]:
-    return [round(float(x), 6) for x in np.asarray(a).ravel()]
-
-
 def run_analysis(log: Path | str, machine_path: Path | str, artefact_path: Path | str,
                  validate_poses: Sequence[int] = (), links: str = "all",
                  fixed_radius: bool = False,
                  stylus_diameter_mm: float = DEFAULT_STYLUS_DIAMETER_MM,
                  repeatability_um: Sequence[float] | None = None) -> dict[str, Any]:
-    """The whole analysis as a JSON-ready dict (keys of issue 2, plus a few more)."""
+    """Read ``log`` and analyse it (``daemon.analysis.analyse_centres``) → JSON-ready dict."""
     machine, _ = load_machine(machine_path)
     artefact = load_artefact(artefact_path)
     chosen = parse_links(links, machine.location_error_names())
@@ -102,88 +78,12 @@ def run_analysis(log: Path | str, machine_path: Path | str, artefact_path: Path 
             warnings.simplefilter("ignore")  # returned in data.warnings and reported below
             data = rows_to_centres(rows, artefact, stylus_diameter_mm / 2, fixed_radius,
                                    source=str(log))
-    except ProbeLogError as e:
+        out = analyse_centres(machine, artefact, data, validate_poses=validate_poses,
+                              links=chosen, repeatability_um=repeatability_um,
+                              fixed_radius=fixed_radius, source=str(log))
+    except (ProbeLogError, AnalysisError) as e:
         raise _user_error(str(e)) from None
-    c = data.centres
-    poses = sorted(int(x) for x in np.unique(c.pose))
-    missing = sorted(set(validate_poses) - set(poses))
-    if missing:
-        raise _user_error(f"--validate-poses: poses {missing} are not in {log} (poses {poses})")
-    held = np.isin(c.pose, list(validate_poses))
-    if held.all():
-        raise _user_error("--validate-poses: every pose is held out; nothing left to estimate")
-    est_c = c.subset(~held)
-    try:
-        est = estimate(machine, artefact, est_c, chosen, sigma_um=repeatability_um)
-    except RankDeficientError as e:
-        raise _user_error(f"{log}: {e}") from None
-    ids = artefact.ids
-    vol = volumetric(machine, artefact, est, c)
-    pred_setup, _ = predict(machine, artefact, est.layout, est.setup_only(), c)
-    group = c.pose * 1000 + data.repeat
-    cl = clusters(c, pred_setup, vol.before_um, ids, group)
-    rep_of_group = {int(g): int(r) for g, r in zip(group, data.repeat, strict=True)}
-    dist = distance_analysis(c, ids, group)
-    balls_v, balls_s = est.balls_um
-    probe_v, probe_s = est.probe_um
-    out: dict[str, Any] = {
-        "log": str(log), "machine": machine.name, "artefact": artefact.name,
-        "links": {k: {"value": round(v, 4), "std": round(s, 4), "unit": u,
-                      "thesis_name": thesis_name(k)} for k, (v, s, u) in est.links_si().items()},
-        "setup": {"probe": {"value": _v(probe_v), "std": _v(probe_s)},
-                  "balls": {b: {"value": _v(balls_v[i]), "std": _v(balls_s[i])}
-                            for i, b in enumerate(ids)}},
-        "residual_rms_um": round(est.residual_rms_um, 4),
-        "condition_number": round(est.condition_number, 3),
-        "unobservable": list(est.unobservable),
-        "unobservable_absorbed_by": dict(est.absorbed_by),
-        "estimation": {"status": est.status, "iterations": est.iterations,
-                       "centres": len(est_c), "sigma_um": _v(est.sigma_um),
-                       "sigma_from": "given" if est.sigma_given else "residuals",
-                       "fixed_radius": fixed_radius},
-        "volumetric": [
-            {"pose": int(c.pose[k]), "repeat": int(data.repeat[k]), "b_deg": float(c.b_deg[k]),
-             "c_deg": float(c.c_deg[k]), "ball": ids[c.ball[k]],
-             "role": "validate" if held[k] else "estimate",
-             "error_um": _v(vol.before_um[k]), "error_after_links_um": _v(vol.after_um[k])}
-            for k in range(len(c))],
-        "volumetric_max_um": {"before_links": round(vol.max_before_um, 4),
-                              "after_links": round(vol.max_after_um, 4)},
-        "cluster": [
-            {"pose": x.pose, "repeat": rep_of_group[int(g)],
-             "linear_um": None if x.linear_um is None else _v(x.linear_um),
-             "angular_urad": None if x.angular_urad is None else _v(x.angular_urad),
-             "local_um": {b: _v(v) for b, v in x.local_um.items()}, "note": x.note}
-            for x, g in zip(cl, np.unique(group), strict=True)],
-        "distances": [{"pose": d.pose, "balls": [d.ball_a, d.ball_b],
-                       "distance_mm": round(d.distance_mm, 7),
-                       "deviation_um": round(d.deviation_um, 4)} for d in dist],
-        "health": [{"pose": h.pose, "repeat": h.repeat, "ball": h.ball,
-                    "radius_dev_um": round(h.radius_dev_um, 4),
-                    "form_rms_um": round(h.form_rms_um, 4)} for h in data.health],
-        "warnings": list(data.warnings) + list(est.warnings),
-        "conventions": {
-            "volumetric": "measured − predicted centre, controller X Y Z, µm (thesis Eq. 3.22)",
-            "cluster": "rigid motion predicted → measured: ε ≈ linear + angular × P (P: "
-                       "predicted centre, mm, controller origin); the thesis' D, R of Eq. 4.4 "
-                       "are the negatives; local = ε − rigid part",
-            "setup": "ball offsets in the last workpiece frame, probe offset in the last tool "
-                     "frame, µm",
-        },
-    }
-    sc = est.scale_um_per_m
-    if sc is not None:
-        out["scale_um_per_m"] = {"value": round(sc[0], 4), "std": round(sc[1], 4)}
-    if held.any():
-        val = validate(machine, artefact, est, c.subset(held))
-        out["validation"] = {
-            "poses": val.poses, "rms_before_um": round(val.rms_before_um, 4),
-            "rms_after_um": round(val.rms_after_um, 4),
-            "max_before_um": round(val.max_before_um, 4),
-            "max_after_um": round(val.max_after_um, 4),
-            "explained_fraction": round(val.explained_fraction, 4),
-            "explained_fraction_rms": round(val.explained_fraction_rms, 4)}
-    return out
+    return {"log": str(log), **out}
 
 
 def _norm(v: list[float] | None) -> str:

@@ -1,0 +1,144 @@
+"""One analysis of measured ball centres → the JSON shared by `rumba analyze`, daemon runs and
+their reports: estimate (setup + links), volumetric distortion, clusters, distances, validation.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from daemon.probelog import CentreData
+from identification.analyses import clusters, distance_analysis, validate, volumetric
+from identification.estimate import RankDeficientError, estimate
+from identification.kinematics import Machine
+from identification.model import Artefact
+
+_THESIS = {  # thesis Table B.2 / Fig B.2 names of the WCBXFZYT link errors
+    "EB0Z": "βZ squareness ZX", "EA0Y": "αY squareness YZ", "EC0Y": "γY squareness YX",
+    "EA0B": "αB orientation BZ", "EC0B": "γB orientation BX", "EX0C": "δxC offset CB",
+    "EA0C": "αC orientation CB", "EB0C": "βC orientation CX",
+}
+_GREEK = {"A": "α", "B": "β", "C": "γ"}
+
+
+class AnalysisError(ValueError):
+    """The centres cannot be analysed as asked (held-out poses absent, rank deficiency …)."""
+
+
+def thesis_name(iso: str) -> str:
+    """The thesis' name of an ISO 230-1 location error (Greek letter for the others)."""
+    if iso in _THESIS:
+        return _THESIS[iso]
+    kind, axis = iso[1], iso[3]
+    return f"δ{kind.lower()}{axis}" if kind in "XYZ" else f"{_GREEK[kind]}{axis}"
+
+
+def _v(a: Any) -> list[float]:
+    return [round(float(x), 6) for x in np.asarray(a).ravel()]
+
+
+def analyse_centres(machine: Machine, artefact: Artefact, data: CentreData, *,
+                    validate_poses: Sequence[int] = (), links: Sequence[str] | None = None,
+                    repeatability_um: Sequence[float] | None = None,
+                    fixed_radius: bool = False, source: str = "") -> dict[str, Any]:
+    """The whole analysis as a JSON-ready dict (keys of issue 2, plus a few more).
+
+    ``links`` None: the identifiable set; () setup only. Poses in ``validate_poses`` are held
+    out of the estimate and predicted (thesis annex B)."""
+    c = data.centres
+    poses = sorted(int(x) for x in np.unique(c.pose))
+    missing = sorted(set(validate_poses) - set(poses))
+    if missing:
+        raise AnalysisError(f"validation poses {missing} are not in {source or 'the data'} "
+                            f"(poses {poses})")
+    held = np.isin(c.pose, list(validate_poses))
+    if held.all():
+        raise AnalysisError("every pose is held out for validation; nothing left to estimate")
+    est_c = c.subset(~held)
+    try:
+        est = estimate(machine, artefact, est_c, links, sigma_um=repeatability_um)
+    except RankDeficientError as e:
+        raise AnalysisError(f"{source}: {e}" if source else str(e)) from None
+    ids = artefact.ids
+    vol = volumetric(machine, artefact, est, c)
+    pred_setup = c.xyz_mm - vol.before_um * 1e-3  # nominal machine + estimated setup
+    group = c.pose * 1000 + data.repeat  # one cluster per pose and repeat
+    groups = np.unique(group)
+    cl = clusters(c, pred_setup, vol.before_um, ids, group)
+    first = {int(g): int(np.flatnonzero(group == g)[0]) for g in groups}
+    dist = distance_analysis(c, ids, group)
+    balls_v, balls_s = est.balls_um
+    probe_v, probe_s = est.probe_um
+    out: dict[str, Any] = {
+        "machine": machine.name, "topology": machine.topology, "artefact": artefact.name,
+        "links": {k: {"value": round(v, 4), "std": round(s, 4), "unit": u,
+                      "thesis_name": thesis_name(k)} for k, (v, s, u) in est.links_si().items()},
+        "setup": {"probe": {"value": _v(probe_v), "std": _v(probe_s)},
+                  "balls": {b: {"value": _v(balls_v[i]), "std": _v(balls_s[i])}
+                            for i, b in enumerate(ids)}},
+        "residual_rms_um": round(est.residual_rms_um, 4),
+        "condition_number": round(est.condition_number, 3),
+        "unobservable": list(est.unobservable),
+        "unobservable_absorbed_by": dict(est.absorbed_by),
+        "estimation": {"status": est.status, "iterations": est.iterations,
+                       "centres": len(est_c), "sigma_um": _v(est.sigma_um),
+                       "sigma_from": "given" if est.sigma_given else "residuals",
+                       "fixed_radius": fixed_radius},
+        "volumetric": [
+            {"pose": int(c.pose[k]), "repeat": int(data.repeat[k]), "b_deg": float(c.b_deg[k]),
+             "c_deg": float(c.c_deg[k]), "ball": ids[c.ball[k]],
+             "role": "validate" if held[k] else "estimate", "held_out": bool(held[k]),
+             "error_um": _v(vol.before_um[k]), "error_after_links_um": _v(vol.after_um[k])}
+            for k in range(len(c))],
+        "volumetric_max_um": {"before_links": round(vol.max_before_um, 4),
+                              "after_links": round(vol.max_after_um, 4)},
+        "cluster": [
+            {"pose": x.pose, "repeat": int(data.repeat[first[int(g)]]),
+             "b_deg": float(c.b_deg[first[int(g)]]), "c_deg": float(c.c_deg[first[int(g)]]),
+             "linear_um": None if x.linear_um is None else _v(x.linear_um),
+             "angular_urad": None if x.angular_urad is None else _v(x.angular_urad),
+             "local_um": {b: _v(v) for b, v in x.local_um.items()}, "note": x.note}
+            for x, g in zip(cl, groups, strict=True)],
+        "distances": [{"pose": d.pose, "balls": [d.ball_a, d.ball_b],
+                       "distance_mm": round(d.distance_mm, 7),
+                       "deviation_um": round(d.deviation_um, 4)} for d in dist],
+        "health": [{"pose": h.pose, "repeat": h.repeat, "ball": h.ball,
+                    "radius_dev_um": round(h.radius_dev_um, 4),
+                    "form_rms_um": round(h.form_rms_um, 4)} for h in data.health],
+        "warnings": list(data.warnings) + list(est.warnings),
+        "conventions": {
+            "volumetric": "measured − predicted centre, controller X Y Z, µm (thesis Eq. 3.22)",
+            "cluster": "rigid motion predicted → measured: ε ≈ linear + angular × P (P: "
+                       "predicted centre, mm, controller origin); the thesis' D, R of Eq. 4.4 "
+                       "are the negatives; local = ε − rigid part",
+            "setup": "ball offsets in the last workpiece frame, probe offset in the last tool "
+                     "frame, µm",
+        },
+    }
+    sc = est.scale_um_per_m
+    if sc is not None:
+        out["scale_um_per_m"] = {"value": round(sc[0], 4), "std": round(sc[1], 4)}
+    if held.any():
+        val = validate(machine, artefact, est, c.subset(held))
+        out["validation"] = {
+            "poses": val.poses, "rms_before_um": round(val.rms_before_um, 4),
+            "rms_after_um": round(val.rms_after_um, 4),
+            "max_before_um": round(val.max_before_um, 4),
+            "max_after_um": round(val.max_after_um, 4),
+            "explained_fraction": round(val.explained_fraction, 4),
+            "explained_fraction_rms": round(val.explained_fraction_rms, 4)}
+    return finite(out)
+
+
+def finite(obj: Any) -> Any:
+    """JSON has no NaN/inf: replace them by None so reports never show a silent number."""
+    if isinstance(obj, float):
+        return obj if math.isfinite(obj) else None
+    if isinstance(obj, dict):
+        return {k: finite(v) for k, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return [finite(v) for v in obj]
+    return obj
