@@ -1,0 +1,172 @@
+"""`rumba gap`: where a probing log departs from the twin, which effect explains it, how much."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import warnings
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from daemon.config import load_artefact, load_machine, load_plan
+from daemon.probelog import LogRow, ProbeLogError, read_log
+from identification.effects import FAMILIES
+from identification.gap import Options, TouchData, diagnose
+from identification.model import Artefact
+
+DEFAULT_STYLUS_DIAMETER_MM = 6.0  # the shipped plans' stylus
+CONFIG = Path(__file__).resolve().parents[2] / "config"
+
+
+def _user_error(msg: str) -> Exception:
+    from daemon.cli import UserError  # late import: cli imports every command module
+
+    return UserError(msg)
+
+
+def touches_from_rows(rows: Sequence[LogRow], artefact: Artefact, source: str) -> TouchData:
+    """Probing-log rows → touch arrays (one run only: setups differ between runs)."""
+    runs = sorted({r.run_id for r in rows})
+    if len(runs) > 1:
+        raise ProbeLogError(f"{source}: contains runs {runs}; diagnose one run at a time")
+    order = {b: i for i, b in enumerate(artefact.ids)}
+    d = np.array([[r.dir_x, r.dir_y, r.dir_z] for r in rows], float)
+    n = np.linalg.norm(d, axis=1)
+    if np.any(n < 1e-9):
+        raise ProbeLogError(f"{source}: a touch has a zero approach direction (dir_x/y/z)")
+    return TouchData(
+        repeat=np.array([r.repeat for r in rows]), pose=np.array([r.pose for r in rows]),
+        ball=np.array([order[r.ball] for r in rows]), touch=np.array([r.touch for r in rows]),
+        t_s=np.array([r.t_s for r in rows], float), b_deg=np.array([r.b_deg for r in rows]),
+        c_deg=np.array([r.c_deg for r in rows]), direction=d / n[:, None],
+        xyz_mm=np.array([[r.x_mm, r.y_mm, r.z_mm] for r in rows], float))
+
+
+def _families(text: str | None) -> tuple[str, ...]:
+    if not text:
+        return FAMILIES
+    names = tuple(x.strip() for x in text.split(",") if x.strip())
+    bad = [x for x in names if x not in FAMILIES]
+    if bad or not names:
+        raise _user_error(f"--families: unknown {bad or [text]}; expected a comma list of "
+                          f"{', '.join(FAMILIES)}")
+    return names
+
+
+def _print_report(rep: dict) -> None:
+    b, v = rep["baseline"], rep["verdict"]
+    print(f"noise floor {rep['noise_floor_um']:.3f} µm (per coordinate; "
+          f"touch repeatability {rep['noise']['sigma_touch_um']:.3f} µm); split: {rep['split']}")
+    print(f"twin gap: train RMS {b['train_rms_um']:.3f} µm, held-out RMS "
+          f"{b['holdout_rms_um']:.3f} µm, max {b['holdout_max_um']:.3f} µm "
+          f"({b['gap_ratio']:.2f}× the held-out floor, p = {b['p_value']:.2g})")
+    for loc in rep["location"]:
+        print(f"  gap at {loc['by']} {loc['key']}: {loc['rms_um']:.3f} µm "
+              f"({loc['ratio_to_floor']:.1f}× floor)")
+    print(f"{'candidate':34s} {'held-out µm':>11s} {'explained':>9s}  sig  p-value")
+    for c in rep["candidates"][:8]:
+        label = c["effect"] + (f":{c['axis']}" if c["axis"] else "")
+        alike = f"  ~ {', '.join(c['indistinguishable_from'])}" if c["indistinguishable_from"] \
+            else ""
+        print(f"{label:34s} {c['holdout_rms_um']:11.3f} {100 * c['explained_fraction']:8.0f}%"
+              f"  {'yes' if c['significant'] else 'no ':3s}  {c['p_value']:.2g}{alike}")
+    for a in rep["absorbed"]:
+        print(f"absorbed: {a['effect']} {a['value_um']:+.2f} ± {a['std_um']:.2f} µm — {a['what']}")
+    if rep["dropped_groups"]:
+        print(f"note: {rep['dropped_groups']} incomplete ball-pose(s) left out")
+    for inv in rep["invisible"]:
+        print(f"invisible: {inv['effect']}:{inv['axis']} — {inv['reason']}")
+    axis = f":{v['axis']}" if v["axis"] else ""
+    print(f"verdict: {v['effect']}{axis} — held-out RMS {v['holdout_rms_before_um']:.3f} → "
+          f"{v['holdout_rms_after_um']:.3f} µm; {v['message']}")
+
+
+def _load(path: str, artefact: Artefact) -> TouchData:
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        rows = read_log(path, artefact)
+    for w in caught:
+        print(f"warning: {w.message}")
+    return touches_from_rows(rows, artefact, path)
+
+
+def _selfcheck(args: argparse.Namespace) -> int:
+    from identification.gap import selfcheck
+
+    machine, _ = load_machine(args.machine or CONFIG / "machines/thesis_wcbxfzyt.yaml")
+    artefact = load_artefact(args.artefact or CONFIG / "artefacts/thesis_4ball.yaml")
+    plan = load_plan(CONFIG / "plans/thesis_annexB_14poses.yaml")
+    plans = {"thesis-14": [(p.b_deg, p.c_deg) for p in plan.poses]}
+    if args.full:
+        plans["grid-49"] = selfcheck.grid_49()
+    seeds = args.seeds or (10 if args.full else 2)
+    stylus_r = (args.stylus_diameter_mm or plan.stylus_diameter_mm) / 2
+
+    def show(c: selfcheck.Case) -> None:
+        top = f"{c.top}:{c.top_axis}" if c.top_axis else str(c.top)
+        print(f"{c.plan:10s} {c.scenario}{':' + c.axis if c.axis else '':24s} → "
+              f"{c.verdict:20s} top {top:26s} after/floor {c.after_ratio:4.2f} "
+              f"{'ok' if c.ok else 'MISS'}", flush=True)
+
+    summary = selfcheck.run(machine, artefact, plans, stylus_r, seeds, progress=show)
+    print()
+    print(summary.table())
+    rates = summary.rates()
+    need = {k: (0.95 if k == "null" else 0.9) for k in rates}
+    failed = [k for k, r in rates.items() if r < need[k]]
+    print("targets met" if not failed else f"targets missed: {', '.join(failed)}")
+    return 0 if not failed else 1
+
+
+def _run(args: argparse.Namespace) -> int:
+    if args.selfcheck:
+        return _selfcheck(args)
+    if not (args.log and args.machine and args.artefact):
+        raise _user_error("gap: --log, --machine and --artefact are required "
+                          "(or --selfcheck)")
+    machine, _ = load_machine(args.machine)
+    artefact = load_artefact(args.artefact)
+    stylus_r = (args.stylus_diameter_mm or DEFAULT_STYLUS_DIAMETER_MM) / 2
+    try:
+        train = _load(args.log, artefact)
+        hold = _load(args.holdout, artefact) if args.holdout else None
+        rep = diagnose(machine, artefact, train, stylus_r, hold,
+                       Options(families=_families(args.families)))
+    except ProbeLogError as e:
+        raise _user_error(str(e)) from None
+    except ValueError as e:  # data that cannot support a diagnosis (e.g. too few poses)
+        raise _user_error(f"{args.log}: {e}") from None
+    _print_report(rep)
+    if args.json:
+        Path(args.json).write_text(json.dumps(rep, indent=1), encoding="utf-8")
+        print(f"wrote {args.json}")
+    if args.html:
+        from daemon.gap_report import render
+
+        Path(args.html).write_text(render(rep, title=f"Gap diagnosis — {args.log}"),
+                                   encoding="utf-8")
+        print(f"wrote {args.html}")
+    return 0
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("gap", help="sim-to-real gap diagnosis: locate, attribute, quantify",
+                       description=__doc__)
+    p.add_argument("--log", help="probing log (CSV) the twin is fitted on")
+    p.add_argument("--holdout", help="separate probing log to judge on (default: "
+                                     "leave-poses-out cross-validation of --log)")
+    p.add_argument("--machine", help="machine YAML")
+    p.add_argument("--artefact", help="artefact YAML")
+    p.add_argument("--stylus-diameter-mm", type=float, default=None,
+                   help=f"stylus ball diameter (default {DEFAULT_STYLUS_DIAMETER_MM})")
+    p.add_argument("--families", help="comma list of effect families to try (default all)")
+    p.add_argument("--json", help="write the report as JSON")
+    p.add_argument("--html", help="write the report as HTML")
+    p.add_argument("--selfcheck", action="store_true",
+                   help="simulate every library effect withheld from the twin and diagnose it")
+    p.add_argument("--seeds", type=int, default=None, help="self-check seeds per case")
+    p.add_argument("--full", action="store_true",
+                   help="self-check on the 14-pose plan and a 49-pose grid")
+    p.set_defaults(func=_run)

@@ -1,0 +1,128 @@
+"""HTML report of a gap diagnosis: where the gap lies, ranked candidates, before/after plots."""
+
+from __future__ import annotations
+
+import base64
+import io
+
+import jinja2
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt
+import numpy as np
+
+_TEMPLATE = jinja2.Environment(autoescape=True).from_string("""<!doctype html>
+<html lang="en"><head><meta charset="utf-8"><title>{{ title }}</title>
+<style>
+body{font-family:system-ui,sans-serif;margin:2em;max-width:70em;color:#222}
+table{border-collapse:collapse;margin:1em 0}td,th{border:1px solid #ccc;padding:.3em .6em}
+th{background:#f3f3f3}td.n{text-align:right;font-variant-numeric:tabular-nums}
+.verdict{font-size:1.2em;padding:.8em;border-radius:.4em;background:#eef}
+.sig{color:#a00;font-weight:600}img{max-width:100%}
+</style></head><body>
+<h1>{{ title }}</h1>
+<p class="verdict"><b>Verdict: {{ v.effect }}{% if v.axis %} ({{ v.axis }}){% endif %}</b>
+—
+{{ v.message }}.<br>Held-out RMS {{ "%.3f"|format(v.holdout_rms_before_um) }} µm →
+{{ "%.3f"|format(v.holdout_rms_after_um) }} µm; noise floor
+{{ "%.3f"|format(r.noise_floor_um) }} µm
+(per coordinate), held-out floor {{ "%.3f"|format(r.noise.holdout_floor_um) }} µm.</p>
+<p>Noise: {{ r.noise.source }}; trigger repeatability
+{{ "%.3f"|format(r.noise.sigma_touch_um) }} µm.
+{% if r.dropped_groups %}{{ r.dropped_groups }} incomplete ball-pose(s) left out.{% endif %}</p>
+{% for a in r.absorbed %}<p>Absorbed: {{ a.effect }} — {{ a.what }}
+({{ "%.2f"|format(a.value_um) }} ± {{ "%.2f"|format(a.std_um) }} µm).</p>{% endfor %}
+<p>Judged on: {{ r.split }}. Twin: {{ r.twin.n_params }} parameters (setup + links
+{{ r.twin.links|join(", ") }}). Observations per ball-pose: centre x, y, z and the
+sphere-fit form residual (µm).</p>
+<h2>Where the gap lies</h2>
+{% if r.location %}<table><tr><th>by</th><th>where</th><th>RMS µm</th><th>× floor</th>
+<th>p</th></tr>{% for l in r.location %}<tr><td>{{ l.by }}</td><td>{{ l.key }}</td>
+<td class="n">{{ "%.3f"|format(l.rms_um) }}</td>
+<td class="n">{{ "%.2f"|format(l.ratio_to_floor) }}</td>
+<td class="n">{{ l.p_value }}</td></tr>{% endfor %}</table>
+{% else %}<p>No breakdown stands significantly above the floor.</p>{% endif %}
+{% for name, img in where %}<h3>By {{ name }}</h3>
+<img alt="gap by {{ name }}" src="data:image/png;base64,{{ img }}">{% endfor %}
+<h2>Candidates (best first)</h2>
+<img alt="ranked candidates" src="data:image/png;base64,{{ ranked }}">
+<table><tr><th>effect</th><th>axis</th><th>held-out RMS µm</th><th>explained</th>
+<th>significant</th><th>p</th><th>ΔBIC</th><th>visible dof</th><th>parameters</th>
+<th>cannot be told from</th></tr>
+{% for c in r.candidates %}<tr><td>{{ c.effect }}</td><td>{{ c.axis or "" }}</td>
+<td class="n">{{ "%.3f"|format(c.holdout_rms_um) }}</td>
+<td class="n">{{ "%.0f"|format(100 * c.explained_fraction) }} %</td>
+<td class="{{ 'sig' if c.significant else '' }}">{{ "yes" if c.significant else "no" }}</td>
+<td class="n">{{ c.p_value }}</td><td class="n">{{ c.delta_bic }}</td>
+<td class="n">{{ c.visible_dof }}/{{ c.n_params }}</td>
+<td>{% for k, p in c.params.items() %}{{ k }} = {{ "%.3g"|format(p.value) }}
+± {{ "%.2g"|format(p.std) }} {{ p.unit }}<br>{% endfor %}</td>
+<td>{{ c.indistinguishable_from|join(", ") }}</td></tr>{% endfor %}</table>
+{% if r.invisible %}<h3>Not visible on this probing pattern</h3><ul>
+{% for i in r.invisible %}<li>{{ i.effect }}{% if i.axis %} {{ i.axis }}{% endif %}:
+{{ i.reason }}</li>{% endfor %}</ul>{% endif %}
+<h2>Before / after</h2>
+<img alt="held-out residuals before and after" src="data:image/png;base64,{{ before_after }}">
+</body></html>
+""")
+
+
+def _png(fig: plt.Figure) -> str:
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=90, bbox_inches="tight")
+    plt.close(fig)
+    return base64.b64encode(buf.getvalue()).decode("ascii")
+
+
+def _where_plots(rep: dict) -> list[tuple[str, str]]:
+    kinds = [k for k in dict.fromkeys(c["by"] for c in rep["location"])]
+    out = []
+    floor = rep["noise"]["holdout_floor_um"]
+    for kind in kinds:
+        cells = [c for c in rep["breakdowns"] if c["by"] == kind]
+        fig, ax = plt.subplots(figsize=(max(5.0, 0.45 * len(cells)), 3.0))
+        colors = ["#c0392b" if c["significant"] else "#7f8c8d" for c in cells]
+        ax.bar(range(len(cells)), [c["rms_um"] for c in cells], color=colors)
+        ax.axhline(floor, color="k", ls="--", lw=1, label="held-out floor")
+        ax.set_xticks(range(len(cells)), [c["key"] for c in cells], rotation=60, ha="right",
+                      fontsize=7)
+        ax.set_ylabel("held-out RMS (µm)")
+        ax.legend(fontsize=7)
+        out.append((kind, _png(fig)))
+    return out
+
+
+def _ranked_plot(rep: dict) -> str:
+    cands = rep["candidates"][:15]
+    fig, ax = plt.subplots(figsize=(6.5, 0.3 * len(cands) + 1.2))
+    labels = [c["effect"] + (f":{c['axis']}" if c["axis"] else "") for c in cands]
+    colors = ["#27ae60" if c["significant"] else "#95a5a6" for c in cands]
+    ax.barh(range(len(cands)), [c["holdout_rms_um"] for c in cands], color=colors)
+    ax.axvline(rep["baseline"]["holdout_rms_um"], color="#c0392b", lw=1, label="twin alone")
+    ax.axvline(rep["noise"]["holdout_floor_um"], color="k", ls="--", lw=1, label="floor")
+    ax.set_yticks(range(len(cands)), labels, fontsize=7)
+    ax.invert_yaxis()
+    ax.set_xlabel("held-out RMS with the candidate (µm)")
+    ax.legend(fontsize=7)
+    return _png(fig)
+
+
+def _before_after(rep: dict) -> str:
+    s = rep["residuals"]
+    before = np.linalg.norm(np.asarray(s["before_um"])[:, :3], axis=1)
+    after = np.linalg.norm(np.asarray(s["after_um"])[:, :3], axis=1)
+    t = np.asarray(s["t_s"]) / 60.0
+    fig, ax = plt.subplots(figsize=(7.0, 3.0))
+    ax.plot(t, before, "o", ms=3, color="#c0392b", label="twin alone")
+    ax.plot(t, after, "o", ms=3, color="#27ae60", label="with selected effects")
+    ax.set_xlabel("time (min)")
+    ax.set_ylabel("|held-out centre residual| (µm)")
+    ax.legend(fontsize=7)
+    return _png(fig)
+
+
+def render(rep: dict, title: str = "Gap diagnosis") -> str:
+    """The whole report as one self-contained HTML page (plots embedded as PNG)."""
+    return _TEMPLATE.render(title=title, r=rep, v=rep["verdict"], where=_where_plots(rep),
+                            ranked=_ranked_plot(rep), before_after=_before_after(rep))

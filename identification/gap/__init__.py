@@ -1,0 +1,6 @@
+"""Sim-to-real gap diagnosis (issue 6, METHOD.md §6): locate, attribute, quantify — honestly."""
+
+from identification.gap.data import TouchData
+from identification.gap.diagnose import Options, diagnose
+
+__all__ = ["Options", "TouchData", "diagnose"]
