@@ -112,7 +112,7 @@ class _Blocks:
 class _Visit:
     key: tuple = ()
     noise_mm: np.ndarray = field(default_factory=lambda: np.zeros(3))
-    last_touch: int = 99
+    touches: set[int] = field(default_factory=set)
 
 
 class VirtualController:
@@ -389,13 +389,14 @@ class VirtualController:
         """Effect offsets + probing noise: per touch along the approach, per ball visit common
         to its touches (thesis §3.4 repeatability)."""
         probe = self.truth.errors.probe
-        # A visit ends when the ball or the indexation changes, or the touch sequence starts
-        # over (touch numbers not increasing: the next repeat of the same ball).
+        # A visit ends when the ball or the indexation changes, or a touch number comes back
+        # (the next repeat of the same ball). The generator orders the four equator touches by
+        # path length, so touch numbers need not increase within one visit.
         key = (ball, round(b, 6), round(c, 6), self._rotary_moves)
-        if key != self._visit.key or touch <= self._visit.last_touch:
+        if key != self._visit.key or touch in self._visit.touches:
             self._visit = _Visit(key, self._rng.normal(0.0, 1.0, 3)
                                  * np.asarray(probe.centre_noise_um) * 1e-3)
-        self._visit.last_touch = touch
+        self._visit.touches.add(touch)
         noise = self._visit.noise_mm + u * self._rng.normal(0.0, probe.touch_noise_um * 1e-3)
         try:
             eff = self.truth.touch_offset_mm(t, b, c, ball, touch, np.asarray(direction), stop)
