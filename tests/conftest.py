@@ -4,7 +4,11 @@ from __future__ import annotations
 
 import os
 
-import pytest
+# Small dense problems: BLAS threads only contend on a 2-core machine (as daemon/__init__.py).
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
+import pytest  # noqa: E402
 
 
 @pytest.hookimpl(hookwrapper=True)
