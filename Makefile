@@ -4,7 +4,8 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test test-linuxcnc lint bench golden peers clean
+.PHONY: demo test test-linuxcnc demo-linuxcnc linuxcnc-up linuxcnc-down lint bench golden peers clean
+LCNC_ENV := .peers/linuxcnc.env
 
 $(BIN)/python:
 	@command -v $(PYTHON) >/dev/null 2>&1 || { echo "error: $(PYTHON) not found (Python 3.11 is required)"; exit 2; }
@@ -22,7 +23,22 @@ test: $(STAMP)
 	$(BIN)/python -m pytest -q
 
 test-linuxcnc: $(STAMP)
+	bash .ci/install-peers.sh linuxcnc
 	$(BIN)/python -m pytest -q -m linuxcnc
+
+# LinuxCNC 2.9 headless with the HAL probe carrying our truth model (config/linuxcnc/).
+linuxcnc-up: $(STAMP)
+	bash .ci/install-peers.sh linuxcnc
+	@mkdir -p .peers
+	$(BIN)/python -m simulators.linuxcnc_peer up > $(LCNC_ENV)
+	@cat $(LCNC_ENV)
+
+linuxcnc-down: $(STAMP)
+	@if [ -f $(LCNC_ENV) ]; then $(BIN)/python -m simulators.linuxcnc_peer down "$$(sed -n 's/^LCNC_DIR=//p' $(LCNC_ENV))" && rm -f $(LCNC_ENV); else echo "no LinuxCNC from make linuxcnc-up"; fi
+
+demo-linuxcnc: $(STAMP)
+	bash .ci/install-peers.sh linuxcnc
+	$(BIN)/python -m daemon.demo_linuxcnc
 
 lint: $(STAMP)
 	$(BIN)/ruff check .

@@ -1,0 +1,137 @@
+"""LinuxCNC demo: LinuxCNC 2.9 headless (config/linuxcnc/, xyzbc-trt-kins, HAL probe carrying
+our truth model) and the daemon (`rumba run`, a separate process) talking linuxcncrsh; the run is
+started from the HMI's API, the verdict is written back to LinuxCNC (motion.analog-out-00).
+
+``python -m daemon.demo_linuxcnc [--plan F] [--out DIR]`` (needs `bash .ci/install-peers.sh
+linuxcnc`; ~1.5 min with the default 7-pose plan, ~5 min with thesis_annexB_14poses).
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import os
+import secrets
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import aiohttp
+
+from daemon.demo_e2e import _hmi
+
+ROOT = Path(__file__).resolve().parents[1]
+CONFIG = ROOT / "config"
+MACHINE, ARTEFACT = "machines/linuxcnc_xyzbc.yaml", "artefacts/thesis_4ball.yaml"
+ERRORS = "errors/linuxcnc_xyzbc.yaml"
+
+
+def _daemon_yaml(work: Path, port: int, plan: Path, token_file: Path) -> str:
+    return f"""# written by daemon/demo_linuxcnc.py
+store: {{path: {work / 'journal.sqlite'}}}
+reports_dir: {work / 'reports'}
+hmi: {{host: 127.0.0.1, port: 0, token_file: {token_file}}}
+machines:
+  - name: lcnc-trt
+    machine: {CONFIG / MACHINE}
+    artefact: {CONFIG / ARTEFACT}
+    plan: {plan}
+    dialect: linuxcnc
+    link: {{transport: linuxcnc, host: 127.0.0.1, port: {port}, prelude_mdi: [M429]}}
+    touch_timeout_s: 60
+    tolerances:
+      default_rotation_urad: {{warn: 30, fail: 60}}
+      default_translation_um: {{warn: 150, fail: 250}}
+"""
+
+
+def _analog_out(peer_dir: Path, n: int) -> float:
+    fifo = (peer_dir / "fifo.path").read_text().strip()
+    out = subprocess.run(["/usr/bin/halcmd", "getp", f"motion.analog-out-{n:02d}"],
+                         env={**os.environ, "RTAPI_FIFO_PATH": f"{fifo}/rtapi_fifo"},
+                         capture_output=True, text=True, timeout=20, check=True)
+    return float(out.stdout)
+
+
+async def demo(plan: Path, work: Path) -> int:
+    from simulators import linuxcnc_peer
+    from simulators.hal_probe import write_spec
+    from simulators.truth import TruthModel
+
+    t0 = time.monotonic()
+    truth = TruthModel.from_files(CONFIG / MACHINE, CONFIG / ARTEFACT, CONFIG / ERRORS)
+    spec = work / "probe_spec.json"
+    write_spec(truth, spec)
+    peer = linuxcnc_peer.up(spec, workdir=work / "linuxcnc")
+    print(f"LinuxCNC up (linuxcncrsh 127.0.0.1:{peer.port}, {time.monotonic() - t0:.1f} s); "
+          f"HAL probe truth {ERRORS}")
+    token = secrets.token_urlsafe(24)
+    token_file = work / "hmi.token"
+    token_file.write_text(token)
+    token_file.chmod(0o600)
+    cfg = work / "daemon.yaml"
+    cfg.write_text(_daemon_yaml(work, peer.port, plan, token_file))
+    daemon = await asyncio.create_subprocess_exec(
+        sys.executable, "-m", "daemon.cli", "run", "--config", str(cfg), cwd=ROOT,
+        stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.DEVNULL)
+    try:
+        hmi = await _hmi(daemon.stdout, 60)
+        async with aiohttp.ClientSession(
+                headers={"Authorization": f"Bearer {token}"}) as http:
+            async with http.post(hmi + "api/machines/lcnc-trt/start") as r:
+                print(f"start from the HMI API: HTTP {r.status}")
+            async with asyncio.timeout(1200):
+                while True:
+                    await asyncio.sleep(1.0)
+                    async with http.get(hmi + "api/status") as r:
+                        st = (await r.json())["lcnc-trt"]
+                    if not st["busy"]:
+                        break
+        v = st.get("verdict") or {}
+        code = _analog_out(peer.dir, 0)
+        print(f"\nrun {st['run_id']}: {st['state']} {st['reason']}; {st['done']} touches")
+        print(f"verdict {v.get('status')} — written back to LinuxCNC: motion.analog-out-00 = "
+              f"{code:g}")
+        print(v.get("summary", ""))
+        if v.get("report"):
+            links = json.loads(Path(v["report"]).with_suffix(".json").read_text())
+            links = links["analysis"]["links"]
+            print("identified vs injected (µrad / µm): " + ", ".join(
+                f"{k} {d['value']:+.1f}±{d['std']:.1f} ({truth.errors.links.get(k, 0):+g})"
+                for k, d in sorted(links.items())))
+            print(f"report: {v['report']}")
+        print(f"demo wall time {time.monotonic() - t0:.1f} s")
+        return 0 if v.get("status") in ("PASS", "WARN", "FAIL") else 1
+    finally:
+        if daemon.returncode is None:
+            daemon.terminate()
+            try:
+                await asyncio.wait_for(daemon.wait(), 20)
+            except TimeoutError:
+                daemon.kill()
+                await daemon.wait()
+        linuxcnc_peer.down(peer.dir)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m daemon.demo_linuxcnc", description=__doc__)
+    ap.add_argument("--plan", type=Path, default=CONFIG / "plans/linuxcnc_7poses.yaml")
+    ap.add_argument("--out", type=Path, help="folder for journal, reports and config "
+                                             "(default: a new temp folder, kept)")
+    args = ap.parse_args(argv)
+    out = args.out or Path(tempfile.mkdtemp(prefix="rumba-demo-lcnc-"))
+    out.mkdir(parents=True, exist_ok=True)
+    from simulators.linuxcnc_peer import PeerError
+
+    try:
+        return asyncio.run(demo(args.plan.resolve(), out.resolve()))
+    except PeerError as e:
+        print(f"demo_linuxcnc: {e}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,121 @@
+"""LinuxCNC link and HAL probe logic that needs no LinuxCNC (runs in `make test`): the MDI step
+plan of a real program, the probe's contact geometry, the link config's injection guard, and
+our chain against the xyzbc-trt-kins formulas (trtfuncs.c, tests/peers/PEERS_FINDINGS.md)."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from daemon import pipeline
+from daemon.config import ConfigError, load_artefact, load_machine, load_plan
+from daemon.daemon_config import MachineSetup, TriggersFile
+from daemon.judge import Tolerances
+from drivers.linuxcnc import plan_steps
+from drivers.registry import link_config
+from identification.kinematics import ChainState, frames, to_model
+from simulators.hal_probe import ProbeModel, write_spec
+from simulators.truth import TruthModel
+
+ROOT = Path(__file__).resolve().parents[1]
+MACHINE = ROOT / "config/machines/linuxcnc_xyzbc.yaml"
+ARTEFACT = ROOT / "config/artefacts/thesis_4ball.yaml"
+ERRORS = ROOT / "config/errors/linuxcnc_xyzbc.yaml"
+
+
+def _program() -> pipeline.Prepared:
+    m, mf = load_machine(MACHINE)
+    plan = load_plan(ROOT / "config/plans/linuxcnc_4poses.yaml")
+    setup = MachineSetup("t", m, mf, load_artefact(ARTEFACT), plan, "linuxcnc", None,
+                         TriggersFile(), Tolerances(), 60.0, (), False)
+    return pipeline.prepare(setup, "r1")
+
+
+def test_mdi_steps_of_a_real_program() -> None:
+    prep = _program()
+    text = prep.job.text
+    steps = plan_steps(text)
+    sent = [s.text for s in steps if s.kind == "mdi"]
+    assert not any(s.startswith(("(", "%", "o")) or s == "M2" for s in sent)
+    assert all(len(s.prefix + s.text) < 240 for s in steps)
+    # every motion block of the program is sent, once, in order
+    moves = [ln for ln in text.splitlines() if re.match(r"^N\d+ G", ln)]
+    assert [s for s in sent if s.startswith("N")] == moves
+    results = [s for s in steps if s.kind == "result"]
+    assert len(results) == prep.job.touch_count
+    for k, r in enumerate(results, 1):
+        f = r.text.split()
+        assert f[:2] == ["RUMBA", str(k)] and f[6:] == ["#5070", "#5061", "#5062", "#5063",
+                                                         "#5065", "#5066"]
+        assert r.prefix.endswith(f"#3999={k}")  # the slot assignments ride along
+    probes = [s for s in steps if "G38.2" in s.text]
+    assert len(probes) == len(results)
+    for p, r in zip(probes, results, strict=True):
+        f = r.text.split()
+        assert p.touch == f"touch seq {f[1]} pose {f[3]} ball {f[4]} touch {f[5]}"
+
+
+def test_probe_plane_crosses_where_the_sphere_is(tmp_path: Path) -> None:
+    truth = TruthModel.from_files(MACHINE, ARTEFACT, ERRORS)
+    spec = write_spec(truth, tmp_path / "s.json")
+    spec["touch_noise_mm"] = 0.0
+    model = ProbeModel(spec)
+    b, c, ball = 30.0, 60.0, 2
+    centre = truth.centre_ctrl(ball, b, c)  # controller X Y Z of the true centre
+    # approach along a diagonal, missing the true centre by 0.2 mm laterally
+    d = np.array([1.0, 1.0, 0.0]) / np.sqrt(2)
+    line0 = centre - 20.0 * d + np.array([0.1, -0.1, 0.05])
+    s = np.linspace(0.0, 8.0, 4001)
+    gaps = np.array([model.gap_mm(*(line0 + si * d), b, c) for si in s])
+    k = int(np.argmax(gaps <= 0))
+    assert k > 0 and gaps[k - 1] > 0  # the stylus meets the ball on this line
+    s_star = s[k - 1] + gaps[k - 1] / (gaps[k - 1] - gaps[k]) * (s[k] - s[k - 1])
+    q_near = line0 + (s_star - 0.3) * d  # armed 0.3 mm before contact
+    w = model.plane(*q_near, b, c)
+    assert w is not None
+    g = [np.dot(w[:3], line0 + si * d) + w[3] for si in (s_star - 0.01, s_star + 0.01)]
+    s_plane = s_star - 0.01 + g[0] / (g[0] - g[1]) * 0.02
+    assert abs(s_plane - s_star) < 2e-6  # plane and sphere are crossed at the same point (mm)
+    assert model.plane(*(line0 + (s_star - 1.0) * d), b, c) is None  # disarmed far away
+    model.present[:] = False
+    assert model.gap_mm(*q_near, b, c) > 1e6  # every ball removed: nothing to touch
+
+
+def test_link_config_refuses_injection_and_unknown_keys() -> None:
+    ok = link_config({"transport": "linuxcnc", "port": 5007, "prelude_mdi": ["M429"]})
+    assert ok.mode == "remote" and ok.host == "127.0.0.1"
+    with pytest.raises(ConfigError, match="prelude_mdi"):
+        link_config({"transport": "linuxcnc", "prelude_mdi": ["M429 (DEBUG,x)"]})
+    with pytest.raises(ConfigError, match="prelude_mdi"):
+        link_config({"transport": "linuxcnc", "prelude_mdi": ["M429\nM2"]})
+    with pytest.raises(ConfigError, match="unknown key"):
+        link_config({"transport": "linuxcnc", "prot": 5007})
+
+
+def test_chain_matches_trtfuncs_formulas() -> None:
+    """The forward formula of xyzbc-trt-kins with the HAL pins of config/linuxcnc/ (R = 0,
+    O = (12.5, 0, -40)): P = Rz(-c)·(Ry(-b)·(J - R - O) + O) + R."""
+    machine, _ = load_machine(MACHINE)
+    rng = np.random.default_rng(5)
+    j = np.column_stack([rng.uniform(-300, 300, (200, 3)), rng.uniform(-120, 120, 200),
+                         rng.uniform(-720, 720, 200)])
+    qm = to_model(machine, {k: j[:, i] for i, k in enumerate("XYZBC")})
+    f_w, f_t = frames(machine, qm, ChainState())
+    ours = np.einsum("sji,sj->si", f_w[:, :3, :3], f_t[:, :3, 3] - f_w[:, :3, 3])
+
+    def ry(t: float) -> np.ndarray:
+        c, s = np.cos(t), np.sin(t)
+        return np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]])
+
+    def rz(t: float) -> np.ndarray:
+        c, s = np.cos(t), np.sin(t)
+        return np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
+
+    o = np.array([12.5, 0.0, -40.0])
+    for row, p in zip(j, ours, strict=True):
+        b, c = np.radians(row[3]), np.radians(row[4])
+        want = rz(-c) @ (ry(-b) @ (row[:3] - o) + o)
+        assert np.allclose(p, want, atol=1e-9)

@@ -1,0 +1,324 @@
+"""End to end against LinuxCNC 2.9 (config/linuxcnc/, xyzbc-trt-kins, HAL probe from our truth):
+kinematics cross-check, a verification run through linuxcncrsh, a missed ball, a killed LinuxCNC.
+
+One LinuxCNC for the module (only one can run per machine; simulators.linuxcnc_peer serialises
+with a flock and always stops it, cleaning shared memory). Run with ``pytest -m linuxcnc``.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import os
+import re
+import shutil
+import signal
+import socket
+import subprocess
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from daemon.config import load_artefact, load_machine, load_plan
+from daemon.daemon_config import MachineSetup, TriggersFile
+from daemon.judge import Limit, Tolerances
+from daemon.session import Session, State
+from daemon.store import Store
+from drivers.registry import make_link
+from identification.kinematics import ChainState, frames, to_model
+from simulators import linuxcnc_peer
+from simulators.hal_probe import write_spec
+from simulators.truth import TruthModel
+
+pytestmark = [pytest.mark.linuxcnc,
+              pytest.mark.skipif(shutil.which("linuxcnc", path="/usr/bin") is None,
+                                 reason="LinuxCNC not installed (bash .ci/install-peers.sh "
+                                        "linuxcnc)")]
+
+ROOT = Path(__file__).resolve().parents[1]
+MACHINE = ROOT / "config/machines/linuxcnc_xyzbc.yaml"
+ARTEFACT = ROOT / "config/artefacts/thesis_4ball.yaml"
+ERRORS = ROOT / "config/errors/linuxcnc_xyzbc.yaml"
+PLAN = ROOT / "config/plans/linuxcnc_4poses.yaml"
+
+
+class Rsh:
+    """A minimal synchronous linuxcncrsh client for the checks (not the link under test)."""
+
+    def __init__(self, port: int) -> None:
+        self.sock = socket.create_connection(("127.0.0.1", port), timeout=60)
+        self.buf = b""
+        assert self.ask("hello EMC test 1.0").startswith("HELLO ACK")
+        self.sock.sendall(b"set echo off\r\nget echo\r\n")
+        while self.line() != "ECHO OFF":
+            pass
+        for cmd in ("set verbose on", "set enable EMCTOO", "set set_wait done",
+                    "set estop off", "set machine on"):
+            assert self.ask(cmd).endswith("ACK"), cmd
+
+    def line(self) -> str:
+        while True:
+            m = re.search(rb"[^\r\n]+[\r\n]", self.buf)
+            if m:
+                self.buf = self.buf[m.end():]
+                return m.group()[:-1].decode()
+            data = self.sock.recv(4096)
+            assert data, "linuxcncrsh closed"
+            self.buf += data
+
+    def ask(self, cmd: str) -> str:
+        self.sock.sendall(cmd.encode() + b"\r\n")
+        return self.line()
+
+    def mdi(self, block: str) -> None:
+        assert self.ask(f"set mdi {block}") == "SET MDI ACK", block
+        err = self.ask("get error")
+        assert err == "ERROR OK", f"{block}: {err}"
+
+    def floats(self, cmd: str) -> list[float]:
+        return [float(v) for v in self.ask(cmd).split()[1:]]
+
+    def close(self) -> None:
+        self.sock.close()
+
+
+def halcmd(peer: linuxcnc_peer.Peer, *args: str) -> str:
+    fifo = (peer.dir / "fifo.path").read_text().strip()
+    env = dict(os.environ, RTAPI_FIFO_PATH=f"{fifo}/rtapi_fifo")
+    out = subprocess.run(["/usr/bin/halcmd", *args], env=env, capture_output=True, text=True,
+                         timeout=20, check=True)
+    return out.stdout.strip()
+
+
+@pytest.fixture(scope="module")
+def lcnc(tmp_path_factory: pytest.TempPathFactory):
+    work = tmp_path_factory.mktemp("lcnc")
+    truth = TruthModel.from_files(MACHINE, ARTEFACT, ERRORS)
+    spec = work / "probe_spec.json"
+    write_spec(truth, spec)
+    peer = linuxcnc_peer.up(spec, workdir=work / "peer")
+    try:
+        yield peer, truth
+    finally:
+        linuxcnc_peer.down(peer.dir)
+        assert not linuxcnc_peer.lcnc_running(), "LinuxCNC processes left behind"
+
+
+def _setup(port: int) -> MachineSetup:
+    m, mf = load_machine(MACHINE)
+    plan = load_plan(PLAN)
+    link_cfg = make_link({"transport": "linuxcnc", "port": port,
+                          "prelude_mdi": ["M429"]}).cfg
+    tol = Tolerances(default_rotation_urad=Limit(warn=100, fail=200),
+                     default_translation_um=Limit(warn=300, fail=500))
+    return MachineSetup("lcnc", m, mf, load_artefact(ARTEFACT), plan, "linuxcnc", link_cfg,
+                        TriggersFile(), tol, 60.0, (), False)
+
+
+async def _session(setup: MachineSetup, tmp: Path) -> tuple[Session, Store]:
+    link = make_link(setup.link)
+    await link.connect()
+    store = Store(tmp / "journal.sqlite")
+    return Session(setup, link, store, tmp / "reports"), store
+
+
+def test_forward_kinematics_match_xyzbc_trt_kins(lcnc) -> None:
+    """Our nominal chain (WCBFXYZT, B/C point_mm) vs LinuxCNC's xyzbc-trt-kins: joints set in
+    identity kinematics (M429), then M428 recomputes the world position from the same joints."""
+    peer, _ = lcnc
+    machine, _ = load_machine(MACHINE)
+    rng = np.random.default_rng(2026)
+    joints = np.column_stack([rng.uniform(-150, 150, 50), rng.uniform(-150, 150, 50),
+                              rng.uniform(-100, 300, 50), rng.uniform(-90, 90, 50),
+                              rng.uniform(-400, 400, 50)])
+    # visit them nearest-first in move time (200 mm/s, 360 deg/s): a shorter test, same samples
+    scaled, order, left = joints / [200, 200, 200, 360, 360], [0], set(range(1, 50))
+    while left:
+        nxt = min(left, key=lambda k: np.max(np.abs(scaled[k] - scaled[order[-1]])))
+        order.append(nxt)
+        left.remove(nxt)
+    joints = joints[order]
+    balls = range(len(load_artefact(ARTEFACT).balls))
+    for k in balls:  # random moves would run the stylus through the balls
+        halcmd(peer, "setp", f"rumba-probe.ball-{k}-present", "0")
+    rsh = Rsh(peer.port)
+    got, used = [], []
+    try:
+        if "NO" in rsh.ask("get joint_homed").split()[1:6]:
+            rsh.ask("set mode manual")
+            rsh.ask("set home -1")
+            time.sleep(1.0)
+        rsh.ask("set mode mdi")
+        for q in joints:
+            rsh.mdi("M429")
+            rsh.mdi("G0 X{:.6f} Y{:.6f} Z{:.6f} B{:.6f} C{:.6f}".format(*q))
+            rsh.mdi("M428")
+            jp = rsh.floats("get joint_pos")[:5]
+            world = rsh.floats("get abs_act_pos")  # X Y Z A B C, always six
+            used.append(jp)
+            got.append([*world[:3], world[4], world[5]])
+        rsh.mdi("M429")
+    finally:
+        rsh.close()
+        for k in balls:
+            halcmd(peer, "setp", f"rumba-probe.ball-{k}-present", "1")
+    used_a, got_a = np.array(used), np.array(got)
+    assert np.max(np.abs(used_a - joints)) < 1e-5  # LinuxCNC went where we asked
+    qm = to_model(machine, {k: used_a[:, i] for i, k in enumerate("XYZBC")})
+    f_w, f_t = frames(machine, qm, ChainState())
+    tip_f = f_t[:, :3, 3]  # tool tip 0: the tool frame origin
+    tip_w = np.einsum("sji,sj->si", f_w[:, :3, :3], tip_f - f_w[:, :3, 3])
+    dev = np.abs(tip_w - got_a[:, :3])
+    assert dev.max() < 1e-4, f"max |ours - xyzbc-trt-kins| = {dev.max():.2e} mm"
+    assert np.allclose(got_a[:, 3:], used_a[:, 3:], atol=1e-6)  # rotary world = joint
+    # the check can fail: a wrong pivot (x-offset sign) would be tens of mm off
+    assert np.abs(tip_w - used_a[:, :3]).max() > 10.0
+
+
+async def test_verification_run_identifies_injected_links(lcnc, tmp_path: Path) -> None:
+    peer, truth = lcnc
+    setup = _setup(peer.port)
+    session, store = await _session(setup, tmp_path)
+    try:
+        before = float(halcmd(peer, "getp", "motion.analog-out-01"))
+        run_id = session.start("cli")
+        status = await asyncio.wait_for(session.wait(), 600)
+        assert status["state"] == str(State.IDLE), status["reason"]
+        hits = store.hits(run_id)
+        assert len(hits) == setup.plan.poses.__len__() * 4 * 5
+        analysis = store.analysis(run_id)
+        assert analysis is not None
+        links = analysis["links"]
+        injected = truth.errors.links
+        assert set(links) == set(injected)
+        for name, true_v in injected.items():
+            v, u = links[name]["value"], links[name]["std"]
+            assert abs(v - true_v) <= 3 * u, f"{name}: {v:.2f} vs {true_v} (u {u:.2f})"
+            assert u < 15.0, f"{name}: u {u:.2f} too large to mean anything"
+        # the verdict went back to LinuxCNC: motion.analog-out-00 = code, -01 counts verdicts
+        code = {"PASS": 1, "WARN": 2, "FAIL": 3, "ERROR": 4}[status["verdict"]["status"]]
+        assert float(halcmd(peer, "getp", "motion.analog-out-00")) == code
+        assert float(halcmd(peer, "getp", "motion.analog-out-01")) == before + 1
+        # LinuxCNC latched the first servo sample past contact: overshoot small and tight
+        over_um = _overshoot_um(truth, hits, setup.artefact.ids)
+        assert 0.0 < over_um.mean() < 5.0 and over_um.std() < 1.5, (over_um.mean(),
+                                                                      over_um.std())
+    finally:
+        await session.link.close()
+        store.close()
+
+
+async def test_missing_ball_stops_with_linuxcnc_probe_error(lcnc, tmp_path: Path) -> None:
+    peer, _ = lcnc
+    setup = _setup(peer.port)
+    halcmd(peer, "setp", "rumba-probe.ball-0-present", "0")  # B1 removed from the table
+    session, store = await _session(setup, tmp_path)
+    try:
+        run_id = session.start("cli")
+        status = await asyncio.wait_for(session.wait(), 120)
+        assert status["state"] == str(State.FAILED)
+        assert "G38.2 move finished without making contact" in status["reason"]
+        assert "ball B1" in status["reason"] and "touch seq 1 " in status["reason"]
+        assert store.run(run_id).state == "FAILED"
+        assert float(halcmd(peer, "getp", "motion.analog-out-00")) == 4  # ERROR written back
+    finally:
+        await session.link.close()
+        rsh = Rsh(peer.port)  # the stylus stopped where B1 would be: lift it, then put B1 back
+        try:
+            rsh.ask("set mode mdi")
+            rsh.mdi("G0 Z400")
+        finally:
+            rsh.close()
+            halcmd(peer, "setp", "rumba-probe.ball-0-present", "1")
+        store.close()
+
+
+def _overshoot_um(truth: TruthModel, hits: list, ids: tuple[str, ...]) -> np.ndarray:
+    """How far each latched tip centre is inside its true contact sphere (µm)."""
+    over = []
+    for h in hits:
+        a, t = truth.affine_map(h.axes["b"], h.axes["c"])
+        tip = a @ np.array([h.axes[k] for k in "XYZ"]) + t
+        i = ids.index(h.ball)
+        d = np.linalg.norm(tip - truth.ball_centres_mm(0, 0, 0)[i])
+        over.append((truth.ball_radii_mm[i] + truth.stylus_radius_mm - d) * 1e3)
+    return np.array(over)
+
+
+async def test_local_mode_through_the_linuxcnc_module(lcnc) -> None:
+    """The daemon on the LinuxCNC PC: same program, the ``linuxcnc`` module in a helper."""
+    from daemon import pipeline
+    from daemon.config import plan_from_dict
+
+    peer, truth = lcnc
+    setup = _setup(peer.port)
+    plan = plan_from_dict({"name": "one", "stylus_diameter_mm": 6, "poses": [[30, 60]],
+                           "standoff_mm": 1, "overtravel_mm": 1, "clearance_mm": 5,
+                           "feeds": {"probe_mm_min": 300, "approach_mm_min": 3000}})
+    setup = MachineSetup(**{**setup.__dict__, "plan": plan})
+    job = pipeline.prepare(setup, "local-1").job
+    link = make_link({"transport": "linuxcnc", "mode": "local", "prelude_mdi": ["M429"],
+                      "local_home": str(peer.dir / "home")})
+    try:
+        hits = [h async for h in link.run(job)]
+    finally:
+        await link.close()
+    assert [h.seq for h in hits] == list(range(1, 21)) and all(h.triggered for h in hits)
+    assert {h.ball for h in hits} == set(setup.artefact.ids)
+    over = _overshoot_um(truth, hits, setup.artefact.ids)
+    assert 0.0 < over.mean() < 5.0 and over.std() < 1.5, (over.mean(), over.std())
+
+
+async def test_abort_stops_linuxcnc_mid_run(lcnc, tmp_path: Path) -> None:
+    peer, _ = lcnc
+    session, store = await _session(_setup(peer.port), tmp_path)
+    try:
+        run_id = session.start("cli")
+        for _ in range(600):
+            if store.hit_count(run_id) >= 2:
+                break
+            await asyncio.sleep(0.05)
+        assert await session.abort("hmi")
+        assert session.state == State.ABORTED and session.reason == "aborted by hmi"
+        rsh = Rsh(peer.port)
+        try:
+            first = rsh.floats("get joint_pos")
+            time.sleep(0.5)
+            assert rsh.floats("get joint_pos") == first  # the machine stands still
+            assert rsh.ask("get program_status") == "PROGRAM_STATUS IDLE"
+        finally:
+            rsh.close()
+        assert store.hit_count(run_id) >= 2
+    finally:
+        await session.link.close()
+        store.close()
+
+
+async def test_linuxcnc_killed_mid_run_fails_and_keeps_hits(lcnc, tmp_path: Path) -> None:
+    peer, _ = lcnc
+    setup = _setup(peer.port)
+    session, store = await _session(setup, tmp_path)
+    try:
+        run_id = session.start("cli")
+        for _ in range(600):
+            if store.hit_count(run_id) >= 3:
+                break
+            await asyncio.sleep(0.1)
+        assert store.hit_count(run_id) >= 3
+        # kill -9 the whole instance: the process group and the detached daemons
+        fifo = (peer.dir / "fifo.path").read_text().strip()
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(peer.pid, signal.SIGKILL)
+        for p in linuxcnc_peer._instance_pids(fifo):
+            os.kill(p, signal.SIGKILL)
+        status = await asyncio.wait_for(session.wait(), 60)
+        assert status["state"] == str(State.FAILED)
+        assert "linuxcncrsh" in status["reason"]
+        kept = store.hits(run_id)
+        assert len(kept) >= 3 and all(h.triggered for h in kept)
+        assert [h.seq for h in kept] == list(range(1, len(kept) + 1))
+    finally:
+        await session.link.close()
+        store.close()
