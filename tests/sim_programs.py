@@ -11,7 +11,6 @@ import numpy as np
 from daemon.messages import TOUCH_DIRECTIONS
 from simulators.truth import TruthModel
 
-
 _CENTRES: dict = {}
 
 
