@@ -18,6 +18,12 @@ counter; per touch the program writes slot ``(seq-1) % 8`` fields 0 seq, 1 rep, 
 number (1-based, artefact order), 4 touch, 5 trig, 6 X, 7 Y, 8 Z, 9 r1, 10 r2, then the counter =
 seq. Addresses per dialect: ``Dialect.counter`` and ``Dialect.slot_address(seq, field)``.
 Every construct each dialect emits is listed in gcode_templates/<dialect>/README.md.
+
+Verdict write-back by program (serial DNC): ``Dialect.verdict_program(code)`` is a three-block
+program setting the dialect's ``verdict_variable`` (fanuc #598, siemens R4, heidenhain Q1598,
+linuxcnc #3998) to 1 PASS, 2 WARN, 3 FAIL or 4 ERROR; the CNC's start-of-shift macro clears it to
+0 before printing its request line ``RUMBA REQUEST <machine>`` (``parse_request``) and waits for
+it to become non-zero.
 """
 
 from __future__ import annotations
@@ -41,6 +47,9 @@ FIELDS = ("seq", "rep", "pose", "ball", "touch", "trig", "x", "y", "z", "r1", "r
 MISS_TOL_MM = 0.001  # a latch this close to the commanded end point counts as "not triggered"
 _SAFE_TEXT = re.compile(r"^[A-Za-z0-9 _.,:=+\-]*$")
 _NUM = r"[+-]?(?:\d+\.?\d*|\.\d+)"
+_REQUEST = re.compile(r"^\s*RUMBA\s+REQUEST\s+(?P<machine>[A-Za-z0-9_.-]{1,32})\s*$")
+_REQUEST_HEAD = re.compile(r"^\s*RUMBA\s+REQUEST\b", re.IGNORECASE)
+VERDICT_CODES = (1, 2, 3, 4)  # drivers.base.VERDICT_CODES without "none yet" (0)
 _LINE = re.compile(
     rf"^\s*RUMBA\s+(?P<seq>\d+)\s+(?P<rep>\d+)\s+(?P<pose>\d+)\s+(?P<ball>[A-Za-z0-9_.-]{{1,32}})"
     rf"\s+(?P<touch>[1-5])\s+(?P<trig>{_NUM})\s+(?P<x>{_NUM})\s+(?P<y>{_NUM})\s+(?P<z>{_NUM})"
@@ -54,6 +63,19 @@ def safe_text(s: str) -> str:
         bad = sorted({ch for ch in s if not _SAFE_TEXT.match(ch)})
         raise ProgramError(f"text {s!r} contains {bad}: not allowed in a program")
     return s
+
+
+def parse_request(line: str) -> str | None:
+    """The machine named by a start-of-shift request line ``RUMBA REQUEST <machine>`` (printed
+    by the CNC's start-of-shift macro), None for any other line; ``ValueError`` for a line that
+    starts like a request but breaks the grammar (a request is never guessed)."""
+    if not _REQUEST_HEAD.match(line):
+        return None
+    m = _REQUEST.match(line.rstrip("\r\n"))
+    if not m:
+        raise ValueError(f"request line does not match 'RUMBA REQUEST <machine>' with machine "
+                         f"[A-Za-z0-9_.-]{{1,32}}: {line.strip()[:80]!r}")
+    return m.group("machine")
 
 
 class Code(str):
@@ -114,6 +136,7 @@ class Dialect:
     slot_base = 0
     result_line = "RUMBA <seq> <rep> <pose> <ball> <touch> <trig> <x> <y> <z> <r1> <r2>"
     result_channel = ""  # where the controller writes the result lines
+    verdict_variable = ""  # where the verdict program writes the verdict code (1-4)
 
     def __init__(self) -> None:
         self._template = _env().get_template(f"{self.name}/program.j2")
@@ -146,6 +169,17 @@ class Dialect:
     def bind(self, program: Program) -> BoundDialect:
         """A parser that knows the program: rotary letters, commanded values, identity check."""
         return BoundDialect(self, program)
+
+    # ---------------------------------------------------------------- verdict
+    def verdict_program(self, code: int) -> str:
+        """A tiny program setting ``verdict_variable`` to ``code`` (1-4; nothing else reaches
+        it, so nothing can be injected), LF line ends, for DNC drip-feeding."""
+        if type(code) is not int or code not in VERDICT_CODES:  # a bool is not a code
+            raise ProgramError(f"verdict code {code!r}: expected one of {VERDICT_CODES}")
+        return "\n".join(self._verdict_lines(code)) + "\n"
+
+    def _verdict_lines(self, code: int) -> list[str]:
+        raise NotImplementedError
 
     # ---------------------------------------------------------------- rendering
     def sources(self, program: Program) -> list[str]:
@@ -231,6 +265,12 @@ class Fanuc(Dialect):
 
     name, extension, counter, slot_prefix, slot_base = "fanuc", "nc", "#599", "#", 600
     result_channel = "DPRNT on the DNC serial port (POPEN/PCLOS)"
+    verdict_variable = "#598"  # common variable, retained (#500-#999), next to the ring
+    verdict_program_number = 9101
+
+    def _verdict_lines(self, code: int) -> list[str]:
+        return ["%", f"O{self.verdict_program_number} (RUMBA VERDICT)",
+                f"{self.verdict_variable}={code}.", "M30", "%"]
 
     def __init__(self, haas: bool = False) -> None:
         super().__init__()
@@ -262,6 +302,10 @@ class LinuxCNC(Dialect):
     name, extension, counter, slot_prefix, slot_base = "linuxcnc", "ngc", "#3999", "#", 4000
     log_file = "rumba_results.log"
     result_channel = f"(LOG,…) lines in {log_file} (LinuxCNC's working directory)"
+    verdict_variable = "#3998"  # user numbered parameter (#31-#5000), next to the ring
+
+    def _verdict_lines(self, code: int) -> list[str]:
+        return ["%", "(RUMBA VERDICT)", f"{self.verdict_variable} = {code}", "M2", "%"]
 
     def sources(self, program: Program) -> list[str]:
         rot = [f"#{5061 + 'XYZABC'.index(a)}" for a in program.rotary]
@@ -276,6 +320,10 @@ class Siemens(Dialect):
 
     name, extension, counter, slot_prefix, slot_base = "siemens", "mpf", "R99", "R", 100
     result_channel = "WRITE to the file RUMBA_RES (part-program memory)"
+    verdict_variable = "R4"  # the OPC UA map's verdict node /Channel/Parameter/R[u1,4]
+
+    def _verdict_lines(self, code: int) -> list[str]:
+        return ["; RUMBA VERDICT", f"{self.verdict_variable}={code}", "M30"]
 
     def sources(self, program: Program) -> list[str]:
         return ["$AC_MEA[1]", "$AA_MW[X]", "$AA_MW[Y]", "$AA_MW[Z]",
@@ -288,6 +336,11 @@ class Heidenhain(Dialect):
     name, extension, counter, slot_prefix, slot_base = "heidenhain", "h", "Q1599", "Q", 1600
     result_channel = "FN 16 F-PRINT to RUMBA_RES.TXT next to the program"
     print_base = 1580
+    verdict_variable = "Q1598"  # next to the ring counter Q1599
+
+    def _verdict_lines(self, code: int) -> list[str]:
+        return ["0 BEGIN PGM RUMBAV MM", f"1 {self.verdict_variable} = +{code}",
+                "2 END PGM RUMBAV MM"]
 
     def sources(self, program: Program) -> list[str]:
         return ["TRIG", "Q115", "Q116", "Q117", "Q118", "Q119"]
@@ -372,4 +425,4 @@ class BoundDialect:
 
 
 __all__ = ["DIALECTS", "Block", "BoundDialect", "Dialect", "Fanuc", "Heidenhain", "LinuxCNC",
-           "Move", "Siemens", "get_dialect", "safe_text"]
+           "Move", "Siemens", "get_dialect", "parse_request", "safe_text"]

@@ -39,7 +39,9 @@ def make_link(setup: MachineSetup) -> CncLink:
     """The transport object for a machine's ``link`` section (drivers.registry)."""
     from drivers.registry import make_link as registry_link
 
-    return registry_link(setup.link)
+    # A DNC link writes the verdict back as a program in the machine's dialect.
+    kw = {"dialect": setup.dialect} if setup.link.transport == "serial" else {}
+    return registry_link(setup.link, **kw)
 
 
 def _connect_timeout(setup: MachineSetup) -> float:

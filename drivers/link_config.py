@@ -26,6 +26,8 @@ class SerialLinkConfig(_Strict):
     xoff_timeout_s: float = Field(120.0, gt=0)  # XOFF held longer than this → link error
     result_timeout_s: float = Field(300.0, gt=0)  # no result line for this long after the end
     connect_timeout_s: float = Field(10.0, gt=0)
+    # Start-of-shift request lines naming another machine are ignored (None: any name).
+    request_machine: str | None = Field(None, pattern=r"^[A-Za-z0-9_.-]{1,32}$")
 
 
 class OpcUaUserConfig(_Strict):

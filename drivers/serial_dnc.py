@@ -1,5 +1,7 @@
 """RS-232 DNC drip-feed link: streams a ``%``-framed program with XON/XOFF honoured and captures
-the result lines (DPRNT / WRITE / F-PRINT) the program prints back on the same port.
+the result lines (DPRNT / WRITE / F-PRINT) the program prints back on the same port; takes the
+start-of-shift request line ``RUMBA REQUEST <machine>`` the CNC's macro prints, and writes the
+verdict back by drip-feeding the dialect's three-block verdict program.
 
 Opened with pyserial's ``serial_for_url`` (device path, ``socket://host:port``, ``rfc2217://``).
 Flow control is done here, not by the OS: ptys and sockets ignore XON/XOFF and a kernel tty would
@@ -12,10 +14,12 @@ from __future__ import annotations
 import asyncio
 import concurrent.futures
 import contextlib
+import logging
 import os
 import termios
 import threading
 import time
+from collections import deque
 from collections.abc import AsyncIterator, Callable
 
 import serial
@@ -34,6 +38,8 @@ from drivers.base import (
 from drivers.hits import HitFactory, wait_event
 from drivers.link_config import SerialLinkConfig
 
+log = logging.getLogger("rumba.serial")
+
 XON, XOFF = 0x11, 0x13
 FRAME = {"7E1": (7, "E", 1, 10), "8N1": (8, "N", 1, 10), "7E2": (7, "E", 2, 11),
          "8N2": (8, "N", 2, 11)}
@@ -50,6 +56,13 @@ def dialect_parser(dialect: str) -> ResultParser:
         return get_dialect(dialect).parse_result
     except (ImportError, KeyError, ValueError) as e:
         raise LinkError(f"no result parser for dialect {dialect!r}: {e}") from None
+
+
+def _parse_request(line: str) -> str | None:
+    """daemon.dialects.parse_request: the machine named by ``RUMBA REQUEST <machine>``."""
+    from daemon.dialects import parse_request
+
+    return parse_request(line)
 
 
 def _is_pty(url: str) -> bool:
@@ -80,10 +93,17 @@ def frame_program(text: str, eol: str, seven_bit: bool) -> bytes:
 
 
 class _DncProtocol(asyncio.Protocol):
-    """Splits received bytes into lines and tracks the controller's XON/XOFF state."""
+    """Splits received bytes into lines and tracks the controller's XON/XOFF state.
+
+    Request lines go to ``requests`` (only while no program runs: a request during a run is
+    refused, never queued for later); other lines go to ``lines`` while a program runs and are
+    otherwise logged and kept in ``unsolicited`` (the last 100), never mistaken for results."""
 
     def __init__(self) -> None:
         self.lines: asyncio.Queue[str | BaseException] = asyncio.Queue()
+        self.requests: asyncio.Queue[tuple[str, str] | BaseException] = asyncio.Queue()
+        self.unsolicited: deque[str] = deque(maxlen=100)
+        self.running = False
         self.xon = asyncio.Event()
         self.xon.set()
         self.xoff_count = 0
@@ -110,10 +130,31 @@ class _DncProtocol(asyncio.Protocol):
             del self._partial[:nl + 1]
             line = raw.decode("ascii", "replace").strip("\r").strip()
             if line:
-                self.lines.put_nowait(line)
+                self._dispatch(line)
+
+    def _dispatch(self, line: str) -> None:
+        try:
+            machine = _parse_request(line)
+        except ValueError as e:
+            log.warning("serial: %s; ignored", e)
+            self.unsolicited.append(line)
+            return
+        if machine is not None:
+            if self.running:
+                log.warning("serial: start request %r during a run: refused", line)
+                self.unsolicited.append(line)
+            else:
+                self.requests.put_nowait((machine, line))
+        elif self.running:
+            self.lines.put_nowait(line)
+        else:
+            log.info("serial: line outside a run ignored: %r", line[:120])
+            self.unsolicited.append(line)
 
     def connection_lost(self, exc: Exception | None) -> None:
-        self.lines.put_nowait(LinkError(f"serial line closed{f': {exc}' if exc else ''}"))
+        err = LinkError(f"serial line closed{f': {exc}' if exc else ''}")
+        self.lines.put_nowait(err)
+        self.requests.put_nowait(err)
         self.xon.set()
 
 
@@ -151,12 +192,16 @@ class _ThreadTransport:
 class SerialDncLink(CncLink):
     """DNC drip-feed over RS-232 (or a serial server reached by ``socket://`` / ``rfc2217://``)."""
 
-    capabilities = Capabilities(start_request=False, streams_blocks=True, loads_program=False,
-                                writes_verdict=False, can_abort=True)
+    capabilities = Capabilities(start_request=True, streams_blocks=True, loads_program=False,
+                                writes_verdict=True, can_abort=True)
 
-    def __init__(self, cfg: SerialLinkConfig, parse_result: ResultParser | None = None) -> None:
+    def __init__(self, cfg: SerialLinkConfig, parse_result: ResultParser | None = None,
+                 dialect: str | None = None) -> None:
         self.cfg = cfg
         self._parse = parse_result
+        self.dialect = dialect  # for the verdict program; the last job's dialect otherwise
+        self._tape_open = False  # a stream was cut short: the control is inside a program
+        self._tx_lock = asyncio.Lock()
         self._proto: _DncProtocol | None = None
         self._transport: asyncio.BaseTransport | _ThreadTransport | None = None
         self._sender: asyncio.Task | None = None
@@ -195,9 +240,31 @@ class SerialDncLink(CncLink):
         self._proto = proto
 
     async def wait_start_request(self) -> StartRequest:
-        raise LinkError("a serial DNC link has no start request; start from the HMI, CAN or CLI")
+        """The next ``RUMBA REQUEST <machine>`` line printed by the CNC's start-of-shift macro
+        (with ``request_machine`` set, requests naming another machine are logged, ignored)."""
+        if self._proto is None:
+            raise LinkError("serial link not connected")
+        proto = self._proto
+        while True:
+            item = await proto.requests.get()
+            if isinstance(item, BaseException):
+                raise LinkError(str(item))
+            machine, line = item
+            want = self.cfg.request_machine
+            if want is not None and machine.upper() != want.upper():
+                log.warning("serial: start request for machine %s ignored (this line serves %s)",
+                            machine, want)
+                proto.unsolicited.append(line)
+                continue
+            return StartRequest(source="cnc", machine=machine, detail=f"serial line: {line}")
 
-    async def _stream(self, payload: bytes) -> None:
+    async def _stream(self, payload: bytes, measure: bool = True) -> None:
+        async with self._tx_lock:
+            self._tape_open = True
+            await self._paced(payload, measure)
+            self._tape_open = False
+
+    async def _paced(self, payload: bytes, measure: bool) -> None:
         assert self._proto is not None and self._transport is not None
         cps, chunk = self.chars_per_s, self.cfg.tx_chunk_bytes
         t0 = t = time.monotonic()
@@ -211,13 +278,15 @@ class SerialDncLink(CncLink):
             piece = payload[i:i + chunk]
             self._transport.write(piece)  # type: ignore[union-attr]
             i += len(piece)
-            self.bytes_sent += len(piece)
+            if measure:
+                self.bytes_sent += len(piece)
             # Keep to the line rate (a UART would): at most one chunk is ever ahead of an XOFF.
             t = max(t + len(piece) / cps, time.monotonic() - chunk / cps)
             delay = t - time.monotonic()
             if delay > 0:
                 await asyncio.sleep(delay)
-        self.stream_s = time.monotonic() - t0
+        if measure:
+            self.stream_s = time.monotonic() - t0
 
     async def run(self, job: ProgramJob) -> AsyncIterator[ProbeHit]:
         if self._proto is None:
@@ -225,13 +294,19 @@ class SerialDncLink(CncLink):
         parse = self._parse or dialect_parser(job.dialect)
         payload = frame_program(job.text, self.cfg.eol, self.cfg.framing.startswith("7"))
         proto, hits = self._proto, HitFactory(job)
+        self.dialect = job.dialect
         while not proto.lines.empty():  # stale output from before this run
             item = proto.lines.get_nowait()
             if isinstance(item, BaseException):
                 raise LinkError(str(item))
+        if self._tape_open:
+            log.warning("serial: the previous program was cut short; the control must have "
+                        "been reset since (plain DNC has no remote reset)")
         self.bytes_sent = 0
+        proto.running = True
         self._sender = sender = asyncio.create_task(self._stream(payload))
         got: set[int] = set()
+        alarmed = False
         try:
             while True:
                 if sender.done() and sender.exception() is not None:
@@ -253,6 +328,7 @@ class SerialDncLink(CncLink):
                 if isinstance(item, BaseException):
                     raise item
                 if item.upper().startswith("ALARM"):
+                    alarmed = True
                     raise ControllerAlarm(f"controller: {item}")
                 try:
                     hit = parse(item)
@@ -268,15 +344,43 @@ class SerialDncLink(CncLink):
                 got.add(hit.seq)
                 yield hit
                 if not hit.triggered:
+                    alarmed = True
                     raise ControllerAlarm(f"probe did not trigger at touch seq {hit.seq}")
         finally:
+            proto.running = False
             if not sender.done():
                 sender.cancel()
                 with contextlib.suppress(asyncio.CancelledError, Exception):
                     await sender
+            if alarmed:
+                # A control in alarm has dropped the rest of the tape itself.
+                self._tape_open = False
 
     async def write_verdict(self, verdict: Verdict) -> None:
-        """Plain DNC has no variable to write into; the verdict stays with the daemon/HMI/CAN."""
+        """Drip-feed the dialect's verdict program (daemon/dialects.py ``verdict_program``):
+        it sets the verdict variable the start-of-shift macro waits for (#598, R4, Q1598,
+        #3998). Only the integer code reaches the program text."""
+        if self._proto is None or self._transport is None:
+            raise LinkError("serial link not connected")
+        if not self.dialect:
+            raise LinkError("no dialect known for the verdict program (serial link created "
+                            "without dialect= and no program run yet)")
+        from daemon.dialects import get_dialect
+        from daemon.program import ProgramError
+
+        try:
+            text = get_dialect(self.dialect).verdict_program(verdict.code)
+        except ProgramError as e:
+            raise LinkError(str(e)) from None
+        if self._tape_open:
+            # The control still sits inside the program we stopped feeding: what we send now
+            # would be read as its next blocks. Its verdict variable stays 0 (the macro
+            # cleared it), so production is not released.
+            raise LinkError(f"verdict {verdict.status} not written: the control is still "
+                            "inside the interrupted program (plain DNC has no remote reset); "
+                            "reset the control")
+        payload = frame_program(text, self.cfg.eol, self.cfg.framing.startswith("7"))
+        await self._stream(payload, measure=False)
 
     async def abort(self) -> None:
         # DNC has no remote reset: stop feeding; the controller starves at the end of its buffer.

@@ -23,6 +23,11 @@ from simulators.probe import collision, first_contact
 from simulators.truth import TruthModel
 
 RESULT_SLOTS = 8  # ring of result slots (gcode_templates/README.md)
+VERDICT_VARIABLE = {"fanuc": "#598", "haas": "#598", "siemens": "R4", "heidenhain": "Q1598",
+                    "linuxcnc": "#3998"}
+"""Where the CNC's start-of-shift macro reads the verdict (gcode_templates/*/README.md): a
+program writing it (a DNC link's verdict program) delivers the verdict, and a verdict written
+by OPC UA or Modbus appears in it too, so one macro serves every transport."""
 TOOL_CHANGE_S = 5.0
 
 
@@ -54,12 +59,31 @@ class Block:
 
 
 @dataclass(frozen=True)
+class RequestRaised:
+    """The start-of-shift macro asked for a run (a serial front-end prints its request line)."""
+
+    machine: str
+
+
+@dataclass(frozen=True)
 class FaultEvent:
     kind: str
     fault: Fault
 
 
-ControllerEvent = PrintLine | TouchResult | StateChange | Block | FaultEvent
+ControllerEvent = PrintLine | TouchResult | StateChange | Block | FaultEvent | RequestRaised
+
+
+class _Variables(dict):
+    """Macro / R / Q variables; every write is reported (the verdict variable is watched)."""
+
+    def __init__(self, on_write) -> None:  # type: ignore[no-untyped-def]
+        super().__init__()
+        self._on_write = on_write
+
+    def __setitem__(self, key: str, value: float | str) -> None:
+        super().__setitem__(key, value)
+        self._on_write(key, value)
 
 
 @dataclass
@@ -132,7 +156,8 @@ class VirtualController:
         self.state = "idle"
         self.alarm: str | None = None
         self.machine_time_s = 0.0
-        self.variables: dict[str, float | str] = {}
+        self._dialect_now = dialect
+        self.variables: dict[str, float | str] = _Variables(self._variable_written)
         self.files: dict[str, str] = {}  # the control's file store (F-PRINT format files …)
         self.messages: list[str] = []
         self.printed: list[str] = []  # output lines of the current/last program
@@ -141,7 +166,11 @@ class VirtualController:
         self.request = False
         self.busy = False
         self.done = False
+        self._verdict = 0
         self.verdict = 0
+        # What the start-of-shift macro prints after RUMBA REQUEST (Fanuc text: upper case).
+        self.machine_id = "".join(ch for ch in truth.machine.name.upper()
+                                  if ch.isalnum() or ch in "_.-")[:32] or "CNC"
         self.axes = ("X", "Y", "Z", *truth.rotary_letters)
         self._pos = {a: 0.0 for a in self.axes}
         self._pos["Z"] = self.reference("Z")
@@ -158,7 +187,6 @@ class VirtualController:
         self._seq = 0
         self._rng = np.random.default_rng(rng_seed)
         self._nominal_cache: dict[tuple[float, float], np.ndarray] = {}
-        self._dialect_now = dialect
         self._deferring = False
         self._deferred: list[ControllerEvent] = []
         self._line_no, self._line_text = 0, ""
@@ -241,9 +269,39 @@ class VirtualController:
         return self.state
 
     def raise_start_request(self) -> None:
-        """What the CNC's PLC does at the start of a shift: ask for a verification run."""
+        """What the CNC's start-of-shift macro does: clear the verdict variable, ask for a
+        verification run (a flag for OPC UA / Modbus, a printed request line for DNC)."""
         self.request, self.done, self.verdict = True, False, 0
         self._emit(StateChange(self.state, self.alarm))
+        self._emit(RequestRaised(self.machine_id))
+
+    @property
+    def verdict(self) -> int:
+        """0 none yet, 1 PASS, 2 WARN, 3 FAIL, 4 ERROR (drivers/README.md)."""
+        return self._verdict
+
+    @verdict.setter
+    def verdict(self, code: int) -> None:
+        # Written by a front-end (OPC UA node, Modbus register): the macro variable shows it.
+        self._verdict = int(code)
+        name = VERDICT_VARIABLE.get(self._dialect_now)
+        if name is not None:
+            dict.__setitem__(self.variables, name, float(code))
+
+    def _variable_written(self, name: str, value: float | str) -> None:
+        """A program wrote a variable: the verdict variable is the verdict arriving (DNC)."""
+        if name != VERDICT_VARIABLE.get(self._dialect_now) or isinstance(value, str):
+            return
+        code = round(float(value))
+        self._verdict = code if 0 <= code <= 4 else 0
+        self.done = self._verdict != 0
+
+    def reseed(self, seed: int) -> None:
+        """Restart the probing-noise sequence: a run's noise no longer depends on the runs
+        before it on this controller (tests sharing one simulated CNC)."""
+        self.rng_seed = seed
+        self._rng = np.random.default_rng(seed)
+        self._visit = _Visit()
 
     def feed_hold(self) -> None:
         if self.state == "running":

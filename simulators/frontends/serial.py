@@ -1,5 +1,6 @@
 """Controller side of RS-232 DNC: a pty or TCP endpoint with a bounded, baud-paced receive buffer,
-XON/XOFF, ``%`` framing, result lines (DPRNT/WRITE/F-PRINT) sent back and alarms on overflow.
+XON/XOFF, ``%`` framing, result lines (DPRNT/WRITE/F-PRINT) sent back and alarms on overflow;
+the start-of-shift macro's request line ``RUMBA REQUEST <machine>`` on ``raise_start_request``.
 
 Ptys and sockets deliver bytes instantly and enforce nothing, so the line is simulated here: bytes
 enter the receive buffer no faster than the baud rate (bits per character from the framing), the
@@ -77,6 +78,8 @@ class SerialFrontend:
         self._session_lock = asyncio.Lock()
         self._closing = False
         self._garble_lines = 0
+        self._self_reset = False
+        self._last_state = "idle"
         self._unplugged_until = 0.0
         self._tcp_writer: asyncio.StreamWriter | None = None
         self._look = Lookahead(controller, self.s.lookahead_blocks)
@@ -261,6 +264,10 @@ class SerialFrontend:
         stripped = line.strip()
         if stripped.startswith("%"):
             if not self._in_program:
+                if self.ctrl.state in ("running", "hold"):
+                    # The next tape (a verdict program after the probing one) is read when
+                    # the running program has ended, as at the control's next cycle start.
+                    await self.ctrl.wait_done()
                 self._in_program, self._discard = True, False
                 self._look.reset()
             else:
@@ -283,6 +290,7 @@ class SerialFrontend:
         if callable(raise_alarm):
             raise_alarm(text)
         else:
+            self._self_reset = self._in_program
             await self.ctrl.abort()
         self._line(f"ALARM: {text}")
 
@@ -316,8 +324,14 @@ class SerialFrontend:
             ev = await q.get()
             kind = type(ev).__name__
             self._look.on_event(ev)
+            was = self._last_state
+            if kind == "StateChange":
+                self._last_state = ev.state
             if kind == "PrintLine":
                 self._line(self._garble(ev.text) if self._garble_lines else ev.text)
+            elif kind == "RequestRaised":
+                # The start-of-shift macro's print command (DPRNT / WRITE / FN 16 / PRINT).
+                self._line(f"RUMBA REQUEST {ev.machine}")
             elif kind == "FaultEvent":
                 self._fault(ev.fault)
             elif kind == "StateChange" and ev.state == "alarm":
@@ -327,6 +341,15 @@ class SerialFrontend:
                 if ev.alarm and ev.alarm not in self.alarms:
                     self.alarms.append(ev.alarm)
                     self._line(f"ALARM: {ev.alarm}")
+            elif (kind == "StateChange" and ev.state == "idle" and self._in_program
+                  and was in ("running", "hold", "alarm")):
+                if self._self_reset:  # our own overflow alarm: keep discarding this tape
+                    self._self_reset = False
+                else:
+                    # RESET at the control: the rest of the tape is dropped, the reader waits
+                    # for the leader of a new one.
+                    self._discard = self._in_program = False
+                    self._buf.clear()
 
     async def _send(self) -> None:
         cps = self.s.chars_per_s
