@@ -124,14 +124,19 @@ async def demo(time_scale: float, work: Path) -> int:
         print(f"demo wall time {time.monotonic() - t0:.1f} s")
         return 0 if verdict in ("PASS", "WARN", "FAIL") else 1
     finally:
-        if daemon.returncode is None:
-            daemon.terminate()
-            try:
-                await asyncio.wait_for(daemon.wait(), 20)
-            except TimeoutError:
-                daemon.kill()
-                await daemon.wait()
+        await stop_process(daemon)
         await sim.stop()
+
+
+async def stop_process(proc: asyncio.subprocess.Process, grace_s: float = 20.0) -> None:
+    """SIGTERM (the daemon finishes its journal and closes links), SIGKILL after ``grace_s``."""
+    if proc.returncode is None:
+        proc.terminate()
+        try:
+            await asyncio.wait_for(proc.wait(), grace_s)
+        except TimeoutError:
+            proc.kill()
+            await proc.wait()
 
 
 def main(argv: list[str] | None = None) -> int:

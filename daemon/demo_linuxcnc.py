@@ -21,7 +21,7 @@ from pathlib import Path
 
 import aiohttp
 
-from daemon.demo_e2e import _hmi
+from daemon.demo_e2e import _hmi, stop_process
 
 ROOT = Path(__file__).resolve().parents[1]
 CONFIG = ROOT / "config"
@@ -106,13 +106,7 @@ async def demo(plan: Path, work: Path) -> int:
         print(f"demo wall time {time.monotonic() - t0:.1f} s")
         return 0 if v.get("status") in ("PASS", "WARN", "FAIL") else 1
     finally:
-        if daemon.returncode is None:
-            daemon.terminate()
-            try:
-                await asyncio.wait_for(daemon.wait(), 20)
-            except TimeoutError:
-                daemon.kill()
-                await daemon.wait()
+        await stop_process(daemon)
         linuxcnc_peer.down(peer.dir)
 
 

@@ -15,6 +15,7 @@ from drivers.can_panel import (
     PROGRESS_UNKNOWN,
     button_frame,
 )
+from simulators.frontends import cancel_tasks
 
 
 class SimulatedPanel:
@@ -69,10 +70,6 @@ class SimulatedPanel:
             await asyncio.sleep(period_s)
 
     async def close(self) -> None:
-        for t in self._tasks:
-            t.cancel()
-        for t in self._tasks:
-            with contextlib.suppress(asyncio.CancelledError):
-                await t
+        await cancel_tasks(self._tasks)
         self._notifier.stop()
         self.bus.shutdown()

@@ -9,7 +9,6 @@ write (a write to a CNC-owned register is refused with exception 02, illegal dat
 from __future__ import annotations
 
 import asyncio
-import contextlib
 from typing import Any
 
 from pymodbus.constants import ExcCodes
@@ -34,6 +33,7 @@ from drivers.modbus_map import (
     u32_words,
     words_text,
 )
+from simulators.frontends import cancel_tasks
 from simulators.frontends.lookahead import Lookahead
 
 WRITABLE = frozenset(a for r in REGISTERS if r.writer == "daemon"
@@ -72,11 +72,7 @@ class ModbusFrontend:
         return self._server.transport.sockets[0].getsockname()[1]
 
     async def stop(self) -> None:
-        for t in self._tasks:
-            t.cancel()
-        for t in self._tasks:
-            with contextlib.suppress(asyncio.CancelledError, Exception):
-                await t
+        await cancel_tasks(self._tasks)
         if self._server is not None:
             await self._server.shutdown()
             self._server = None

@@ -11,7 +11,6 @@ never used.
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import hmac
 import json
 import logging
@@ -31,6 +30,7 @@ from asyncua.server.user_managers import UserManager
 
 from drivers.opcua_certs import ensure_certificate
 from drivers.opcua_space import BY_ROLE, NAMESPACE_URI, RESULT_ROLES, RING_SLOTS, STATES
+from simulators.frontends import cancel_tasks
 
 POLICIES = {
     "Basic256Sha256_SignAndEncrypt": ua.SecurityPolicyType.Basic256Sha256_SignAndEncrypt,
@@ -192,11 +192,7 @@ class OpcUaFrontend:
         return self.endpoint
 
     async def stop(self) -> None:
-        for t in self._tasks:
-            t.cancel()
-        for t in self._tasks:
-            with contextlib.suppress(asyncio.CancelledError, Exception):
-                await t
+        await cancel_tasks(self._tasks)
         if self._server is not None:
             await self._server.stop()
             self._server = None

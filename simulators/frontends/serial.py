@@ -20,6 +20,7 @@ import tty
 from dataclasses import dataclass
 from typing import Any, Literal
 
+from simulators.frontends import cancel_tasks
 from simulators.frontends.lookahead import Lookahead
 
 XON, XOFF = 0x11, 0x13
@@ -131,11 +132,7 @@ class SerialFrontend:
 
     async def close(self) -> None:
         self._closing = True
-        for t in self._tasks:
-            t.cancel()
-        for t in self._tasks:
-            with contextlib.suppress(asyncio.CancelledError, Exception):
-                await t
+        await cancel_tasks(self._tasks)
         if self._server is not None:
             self._server.close()
             with contextlib.suppress(Exception):
