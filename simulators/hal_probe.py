@@ -12,7 +12,8 @@ Two halves in one file:
       loadusr -Wn rumba-probe /usr/bin/python3 simulators/hal_probe.py SPEC.json
 
   Pins: ``rumba-probe.x y z b c`` (float in, netted from ``joint.N.pos-fb``), ``out`` (bit out →
-  ``motion.probe-input``), ``contacts`` (s32 out, rising edges), ``gap-um`` (float out, smallest
+  ``motion.probe-input`` while probing), ``crash`` (bit out, stylus > 0.1 mm inside a ball: trips
+  in any move), ``contacts`` (s32 out, rising edges), ``gap-um`` (float out, smallest
   signed stylus-to-ball gap). Parameters: ``ball-K-present`` (bit rw, K = artefact order, all 1
   at start; ``halcmd setp rumba-probe.ball-1-present 0`` removes ball 1 from the table).
 
@@ -45,6 +46,7 @@ MAX_POLL_S = 2e-3
 ARM_GAP_MM = 0.5  # the servo-thread tangent plane is armed this close to a ball
 BUSY_GAP_MM = 0.05  # closer than this the poll spins (no sleep): the input rises within ~30 us
 MAX_SPEED_MM_S = 250.0  # above the sim machine's 200 mm/s: the poll never sleeps past a contact
+CRASH_MM = 0.1  # the stylus this deep inside a ball is a collision, whatever the move
 
 
 def write_spec(truth: Any, path: Path | str, absent: tuple[str, ...] = ()) -> dict:
@@ -196,6 +198,7 @@ def main(argv: list[str] | None = None) -> int:
     comp.newpin("out", hal.HAL_BIT, hal.HAL_OUT)
     comp.newpin("contacts", hal.HAL_S32, hal.HAL_OUT)
     comp.newpin("gap-um", hal.HAL_FLOAT, hal.HAL_OUT)
+    comp.newpin("crash", hal.HAL_BIT, hal.HAL_OUT)  # trips LinuxCNC in any move (peer HAL)
     for p in PLANE_PINS:
         comp.newpin(p, hal.HAL_FLOAT, hal.HAL_OUT)
     comp["plane-k"] = 1e6
@@ -231,6 +234,7 @@ def main(argv: list[str] | None = None) -> int:
             out = hit
             comp["out"] = out
             comp["gap-um"] = gap * 1e3
+            comp["crash"] = gap < -CRASH_MM
             if hit or now - still_since > MAX_POLL_S:
                 time.sleep(MAX_POLL_S)
             elif gap > BUSY_GAP_MM:

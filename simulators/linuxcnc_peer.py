@@ -41,12 +41,18 @@ _DAEMONS = ("milltask", "linuxcncsvr", "rtapi_app")
 _held: dict[str, IO] = {}
 # The trip evaluated in the servo thread (simulators/hal_probe.py "Latency"): plane distance
 # g = wx·X + wy·Y + wz·Z + k (mult2 + sum2: pins, not params), comp.out = (0 > g), OR the
-# component's own test.
+# component's own test — both only while LinuxCNC runs a probing move (motion.motion-type 5):
+# the userspace half lags under load, and a plane or contact it publishes late must not reach
+# LinuxCNC as a new edge during the retract ("Probe tripped during non-probe move"). A real
+# collision (the stylus deep inside a ball, ``rumba-probe.crash``) trips in any move.
 PLANE_HAL = """\
 loadrt mult2 names=rumba-plane-mx,rumba-plane-my,rumba-plane-mz
 loadrt sum2 names=rumba-plane-sxy,rumba-plane-sxyz,rumba-plane-g
 loadrt comp names=rumba-plane-cmp
-loadrt or2 names=rumba-probe-or
+loadrt or2 names=rumba-probe-or,rumba-probe-any
+loadrt conv_s32_float names=rumba-mtype
+loadrt wcomp names=rumba-probing
+loadrt and2 names=rumba-probe-gate
 addf rumba-plane-mx servo-thread
 addf rumba-plane-my servo-thread
 addf rumba-plane-mz servo-thread
@@ -55,6 +61,10 @@ addf rumba-plane-sxyz servo-thread
 addf rumba-plane-g servo-thread
 addf rumba-plane-cmp servo-thread
 addf rumba-probe-or servo-thread
+addf rumba-mtype servo-thread
+addf rumba-probing servo-thread
+addf rumba-probe-gate servo-thread
+addf rumba-probe-any servo-thread
 net rumba-j0 => rumba-plane-mx.in0
 net rumba-j1 => rumba-plane-my.in0
 net rumba-j2 => rumba-plane-mz.in0
@@ -72,7 +82,15 @@ setp rumba-plane-cmp.in1 0
 setp rumba-plane-cmp.hyst 0
 net rumba-plane-trip rumba-plane-cmp.out => rumba-probe-or.in0
 net rumba-probe-late rumba-probe.out => rumba-probe-or.in1
-net rumba-probe-trip rumba-probe-or.out => motion.probe-input
+net rumba-probe-contact rumba-probe-or.out => rumba-probe-gate.in0
+net rumba-motion-type motion.motion-type => rumba-mtype.in
+net rumba-motion-type-f rumba-mtype.out => rumba-probing.in
+setp rumba-probing.min 4.5
+setp rumba-probing.max 5.5
+net rumba-is-probing rumba-probing.out => rumba-probe-gate.in1
+net rumba-probe-gated rumba-probe-gate.out => rumba-probe-any.in0
+net rumba-probe-crash rumba-probe.crash => rumba-probe-any.in1
+net rumba-probe-trip rumba-probe-any.out => motion.probe-input
 """  # dir → open flock file of an instance this process started
 
 
