@@ -205,7 +205,6 @@ class Dialect:
             "trig_var": self.slot_address(seq, 5),
             "value_vars": [self.slot_address(seq, 6 + i) for i in range(5)],
             "end": [fmt(v) for v in t.end], "send": [sfmt(v) for v in t.end],
-            "contact": [fmt(v) for v in t.contact], "scontact": [sfmt(v) for v in t.contact],
             # A TNC probing cycle rapids (FMAX) to the point it is given, then probes along its
             # direction for DIST of the touch-probe table: it must get the start point.
             "sstart": [sfmt(v) for v in t.start],

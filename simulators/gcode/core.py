@@ -112,6 +112,28 @@ class Interpreter:
                 out[a] = v if self.modal.absolute else pos[a] + v
         return out
 
+    def modal_g(self, g: float, inch: tuple[float, ...], metric: tuple[float, ...]) -> bool:
+        """Apply a motion (G0/G1), distance (G90/G91) or unit code to the modal state; the unit
+        codes differ by controller (Fanuc G20/G21, Siemens G70/G71). False: not one of them."""
+        if g in (0.0, 1.0):
+            self.modal.motion = f"G{int(g)}"
+        elif g in (90.0, 91.0):
+            self.modal.absolute = g == 90.0
+        elif g in inch or g in metric:
+            self.modal.inch = g in inch
+        else:
+            return False
+        return True
+
+    def straight_move(self, axes: dict[str, float]) -> None:
+        """A G0 at rapid or a G1 at the modal feed to the target of these axis words."""
+        feed = None
+        if self.modal.motion == "G1":
+            if self.modal.feed_mm_min <= 0:
+                raise Alarm("G1 without a feed rate (F)")
+            feed = self.modal.feed_mm_min
+        self.io.move(self.target(axes), feed)
+
     def axis_words(self, words: dict[str, float]) -> dict[str, float]:
         bad = [w for w in words if w in "XYZABCUVW" and w not in self.io.axes]
         if bad:

@@ -186,18 +186,10 @@ class FanucInterpreter(Interpreter):
                raw: dict[str, str]) -> Flow:
         probe = dwell = home = False
         for g in gs:
-            if g in (0.0, 1.0):
-                self.modal.motion = f"G{int(g)}"
+            if self.modal_g(g, inch=(20.0,), metric=(21.0,)):
+                pass
             elif g == 4.0:
                 dwell = True
-            elif g == 90.0:
-                self.modal.absolute = True
-            elif g == 91.0:
-                self.modal.absolute = False
-            elif g == 20.0:
-                self.modal.inch = True
-            elif g == 21.0:
-                self.modal.inch = False
             elif g == self.probe_g:
                 probe = True
             elif g == 28.0:
@@ -222,12 +214,7 @@ class FanucInterpreter(Interpreter):
             elif probe:
                 self.probe_move(axes)
             elif axes:
-                feed = None
-                if self.modal.motion == "G1":
-                    if self.modal.feed_mm_min <= 0:
-                        raise Alarm("G01 without a feed rate (F)")
-                    feed = self.modal.feed_mm_min
-                self.io.move(self.target(axes), feed)
+                self.straight_move(axes)
         for m in ms:
             if m in (2, 30):
                 return END

@@ -170,18 +170,10 @@ class SiemensInterpreter(Interpreter):
                 raise Alarm(f"address {addr} is not supported by the simulator")
         dwell = False
         for g in gs:
-            if g in (0.0, 1.0):
-                self.modal.motion = f"G{int(g)}"
+            if self.modal_g(g, inch=(70.0, 700.0), metric=(71.0, 710.0)):
+                pass
             elif g == 4.0:
                 dwell = True
-            elif g == 90.0:
-                self.modal.absolute = True
-            elif g == 91.0:
-                self.modal.absolute = False
-            elif g in (70.0, 700.0):
-                self.modal.inch = True
-            elif g in (71.0, 710.0):
-                self.modal.inch = False
             elif g not in _MODAL_NOOP:
                 raise Alarm(f"G{g:g} is not supported by this controller model")
         if dwell:
@@ -203,12 +195,7 @@ class SiemensInterpreter(Interpreter):
             self.meas = dict(out.latched)
             self.meas_ok = 1.0 if out.triggered else 0.0
         elif axes and not dwell:
-            feed = None
-            if self.modal.motion == "G1":
-                if self.modal.feed_mm_min <= 0:
-                    raise Alarm("G1 without a feed rate (F)")
-                feed = self.modal.feed_mm_min
-            self.io.move(self.target(axes), feed)
+            self.straight_move(axes)
         for mc in ms:
             if mc in (2, 17, 30):
                 return END
