@@ -39,9 +39,7 @@ def make_link(setup: MachineSetup) -> CncLink:
     """The transport object for a machine's ``link`` section (drivers.registry)."""
     from drivers.registry import make_link as registry_link
 
-    # A DNC link writes the verdict back as a program in the machine's dialect.
-    kw = {"dialect": setup.dialect} if setup.link.transport == "serial" else {}
-    return registry_link(setup.link, **kw)
+    return registry_link(setup.link, dialect=setup.dialect)
 
 
 def _connect_timeout(setup: MachineSetup) -> float:

@@ -76,6 +76,7 @@ class CncLink(abc.ABC):
     """A connection to one CNC controller."""
 
     capabilities: Capabilities = Capabilities()
+    uses_dialect: bool = False  # the link builds G-code itself (a DNC verdict program)
 
     @abc.abstractmethod
     async def connect(self) -> None:

@@ -47,11 +47,15 @@ def link_class(transport: str) -> type[CncLink]:
     return getattr(importlib.import_module(module), name)
 
 
-def make_link(cfg: Any, **kw: Any) -> CncLink:
+def make_link(cfg: Any, dialect: str | None = None, **kw: Any) -> CncLink:
     """The link object for a validated config (or a raw dict, validated first).
 
-    ``kw`` goes to the class: e.g. ``parse_result=`` for the serial link (default: the
-    dialect's parser from ``daemon.dialects``)."""
+    ``dialect`` (the machine's) reaches the links that write G-code themselves
+    (``CncLink.uses_dialect``); ``kw`` goes to the class, e.g. ``parse_result=`` for the serial
+    link (default: the dialect's parser from ``daemon.dialects``)."""
     if isinstance(cfg, dict):
         cfg = link_config(cfg)
-    return link_class(cfg.transport)(cfg, **kw)
+    cls = link_class(cfg.transport)
+    if dialect is not None and cls.uses_dialect:
+        kw.setdefault("dialect", dialect)
+    return cls(cfg, **kw)

@@ -194,6 +194,7 @@ class SerialDncLink(CncLink):
 
     capabilities = Capabilities(start_request=True, streams_blocks=True, loads_program=False,
                                 writes_verdict=True, can_abort=True)
+    uses_dialect = True  # the verdict goes back as a small program in the machine's dialect
 
     def __init__(self, cfg: SerialLinkConfig, parse_result: ResultParser | None = None,
                  dialect: str | None = None) -> None:

@@ -91,28 +91,19 @@ async def test_socket_url_7e1_crlf_and_probe_miss():
     assert vc.state == "alarm" and "3001" in vc.alarm
 
 
-async def test_missing_xon_fault_ends_with_link_error():
-    vc, job = real_setup("fanuc", time_scale=0.08)
-    vc.faults = FaultPlan([Fault(kind="missing_xon", at_block=1)])
+@pytest.mark.parametrize(("kind", "time_scale", "link_kw", "match"), [
+    ("missing_xon", 0.08, {"xoff_timeout_s": 0.5}, "XOFF"),
+    # a garbled result line is a link error, never a wrong number
+    ("garbled", 0.0, {}, "garbled"),
+])
+async def test_line_fault_ends_with_link_error(kind, time_scale, link_kw, match):
+    vc, job = real_setup("fanuc", time_scale=time_scale)
+    vc.faults = FaultPlan([Fault(kind=kind, at_block=1)])
     fe = SerialFrontend(vc, SerialSettings(baudrate=115200, framing="8N1"))
-    link = link_for(await fe.open_pty(), baudrate=115200, framing="8N1", xoff_timeout_s=0.5)
+    link = link_for(await fe.open_pty(), baudrate=115200, framing="8N1", **link_kw)
     await link.connect()
     try:
-        with pytest.raises(LinkError, match="XOFF"):
-            await collect(link, job)
-    finally:
-        await link.close()
-        await fe.close()
-
-
-async def test_garbled_result_line_is_a_link_error_not_a_wrong_number():
-    vc, job = real_setup("fanuc")
-    vc.faults = FaultPlan([Fault(kind="garbled", at_block=1)])
-    fe = SerialFrontend(vc, SerialSettings(baudrate=115200, framing="8N1"))
-    link = link_for(await fe.open_pty(), baudrate=115200, framing="8N1")
-    await link.connect()
-    try:
-        with pytest.raises(LinkError, match="garbled"):
+        with pytest.raises(LinkError, match=match):
             await collect(link, job)
     finally:
         await link.close()
