@@ -141,6 +141,16 @@ async def test_sse_progress_verdict_and_report(service):
 # ------------------------------------------------------------------------ headless browser
 
 
+class CdpError(RuntimeError):
+    """A DevTools protocol call answered with an error."""
+
+
+# Errors a page answers while it is between two documents (a form submit or a redirect is in
+# flight): polling must try again, not fail — CI once hit this right after the login submit.
+_NAVIGATING = ("navigated or closed", "Execution context was destroyed",
+               "Cannot find default execution context")
+
+
 class Cdp:
     """A tiny Chrome DevTools Protocol client over aiohttp websockets."""
 
@@ -157,7 +167,7 @@ class Cdp:
             reply = await self.ws.receive_json()
             if reply.get("id") == self.n:
                 if "error" in reply:
-                    raise RuntimeError(f"{method}: {reply['error']}")
+                    raise CdpError(f"{method}: {reply['error']}")
                 return reply["result"]
 
     async def eval(self, session: str, expr: str):
@@ -168,7 +178,12 @@ class Cdp:
     async def wait_for(self, session: str, expr: str, timeout_s: float = 60.0):
         async with asyncio.timeout(timeout_s):
             while True:
-                v = await self.eval(session, expr)
+                try:
+                    v = await self.eval(session, expr)
+                except CdpError as exc:
+                    if not any(m in str(exc) for m in _NAVIGATING):
+                        raise
+                    v = None
                 if v:
                     return v
                 await asyncio.sleep(0.05)
