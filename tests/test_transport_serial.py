@@ -259,3 +259,32 @@ async def test_every_dialect_result_lines_over_dnc(dialect):
         await link.close()
         await fe.close()
     assert_hits_match(hits, vc, job)
+
+
+@pytest.mark.parametrize("sender_hangs_up_first", [False, True])
+async def test_close_with_tcp_sender_leaves_nothing_running(sender_hangs_up_first):
+    # A simulator stopped just as (or while) a DNC sender is connected must leave no handler
+    # task behind: one cancelled later by the loop's teardown makes Python 3.11 log an
+    # "Exception in callback" traceback (seen at the end of bench_e2e).
+    vc, _ = real_setup("fanuc")
+    fe = SerialFrontend(vc, SerialSettings(baudrate=115200, framing="8N1"))
+    loop_errors: list[dict] = []
+    asyncio.get_running_loop().set_exception_handler(lambda _l, ctx: loop_errors.append(ctx))
+    port = await fe.open_tcp()
+    _reader, writer = await asyncio.open_connection("127.0.0.1", port)
+    for _ in range(100):  # the handler is running once it holds the session
+        if fe._session_lock.locked():
+            break
+        await asyncio.sleep(0.01)
+    assert fe._session_lock.locked()
+    writer.write(b"%\nG90\n")
+    await writer.drain()
+    if sender_hangs_up_first:
+        writer.close()
+        await asyncio.sleep(0.02)
+    await fe.close()
+    left = [t for t in asyncio.all_tasks() if t is not asyncio.current_task()]
+    assert left == []
+    writer.close()
+    await asyncio.sleep(0.05)  # let done-callbacks run
+    assert loop_errors == []

@@ -124,11 +124,21 @@ class SerialFrontend:
         if self._session_lock.locked():
             writer.close()  # one DNC sender at a time, as on a real port
             return
+        task = asyncio.current_task()
+        assert task is not None
+        self._tasks.append(task)  # close() cancels and awaits it with the other tasks
         self._tcp_writer = writer
         try:
             await self._session(reader, writer)
+        except asyncio.CancelledError:
+            # Python 3.11's start_server logs a cancelled client handler as an unhandled
+            # error; a shutdown is not one.
+            if not self._closing:
+                raise
         finally:
             self._tcp_writer = None
+            if task in self._tasks:
+                self._tasks.remove(task)
 
     async def close(self) -> None:
         self._closing = True
