@@ -13,6 +13,7 @@ import threading
 import time
 
 import pytest
+import serial
 
 from drivers.base import ControllerAlarm, LinkError
 from drivers.link_config import SerialLinkConfig
@@ -149,7 +150,6 @@ class _Rfc2217Server:
     server (as in a shop's Moxa/Lantronix box), in threads as pyserial's example server."""
 
     def __init__(self, port_url: str) -> None:
-        import serial
         from serial import rfc2217
 
         self.listener = socket.create_server(("127.0.0.1", 0))
@@ -172,7 +172,10 @@ class _Rfc2217Server:
 
         def to_net() -> None:
             while not self.stop.is_set():
-                data = self.ser.read(self.ser.in_waiting or 1)
+                try:
+                    data = self.ser.read(self.ser.in_waiting or 1)
+                except serial.SerialException:
+                    return  # the simulator hung up (it may close before this bridge)
                 if data:
                     send(b"".join(manager.escape(data)))
         self.threads.append(threading.Thread(target=to_net, daemon=True))
