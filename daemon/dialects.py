@@ -22,7 +22,8 @@ Every construct each dialect emits is listed in gcode_templates/<dialect>/README
 Verdict write-back by program (serial DNC): ``Dialect.verdict_program(code)`` is a three-block
 program setting the dialect's ``verdict_variable`` (fanuc #598, siemens R4, heidenhain Q1598,
 linuxcnc #3998) to 1 PASS, 2 WARN, 3 FAIL or 4 ERROR; the CNC's start-of-shift macro clears it to
-0 before printing its request line ``RUMBA REQUEST <machine>`` (``parse_request``) and waits for
+0 before printing its request line ``RUMBA REQUEST <machine>`` (read by
+``drivers.serial_dnc.parse_request``) and waits for
 it to become non-zero.
 """
 
@@ -47,8 +48,6 @@ FIELDS = ("seq", "rep", "pose", "ball", "touch", "trig", "x", "y", "z", "r1", "r
 MISS_TOL_MM = 0.001  # a latch this close to the commanded end point counts as "not triggered"
 _SAFE_TEXT = re.compile(r"^[A-Za-z0-9 _.,:=+\-]*$")
 _NUM = r"[+-]?(?:\d+\.?\d*|\.\d+)"
-_REQUEST = re.compile(r"^\s*RUMBA\s+REQUEST\s+(?P<machine>[A-Za-z0-9_.-]{1,32})\s*$")
-_REQUEST_HEAD = re.compile(r"^\s*RUMBA\s+REQUEST\b", re.IGNORECASE)
 VERDICT_CODES = (1, 2, 3, 4)  # drivers.base.VERDICT_CODES without "none yet" (0)
 _LINE = re.compile(
     rf"^\s*RUMBA\s+(?P<seq>\d+)\s+(?P<rep>\d+)\s+(?P<pose>\d+)\s+(?P<ball>[A-Za-z0-9_.-]{{1,32}})"
@@ -63,19 +62,6 @@ def safe_text(s: str) -> str:
         bad = sorted({ch for ch in s if not _SAFE_TEXT.match(ch)})
         raise ProgramError(f"text {s!r} contains {bad}: not allowed in a program")
     return s
-
-
-def parse_request(line: str) -> str | None:
-    """The machine named by a start-of-shift request line ``RUMBA REQUEST <machine>`` (printed
-    by the CNC's start-of-shift macro), None for any other line; ``ValueError`` for a line that
-    starts like a request but breaks the grammar (a request is never guessed)."""
-    if not _REQUEST_HEAD.match(line):
-        return None
-    m = _REQUEST.match(line.rstrip("\r\n"))
-    if not m:
-        raise ValueError(f"request line does not match 'RUMBA REQUEST <machine>' with machine "
-                         f"[A-Za-z0-9_.-]{{1,32}}: {line.strip()[:80]!r}")
-    return m.group("machine")
 
 
 class Code(str):
@@ -424,4 +410,4 @@ class BoundDialect:
 
 
 __all__ = ["DIALECTS", "Block", "BoundDialect", "Dialect", "Fanuc", "Heidenhain", "LinuxCNC",
-           "Move", "Siemens", "get_dialect", "parse_request", "safe_text"]
+           "Move", "Siemens", "get_dialect", "safe_text"]

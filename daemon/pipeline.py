@@ -118,12 +118,15 @@ def prepare(setup: MachineSetup, run_id: str, last_good: dict[str, Any] | None =
 def prepared_from_program(prog: Any, text: str, run_id: str, dialect: str,
                           files: dict[str, str] | None = None) -> Prepared:
     """The job and its touch table from a generated ``daemon.program.Program``."""
+    from daemon.dialects import get_dialect
+
     touches = {t.id.seq: TouchInfo(t.id, float(t.b_deg), float(t.c_deg),
                                    tuple(map(float, t.direction)), float(t.feed_mm_min))
                for t in prog.touches}
     ids = tuple(touches[k].id for k in sorted(touches))
     job = ProgramJob(run_id=run_id, text=text, dialect=dialect, touch_count=len(ids),
-                     touches=ids, meta={"program": "rumba"}, files=dict(files or {}))
+                     touches=ids, meta={"program": "rumba"}, files=dict(files or {}),
+                     codec=get_dialect(dialect))
     est = getattr(prog, "estimated_s", None)
     return Prepared(job, touches, float(est) if est is not None else None)
 

@@ -37,9 +37,10 @@ LinkFactory = Callable[[MachineSetup], CncLink]
 
 def make_link(setup: MachineSetup) -> CncLink:
     """The transport object for a machine's ``link`` section (drivers.registry)."""
+    from daemon.dialects import get_dialect
     from drivers.registry import make_link as registry_link
 
-    return registry_link(setup.link, dialect=setup.dialect)
+    return registry_link(setup.link, dialect=get_dialect(setup.dialect))
 
 
 def _connect_timeout(setup: MachineSetup) -> float:

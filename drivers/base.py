@@ -10,13 +10,28 @@ from __future__ import annotations
 import abc
 from collections.abc import AsyncIterator
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import Literal, Protocol
 
 from daemon.messages import ProbeHit, TouchId
 
 VerdictStatus = Literal["PASS", "WARN", "FAIL", "ERROR"]
 VERDICT_CODES: dict[str, int] = {"PASS": 1, "WARN": 2, "FAIL": 3, "ERROR": 4}
 """Numeric verdict written to the CNC (variable, register or node); 0 = no verdict yet."""
+
+
+class DialectCodec(Protocol):
+    """What a link needs of a controller dialect, handed to it by the daemon (implemented by
+    ``daemon.dialects.Dialect``): links never import the program generator."""
+
+    name: str
+
+    def parse_result(self, line: str) -> ProbeHit | None:
+        """A touch's result line (DPRNT, WRITE, F-PRINT, LOG) → hit; None for other lines."""
+        ...
+
+    def verdict_program(self, code: int) -> str:
+        """The small program that sets the controller's verdict variable to ``code``."""
+        ...
 
 
 @dataclass(frozen=True)
@@ -62,6 +77,8 @@ class ProgramJob:
     # that only receives (seq, axes) from the controller (OPC UA, Modbus) name pose/ball/touch
     files: dict[str, str] = field(default_factory=dict)  # auxiliary files the program needs on
     # the control (Heidenhain FN 16 format files); OPC UA transfers them with the program
+    codec: DialectCodec | None = None  # decodes the program's result lines (links that read
+    # the controller's printed output: serial DNC, LinuxCNC)
 
 
 class LinkError(Exception):
@@ -76,7 +93,8 @@ class CncLink(abc.ABC):
     """A connection to one CNC controller."""
 
     capabilities: Capabilities = Capabilities()
-    uses_dialect: bool = False  # the link builds G-code itself (a DNC verdict program)
+    uses_dialect: bool = False  # the link builds G-code itself (a DNC verdict program): the
+    # registry hands it the machine's DialectCodec as ``dialect=``
 
     @abc.abstractmethod
     async def connect(self) -> None:

@@ -362,9 +362,9 @@ class LinuxCncLink(CncLink):
     async def run(self, job: ProgramJob) -> AsyncIterator[ProbeHit]:
         if job.dialect != "linuxcnc":
             raise LinkError(f"the LinuxCNC link streams the linuxcnc dialect, not {job.dialect}")
-        from daemon.dialects import get_dialect
-
-        dialect = get_dialect("linuxcnc")
+        if job.codec is None:
+            raise LinkError("the LinuxCNC job carries no linuxcnc result decoder")
+        dialect = job.codec
         steps = plan_steps(job.text)
         done = False
         try:

@@ -11,7 +11,7 @@ from typing import Any, get_args
 
 from pydantic import BaseModel, ValidationError
 
-from drivers.base import CncLink
+from drivers.base import CncLink, DialectCodec
 from drivers.link_config import LinkConfig
 
 TRANSPORTS: dict[str, tuple[str, str]] = {
@@ -47,12 +47,12 @@ def link_class(transport: str) -> type[CncLink]:
     return getattr(importlib.import_module(module), name)
 
 
-def make_link(cfg: Any, dialect: str | None = None, **kw: Any) -> CncLink:
+def make_link(cfg: Any, dialect: DialectCodec | None = None, **kw: Any) -> CncLink:
     """The link object for a validated config (or a raw dict, validated first).
 
-    ``dialect`` (the machine's) reaches the links that write G-code themselves
+    ``dialect`` (the machine's, from the daemon) reaches the links that write G-code themselves
     (``CncLink.uses_dialect``); ``kw`` goes to the class, e.g. ``parse_result=`` for the serial
-    link (default: the dialect's parser from ``daemon.dialects``)."""
+    link (default: the job's codec)."""
     if isinstance(cfg, dict):
         cfg = link_config(cfg)
     cls = link_class(cfg.transport)

@@ -16,6 +16,7 @@ import concurrent.futures
 import contextlib
 import logging
 import os
+import re
 import termios
 import threading
 import time
@@ -30,6 +31,7 @@ from drivers.base import (
     Capabilities,
     CncLink,
     ControllerAlarm,
+    DialectCodec,
     LinkError,
     ProgramJob,
     StartRequest,
@@ -47,22 +49,23 @@ FRAME = {"7E1": (7, "E", 1, 10), "8N1": (8, "N", 1, 10), "7E2": (7, "E", 2, 11),
 
 ResultParser = Callable[[str], "ProbeHit | None"]
 
-
-def dialect_parser(dialect: str) -> ResultParser:
-    """The dialect's ``parse_result(line) -> ProbeHit | None`` (daemon/dialects.py)."""
-    try:
-        from daemon.dialects import get_dialect
-
-        return get_dialect(dialect).parse_result
-    except (ImportError, KeyError, ValueError) as e:
-        raise LinkError(f"no result parser for dialect {dialect!r}: {e}") from None
+# The start-of-shift macro's request line (gcode_templates/*/README.md; the dialect's macro
+# clears the verdict variable, prints this line, waits for the verdict).
+_REQUEST = re.compile(r"^\s*RUMBA\s+REQUEST\s+(?P<machine>[A-Za-z0-9_.-]{1,32})\s*$")
+_REQUEST_HEAD = re.compile(r"^\s*RUMBA\s+REQUEST\b", re.IGNORECASE)
 
 
-def _parse_request(line: str) -> str | None:
-    """daemon.dialects.parse_request: the machine named by ``RUMBA REQUEST <machine>``."""
-    from daemon.dialects import parse_request
-
-    return parse_request(line)
+def parse_request(line: str) -> str | None:
+    """The machine named by a start-of-shift request line ``RUMBA REQUEST <machine>`` (printed
+    by the CNC's start-of-shift macro), None for any other line; ``ValueError`` for a line that
+    starts like a request but breaks the grammar (a request is never guessed)."""
+    if not _REQUEST_HEAD.match(line):
+        return None
+    m = _REQUEST.match(line.rstrip("\r\n"))
+    if not m:
+        raise ValueError(f"request line does not match 'RUMBA REQUEST <machine>' with machine "
+                         f"[A-Za-z0-9_.-]{{1,32}}: {line.strip()[:80]!r}")
+    return m.group("machine")
 
 
 def _is_pty(url: str) -> bool:
@@ -134,7 +137,7 @@ class _DncProtocol(asyncio.Protocol):
 
     def _dispatch(self, line: str) -> None:
         try:
-            machine = _parse_request(line)
+            machine = parse_request(line)
         except ValueError as e:
             log.warning("serial: %s; ignored", e)
             self.unsolicited.append(line)
@@ -197,10 +200,10 @@ class SerialDncLink(CncLink):
     uses_dialect = True  # the verdict goes back as a small program in the machine's dialect
 
     def __init__(self, cfg: SerialLinkConfig, parse_result: ResultParser | None = None,
-                 dialect: str | None = None) -> None:
+                 dialect: DialectCodec | None = None) -> None:
         self.cfg = cfg
         self._parse = parse_result
-        self.dialect = dialect  # for the verdict program; the last job's dialect otherwise
+        self.dialect = dialect  # for the verdict program; the last job's codec otherwise
         self._tape_open = False  # a stream was cut short: the control is inside a program
         self._tx_lock = asyncio.Lock()
         self._proto: _DncProtocol | None = None
@@ -292,10 +295,15 @@ class SerialDncLink(CncLink):
     async def run(self, job: ProgramJob) -> AsyncIterator[ProbeHit]:
         if self._proto is None:
             raise LinkError("serial link not connected")
-        parse = self._parse or dialect_parser(job.dialect)
+        codec = job.codec or self.dialect
+        if self._parse is None and codec is None:
+            raise LinkError(f"no result decoder for the {job.dialect} program (the job carries "
+                            f"no dialect codec)")
+        parse = self._parse or codec.parse_result  # type: ignore[union-attr]
         payload = frame_program(job.text, self.cfg.eol, self.cfg.framing.startswith("7"))
         proto, hits = self._proto, HitFactory(job)
-        self.dialect = job.dialect
+        if job.codec is not None:
+            self.dialect = job.codec
         while not proto.lines.empty():  # stale output from before this run
             item = proto.lines.get_nowait()
             if isinstance(item, BaseException):
@@ -363,15 +371,12 @@ class SerialDncLink(CncLink):
         #3998). Only the integer code reaches the program text."""
         if self._proto is None or self._transport is None:
             raise LinkError("serial link not connected")
-        if not self.dialect:
+        if self.dialect is None:
             raise LinkError("no dialect known for the verdict program (serial link created "
                             "without dialect= and no program run yet)")
-        from daemon.dialects import get_dialect
-        from daemon.program import ProgramError
-
         try:
-            text = get_dialect(self.dialect).verdict_program(verdict.code)
-        except ProgramError as e:
+            text = self.dialect.verdict_program(verdict.code)
+        except ValueError as e:  # the dialect refuses anything but a verdict code
             raise LinkError(str(e)) from None
         if self._tape_open:
             # The control still sits inside the program we stopped feeding: what we send now

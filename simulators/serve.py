@@ -16,6 +16,10 @@ from pathlib import Path
 from typing import Any
 
 
+class ServeError(Exception):
+    """The front-end could not start (port in use, device missing): one line for the CLI."""
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group("serve (controller-side protocol front-ends)")
     g.add_argument("--serve", choices=["serial", "opcua", "modbus", "can"],
@@ -54,7 +58,6 @@ def _say(text: str) -> None:
 
 
 async def serve_async(args: argparse.Namespace) -> int:
-    from daemon.cli import UserError
     from simulators.controller import VirtualController
 
     truth = args.truth
@@ -68,7 +71,7 @@ async def serve_async(args: argparse.Namespace) -> int:
     try:
         closer, panel = await _start(args, ctrl)
     except (OSError, ValueError) as e:
-        raise UserError(f"--serve {args.serve}: {e}") from None
+        raise ServeError(f"--serve {args.serve}: {e}") from None
     tasks = [asyncio.create_task(_stdin(ctrl, stop, panel))]
     if args.raise_request is not None:
         async def later() -> None:
@@ -93,7 +96,11 @@ async def _start(args: argparse.Namespace, ctrl: Any) -> tuple[Any, Any]:
         fe = SerialFrontend(ctrl, SerialSettings(baudrate=args.baud, framing=args.framing,
                                                  rx_buffer_bytes=args.rx_buffer))
         path = await fe.open_pty()
-        port = await fe.open_tcp(args.host, args.port)
+        try:
+            port = await fe.open_tcp(args.host, args.port)
+        except OSError:
+            await fe.close()
+            raise
         _say(f"listening: {path}")
         _say(f"listening: socket://{args.host}:{port}")
         _say(f"serial: {args.baud} baud {args.framing}, XON/XOFF, receive buffer "

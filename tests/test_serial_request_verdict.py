@@ -10,11 +10,11 @@ import subprocess
 
 import pytest
 
-from daemon.dialects import get_dialect, parse_request
+from daemon.dialects import get_dialect
 from daemon.program import ProgramError
 from drivers.base import LinkError, Verdict
 from drivers.link_config import SerialLinkConfig
-from drivers.serial_dnc import SerialDncLink
+from drivers.serial_dnc import SerialDncLink, parse_request
 from simulators.controller import VERDICT_VARIABLE, VirtualController
 from simulators.frontends.serial import SerialFrontend, SerialSettings
 from tests.transport_sim import first_touch_of, make_truth, real_setup
@@ -101,7 +101,8 @@ def test_linuxcnc_verdict_program_accepted_by_rs274(tmp_path):
 async def serial_rig(vc, tcp: bool = False, baud: int = 115200, **link_kw):
     fe = SerialFrontend(vc, SerialSettings(baudrate=baud, framing="7E1"))
     url = f"socket://127.0.0.1:{await fe.open_tcp()}" if tcp else await fe.open_pty()
-    dialect = link_kw.pop("dialect", vc.dialect)
+    name = link_kw.pop("dialect", vc.dialect)
+    dialect = get_dialect(name) if name else None
     link = SerialDncLink(SerialLinkConfig(transport="serial", url=url, baudrate=baud,
                                           **link_kw), dialect=dialect)
     await link.connect()

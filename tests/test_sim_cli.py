@@ -101,3 +101,19 @@ def test_shipped_errors_and_faults_files_load():
         assert TruthModel.from_files(machines[name], art, p).machine.name == name
     for p in sorted(Path("config/faults").glob("*.yaml")):
         assert FaultPlan.load(p).faults
+
+
+@pytest.mark.parametrize("transport", ["modbus", "opcua", "serial"])
+def test_sim_serve_on_a_port_in_use_is_one_line_exit_2(transport, capsys):
+    import socket
+
+    with socket.socket() as busy:
+        busy.bind(("127.0.0.1", 0))
+        busy.listen()
+        port = busy.getsockname()[1]
+        rc = main(["sim", "--machine", M, "--artefact", A, "--serve", transport,
+                   "--port", str(port), "--security", "none"])
+    err = capsys.readouterr().err
+    assert rc == 2, err
+    assert f"--serve {transport}: " in err and "Traceback" not in err
+    assert len(err.strip().splitlines()) == 1, err

@@ -4,6 +4,7 @@ the transport tests: generator → link → front-end → controller → dialect
 from __future__ import annotations
 
 from daemon.config import plan_from_dict
+from daemon.dialects import get_dialect
 from daemon.program import generate
 from drivers.base import ProgramJob
 from simulators.controller import VirtualController
@@ -23,7 +24,7 @@ def make_job(truth: TruthModel, dialect: str, poses=((0.0, 0.0),)) -> ProgramJob
     g = generate(truth.machine, truth.machine_file, truth.artefact, plan, dialect)
     ids = tuple(sorted((t.id for t in g.touches), key=lambda i: i.seq))
     return ProgramJob(run_id="t", text=g.text, dialect=dialect, touch_count=len(ids),
-                      touches=ids, files=dict(g.aux_files))
+                      touches=ids, files=dict(g.aux_files), codec=get_dialect(dialect))
 
 
 def real_setup(dialect: str, poses=((0.0, 0.0),), errors: dict | None = None,

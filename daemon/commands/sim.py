@@ -54,7 +54,10 @@ def main(args: argparse.Namespace) -> int:
         if serve is None:
             raise UserError("--serve is not available (simulators/serve.py missing)")
         args.truth, args.fault_plan = truth, faults
-        return int(serve.serve(args) or 0)
+        try:
+            return int(serve.serve(args) or 0)
+        except serve.ServeError as e:
+            raise UserError(str(e)) from None
     if args.run is None:
         raise UserError("give --run PROGRAM (offline) or --serve TRANSPORT")
     if args.dialect is None or args.log is None:

@@ -66,7 +66,12 @@ class ModbusFrontend:
         device = SimDevice(id=self.device_id, action=self._access, simdata=[
             SimData(0, count=MAP_WORDS, values=0, datatype=DataType.REGISTERS)])
         self._server = ModbusTcpServer(device, address=(host, port))
-        await self._server.serve_forever(background=True)
+        try:
+            await self._server.serve_forever(background=True)
+        except RuntimeError:  # pymodbus logs the bind error and raises a generic one
+            self._server = None
+            raise OSError(f"cannot listen on {host}:{port} (address in use or not "
+                          f"available)") from None
         self._tasks = [asyncio.create_task(c) for c in
                        (self._events(), self._sync(), self._mailbox_loop(), self._command_loop())]
         return self._server.transport.sockets[0].getsockname()[1]
