@@ -107,6 +107,14 @@ class MachineEntry(_Strict):
         return v
 
 
+def is_loopback(host: str) -> bool:
+    """Whether the HMI host is a loopback address (or ``localhost``)."""
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return host == "localhost"
+
+
 class TlsFile(_Strict):
     cert: str
     key: str
@@ -125,11 +133,7 @@ class HmiFile(_Strict):
     def _checks(self) -> HmiFile:
         if self.enabled and (self.token is None) == (self.token_file is None):
             raise ValueError("give exactly one of 'token' or 'token_file'")
-        try:
-            loopback = ipaddress.ip_address(self.host).is_loopback
-        except ValueError:
-            loopback = self.host == "localhost"
-        if not loopback and not self.allow_remote:
+        if not is_loopback(self.host) and not self.allow_remote:
             raise ValueError(f"host {self.host} is not loopback; set allow_remote: true to "
                              "expose the HMI on the network (and configure tls)")
         return self
@@ -287,11 +291,10 @@ def load_daemon_config(path: Path | str) -> DaemonConfig:
         token = df.hmi.token or read_token_file(_resolve(base, df.hmi.token_file or ""),
                                                 f"{path}: hmi.token_file")
         if df.hmi.tls is not None:
-            for k in ("cert", "key"):
-                p = _resolve(base, getattr(df.hmi.tls, k))
-                if not p.is_file():
-                    raise ConfigError(f"{path}: hmi.tls.{k}: file {p} not found")
+            from daemon.hmi.tls import server_context
+
             tls = (_resolve(base, df.hmi.tls.cert), _resolve(base, df.hmi.tls.key))
+            server_context(*tls, f"{path}: hmi.tls")  # missing, mismatched, encrypted … keys
     return DaemonConfig(path, _resolve(base, df.store.path), df.store.synchronous,
                         _resolve(base, df.reports_dir), df.hmi, token, tls, df.can_panel, machines)
 

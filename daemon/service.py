@@ -109,19 +109,29 @@ class Service:
             log.warning("%s: could not stop a leftover program: %s", name, e)
 
     async def _start_hmi(self) -> None:
+        from daemon.config import ConfigError
+        from daemon.daemon_config import is_loopback
         from daemon.hmi.app import create_app
+        from daemon.hmi.auth import SECRET_FILE, SecretError, load_or_create_secret
+        from daemon.hmi.tls import server_context
 
         cfg = self.config
-        ctx = None
+        ctx: ssl.SSLContext | None = None
         if cfg.hmi_tls is not None:
-            ctx = ssl.create_default_context(ssl.Purpose.CLIENT_AUTH)
             try:
-                ctx.load_cert_chain(*map(str, cfg.hmi_tls))
-            except (OSError, ssl.SSLError) as e:
-                raise ServiceError(f"{cfg.path}: hmi.tls: cannot load certificate/key: "
-                                   f"{e}") from None
+                ctx = server_context(*cfg.hmi_tls, f"{cfg.path}: hmi.tls")
+            except ConfigError as e:
+                raise ServiceError(str(e)) from None
+        elif not is_loopback(cfg.hmi.host):
+            log.warning("%s: hmi: listening on %s without tls: the operator token and session "
+                        "cookies cross the network in clear text; configure hmi.tls",
+                        cfg.path, cfg.hmi.host)
+        try:  # next to the journal: the state directory (StateDirectory= under systemd)
+            secret = load_or_create_secret(cfg.store_path.parent / SECRET_FILE)
+        except SecretError as e:
+            raise ServiceError(str(e)) from None
         app = create_app(self.sessions, self.store, cfg.hmi_token or "",  # type: ignore[arg-type]
-                         secure_cookie=ctx is not None)
+                         secure_cookie=ctx is not None, secret=secret)
         self._runner = web.AppRunner(app, access_log=None, handle_signals=False)
         await self._runner.setup()
         site = web.TCPSite(self._runner, cfg.hmi.host, cfg.hmi.port, ssl_context=ctx)

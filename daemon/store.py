@@ -63,6 +63,10 @@ MIGRATIONS: list[list[str]] = [
             run_id TEXT PRIMARY KEY REFERENCES runs(id), html_path TEXT NOT NULL,
             json_path TEXT NOT NULL)""",
     ],
+    [  # 2: HMI sessions signed out before their expiry (cookies are signed, not stored)
+        """CREATE TABLE hmi_revoked (
+            session_id TEXT PRIMARY KEY, expires_at REAL NOT NULL)""",
+    ],
 ]
 SCHEMA_VERSION = len(MIGRATIONS)
 
@@ -302,6 +306,16 @@ class Store:
             " ORDER BY r.started_at DESC LIMIT ?", (machine, limit)).fetchall()
         return [{"run_id": r[0], "started_at": r[1], "verdict": r[2],
                  "analysis": json.loads(r[3])} for r in reversed(rows)]
+
+    # ------------------------------------------------------------------------- HMI sessions
+    def revoke_hmi_session(self, session_id: str, expires_at: float) -> None:
+        self.db.execute("INSERT OR REPLACE INTO hmi_revoked VALUES (?, ?)",
+                        (session_id, expires_at))
+
+    def revoked_hmi_sessions(self) -> dict[str, float]:
+        """Signed-out session ids → expiry; forgets those expired (their cookies are dead)."""
+        self.db.execute("DELETE FROM hmi_revoked WHERE expires_at < ?", (time.time(),))
+        return dict(self.db.execute("SELECT session_id, expires_at FROM hmi_revoked"))
 
 
 # ---------------------------------------------------------------------------- probing-log CSV

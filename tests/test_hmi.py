@@ -6,6 +6,7 @@ from __future__ import annotations
 import asyncio
 import json
 import shutil
+import time
 
 import aiohttp
 import pytest
@@ -193,8 +194,12 @@ class Cdp:
 @pytest.mark.slow
 async def test_browser_start_progress_verdict_report(sim_service, tmp_path):
     """Chromium, driven over the DevTools protocol: sign in, press Start, watch the progress
-    advance while the simulated CNC probes over OPC UA, see the verdict, open the report."""
+    advance while the simulated CNC probes over OPC UA, see the verdict and the run's row in
+    the history table arrive live (no reload), open the report."""
     service = sim_service
+    # An older run, so the history table has a row at page load.
+    service.store.new_run("20200101T000000Z-0a0a", "mill1", "import", state="IMPORTED",
+                          imported=True, started_at=time.time() - 86400)
     exe = shutil.which("chromium") or shutil.which("chromium-browser")
     if exe is None:
         pytest.skip("chromium not installed (make peers)")
@@ -226,6 +231,12 @@ async def test_browser_start_progress_verdict_report(sim_service, tmp_path):
             await cdp.wait_for(sid, "document.getElementById('conn').textContent === 'live'")
             assert await cdp.eval(sid, "document.querySelector('.machine .state').textContent"
                                   ) == "IDLE"
+            rows = "[...document.querySelectorAll('#history tbody tr')]"
+            await cdp.wait_for(sid, f"{rows}.length > 0")
+            assert await cdp.eval(sid, f"{rows}.map(r => r.dataset.run)") == [
+                "20200101T000000Z-0a0a"]
+            # A mark on this document: still there at the end = no navigation, no reload.
+            await cdp.eval(sid, "window.rumbaNoReload = 1; true")
             await cdp.eval(sid, "document.querySelector('.machine .start').click(); true")
             progress = set()
             async with asyncio.timeout(60):
@@ -250,7 +261,16 @@ async def test_browser_start_progress_verdict_report(sim_service, tmp_path):
             assert await cdp.eval(sid, "getComputedStyle(document.querySelector("
                                        "'.machine .badge')).backgroundColor"
                                   ) == "rgb(27, 135, 63)"
-            await cdp.wait_for(sid, "document.querySelectorAll('#history tbody tr').length > 0")
+            run_id = service.sessions["mill1"].run_id
+            assert run_id and run_id != "20200101T000000Z-0a0a"
+            # The new run's row arrives in the open page once the run has ended (DONE, PASS).
+            row = (f"{rows}.filter(r => r.dataset.run === '{run_id}')"
+                   ".map(r => [...r.cells].map(c => c.textContent))[0]")
+            cells = await cdp.wait_for(sid, f"(({row}) || [])[3] === 'DONE' && ({row})", 10)
+            assert cells[1:5] == ["mill1", "hmi", "DONE", "PASS"], cells
+            assert await cdp.eval(sid, f"{rows}.map(r => r.dataset.run)") == [
+                run_id, "20200101T000000Z-0a0a"]
+            assert await cdp.eval(sid, "window.rumbaNoReload") == 1
             shot = await cdp.call("Page.captureScreenshot", sid)
             (tmp_path / "hmi-done.png").write_bytes(__import__("base64").b64decode(shot["data"]))
             href = await cdp.eval(sid, "document.querySelector('.machine .report').href")

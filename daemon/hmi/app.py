@@ -2,8 +2,9 @@
 Abort, last verdict, history and reports, behind a token.
 
 Auth: ``Authorization: Bearer <token>`` (scripts) or a login form that sets an HttpOnly,
-SameSite=Strict session cookie; tokens are compared in constant time. Cookie-authenticated POSTs
-also need the per-session CSRF token (header ``X-CSRF-Token``) and a same-origin ``Origin``.
+SameSite=Strict (and, over TLS, Secure) signed session cookie that survives a daemon restart
+(``daemon.hmi.auth``); tokens are compared in constant time. Cookie-authenticated POSTs also
+need the per-session CSRF token (header ``X-CSRF-Token``) and a same-origin ``Origin``.
 Reports are looked up by run id in the store, never by a path from the request.
 """
 
@@ -13,19 +14,17 @@ import asyncio
 import contextlib
 import hmac
 import json
-import secrets
-import time
 from collections.abc import Awaitable, Callable, Mapping
 from importlib import resources
 from typing import Any
 
 from aiohttp import web
 
+from daemon.hmi.auth import SESSION_TTL_S, Auth
 from daemon.session import Refused, Session
 from daemon.store import Store, StoreError
 
 COOKIE = "rumba_session"
-SESSION_TTL_S = 12 * 3600
 LOGIN_FAIL_DELAY_S = 0.5  # slows token guessing; the token has ≥ 16 characters anyway
 SSE_KEEPALIVE_S = 15.0
 CSP = ("default-src 'none'; script-src 'self'; style-src 'self'; img-src 'self' data:; "
@@ -39,33 +38,6 @@ AUTH_KEY = web.AppKey("auth", object)
 STREAMS_KEY = web.AppKey("streams", set)
 VIA_KEY = web.RequestKey("via", str)
 CSRF_KEY = web.RequestKey("csrf", str)
-
-
-class Auth:
-    """Token check and cookie sessions (in memory: a daemon restart logs operators out)."""
-
-    def __init__(self, token: str, secure_cookie: bool = False) -> None:
-        self.token = token.encode()
-        self.secure_cookie = secure_cookie
-        self.sessions: dict[str, tuple[float, str]] = {}  # id → (expiry, csrf token)
-
-    def token_ok(self, candidate: str) -> bool:
-        return hmac.compare_digest(candidate.encode(), self.token)
-
-    def new_session(self) -> tuple[str, str]:
-        sid, csrf = secrets.token_urlsafe(32), secrets.token_urlsafe(24)
-        self.sessions[sid] = (time.time() + SESSION_TTL_S, csrf)
-        return sid, csrf
-
-    def session(self, sid: str | None) -> str | None:
-        """The CSRF token of a live session, or None."""
-        if not sid:
-            return None
-        entry = self.sessions.get(sid)
-        if entry is None or entry[0] < time.time():
-            self.sessions.pop(sid, None)
-            return None
-        return entry[1]
 
 
 def _asset(name: str) -> str:
@@ -122,16 +94,16 @@ async def login(request: web.Request) -> web.Response:
         await asyncio.sleep(LOGIN_FAIL_DELAY_S)
         return web.Response(status=401, content_type="text/html", text=_asset(
             "login.html").replace("{{error}}", '<p class="error">Wrong token.</p>'))
-    sid, _ = auth.new_session()
+    cookie, _ = auth.new_session()
     resp = web.HTTPSeeOther("/")
-    resp.set_cookie(COOKIE, sid, httponly=True, samesite="Strict", secure=auth.secure_cookie,
+    resp.set_cookie(COOKIE, cookie, httponly=True, samesite="Strict", secure=auth.secure_cookie,
                     max_age=SESSION_TTL_S, path="/")
     raise resp
 
 
 async def logout(request: web.Request) -> web.Response:
     auth: Auth = request.app[AUTH_KEY]  # type: ignore[assignment]
-    auth.sessions.pop(request.cookies.get(COOKIE, ""), None)
+    auth.revoke(request.cookies.get(COOKIE))
     resp = web.json_response({"ok": True})
     resp.del_cookie(COOKIE, path="/")
     return resp
@@ -260,11 +232,13 @@ async def events(request: web.Request) -> web.StreamResponse:
 
 
 def create_app(sessions: Mapping[str, Session], store: Store, token: str,
-               secure_cookie: bool = False) -> web.Application:
+               secure_cookie: bool = False, secret: bytes | None = None) -> web.Application:
+    """``secret``: the session signing secret (``auth.load_or_create_secret``); without it
+    sessions end with this app."""
     app = web.Application(middlewares=[security], client_max_size=64 * 1024)
     app[SESSIONS_KEY] = dict(sessions)
     app[STORE_KEY] = store
-    app[AUTH_KEY] = Auth(token, secure_cookie)
+    app[AUTH_KEY] = Auth(token, secure_cookie, secret=secret, store=store)
     app[STREAMS_KEY] = set()
 
     async def end_streams(app: web.Application) -> None:

@@ -85,13 +85,22 @@ function render(st) {
   }
 }
 
+let historyGen = 0;
 async function loadLastVerdicts() {
-  const r = await fetch("/api/runs?limit=25", {credentials: "same-origin"});
-  if (!r.ok) return;
-  const runs = await r.json();
+  // Refreshes overlap when states change fast: only the newest request may fill the table.
+  const gen = ++historyGen;
+  let runs;
+  try {
+    const r = await fetch("/api/runs?limit=25", {credentials: "same-origin"});
+    if (!r.ok) return;
+    runs = await r.json();
+  } catch (e) { return; }  // daemon restarting: the next status event refreshes again
+  if (gen !== historyGen) return;
   const tbody = document.querySelector("#history tbody");
   tbody.replaceChildren(...runs.map(run => {
     const tr = document.createElement("tr");
+    tr.dataset.run = run.id;
+    tr.title = `run ${run.id}`;
     const cells = [new Date(run.started_at * 1000).toLocaleString(), run.machine, run.trigger,
                    run.state, run.verdict || "—", `${run.hits} / ${run.touch_total}`,
                    run.reason || run.summary || ""];
@@ -122,8 +131,14 @@ document.getElementById("logout").addEventListener("click", async () => {
   location.href = "/login";
 });
 
-let lastStates = {};
+// The history reloads whenever a machine's run, state or verdict changes (a run started,
+// moved on or ended — also one that ended while the event stream was reconnecting) and every
+// 2 s while a run captures (its touch count).
+const lastKeys = {};
 let lastHistory = 0;
+function historyKey(st) {
+  return [st.run_id, st.state, st.verdict ? st.verdict.status : ""].join("|");
+}
 function connect() {
   const es = new EventSource("/api/events");
   const conn = document.getElementById("conn");
@@ -132,9 +147,9 @@ function connect() {
   es.addEventListener("status", ev => {
     const st = JSON.parse(ev.data);
     render(st);
-    const now = Date.now();
-    if (lastStates[st.machine] !== st.state || (st.busy && now - lastHistory > 2000)) {
-      lastStates[st.machine] = st.state;
+    const now = Date.now(), key = historyKey(st);
+    if (lastKeys[st.machine] !== key || (st.busy && now - lastHistory > 2000)) {
+      lastKeys[st.machine] = key;
       lastHistory = now;
       loadLastVerdicts();
     }
@@ -142,7 +157,7 @@ function connect() {
 }
 
 fetch("/api/status", {credentials: "same-origin"}).then(r => r.json()).then(all => {
-  Object.values(all).forEach(render);
+  Object.values(all).forEach(st => { render(st); lastKeys[st.machine] = historyKey(st); });
   loadLastVerdicts();
   connect();
 });
