@@ -25,7 +25,7 @@ sys.path.insert(0, str(ROOT))
 
 from daemon.config import load_artefact, load_machine, load_plan  # noqa: E402
 from identification.effects import make_effect  # noqa: E402
-from identification.gap import diagnose, selfcheck  # noqa: E402
+from identification.gap import Options, diagnose, selfcheck  # noqa: E402
 from identification.gap.simlog import Truth, simulate  # noqa: E402
 
 TABLE_B2 = {"EB0Z": -12e-6, "EA0Y": -24e-6, "EC0Y": 17e-6, "EC0B": -23e-6, "EA0B": 2e-6,
@@ -37,6 +37,8 @@ def main() -> int:
     ap.add_argument("--seeds", type=int, default=10)
     ap.add_argument("--no-selfcheck", action="store_true")
     ap.add_argument("--verbose", action="store_true", help="print every self-check case")
+    ap.add_argument("--split", choices=("auto", "pose", "time"), default="auto",
+                    help="held-out split of the diagnosis and the self-check (default auto)")
     args = ap.parse_args()
     machine, _ = load_machine(ROOT / "config/machines/thesis_wcbxfzyt.yaml")
     artefact = load_artefact(ROOT / "config/artefacts/thesis_4ball.yaml")
@@ -50,13 +52,20 @@ def main() -> int:
                   [(sag, np.array([3.0]))])
     data = simulate(machine, artefact, selfcheck.grid_49(), truth, stylus_r, 0.5, seed=2)
     t0 = time.perf_counter()
-    rep = diagnose(machine, artefact, data, stylus_r)
+    rep = diagnose(machine, artefact, data, stylus_r, options=Options(split=args.split))
     wall = time.perf_counter() - t0
     v = rep["verdict"]
     print(f"49 poses × 4 balls ({len(data)} touches), {len(rep['candidates'])} candidates: "
           f"{wall:.2f} s wall (target ≤ 30 s); verdict {v['effect']}, held-out RMS "
           f"{v['holdout_rms_before_um']:.3f} → {v['holdout_rms_after_um']:.3f} µm, floor "
           f"{rep['noise_floor_um']:.3f} µm")
+    t0 = time.perf_counter()
+    known = diagnose(machine, artefact, data, stylus_r,
+                     options=Options(split=args.split, known=[(sag, None)]))
+    print(f"the same with --known gravity_sag (fitted with the twin): "
+          f"{time.perf_counter() - t0:.2f} s wall; verdict {known['verdict']['effect']}, "
+          f"sag {known['known'][0]['params']['sag_100mm']['value']:.2f} ± "
+          f"{known['known'][0]['params']['sag_100mm']['std']:.2f} µm (injected 3.00)")
     print(f"peak RSS {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:.0f} MB")
     if args.no_selfcheck:
         return 0 if wall <= 30 else 1
@@ -70,7 +79,8 @@ def main() -> int:
                   f"{c.verdict_axis} top {c.top}:{c.top_axis} after/floor "
                   f"{c.after_ratio:.2f} {'ok' if c.ok else 'MISS'}", flush=True)
 
-    summary = selfcheck.run(machine, artefact, plans, stylus_r, args.seeds, progress=show)
+    summary = selfcheck.run(machine, artefact, plans, stylus_r, args.seeds, progress=show,
+                            split=args.split)
     print(f"\nself-check: {len(summary.cases)} cases in {time.perf_counter() - t0:.0f} s")
     print(summary.table())
     fam = [c for c in summary.cases if c.scenario not in selfcheck.CONTROLS]

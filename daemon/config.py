@@ -122,7 +122,21 @@ class MachineFile(_Strict):
     dynamics: DynamicsFile = DynamicsFile()
     table: TableFile = TableFile()
     keep_out: list[KeepOutBox] = []
+    # Direction of gravity in the foundation frame (any length, normalised on load), e.g.
+    # [0, -1, 0] on a horizontal machine; None: identification.effects.default_gravity guesses.
+    gravity: Vec3 | None = None
     _n = field_validator("name")(_safe_name)
+
+    @field_validator("gravity")
+    @classmethod
+    def _unit_gravity(cls, v: list[float] | None) -> list[float] | None:
+        if v is None:
+            return v
+        _finite(v)
+        n = math.sqrt(sum(x * x for x in v))
+        if n < 1e-9:
+            raise ValueError("must be a non-zero direction, e.g. [0, 0, -1]")
+        return [x / n for x in v]
 
 
 # ----------------------------------------------------------------------------------- artefact

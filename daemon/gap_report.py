@@ -36,6 +36,20 @@ th{background:#f3f3f3}td.n{text-align:right;font-variant-numeric:tabular-nums}
 <p>Judged on: {{ r.split }}. Twin: {{ r.twin.n_params }} parameters (setup + links
 {{ r.twin.links|join(", ") }}). Observations per ball-pose: centre x, y, z and the
 sphere-fit form residual (µm).</p>
+{% if r.time_check %}<p>Drift checked on {{ r.time_check.split }}: explains
+{{ "%.0f"|format(100 * r.time_check.explained_fraction) }} % of the held-out excess there
+(leaving poses out: {{ "%.0f"|format(100 * r.time_check.explained_fraction_pose) }} %) —
+{% if r.time_check.confirmed %}confirmed{% else %}not confirmed: its time course does not
+extrapolate{% endif %}.
+</p>{% endif %}
+{% if r.known %}<h2>Effects the twin already models</h2>
+<table><tr><th>effect</th><th>axis</th><th>how</th><th>parameters</th></tr>
+{% for k in r.known %}<tr><td>{{ k.effect }}</td><td>{{ k.axis or "" }}</td>
+<td>{{ "fitted with the setup and links on the training data" if k.fitted else "given" }}</td>
+<td>{% for n, p in k.params.items() %}{{ n }} = {{ "%.3g"|format(p.value) }}
+{%- if p.std is not none %} ± {{ "%.2g"|format(p.std) }}{% endif %} {{ p.unit }}<br>
+{%- endfor %}</td></tr>{% endfor %}
+</table><p>The gap below is what remains once these effects are in the twin.</p>{% endif %}
 <h2>Where the gap lies</h2>
 {% if r.location %}<table><tr><th>by</th><th>where</th><th>RMS µm</th><th>× floor</th>
 <th>p</th></tr>{% for l in r.location %}<tr><td>{{ l.by }}</td><td>{{ l.key }}</td>

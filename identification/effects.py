@@ -20,7 +20,7 @@ with the setup (thesis §3.5, Table B.2), so including them would only duplicate
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -175,14 +175,30 @@ def _poly_motion(letter: str, comps: list[int], powers: tuple[int, ...], to_mode
 
 
 def default_gravity(machine: Machine) -> np.ndarray:
-    """Gravity direction in the foundation frame. A workpiece-side rotary axis turning about Y
-    next to the foundation is the rotary table of a horizontal machine (thesis WCBXFZYT, seed 001
-    wBZfXYCt): Y is vertical, gravity −Y. Otherwise a vertical machine: gravity −Z. Override with
-    the ``gravity_dir`` option when the heuristic does not fit."""
+    """Gravity direction in the foundation frame when the machine file does not give it (its
+    ``gravity`` key, passed as the ``gravity_dir`` option). A heuristic: a workpiece-side rotary
+    axis turning about Y next to the foundation is the rotary table of a horizontal machine
+    (thesis WCBXFZYT, seed 001 wBZfXYCt): Y is vertical, gravity −Y. Otherwise a vertical
+    machine: gravity −Z. It is wrong for a vertical machine whose trunnion tilts about Y
+    (LinuxCNC xyzbc-trt): such a machine file must say ``gravity: [0, 0, -1]``."""
     rot = [a for a in machine.workpiece_chain if a in ROTARY_LETTERS]
     if rot and machine.axes[rot[0]].index == 1:
         return np.array([0.0, -1.0, 0.0])
     return np.array([0.0, 0.0, -1.0])
+
+
+def unit_vector(v: Sequence[float] | np.ndarray, what: str) -> np.ndarray:
+    """A finite, non-zero 3-vector, normalised; ValueError naming ``what`` otherwise."""
+    try:
+        a = np.asarray(v, float).reshape(-1)
+    except (TypeError, ValueError):
+        raise ValueError(f"{what}: expected 3 numbers, got {v!r}") from None
+    if a.shape != (3,) or not np.all(np.isfinite(a)):
+        raise ValueError(f"{what}: expected 3 finite numbers, got {v!r}")
+    n = float(np.linalg.norm(a))
+    if n < 1e-9:
+        raise ValueError(f"{what}: must not be the zero vector")
+    return a / n
 
 
 def default_rod_direction(machine: Machine) -> np.ndarray:
@@ -365,8 +381,8 @@ def _gravity_sag(machine: Machine, axis: str | None, gravity_dir: tuple | None =
     # ``s`` = sag of a 100 mm rod held perpendicular to gravity, µm.
     if axis is not None:
         raise ValueError("gravity_sag: takes no axis")
-    g = np.asarray(gravity_dir if gravity_dir is not None else default_gravity(machine), float)
-    g = g / np.linalg.norm(g)
+    g = unit_vector(gravity_dir, "gravity_dir") if gravity_dir is not None \
+        else default_gravity(machine)
     u = np.asarray(rod_dir if rod_dir is not None else default_rod_direction(machine), float)
     u = u / np.linalg.norm(u)
 
@@ -467,8 +483,10 @@ def _full_turn(axis) -> bool:
     return hi - lo >= 360.0
 
 
-def library(machine: Machine, ball_ids: list[str]) -> list[Effect]:
-    """The candidate library of the gap diagnosis: every family on every axis it applies to."""
+def library(machine: Machine, ball_ids: list[str],
+            gravity_dir: Sequence[float] | None = None) -> list[Effect]:
+    """The candidate library of the gap diagnosis: every family on every axis it applies to.
+    ``gravity_dir``: the machine file's gravity (foundation frame); None: ``default_gravity``."""
     lin = [a for a in machine.linear_axes]
     rot = machine.rotary_axes
     out: list[Effect] = []
@@ -481,7 +499,7 @@ def library(machine: Machine, ball_ids: list[str]) -> list[Effect]:
     # limited range cannot separate higher orders from the polynomial-like low ones.
     out += [make_effect("rotary_error_motion", a, machine,
                         orders=(2, 3) if _full_turn(machine.axes[a]) else (2,)) for a in rot]
-    out.append(make_effect("gravity_sag", None, machine))
+    out.append(make_effect("gravity_sag", None, machine, gravity_dir=gravity_dir))
     out.append(make_effect("probe_pretravel", None, machine))
     out += [make_effect("artefact_instability", b, machine, ball_index=i)
             for i, b in enumerate(ball_ids)]

@@ -107,7 +107,8 @@ class TruthModel:
                 raise ConfigError(f"{where}: absent_balls: unknown ball {bid!r} (artefact {ids})")
             absent.add(ids.index(bid))
         obs = errors.obstacles
-        effects = [_make_effect(machine, e, where, i) for i, e in enumerate(errors.effects)]
+        effects = [_make_effect(machine, e, where, i, machine_file.gravity)
+                   for i, e in enumerate(errors.effects)]
         return cls(
             machine=machine, machine_file=machine_file, artefact=artefact, errors=errors,
             seed=seed, links=links, ball_setup_mm=balls, tip_setup_mm=tip,
@@ -219,15 +220,20 @@ class TruthModel:
         return solve_centre(self.machine, rot, w, self.state)[0]
 
 
-def _make_effect(machine: Machine, e: Any, where: str, i: int) -> ActiveEffect:
+def _make_effect(machine: Machine, e: Any, where: str, i: int,
+                 gravity: list[float] | None = None) -> ActiveEffect:
     key = f"{where}: effects[{i}] ({e.family}{'/' + e.axis if e.axis else ''})"
+    options = dict(e.options)
+    if e.family == "gravity_sag" and gravity is not None:
+        # The machine file's gravity, unless the errors file overrides it for this effect.
+        options.setdefault("gravity_dir", tuple(gravity))
     try:
         from identification.effects import make_effect
     except ImportError as exc:
         raise ConfigError(f"{key}: effect models are not available "
                           f"(identification.effects: {exc})") from None
     try:
-        eff = make_effect(e.family, e.axis, machine, **e.options)
+        eff = make_effect(e.family, e.axis, machine, **options)
     except (ValueError, KeyError, TypeError) as exc:
         raise ConfigError(f"{key}: {exc}") from None
     names = tuple(eff.param_names)

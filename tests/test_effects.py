@@ -139,3 +139,77 @@ def test_drift_and_creep_in_time(thesis):
                                [1e-3, 0, -1e-3])
     other = _ctx(1, t_s=np.array([3600.0]), ball=np.array([0]))
     assert not creep.ball_offset_mm(np.array([2.0, 0.0, -2.0]), other).any()
+
+
+def test_machine_file_gravity_drives_the_sag_in_simulator_and_library():
+    # LinuxCNC xyzbc-trt: a vertical mill whose trunnion B tilts about Y. The heuristic takes
+    # B-about-Y for a horizontal machine (gravity −Y); the machine file says −Z.
+    import yaml
+
+    from daemon.config import load_artefact, machine_from_dict
+    from identification.effects import default_gravity
+    from simulators.errors_schema import errors_from_dict
+    from simulators.truth import TruthModel
+
+    data = yaml.safe_load((CONFIG / "machines/linuxcnc_xyzbc.yaml").read_text())
+    m, mf = machine_from_dict(data, "linuxcnc_xyzbc.yaml")
+    assert mf.gravity == [0.0, 0.0, -1.0]
+    np.testing.assert_allclose(default_gravity(m), [0.0, -1.0, 0.0])  # what it would guess
+    ctx = _ctx(3, b_deg=np.array([0.0, 90.0, 30.0]))
+    p = np.array([2.0])
+    art = load_artefact(CONFIG / "artefacts/thesis_4ball.yaml")
+    errors = errors_from_dict({"effects": [{"family": "gravity_sag",
+                                            "params": {"sag_100mm": 2.0}}]})
+    sim = TruthModel.build(m, mf, art, errors).effects[0].effect.ball_offset_mm(p, ctx)
+    # Rods stand along gravity at B = 0 (no sag), horizontal at B = 90° (full sag).
+    np.testing.assert_allclose(np.linalg.norm(sim, axis=1), [0.0, 2e-3, 1e-3], atol=1e-12)
+    lib = next(e for e in library(m, art.ids, gravity_dir=mf.gravity)
+               if e.family == "gravity_sag")
+    np.testing.assert_allclose(lib.ball_offset_mm(p, ctx), sim, atol=1e-15)
+    guessed = make_effect("gravity_sag", None, m).ball_offset_mm(p, ctx)
+    np.testing.assert_allclose(np.linalg.norm(guessed, axis=1), 2e-3)  # −Y: always sagging
+    # Without the key the heuristic still applies; the errors file may still override it.
+    data.pop("gravity")
+    m2, mf2 = machine_from_dict(data, "no-gravity.yaml")
+    assert mf2.gravity is None
+    sim2 = TruthModel.build(m2, mf2, art, errors).effects[0].effect.ball_offset_mm(p, ctx)
+    np.testing.assert_allclose(sim2, guessed, atol=1e-15)
+    over = errors_from_dict({"effects": [{"family": "gravity_sag", "params": {"sag_100mm": 2.0},
+                                          "options": {"gravity_dir": [0, -1, 0]}}]})
+    sim3 = TruthModel.build(m, mf, art, over).effects[0].effect.ball_offset_mm(p, ctx)
+    np.testing.assert_allclose(sim3, guessed, atol=1e-15)
+
+
+@pytest.mark.parametrize("value,expect", [
+    ([0, 0, 0], "gravity: must be a non-zero direction"),
+    ([0, -1], "gravity: List should have at least 3 items"),
+    ([0, -1, 0, 0], "gravity: List should have at most 3 items"),
+    (["down", "x", "y"], "gravity.0: Input should be a valid number"),
+    ("down", "gravity: Input should be a valid list"),
+    ([0, float("nan"), 1], "gravity: values must be finite"),
+])
+def test_machine_file_gravity_is_validated(value, expect):
+    import yaml
+
+    from daemon.config import ConfigError, machine_from_dict
+
+    data = yaml.safe_load((CONFIG / "machines/thesis_wcbxfzyt.yaml").read_text())
+    data["gravity"] = value
+    with pytest.raises(ConfigError) as e:
+        machine_from_dict(data, "m.yaml")
+    msg = str(e.value)
+    assert msg.startswith("m.yaml: ") and expect in msg and "\n" not in msg
+    data["gravity"] = [0, -9.81, 0]  # any length: normalised on load
+    assert machine_from_dict(data, "m.yaml")[1].gravity == [0.0, -1.0, 0.0]
+    data["gravity_dir"] = [0, -1, 0]  # unknown keys stay errors
+    with pytest.raises(ConfigError, match="gravity_dir: unknown key"):
+        machine_from_dict(data, "m.yaml")
+
+
+def test_gravity_dir_option_is_checked(thesis):
+    for bad in ([0, 0, 0], [1, 2], ["a", "b", "c"]):
+        with pytest.raises(ValueError, match="gravity_dir"):
+            make_effect("gravity_sag", None, thesis, gravity_dir=bad)
+    sag = make_effect("gravity_sag", None, thesis, gravity_dir=[0, 0, -5])
+    ctx = _ctx(1)  # rods along +z: parallel to this gravity, no sag
+    np.testing.assert_allclose(sag.ball_offset_mm(np.array([2.0]), ctx), 0.0, atol=1e-15)

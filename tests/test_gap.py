@@ -103,6 +103,9 @@ def test_withheld_drift_is_found_and_quantified(setup):
     assert abs(rate["value"] - 6.0) < 4 * rate["std"] and rate["std"] < 1.0
     assert v["holdout_rms_after_um"] < 1.3 * rep["noise_floor_um"] < v["holdout_rms_before_um"]
     assert any(loc["by"] in ("time", "axis") for loc in rep["location"])
+    # A linear drift also predicts stretches of the run it did not see (time blocks).
+    assert rep["split_mode"] == "pose+time" and rep["time_check"]["confirmed"]
+    assert rep["time_check"]["explained_fraction"] > 0.8
 
 
 @pytest.mark.parametrize("scenario", ["probe_pretravel", "uniform_pretravel", "outside"])
@@ -303,3 +306,173 @@ def test_cli_holdout_log(setup, tmp_path, capsys):
                  str(CONFIG / "artefacts/thesis_4ball.yaml"), "--json", str(out)]) == 0
     rep = json.loads(out.read_text())
     assert rep["split"] == "separate hold-out log" and rep["verdict"]["effect"] == "none"
+
+
+# ---------------------------------------------------------------- effects already modelled
+
+
+def _two_effect_log(setup, tmp_path):
+    machine, artefact, poses = setup
+    rp = make_effect("rotary_positioning", "C", machine)
+    sag = make_effect("gravity_sag", None, machine)
+    truth = _truth(machine, artefact, effects=[(rp, np.array([8.0, 0.0, 0.0, 15.0, -10.0])),
+                                               (sag, np.array([3.0]))])
+    data = simulate(machine, artefact, poses, truth, STYLUS_R, 0.5, seed=40)
+    log = tmp_path / "two.csv"
+    write_log(log, _rows(data, artefact))
+    return data, log
+
+
+def _gap_cli(log, out, *extra) -> int:
+    return main(["gap", "--log", str(log), "--machine",
+                 str(CONFIG / "machines/thesis_wcbxfzyt.yaml"), "--artefact",
+                 str(CONFIG / "artefacts/thesis_4ball.yaml"), "--json", str(out), *extra])
+
+
+def test_cli_known_effect_is_fitted_with_the_twin_and_the_other_is_named(setup, tmp_path,
+                                                                         capsys):
+    _, log = _two_effect_log(setup, tmp_path)
+    plain, known = tmp_path / "plain.json", tmp_path / "known.json"
+    assert _gap_cli(log, plain) == 0
+    rep = json.loads(plain.read_text())
+    assert rep["known"] == [] and rep["verdict"]["effect"] == "gravity_sag"
+    assert {(s["effect"], s["axis"]) for s in rep["verdict"]["selected"]} == {
+        ("gravity_sag", None), ("rotary_positioning", "C")}
+    html = tmp_path / "known.html"
+    assert _gap_cli(log, known, "--known", "gravity_sag", "--html", str(html)) == 0
+    rep = json.loads(known.read_text())
+    assert (rep["verdict"]["effect"], rep["verdict"]["axis"]) == ("rotary_positioning", "C")
+    assert all(c["effect"] != "gravity_sag" for c in rep["candidates"])
+    (k,) = rep["known"]
+    assert (k["effect"], k["axis"], k["fitted"]) == ("gravity_sag", None, True)
+    sag = k["params"]["sag_100mm"]
+    assert sag["unit"] == "um" and 0 < sag["std"] < 1.0 and abs(sag["value"] - 3.0) < 4 * sag["std"]
+    assert rep["twin"]["n_known_params"] == 1
+    assert rep["verdict"]["holdout_rms_after_um"] < 1.3 * rep["noise_floor_um"]
+    out = capsys.readouterr().out
+    assert "known (fitted with the twin): gravity_sag: sag_100mm = " in out
+    page = html.read_text()
+    assert "Effects the twin already models" in page and "sag_100mm" in page
+
+
+def test_known_rotary_positioning_leaves_the_sag(setup, tmp_path):
+    from identification.gap import Options
+
+    machine, artefact, _ = setup
+    data, _ = _two_effect_log(setup, tmp_path)
+    rp = make_effect("rotary_positioning", "C", machine)
+    rep = diagnose(machine, artefact, data, STYLUS_R, options=Options(known=[(rp, None)]))
+    assert [(s["effect"], s["axis"]) for s in rep["verdict"]["selected"]] == [
+        ("gravity_sag", None)]
+    p = rep["known"][0]["params"]
+    assert set(p) == set(rp.param_names) and p["ECC_slope"]["unit"] == "urad/rad"
+    assert abs(p["ECC_cos2"]["value"] - 15.0) < 4 * p["ECC_cos2"]["std"]
+
+
+@pytest.mark.parametrize("bad", ["warp_drive", "rotary_positioning:Q", "gravity_sag:X",
+                                 "thermal_drift:B"])
+def test_cli_known_bad_names_are_one_line(tmp_path, capsys, bad):
+    log = tmp_path / "never-read.csv"
+    code = _gap_cli(log, tmp_path / "x.json", "--known", f"linear_scale:X,{bad}")
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1 and err.startswith("error: --known")
+    assert repr(bad) in err and "rotary_positioning[:B|C]" in err and "gravity_sag," in err
+
+
+# ---------------------------------------------------------------- held-out split by time
+
+
+def test_time_blocks_are_contiguous_stretches_of_the_run(setup):
+    from identification.gap.split import TIME_BLOCKS, folds, time_usable
+
+    machine, artefact, poses = setup
+    runs = []
+    for r in range(2):  # two repeats of the plan: a pose's visits lie in different blocks
+        d = simulate(machine, artefact, poses, Truth(), STYLUS_R, 0.5, seed=50 + r)
+        d.repeat[:] = r
+        d.t_s += r * (d.t_s.max() + 60.0)
+        runs.append(d)
+    both = TouchData(*(np.concatenate([getattr(x, f) for x in runs])
+                       for f in TouchData.__dataclass_fields__))
+    g = group_touches(both, artefact, STYLUS_R)
+    no_ho = np.zeros(len(g), bool)
+    fold, what, mode = folds(g, no_ho, "time")
+    assert mode == "time" and sorted(set(fold)) == list(range(TIME_BLOCKS))
+    t = g.centres.t_s
+    for f in range(TIME_BLOCKS - 1):  # every block ends before the next begins
+        assert t[fold == f].max() < t[fold == f + 1].min()
+    assert fold[(g.repeat == 0) & (g.centres.pose == 0)][0] != \
+        fold[(g.repeat == 1) & (g.centres.pose == 0)][0]
+    pose_fold, _, pmode = folds(g, no_ho, "pose")
+    assert pmode == "pose" and len(set(pose_fold)) == len(poses)
+    for p in range(len(poses)):  # leave-one-pose-out holds a pose's repeats out together
+        assert len(set(pose_fold[g.centres.pose == p])) == 1
+    assert folds(g, no_ho, "auto")[2] == "pose+time" and time_usable(g)[0]
+    g.centres.t_s[:] = 0.0  # a controller log without usable times
+    _, what, mode = folds(g, no_ho, "auto")
+    assert mode == "pose" and "no usable t_s" in what
+    with pytest.raises(ValueError, match="split must be one of"):
+        folds(g, no_ho, "random")
+
+
+def _warm_then_cool(machine, artefact, poses, amp_um: float):
+    """A thermal X offset that rises and turns back at 3/4 of the run (a machine warming then
+    cooling): outside the library, whose drift is linear in time."""
+    from identification.effects import Effect
+
+    span_s = float(simulate(machine, artefact, poses, Truth(), STYLUS_R, 0.0, 0).t_s.max())
+
+    def touch(p, ctx):
+        out = np.zeros((len(ctx), 3))
+        out[:, 0] = p[0] * 1e-3 * np.sin(2 * np.pi * np.asarray(ctx.t_s) / (3.0 * span_s))
+        return out
+
+    return Effect("thermal_cycle", "X", ("amp",), ("um",), _touch=touch), np.array([amp_um])
+
+
+def test_a_drift_that_only_interpolates_is_not_confirmed_on_time_blocks(setup):
+    from identification.gap import Options
+
+    machine, artefact, poses = setup
+    rng = np.random.default_rng(0)
+    truth = Truth({"EB0Z": -12e-6, "EC0Y": 17e-6, "EX0C": -0.106}, rng.normal(0, .2, (4, 3)),
+                  rng.normal(0, .05, 3), [_warm_then_cool(machine, artefact, poses, 8.0)])
+    data = simulate(machine, artefact, poses, truth, STYLUS_R, 0.5, seed=100)
+    by_pose = diagnose(machine, artefact, data, STYLUS_R, options=Options(split="pose"))
+    assert (by_pose["verdict"]["effect"], by_pose["verdict"]["axis"]) == ("thermal_drift", "X")
+    assert by_pose["time_check"] is None
+    auto = diagnose(machine, artefact, data, STYLUS_R)  # default: pose, drift checked in time
+    tc = auto["time_check"]
+    assert auto["split_mode"] == "pose+time" and not tc["confirmed"]
+    assert tc["explained_fraction"] < 0.5 <= tc["explained_fraction_pose"]
+    assert auto["verdict"]["effect"] == "unexplained" and "time blocks" in \
+        auto["verdict"]["message"]
+    by_time = diagnose(machine, artefact, data, STYLUS_R, options=Options(split="time"))
+    assert by_time["split_mode"] == "time" and by_time["verdict"]["effect"] != "thermal_drift"
+
+
+def test_cli_uses_the_machine_file_gravity(setup, tmp_path):
+    # A foundation tilted 37° about X (a machine set on a slope): the sag is only fitted right,
+    # and alone, with the machine file's gravity; the topology guess (−Y) would bias it to
+    # ~2.5 µm and invent an angular motion to make up the rest.
+    import yaml
+
+    machine, artefact, poses = setup
+    g = [0.0, -0.6, -0.8]
+    sag = make_effect("gravity_sag", None, machine, gravity_dir=g)
+    data = simulate(machine, artefact, poses, _truth(machine, artefact, seed=0,
+                                                     effects=[(sag, np.array([4.0]))]),
+                    STYLUS_R, 0.5, seed=60)
+    log = tmp_path / "tilted.csv"
+    write_log(log, _rows(data, artefact))
+    doc = yaml.safe_load((CONFIG / "machines/thesis_wcbxfzyt.yaml").read_text())
+    doc["gravity"] = [0.0, -3.0, -4.0]  # normalised on load
+    mfile = tmp_path / "tilted.yaml"
+    mfile.write_text(yaml.safe_dump(doc))
+    out = tmp_path / "gap.json"
+    assert main(["gap", "--log", str(log), "--machine", str(mfile), "--artefact",
+                 str(CONFIG / "artefacts/thesis_4ball.yaml"), "--json", str(out)]) == 0
+    rep = json.loads(out.read_text())
+    assert rep["verdict"]["selected"] == [{"effect": "gravity_sag", "axis": None}]
+    s = rep["candidates"][0]["params"]["sag_100mm"]
+    assert abs(s["value"] - 4.0) < 4 * s["std"] and s["std"] < 0.2

@@ -12,8 +12,10 @@ import numpy as np
 
 from daemon.config import load_artefact, load_machine, load_plan
 from daemon.probelog import LogRow, ProbeLogError, read_log
-from identification.effects import FAMILIES
+from identification.effects import FAMILIES, Effect, library
 from identification.gap import Options, TouchData, diagnose
+from identification.gap.split import SPLITS
+from identification.kinematics import Machine
 from identification.model import Artefact
 
 DEFAULT_STYLUS_DIAMETER_MM = 6.0  # the shipped plans' stylus
@@ -55,6 +57,36 @@ def _families(text: str | None) -> tuple[str, ...]:
     return names
 
 
+def _known(values: Sequence[str] | None, machine: Machine, artefact: Artefact,
+           gravity: Sequence[float] | None) -> list[Effect]:
+    """``--known`` values (repeatable, each a comma list of FAMILY or FAMILY:AXIS; a family
+    alone = every instance of it) → library effects, to be fitted with the twin."""
+    lib = library(machine, artefact.ids, gravity_dir=gravity)
+    out: list[Effect] = []
+    for text in values or []:
+        for item in (x.strip() for x in text.split(",")):
+            if not item:
+                continue
+            family, _, axis = item.partition(":")
+            hits = [e for e in lib if e.family == family.strip()
+                    and (not axis or (e.axis or "").lower() == axis.strip().lower())]
+            if not hits or (axis and hits[0].axis is None):
+                choices = ", ".join(
+                    f + (f"[:{'|'.join(a for a in axes if a)}]" if any(axes) else "")
+                    for f in FAMILIES
+                    if (axes := [e.axis for e in lib if e.family == f]))
+                raise _user_error(f"--known: unknown effect {item!r}; expected FAMILY or "
+                                  f"FAMILY:AXIS among {choices}")
+            out += [e for e in hits if e not in out]
+    return out
+
+
+def _fmt_params(params: dict) -> str:
+    return ", ".join(f"{k} = {p['value']:.3g}" + (f" ± {p['std']:.2g}" if p["std"] is not None
+                                                   else "") + f" {p['unit']}"
+                     for k, p in params.items())
+
+
 def _print_report(rep: dict) -> None:
     b, v = rep["baseline"], rep["verdict"]
     print(f"noise floor {rep['noise_floor_um']:.3f} µm (per coordinate; "
@@ -62,6 +94,15 @@ def _print_report(rep: dict) -> None:
     print(f"twin gap: train RMS {b['train_rms_um']:.3f} µm, held-out RMS "
           f"{b['holdout_rms_um']:.3f} µm, max {b['holdout_max_um']:.3f} µm "
           f"({b['gap_ratio']:.2f}× the held-out floor, p = {b['p_value']:.2g})")
+    for k in rep["known"]:
+        how = "fitted with the twin" if k["fitted"] else "given"
+        label = k["effect"] + (f":{k['axis']}" if k["axis"] else "")
+        print(f"known ({how}): {label}: {_fmt_params(k['params']) or 'not visible'}")
+    tc = rep.get("time_check")
+    if tc:
+        print(f"drift checked on {tc['split']}: explains {100 * tc['explained_fraction']:.0f} % "
+              f"of the held-out excess (leaving poses out {100 * tc['explained_fraction_pose']:.0f}"
+              f" %) — {'confirmed' if tc['confirmed'] else 'NOT confirmed'}")
     for loc in rep["location"]:
         print(f"  gap at {loc['by']} {loc['key']}: {loc['rms_um']:.3f} µm "
               f"({loc['ratio_to_floor']:.1f}× floor)")
@@ -95,7 +136,7 @@ def _load(path: str, artefact: Artefact) -> TouchData:
 def _selfcheck(args: argparse.Namespace) -> int:
     from identification.gap import selfcheck
 
-    machine, _ = load_machine(args.machine or CONFIG / "machines/thesis_wcbxfzyt.yaml")
+    machine, mfile = load_machine(args.machine or CONFIG / "machines/thesis_wcbxfzyt.yaml")
     artefact = load_artefact(args.artefact or CONFIG / "artefacts/thesis_4ball.yaml")
     plan = load_plan(CONFIG / "plans/thesis_annexB_14poses.yaml")
     plans = {"thesis-14": [(p.b_deg, p.c_deg) for p in plan.poses]}
@@ -110,7 +151,8 @@ def _selfcheck(args: argparse.Namespace) -> int:
               f"{c.verdict:20s} top {top:26s} after/floor {c.after_ratio:4.2f} "
               f"{'ok' if c.ok else 'MISS'}", flush=True)
 
-    summary = selfcheck.run(machine, artefact, plans, stylus_r, seeds, progress=show)
+    summary = selfcheck.run(machine, artefact, plans, stylus_r, seeds, progress=show,
+                            split=args.split, gravity_dir=mfile.gravity)
     print()
     print(summary.table())
     rates = summary.rates()
@@ -126,14 +168,16 @@ def _run(args: argparse.Namespace) -> int:
     if not (args.log and args.machine and args.artefact):
         raise _user_error("gap: --log, --machine and --artefact are required "
                           "(or --selfcheck)")
-    machine, _ = load_machine(args.machine)
+    machine, mfile = load_machine(args.machine)
     artefact = load_artefact(args.artefact)
     stylus_r = (args.stylus_diameter_mm or DEFAULT_STYLUS_DIAMETER_MM) / 2
+    known = _known(args.known, machine, artefact, mfile.gravity)
     try:
         train = _load(args.log, artefact)
         hold = _load(args.holdout, artefact) if args.holdout else None
         rep = diagnose(machine, artefact, train, stylus_r, hold,
-                       Options(families=_families(args.families)))
+                       Options(families=_families(args.families), split=args.split,
+                               known=[(e, None) for e in known], gravity_dir=mfile.gravity))
     except ProbeLogError as e:
         raise _user_error(str(e)) from None
     except ValueError as e:  # data that cannot support a diagnosis (e.g. too few poses)
@@ -162,6 +206,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--stylus-diameter-mm", type=float, default=None,
                    help=f"stylus ball diameter (default {DEFAULT_STYLUS_DIAMETER_MM})")
     p.add_argument("--families", help="comma list of effect families to try (default all)")
+    p.add_argument("--known", action="append", metavar="FAMILY[:AXIS]",
+                   help="an effect the twin already models, fitted with it on the training "
+                        "data (repeatable or a comma list; a family alone = all its axes), "
+                        "e.g. --known rotary_positioning:C")
+    p.add_argument("--split", choices=SPLITS, default="auto",
+                   help="internal held-out split without --holdout: pose (leave-one-pose-out), "
+                        "time (contiguous time blocks: the honest test of drift) or auto "
+                        "(time when the log's times allow it; default)")
     p.add_argument("--json", help="write the report as JSON")
     p.add_argument("--html", help="write the report as HTML")
     p.add_argument("--selfcheck", action="store_true",

@@ -44,21 +44,26 @@ class Candidate:
         return self.effect.label
 
     def params(self, n_base: int) -> dict[str, dict]:
-        """Estimates ± standard uncertainty in the effect's units. Directions the data cannot
-        see were truncated: those parts are reported as 0 (minimum-norm solution)."""
-        out = {}
+        """Estimates ± standard uncertainty in the effect's units (``effect_params``)."""
         if self.full is None:
-            return out
+            return {}
         r = self.cols.shape[2]
-        g = self.full.beta[n_base:n_base + r]
-        cg = self.full.cov[n_base:n_base + r, n_base:n_base + r]
-        theta = self.basis @ g
-        cov = self.basis @ cg @ self.basis.T
-        for j, (name, unit) in enumerate(zip(self.effect.param_names, self.effect.units,
-                                             strict=True)):
-            out[name] = {"value": float(theta[j]), "std": float(np.sqrt(max(cov[j, j], 0.0))),
-                         "unit": unit}
-        return out
+        return effect_params(self.effect, self.basis, self.full.beta[n_base:n_base + r],
+                             self.full.cov[n_base:n_base + r, n_base:n_base + r])
+
+
+def effect_params(effect: Effect, basis: np.ndarray, g: np.ndarray, cg: np.ndarray
+                  ) -> dict[str, dict]:
+    """{name: {value, std, unit}} from the coefficients ``g`` (covariance ``cg``) of the visible
+    parameter directions ``basis`` (m, r). Directions the data cannot see were truncated: those
+    parts are reported as 0 (minimum-norm solution)."""
+    theta = basis @ g
+    cov = basis @ cg @ basis.T
+    out = {}
+    for j, (name, unit) in enumerate(zip(effect.param_names, effect.units, strict=True)):
+        out[name] = {"value": float(theta[j]), "std": float(np.sqrt(max(cov[j, j], 0.0))),
+                     "unit": unit}
+    return out
 
 
 def f_test(prev: FullFit, new: FullFit) -> tuple[float, float]:

@@ -1,8 +1,11 @@
 """The sim-to-real gap diagnosis (METHOD.md §6): locate, attribute, quantify, and say so honestly.
 
 Pipeline: touches → sphere fits and the noise floor (``data``) → twin fitted on training data
-(``twin``) → held-out gap of the twin and where it lies (``locate``) → every library effect added
-and refitted, ranked by held-out gap, greedy selection (``attribute``) → verdict:
+(``twin``; plus any effects the user already models, ``Options.known``) → held-out split
+(``split``: a separate log, leave-one-pose-out, time blocks for drift) → held-out gap of the
+twin and where it lies (``locate``) → every library effect added and refitted, ranked by
+held-out gap, greedy selection (``attribute``) → a drift verdict re-checked on time blocks →
+verdict:
 
 * ``none``: the held-out gap is at the floor (F test, level ``ALPHA``);
 * ``absorbed``: at the floor, but the setup shows an effect the pattern cannot see — a fitted
@@ -19,24 +22,26 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from identification.effects import FAMILIES, Effect, library
+from identification.effects import FAMILIES, Effect, EffectContext, library
 from identification.gap.attribute import (
     ALPHA,
     Candidate,
     contributions,
+    effect_params,
     explained,
     forward_select,
     gap_p_value,
     score,
 )
 from identification.gap.data import Groups, TouchData, group_touches, repeat_floor_um
-from identification.gap.linear import Problem, columns, fit, held_out, projected
+from identification.gap.linear import FullFit, Problem, columns, fit, held_out, projected
 from identification.gap.locate import breakdowns
-from identification.gap.twin import effect_columns, fit_twin, touch_context
+from identification.gap.split import TIME_BLOCKS, TIME_FAMILIES, folds
+from identification.gap.twin import Twin, effect_columns, fit_twin, touch_context
 from identification.kinematics import Machine
 from identification.model import Artefact, predict
 
-DEFAULT_FOLDS = 0  # 0: leave-one-pose-out (each pose is also a time block of the run)
+DEFAULT_FOLDS = 0  # 0: the split's default (leave-one-pose-out, or split.TIME_BLOCKS blocks)
 # A plausible size per parameter unit (machine-tool practice): used only to decide whether an
 # effect of realistic size would be seen at all on this probing pattern.
 TYPICAL = {"um": 10.0, "urad": 10.0, "um/h": 10.0, "um/m": 10.0, "urad/m": 100.0,
@@ -57,9 +62,12 @@ class Options:
     families: Sequence[str] = FAMILIES
     n_folds: int = DEFAULT_FOLDS
     max_effects: int = 3
-    # Effects the twin already models, with their parameters (effect units): removed from the
-    # observations before the gap is measured; the same instances are not offered again.
-    known: Sequence[tuple[Effect, np.ndarray]] = ()
+    # Effects the twin already models: (effect, params in effect units) — removed from the
+    # observations as given — or (effect, None): added to the twin and fitted with the setup
+    # and links on the training data of every fold. Neither is offered again as a candidate.
+    known: Sequence[tuple[Effect, np.ndarray | None]] = ()
+    split: str = "auto"  # internal split without a hold-out log: auto | pose | time (split.py)
+    gravity_dir: Sequence[float] | None = None  # machine file ``gravity``; None: heuristic
 
 
 def _merge(train: TouchData, holdout: TouchData | None) -> tuple[TouchData, np.ndarray]:
@@ -78,22 +86,6 @@ def _whiteners(groups: Groups) -> np.ndarray:
     cov[:, :3, :3] = groups.centre_cov_um2
     cov[:, 3, 3] = groups.sigma_touch_um**2
     return np.linalg.inv(np.linalg.cholesky(cov))
-
-
-def _folds(groups: Groups, is_holdout: np.ndarray, n_folds: int) -> tuple[np.ndarray, str]:
-    if is_holdout.any():
-        return np.where(is_holdout, 0, -1), "separate hold-out log"
-    # Leave-poses-out, poses in time order, contiguous blocks: also time blocks for drift.
-    c = groups.centres
-    key = c.pose  # the repeats of a pose are held out together
-    first_t = {k: c.t_s[key == k].min() for k in np.unique(key)}
-    order = sorted(first_t, key=first_t.get)
-    n = len(order)
-    k = n if n_folds <= 0 else max(2, min(n_folds, n))
-    rank = {p: i for i, p in enumerate(order)}
-    fold = np.array([rank[x] * k // n for x in key])
-    what = "leave-one-pose-out" if k == n else f"{k} folds of contiguous poses in time order"
-    return fold, f"cross-validation, {what} (poses in time order: also time blocks)"
 
 
 def diagnose(machine: Machine, artefact: Artefact, touches: TouchData, stylus_radius_mm: float,
@@ -141,6 +133,67 @@ def _repeat_floor(groups: Groups) -> tuple[Groups, str]:
                     f"({std:.3f} µm vs {sphere:.3f} µm from the form residuals, {dof} dof)")
 
 
+def _add_known(problem: Problem, known: Sequence[tuple[Effect, np.ndarray | None]], twin: Twin,
+               groups: Groups, ctx: EffectContext, ball_jac: np.ndarray, base_pred_mm: np.ndarray
+               ) -> tuple[list[tuple[Effect, np.ndarray]], list[Candidate]]:
+    """Effects the twin already models. Given parameters: their contribution leaves the
+    observations. Parameters to fit: their visible directions (as for a candidate) join the
+    twin's columns, so every fold refits them with the setup and links on its training data
+    and the gap is what remains."""
+    fixed, fitted = [], []
+    for eff, theta in known:
+        cols = effect_columns(eff, twin, groups, ctx, ball_jac, base_pred_mm)
+        if theta is not None:
+            theta = np.asarray(theta, float)
+            problem.y_um = problem.y_um - cols @ theta
+            fixed.append((eff, theta))
+            continue
+        _, r, basis = projected(problem, problem.base, cols, typical_size(eff))
+        fitted.append(Candidate(eff, np.einsum("gom,mr->gor", cols, basis), r, basis))
+    if fitted:
+        problem.base = np.concatenate([problem.base, *[c.cols for c in fitted]], axis=2)
+        problem._base_u = None
+    return fixed, fitted
+
+
+def _known_report(fixed: list[tuple[Effect, np.ndarray]], fitted: list[Candidate],
+                  full: FullFit, n_twin: int) -> list[dict]:
+    out = [{"effect": e.family, "axis": e.axis, "fitted": False, "visible_dof": None,
+            "n_params": e.n_params,
+            "params": {n: {"value": float(v), "std": None, "unit": u} for n, v, u in
+                       zip(e.param_names, theta, e.units, strict=True)}} for e, theta in fixed]
+    at = n_twin
+    for c in fitted:
+        r = c.cols.shape[2]
+        params = effect_params(c.effect, c.basis, full.beta[at:at + r],
+                               full.cov[at:at + r, at:at + r]) if r else {}
+        at += r
+        out.append({"effect": c.effect.family, "axis": c.effect.axis, "fitted": True,
+                    "visible_dof": c.visible_dof, "n_params": c.effect.n_params,
+                    "params": params} | ({} if r else {"note": "not visible on this probing "
+                                                       "pattern: nothing to fit"}))
+    return out
+
+
+def _time_check(problem: Problem, groups: Groups, is_ho: np.ndarray, selected: list[Candidate],
+                split_mode: str, frac: float) -> dict | None:
+    """A selection resting on a time-dependent effect, found leaving poses out, must also
+    predict contiguous stretches of the run it did not see (split.py): the same twin and
+    effects, judged on time blocks, must still explain half of the held-out excess."""
+    if split_mode != "pose+time" or frac < 0.5 \
+            or not any(c.effect.family in TIME_FAMILIES for c in selected):
+        return None
+    fold, _, _ = folds(groups, is_ho, "time")
+    tp = Problem(problem.y_um, problem.base, problem.whiten, fold)
+    before = held_out(tp, tp.base)
+    after = held_out(tp, columns(tp, [c.cols for c in selected]))
+    f = explained(before, after)
+    return {"split": f"{TIME_BLOCKS} contiguous time blocks", "explained_fraction": round(f, 4),
+            "explained_fraction_pose": round(frac, 4),
+            "holdout_rms_before_um": round(before.rms_um, 4),
+            "holdout_rms_after_um": round(after.rms_um, 4), "confirmed": bool(f >= 0.5)}
+
+
 def _analyse(machine: Machine, artefact: Artefact, data: TouchData, groups: Groups,
              is_ho: np.ndarray, opt: Options) -> tuple[dict, tuple[float, int] | None]:
     whiten = _whiteners(groups)
@@ -148,13 +201,12 @@ def _analyse(machine: Machine, artefact: Artefact, data: TouchData, groups: Grou
     twin = fit_twin(machine, artefact, groups.centres.subset(train), whiten[train, :3, :3])
     pred = twin.predicted_um(groups.centres, groups)
     base_pred_mm, _ = predict(machine, artefact, twin.layout, twin.p, groups.centres)
-    base, ball_jac = twin.base_columns(groups.centres, groups, base_pred_mm)
-    problem = Problem(groups.obs_um() - pred, base, whiten, np.zeros(len(groups), int))
-    problem.fold, split = _folds(groups, is_ho, opt.n_folds)
+    twin_cols, ball_jac = twin.base_columns(groups.centres, groups, base_pred_mm)
+    problem = Problem(groups.obs_um() - pred, twin_cols, whiten, np.zeros(len(groups), int))
+    problem.fold, split, split_mode = folds(groups, is_ho, opt.split, opt.n_folds)
     ctx = touch_context(data, twin)
-    for eff, theta in opt.known:
-        cols = effect_columns(eff, twin, groups, ctx, ball_jac, base_pred_mm)
-        problem.y_um = problem.y_um - cols @ np.asarray(theta, float)
+    fixed, fitted = _add_known(problem, opt.known, twin, groups, ctx, ball_jac, base_pred_mm)
+    base = problem.base  # the twin: setup + links (+ the known effects fitted with them)
     known = {e.label for e, _ in opt.known}
 
     noise_floor = float(np.sqrt(np.mean(
@@ -171,7 +223,7 @@ def _analyse(machine: Machine, artefact: Artefact, data: TouchData, groups: Grou
 
     cands: list[Candidate] = []
     invisible: list[dict] = []
-    for eff in library(machine, artefact.ids):
+    for eff in library(machine, artefact.ids, gravity_dir=opt.gravity_dir):
         if eff.family not in opt.families or eff.label in known:
             continue
         cols = effect_columns(eff, twin, groups, ctx, ball_jac, base_pred_mm)
@@ -210,11 +262,14 @@ def _analyse(machine: Machine, artefact: Artefact, data: TouchData, groups: Grou
         })
 
     frac = explained(base_ho, final_ho)
+    time_check = _time_check(problem, groups, is_ho, selected, split_mode, frac)
     refined = None
-    if selected:
+    if selected or fitted:
+        # The form residuals that set the floor also carry the fitted effects' sphere
+        # distortion: the floor is estimated again without it (see ``diagnose``).
         full = fit(problem, columns(problem, [c.cols for c in selected]))
         e_form = full.e_um[:, 3]
-        dof = max(len(e_form) - 1 - sum(c.visible_dof for c in selected), 1)
+        dof = max(len(e_form) - 1 - sum(c.visible_dof for c in (*selected, *fitted)), 1)
         refined = (float(max(np.sqrt(np.sum(e_form**2) / dof), 1e-3)), dof)
     radius_dev = groups.radius_dev_um
     se = float(np.std(radius_dev, ddof=1) / np.sqrt(len(radius_dev))) if len(radius_dev) > 1 \
@@ -237,15 +292,23 @@ def _analyse(machine: Machine, artefact: Artefact, data: TouchData, groups: Grou
         else:
             effect, axis = "none", None
             message = "held-out gap consistent with the probing noise floor"
-    elif selected and frac >= 0.5:
+    elif selected and frac >= 0.5 and (time_check is None or time_check["confirmed"]):
         effect, axis = selected[0].effect.family, selected[0].effect.axis
         names = ", ".join(c.label for c in selected)
         message = f"selected {names}: explains {100 * frac:.0f} % of the held-out excess"
+        if fitted or fixed:
+            message += " left by the known effects"
     else:
         effect, axis = "unexplained", None
         where = ", ".join(f"{c.by} {c.key}" for c in sig_cells[:3]) or "no single breakdown"
         message = f"significant gap that no library effect explains; largest at {where}"
-        if repeat_floor_um(groups) is None:
+        if time_check is not None:
+            names = ", ".join(c.label for c in selected)
+            message += (f"; {names} explains {100 * frac:.0f} % leaving poses out but only "
+                        f"{100 * time_check['explained_fraction']:.0f} % of held-out stretches "
+                        "of the run (time blocks): its time course does not extrapolate — a "
+                        "drift of another shape (a thermal cycle, a step)?")
+        elif repeat_floor_um(groups) is None:
             message += ("; without repeats the floor knows only the trigger noise — a "
                         "non-repeatable centre scatter (indexing, clamping) looks like this: "
                         "run the plan with repeats ≥ 2 to measure it")
@@ -264,8 +327,12 @@ def _analyse(machine: Machine, artefact: Artefact, data: TouchData, groups: Grou
                   "holdout_floor_um": round(holdout_floor, 4),
                   "radius_dev_mean_um": round(mean_dev, 4)},
         "split": split,
+        "split_mode": split_mode,
+        "time_check": time_check,
+        "known": _known_report(fixed, fitted, base_full, twin_cols.shape[2]),
         "twin": {"links": list(twin.layout.links), "unobservable": twin.dropped,
-                 "n_params": n_base, "groups_train": int(train.sum()),
+                 "n_params": twin_cols.shape[2], "n_known_params": n_base - twin_cols.shape[2],
+                 "groups_train": int(train.sum()),
                  "groups_holdout": int(is_ho.sum()) if is_ho.any() else len(groups)},
         "baseline": {"train_rms_um": round(float(np.sqrt(np.mean(base_full.e_um**2))), 4),
                      "holdout_rms_um": round(base_ho.rms_um, 4),

@@ -18,7 +18,7 @@ import numpy as np
 
 from identification.effects import FAMILIES, Effect, library, make_effect
 from identification.gap.data import group_touches
-from identification.gap.diagnose import TYPICAL, diagnose
+from identification.gap.diagnose import TYPICAL, Options, diagnose
 from identification.gap.simlog import Truth, simulate
 from identification.gap.twin import fit_twin
 from identification.kinematics import Machine
@@ -103,21 +103,25 @@ def _visible_rms(machine: Machine, artefact: Artefact, poses: Sequence[tuple[flo
     return vis, float(np.sqrt(np.mean(y**2))), floor
 
 
-def _effect_for(scenario: str, axis: str | None, machine: Machine, artefact: Artefact) -> Effect:
+def _effect_for(scenario: str, axis: str | None, machine: Machine, artefact: Artefact,
+                gravity_dir: Sequence[float] | None = None) -> Effect:
     if scenario == "artefact_instability":
         return make_effect(scenario, axis, machine, ball_index=artefact.ids.index(axis))
+    if scenario == "gravity_sag":
+        return make_effect(scenario, axis, machine, gravity_dir=gravity_dir)
     return make_effect(scenario, axis, machine)
 
 
 def run_case(machine: Machine, artefact: Artefact, poses: Sequence[tuple[float, float]],
              stylus_r: float, scenario: str, axis: str | None, seed: int, plan: str = "",
-             noise_um: float = 0.5, factor: float = 5.0) -> Case:
+             noise_um: float = 0.5, factor: float = 5.0, split: str = "auto",
+             gravity_dir: Sequence[float] | None = None) -> Case:
     rng = np.random.default_rng(seed)
     base = _base_truth(machine, artefact, rng)
     truth = Truth(base.links, base.ball_setup_mm, base.tip_setup_mm)
     displaced = None
     if scenario in FAMILIES:
-        eff = _effect_for(scenario, axis, machine, artefact)
+        eff = _effect_for(scenario, axis, machine, artefact, gravity_dir)
         typical = np.array([TYPICAL.get(u, 1.0) for u in eff.units])
         # Draw a random parameter vector of typical size; redraw one that is mostly absorbed by
         # the twin (scaling its small visible part up to 5× the floor would inject an absurd
@@ -141,7 +145,8 @@ def run_case(machine: Machine, artefact: Artefact, poses: Sequence[tuple[float, 
         truth.effects = [(e, p * k) for e, p in truth.effects]
         truth.pose_offsets_mm = {i: o * k for i, o in truth.pose_offsets_mm.items()}
     data = simulate(machine, artefact, poses, truth, stylus_r, noise_um, seed=seed + 7919)
-    rep = diagnose(machine, artefact, data, stylus_r)
+    rep = diagnose(machine, artefact, data, stylus_r,
+                   options=Options(split=split, gravity_dir=gravity_dir))
     top = rep["candidates"][0] if rep["candidates"] else None
     floor = rep["noise_floor_um"]
     after = (top["holdout_rms_um"] / floor) if top else float("nan")
@@ -165,11 +170,12 @@ def run_case(machine: Machine, artefact: Artefact, poses: Sequence[tuple[float, 
 
 
 def visible(machine: Machine, artefact: Artefact, poses: Sequence[tuple[float, float]],
-            stylus_r: float, family: str, axis: str | None) -> bool:
+            stylus_r: float, family: str, axis: str | None,
+            gravity_dir: Sequence[float] | None = None) -> bool:
     """Would a typical-size instance be seen at all (> 1 % of the floor) on these poses?"""
     rng = np.random.default_rng(0)
     base = _base_truth(machine, artefact, rng)
-    eff = _effect_for(family, axis, machine, artefact)
+    eff = _effect_for(family, axis, machine, artefact, gravity_dir)
     theta = np.array([TYPICAL.get(u, 1.0) for u in eff.units])
     inj = Truth(base.links, base.ball_setup_mm, base.tip_setup_mm, [(eff, theta)])
     vis, _, unit_floor = _visible_rms(machine, artefact, poses, base, inj, stylus_r)
@@ -183,7 +189,8 @@ def axes_of(family: str, machine: Machine, artefact: Artefact) -> list[str | Non
 
 def run(machine: Machine, artefact: Artefact, plans: dict[str, Sequence[tuple[float, float]]],
         stylus_r: float, seeds: int, scenarios: Sequence[str] = (*FAMILIES, *CONTROLS),
-        skip: Sequence[tuple[str, str | None]] = (), progress=None) -> Summary:
+        skip: Sequence[tuple[str, str | None]] = (), progress=None, split: str = "auto",
+        gravity_dir: Sequence[float] | None = None) -> Summary:
     """Every scenario × plan × seed; a family's axis cycles with the seed. ``skip`` lists
     instances that are invisible on the machine (e.g. angular motion of the axis carrying a
     zero-length tool) — they are reported by the diagnosis as invisible, not tested here."""
@@ -192,12 +199,13 @@ def run(machine: Machine, artefact: Artefact, plans: dict[str, Sequence[tuple[fl
         for sc in scenarios:
             axes = axes_of(sc, machine, artefact) if sc in FAMILIES else [None]
             axes = [a for a in axes if (sc, a) not in skip
-                    and (sc not in FAMILIES or visible(machine, artefact, poses, stylus_r, sc, a))]
+                    and (sc not in FAMILIES or visible(machine, artefact, poses, stylus_r, sc, a,
+                                                          gravity_dir))]
             axes = axes or [None]
             for s in range(seeds):
                 ax = axes[s % len(axes)]
                 case = run_case(machine, artefact, poses, stylus_r, sc, ax, 1000 * s + 17,
-                                plan)
+                                plan, split=split, gravity_dir=gravity_dir)
                 out.cases.append(case)
                 if progress:
                     progress(case)
