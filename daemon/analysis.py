@@ -11,7 +11,13 @@ from typing import Any
 import numpy as np
 
 from daemon.probelog import CentreData
-from identification.analyses import clusters, distance_analysis, validate, volumetric
+from identification.analyses import (
+    clusters,
+    distance_analysis,
+    revisits,
+    validate,
+    volumetric,
+)
 from identification.estimate import RankDeficientError, estimate
 from identification.kinematics import Machine
 from identification.model import Artefact
@@ -118,6 +124,19 @@ def analyse_centres(machine: Machine, artefact: Artefact, data: CentreData, *,
                      "frame, µm",
         },
     }
+    rv = revisits(c, data.repeat, ids)
+    if rv:
+        worst = max(rv, key=lambda r: r.norm_um)
+        out["stability"] = {
+            "convention": "ball centre at its last visit − at its first visit of the same "
+                          "pose, controller X Y Z, µm (thermal drift, loose ball, probe drift)",
+            "max_shift_um": round(worst.norm_um, 4),
+            "worst": {"pose": worst.pose, "ball": worst.ball},
+            "span_min": round(max(r.dt_s for r in rv) / 60.0, 3),
+            "revisits": [{"pose": r.pose, "ball": r.ball, "repeats": [r.repeat_first,
+                                                                       r.repeat_last],
+                          "dt_min": round(r.dt_s / 60.0, 3), "shift_um": _v(r.shift_um),
+                          "norm_um": round(r.norm_um, 4)} for r in rv]}
     sc = est.scale_um_per_m
     if sc is not None:
         out["scale_um_per_m"] = {"value": round(sc[0], 4), "std": round(sc[1], 4)}

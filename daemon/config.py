@@ -220,6 +220,10 @@ class PlanFile(_Strict):
     clearance_mm: float = Field(10.0, gt=0, le=500)
     dwell_s: float = Field(0.0, ge=0, le=10)
     repeats: int = Field(1, ge=1, le=20)
+    # Re-probe the first pose once more at the end of the run: the shift of its ball centres
+    # between the two visits is the run's thermal stability (analysis "stability", judged by
+    # the health limit run_drift_um). Costs one pose.
+    drift_check: bool = False
     _n = field_validator("name")(_safe_name)
 
     @model_validator(mode="after")
@@ -246,6 +250,7 @@ class Plan(_Strict):
     clearance_mm: float
     dwell_s: float
     repeats: int
+    drift_check: bool = False
 
     @property
     def stylus_radius_mm(self) -> float:
@@ -352,7 +357,8 @@ def plan_from_dict(data: Any, path: Path | str = "<plan>") -> Plan:
                 stylus_length_mm=pf.stylus_length_mm, stem_diameter_mm=pf.stem_diameter_mm,
                 poses=poses,
                 feeds=pf.feeds, standoff_mm=pf.standoff_mm, overtravel_mm=pf.overtravel_mm,
-                clearance_mm=pf.clearance_mm, dwell_s=pf.dwell_s, repeats=pf.repeats)
+                clearance_mm=pf.clearance_mm, dwell_s=pf.dwell_s, repeats=pf.repeats,
+                drift_check=pf.drift_check)
 
 
 def load_plan(path: Path | str) -> Plan:

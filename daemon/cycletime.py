@@ -20,7 +20,7 @@ import numpy as np
 from scipy.sparse.csgraph import minimum_spanning_tree
 from scipy.spatial.distance import cdist
 
-from daemon.program import Program
+from daemon.program import Program, plan_visits
 
 
 @dataclass(frozen=True)
@@ -94,7 +94,7 @@ def lower_bound(prog: Program) -> float:
         p = np.array(pts)
         if len(p) > 1:
             tour_mm += float(minimum_spanning_tree(cdist(p, p)).sum())
-    rot = [np.array([p.b_deg, p.c_deg]) for p in plan.poses] * plan.repeats
+    rot = [np.array([plan.poses[ip].b_deg, plan.poses[ip].c_deg]) for _, ip in plan_visits(plan)]
     index_s = sum(_index_s(prog, a, b) for a, b in itertools.pairwise(rot))
     dwell_s = plan.dwell_s * len(prog.touches)
     return probe_s + tour_mm / dyn.rapid_mm_min * 60.0 + index_s + dwell_s

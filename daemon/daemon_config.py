@@ -66,13 +66,15 @@ class TolerancesFile(_Strict):
     sphere_radius_spread_um: float | None = Field(5.0, gt=0)
     sphere_form_um: float | None = Field(None, gt=0)
     coverage_k: float = Field(2.0, ge=0, le=5)
+    run_drift_um: float | None = Field(None, gt=0)
 
     def to_tolerances(self) -> Tolerances:
         conv = (lambda x: x.to_limit() if x is not None else None)  # noqa: E731
         return Tolerances({k: v.to_limit() for k, v in self.links.items()},
                           conv(self.default_translation_um), conv(self.default_rotation_urad),
                           conv(self.volumetric_max_um), self.residual_rms_um,
-                          self.sphere_radius_spread_um, self.sphere_form_um, self.coverage_k)
+                          self.sphere_radius_spread_um, self.sphere_form_um, self.coverage_k,
+                          self.run_drift_um)
 
 
 class TriggersFile(_Strict):

@@ -24,7 +24,7 @@ ROOT = Path(__file__).resolve().parents[1]
 CONFIG = ROOT / "config"
 VERDICT_NAMES = {1: "PASS", 2: "WARN", 3: "FAIL", 4: "ERROR"}
 MACHINE, ARTEFACT = "machines/thesis_wcbxfzyt.yaml", "artefacts/thesis_4ball.yaml"
-PLAN, ERRORS = "plans/thesis_annexB_14poses.yaml", "errors/thesis_tableB2.yaml"
+PLAN, ERRORS = "plans/shift_start_14poses.yaml", "errors/thesis_tableB2.yaml"
 
 
 def _daemon_yaml(work: Path, url: str, pki: Path, server_cert: Path, token_file: Path) -> str:
@@ -52,6 +52,7 @@ machines:
       default_translation_um: {{warn: 150, fail: 250}}
       volumetric_max_um: {{warn: 150, fail: 250}}
       residual_rms_um: 5
+      run_drift_um: 8
 """
 
 
@@ -117,9 +118,15 @@ async def demo(time_scale: float, work: Path) -> int:
             print(f"  - {reason}")
         report = v.get("report")
         if report:
-            links = json.loads(Path(report).with_suffix(".json").read_text())["analysis"]["links"]
+            analysis = json.loads(Path(report).with_suffix(".json").read_text())["analysis"]
             print("identified (µrad / µm): " + ", ".join(
-                f"{k} {d['value']:+.1f}±{d['std']:.1f}" for k, d in sorted(links.items())))
+                f"{k} {d['value']:+.1f}±{d['std']:.1f}"
+                for k, d in sorted(analysis["links"].items())))
+            stab = analysis.get("stability")
+            if stab:
+                print(f"stability: pose {stab['worst']['pose']} probed again at the end, "
+                      f"largest ball-centre shift {stab['max_shift_um']:.1f} µm between its "
+                      f"two visits (health limit 8 µm)")
         print(f"report: {report}")
         print(f"demo wall time {time.monotonic() - t0:.1f} s")
         return 0 if verdict in ("PASS", "WARN", "FAIL") else 1

@@ -38,6 +38,7 @@ class Tolerances:
     sphere_radius_spread_um: float | None = 5.0  # |fitted radius − run median| per ball-pose
     sphere_form_um: float | None = None  # sphere-fit form residual RMS per ball-pose
     coverage_k: float = 2.0  # uncertainty guard band for the WARN-on-doubt rule
+    run_drift_um: float | None = None  # ball centre shift between two visits of one pose
 
 
 @dataclass(frozen=True)
@@ -172,6 +173,17 @@ def _health(analysis: dict[str, Any], tol: Tolerances) -> list[Check]:
         out.append(Check(f"sphere form, ball {worst['ball']} pose {worst['pose']}",
                          worst["form_rms_um"], None, "µm", "ERROR" if bad else "PASS",
                          f"health limit {tol.sphere_form_um:g} µm"))
+    stab = analysis.get("stability")
+    if tol.run_drift_um is not None and stab:
+        w, span = stab["worst"], stab.get("span_min")
+        bad = stab["max_shift_um"] > tol.run_drift_um
+        over = f" over {span:.0f} min" if span is not None else ""
+        out.append(Check(f"revisit shift, ball {w['ball']} pose {w['pose']}",
+                         float(stab["max_shift_um"]), None, "µm", "ERROR" if bad else "PASS",
+                         f"health limit {tol.run_drift_um:g} µm{over}"
+                         + (": machine or artefact not thermally stable during the run (warm "
+                            "up, check the ball is tight) — measurement not trusted"
+                            if bad else "")))
     # the residual last: a bad sphere (named above) is usually what inflates it
     rms = analysis.get("residual_rms_um")
     if tol.residual_rms_um is not None and rms is not None:

@@ -271,26 +271,36 @@ def build_program(machine: Machine, machine_file: MachineFile, artefact: Artefac
     builder.emit("rapid", tgt, pose=0)
     prev_rot: tuple[float, float] | None = None
     seq = 0
-    for rep in range(plan.repeats):
-        for ip, (pose, pf) in enumerate(zip(plan.poses, frames_, strict=True)):
-            rot = (pose.b_deg, pose.c_deg)
-            if prev_rot is not None and rot != prev_rot:
-                z_idx = sweep_height(prev_rot, rot)
-                if sgn * z_idx > sgn * builder.pos[k_ret]:
-                    tgt = [None] * 5
-                    tgt[k_ret] = z_idx
-                    builder.emit("rapid", tgt, pose=ip)
-            if rot != prev_rot:
-                builder.emit("rapid", [None, None, None, rot[0], rot[1]], pose=ip)
-            prev_rot = rot
-            k2, rate2 = retract_axis(pf)
-            if k2 != k_ret or abs(rate2 - rate) > 1e-9:
-                raise ProgramError(f"pose {ip}: the retract axis changes with the rotary pose")
-            seq = _pose_touches(prog, builder, pf, ip, rep, seq, balls_w, state, z_required)
+    for rep, ip in plan_visits(plan):
+        pose, pf = plan.poses[ip], frames_[ip]
+        rot = (pose.b_deg, pose.c_deg)
+        if prev_rot is not None and rot != prev_rot:
+            z_idx = sweep_height(prev_rot, rot)
+            if sgn * z_idx > sgn * builder.pos[k_ret]:
+                tgt = [None] * 5
+                tgt[k_ret] = z_idx
+                builder.emit("rapid", tgt, pose=ip)
+        if rot != prev_rot:
+            builder.emit("rapid", [None, None, None, rot[0], rot[1]], pose=ip)
+        prev_rot = rot
+        k2, rate2 = retract_axis(pf)
+        if k2 != k_ret or abs(rate2 - rate) > 1e-9:
+            raise ProgramError(f"pose {ip}: the retract axis changes with the rotary pose")
+        seq = _pose_touches(prog, builder, pf, ip, rep, seq, balls_w, state, z_required)
     tgt = [None] * 5
     tgt[k_ret] = z_start
-    builder.emit("rapid", tgt, pose=len(plan.poses) - 1)
+    builder.emit("rapid", tgt, pose=ip)
     return prog
+
+
+def plan_visits(plan: Plan) -> list[tuple[int, int]]:
+    """(repeat, pose index) of every visit in run order: the poses ``repeats`` times, then —
+    with ``drift_check`` — the first pose once more as the next repeat (its centres against
+    the first visit's give the run's thermal stability)."""
+    visits = [(rep, ip) for rep in range(plan.repeats) for ip in range(len(plan.poses))]
+    if plan.drift_check:
+        visits.append((plan.repeats, 0))
+    return visits
 
 
 def _pose_touches(prog: Program, bld: _Builder, pf: PoseFrame, ip: int, rep: int, seq: int,

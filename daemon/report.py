@@ -213,6 +213,11 @@ residual RMS {{ '%.2f' % analysis.residual_rms_um }} µm; condition number
 {{ '%.0f' % (100 * analysis.validation.explained_fraction) }} %.</p>{% endif %}
 <h2>Probe and ball health</h2><p>Largest sphere-fit radius deviation
 {{ '%.1f' % health_rad }} µm, largest form residual {{ '%.2f' % health_form }} µm.</p>
+{% if analysis.stability %}<p>Stability during the run (poses probed again): largest
+ball-centre shift between the first and last visit
+{{ '%.1f' % analysis.stability.max_shift_um }} µm (ball {{ analysis.stability.worst.ball }},
+pose {{ analysis.stability.worst.pose }}{% if analysis.stability.span_min is not none %}, over
+{{ '%.1f' % analysis.stability.span_min }} min{% endif %}).</p>{% endif %}
 {% if analysis.warnings %}<h2>Warnings</h2><ul>{% for w in analysis.warnings %}<li>{{ w }}</li>
 {% endfor %}</ul>{% endif %}
 <p><small>rumba-cnc report generated {{ generated }}; numbers also in {{ json_name }}.</small></p>

@@ -137,6 +137,40 @@ def distance_analysis(centres: Centres, ball_ids: Sequence[str],
 
 
 @dataclass
+class Revisit:
+    """One ball seen twice at the same indexation: the centre's shift between its first and
+    last visit of the run (controller X Y Z) — nothing of the machine's geometry changes it,
+    only time: thermal drift of machine or artefact, a loose ball, probe drift."""
+
+    pose: int
+    ball: str
+    repeat_first: int
+    repeat_last: int
+    dt_s: float
+    shift_um: np.ndarray  # (3,)
+
+    @property
+    def norm_um(self) -> float:
+        return float(np.linalg.norm(self.shift_um))
+
+
+def revisits(centres: Centres, repeat: np.ndarray, ball_ids: Sequence[str]) -> list[Revisit]:
+    """Every (pose, ball) measured in more than one repeat: last visit − first visit."""
+    out = []
+    t = centres.t_s if centres.t_s.size == len(centres) else np.full(len(centres), np.nan)
+    for pose in np.unique(centres.pose):
+        for ball in np.unique(centres.ball[centres.pose == pose]):
+            idx = np.flatnonzero((centres.pose == pose) & (centres.ball == ball))
+            if np.unique(repeat[idx]).size < 2:
+                continue
+            first, last = idx[np.argmin(repeat[idx])], idx[np.argmax(repeat[idx])]
+            out.append(Revisit(int(pose), ball_ids[int(ball)], int(repeat[first]),
+                               int(repeat[last]), float(t[last] - t[first]),
+                               (centres.xyz_mm[last] - centres.xyz_mm[first]) * 1e3))
+    return out
+
+
+@dataclass
 class Validation:
     """Prediction of held-out poses (annex B §B.5), µm."""
 

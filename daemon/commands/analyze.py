@@ -155,6 +155,13 @@ def render(r: dict[str, Any], console: Console) -> None:
             f"{v['rms_after_um']:.2f} µm; link errors explain "
             f"{100 * v['explained_fraction']:.1f} % (max) / "
             f"{100 * v['explained_fraction_rms']:.1f} % (RMS)")
+    if "stability" in r:
+        s = r["stability"]
+        span = f" over {s['span_min']:.1f} min" if s.get("span_min") is not None else ""
+        console.print(
+            f"[bold]Stability[/] (poses probed again): largest ball-centre shift "
+            f"{s['max_shift_um']:.2f} µm{span} (ball {s['worst']['ball']}, pose "
+            f"{s['worst']['pose']})")
     for w in r["warnings"]:
         console.print(f"[yellow]warning:[/] {w}")
 

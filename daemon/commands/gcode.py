@@ -64,7 +64,10 @@ def run(args: argparse.Namespace) -> int:
         sys.stdout.write(text)
     out = sys.stderr if not args.output else sys.stdout
     print(f"{dialect.name}: {len(prog.touches)} touches, {len(plan.poses)} poses × "
-          f"{len(artefact.balls)} balls × {plan.repeats} repeat(s), targets {prog.targets.source}"
-          f"; {ct.summary()}; safety: {report.moves} blocks checked, smallest margin "
+          f"{len(artefact.balls)} balls × {plan.repeats} repeat(s)"
+          f"{' + first pose again (drift check)' if plan.drift_check else ''}, targets "
+          f"{prog.targets.source}"
+          f"; {ct.summary()}; safety: {report.moves} blocks checked, smallest margin beyond "
+          f"the required standoff/clearance "
           f"{report.min_slack_mm:.3f} mm; generated in {gen_s:.2f} s", file=out)
     return 0

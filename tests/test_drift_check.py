@@ -1,0 +1,99 @@
+"""The plan's drift check: the first pose probed again at the end of the run, its ball-centre
+shift reported as the run's stability and judged by the health limit ``run_drift_um``."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+import yaml
+
+from daemon.analysis import analyse_centres
+from daemon.config import load_artefact, load_machine, load_plan
+from daemon.dialects import get_dialect
+from daemon.judge import Tolerances, judge
+from daemon.probelog import rows_to_centres
+from daemon.program import build_program
+from daemon.safety import check_program
+from simulators.errors_schema import errors_from_dict
+from simulators.offline import run_sync
+from simulators.truth import TruthModel
+
+MACHINE = "config/machines/thesis_wcbxfzyt.yaml"
+ARTEFACT = "config/artefacts/thesis_4ball.yaml"
+PLAN = "config/plans/shift_start_14poses.yaml"
+
+
+@pytest.fixture(scope="module")
+def setup():
+    m, mf = load_machine(MACHINE)
+    a = load_artefact(ARTEFACT)
+    plan = load_plan(PLAN)
+    return m, mf, a, plan, build_program(m, mf, a, plan)
+
+
+def test_the_first_pose_is_probed_again_at_the_end_as_the_next_repeat(setup):
+    _, _, a, plan, prog = setup
+    assert plan.drift_check and plan.repeats == 1
+    ids = [t.id for t in prog.touches]
+    assert len(ids) == (len(plan.poses) + 1) * len(a.balls) * 5
+    assert [i.seq for i in ids] == list(range(1, len(ids) + 1))
+    tail = ids[-len(a.balls) * 5:]
+    assert {(i.pose, i.repeat) for i in tail} == {(0, 1)}
+    assert {(i.pose, i.repeat) for i in ids[:-len(tail)]} == {
+        (p, 0) for p in range(len(plan.poses))}
+    last = prog.touches[-1]
+    assert (last.b_deg, last.c_deg) == (plan.poses[0].b_deg, plan.poses[0].c_deg)
+    check_program(prog)  # the way back to pose 0 (C 360 → 0 with B −45 → 0) is checked too
+    # the revisit's repeat index reaches the controller in every result line
+    text = get_dialect("fanuc").render(prog)
+    assert text.count("DPRNT[RUMBA") == len(ids)
+
+
+def _thesis_errors() -> dict:
+    return yaml.safe_load(Path("config/errors/thesis_tableB2.yaml").read_text())
+
+
+def _run(setup, effects: list[dict], seed: int = 5) -> dict:
+    m, mf, a, plan, prog = setup
+    errors = _thesis_errors()
+    errors["effects"] = effects
+    truth = TruthModel.build(m, mf, a, errors_from_dict(errors))
+    res = run_sync(truth, get_dialect("fanuc").render(prog), "fanuc", seed=seed)
+    assert res.state == "done", res.alarm
+    data = rows_to_centres(res.rows, a, plan.stylus_radius_mm)
+    return analyse_centres(m, a, data, validate_poses=plan.indices("validate"))
+
+
+def test_a_thermal_drift_during_the_run_makes_the_measurement_untrusted(setup):
+    # 240 µm/h in Z over the ~4 min between the two visits of pose 0: ≈ 15 µm
+    drifting = _run(setup, [{"family": "thermal_drift", "axis": "Z",
+                             "params": {"drift_Z_rate": 240}}])
+    stable = _run(setup, [])
+    tol = Tolerances(run_drift_um=8.0)
+    s = drifting["stability"]
+    assert s["worst"]["pose"] == 0 and 3.0 < s["span_min"] < 6.0
+    assert all(r["repeats"] == [0, 1] for r in s["revisits"]) and len(s["revisits"]) == 4
+    for r in s["revisits"]:  # the drift is along Z, as injected: 240 µm/h × Δt
+        assert r["shift_um"][2] == pytest.approx(240 * r["dt_min"] / 60, abs=2.5)
+    j = judge(drifting, tol)
+    assert j.status == "ERROR"
+    assert any("revisit shift" in r and "not thermally stable" in r for r in j.reasons)
+    assert stable["stability"]["max_shift_um"] < 5.0  # centre repeatability only (§3.4)
+    j0 = judge(stable, tol)
+    assert j0.status == "PASS"
+    assert any(c.quantity.startswith("revisit shift") for c in j0.checks)
+
+
+def test_without_drift_check_there_is_no_stability_block(setup):
+    m, mf, a, _, _ = setup
+    plan = load_plan("config/plans/thesis_annexB_14poses.yaml")
+    prog = build_program(m, mf, a, plan)
+    assert not any(t.id.repeat for t in prog.touches)
+    errors = errors_from_dict(_thesis_errors())
+    res = run_sync(TruthModel.build(m, mf, a, errors), get_dialect("fanuc").render(prog),
+                   "fanuc", seed=1)
+    out = analyse_centres(m, a, rows_to_centres(res.rows, a, plan.stylus_radius_mm),
+                          validate_poses=plan.indices("validate"))
+    assert "stability" not in out
+    assert judge(out, Tolerances(run_drift_um=8.0)).status == "PASS"
