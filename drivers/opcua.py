@@ -35,6 +35,7 @@ from drivers.link_config import OpcUaLinkConfig
 from drivers.opcua_space import BY_ROLE, RESULT_ROLES, RING_SLOTS, node_id
 
 logging.getLogger("asyncua").setLevel(logging.ERROR)
+log = logging.getLogger("rumba.opcua")
 SUBSCRIBED = ("request", "touch_counter", "state")
 NODE_ROLES = tuple(BY_ROLE)
 """Roles whose node id may be overridden in the link config (``nodes: {role: id}``)."""
@@ -138,7 +139,8 @@ class OpcUaLink(CncLink):
         self._client = client
 
     async def _read(self, roles: tuple[str, ...]) -> list[Any]:
-        assert self._client is not None
+        if self._client is None:
+            raise LinkError(f"opcua {self.cfg.url}: not connected")
         try:
             return await self._client.read_values([self._n[r] for r in roles])
         except (TimeoutError, ua.UaError, OSError, ConnectionError) as e:
@@ -193,13 +195,38 @@ class OpcUaLink(CncLink):
 
     async def _read_handshake(self) -> tuple[float, float]:
         # While the connection is down asyncua reconnects with backoff in the background;
-        # waiting for a start request simply keeps trying until it is back.
+        # waiting for a start request keeps trying until it is back. When that has not
+        # brought the session back within connect_timeout_s, start over with a new client:
+        # after a controller restart with security on, asyncua 2.1's reconnect can stay stuck
+        # (the server refuses every request with a bad signature) — seen in CI-load tests.
+        failing_since: float | None = None
         while True:
             try:
                 request, done = await self._read(("request", "done"))
                 return float(request), float(done)
-            except LinkError:
+            except LinkError as e:
+                now = time.monotonic()
+                failing_since = now if failing_since is None else failing_since
+                if self._client is None or now - failing_since > self.cfg.connect_timeout_s:
+                    log.warning("%s; no answer for %.0f s: reconnecting with a new session",
+                                e, now - failing_since)
+                    await self._fresh_session()
+                    failing_since = None
+                    continue
                 await asyncio.sleep(POLL_S)
+
+    async def _fresh_session(self) -> None:
+        """Drop the client (and its background reconnect) and connect anew; on failure the
+        caller keeps waiting and tries again later."""
+        old, self._client = self._client, None
+        if old is not None:
+            with contextlib.suppress(Exception):
+                await asyncio.wait_for(old.disconnect(), 2.0)
+        try:
+            await self.connect()
+        except LinkError as e:
+            log.warning("%s", e)
+            await asyncio.sleep(POLL_S)
 
     async def write_verdict(self, verdict: Verdict) -> None:
         await self._write("verdict", float(verdict.code))
