@@ -3,6 +3,7 @@ shift reported as the run's stability and judged by the health limit ``run_drift
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import pytest
@@ -97,3 +98,27 @@ def test_without_drift_check_there_is_no_stability_block(setup):
                           validate_poses=plan.indices("validate"))
     assert "stability" not in out
     assert judge(out, Tolerances(run_drift_um=8.0)).status == "PASS"
+
+
+def test_the_drift_check_revisit_is_not_taken_for_repeatability(setup, tmp_path):
+    # rumba gap pools the scatter between repeats into its noise floor; the one pose probed
+    # again at the end carries the drift of the whole run, so pooling it would hide that very
+    # drift behind a floor it inflated (before the fix: floor 1.7 µm, verdict "none" for a
+    # 3.7 µm X drift).
+    from daemon.cli import main
+    from daemon.probelog import write_log
+
+    m, mf, a, _, prog = setup
+    errors = _thesis_errors()
+    errors["effects"] = [{"family": "thermal_drift", "axis": "X",
+                          "params": {"drift_X_rate": 60}}]
+    res = run_sync(TruthModel.build(m, mf, a, errors_from_dict(errors)),
+                   get_dialect("fanuc").render(prog), "fanuc", seed=1)
+    log, out = tmp_path / "drift.csv", tmp_path / "gap.json"
+    write_log(log, res.rows)
+    assert main(["gap", "--log", str(log), "--machine", MACHINE, "--artefact", ARTEFACT,
+                 "--json", str(out)]) == 0
+    rep = json.loads(out.read_text())
+    assert rep["noise"]["repeat_floor_um"] is None
+    assert rep["noise_floor_um"] < 0.5  # the trigger noise, not the drift
+    assert rep["verdict"]["effect"] != "none"

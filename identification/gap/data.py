@@ -140,10 +140,21 @@ def group_touches(data: TouchData, artefact: Artefact, stylus_radius_mm: float) 
 
 def repeat_floor_um(groups: Groups) -> tuple[float, int] | None:
     """Centre repeatability (per-coordinate std, µm, and its dof) pooled over (pose, ball)
-    measured more than once, or None without repeats."""
-    key = groups.centres.pose * 100000 + groups.centres.ball
+    measured more than once, or None without repeats.
+
+    Only repeats that pass over most of the plan count: a single pose probed again at the end
+    (the plan's ``drift_check``) measures the drift over the whole run, the very thing the
+    diagnosis must be able to name — as a floor it would hide a thermal drift (a 3.7 µm drift
+    in X over the 14-pose run came out ``none`` at a 1.7 µm "floor")."""
+    c = groups.centres
+    poses_in = {int(r): np.unique(c.pose[groups.repeat == r]).size
+                for r in np.unique(groups.repeat)}
+    full = max(poses_in.values())
+    passes = [r for r, n in poses_in.items() if 2 * n >= full]
+    use = np.isin(groups.repeat, passes)
+    key = np.where(use, c.pose * 100000 + c.ball, -1)
     ss, dof = 0.0, 0
-    for k in np.unique(key):
+    for k in np.unique(key[use]):
         m = key == k
         if m.sum() > 1:
             x = groups.centres.xyz_mm[m] * 1e3
