@@ -138,26 +138,46 @@ def group_touches(data: TouchData, artefact: Artefact, stylus_radius_mm: float) 
                   sigma, dof, cov, int((~complete).sum()))
 
 
-def repeat_floor_um(groups: Groups) -> tuple[float, int] | None:
-    """Centre repeatability (per-coordinate std, µm, and its dof) pooled over (pose, ball)
-    measured more than once, or None without repeats.
+def repeat_scatter_um(groups: Groups) -> tuple[np.ndarray, int] | None:
+    """Centre scatter between repeats per controller axis (std x, y, z µm, and its dof),
+    pooled over the (pose, ball) measured more than once; None without repeats.
 
-    Only repeats that pass over most of the plan count: a single pose probed again at the end
+    Per axis: a probe's centre repeatability is anisotropic (thesis §3.4: 0.66 / 0.98 /
+    0.44 µm), and one pooled number would make the noisiest axis look like a gap. Only
+    repeats that pass over most of the plan count: a single pose probed again at the end
     (the plan's ``drift_check``) measures the drift over the whole run, the very thing the
-    diagnosis must be able to name — as a floor it would hide a thermal drift (a 3.7 µm drift
-    in X over the 14-pose run came out ``none`` at a 1.7 µm "floor")."""
+    diagnosis must be able to name. For the same reason the shift common to all centres of a
+    pass is removed (a drift between passes moves them alike; it is an effect, not scatter),
+    at the cost of one dof per extra pass. Before both rules a 3.7 µm X drift over the
+    14-pose run came out ``none`` at a "floor" it had inflated itself."""
     c = groups.centres
     poses_in = {int(r): np.unique(c.pose[groups.repeat == r]).size
                 for r in np.unique(groups.repeat)}
     full = max(poses_in.values())
     passes = [r for r, n in poses_in.items() if 2 * n >= full]
     use = np.isin(groups.repeat, passes)
-    key = np.where(use, c.pose * 100000 + c.ball, -1)
-    ss, dof = 0.0, 0
+    key = c.pose * 100000 + c.ball
+    res, rep, n_free = [], [], 0
     for k in np.unique(key[use]):
-        m = key == k
+        m = use & (key == k)
         if m.sum() > 1:
-            x = groups.centres.xyz_mm[m] * 1e3
-            ss += float(np.sum((x - x.mean(axis=0)) ** 2))
-            dof += 3 * (int(m.sum()) - 1)
-    return (float(np.sqrt(ss / dof)), dof) if dof else None
+            x = c.xyz_mm[m] * 1e3
+            res.append(x - x.mean(axis=0))
+            rep.append(groups.repeat[m])
+            n_free += int(m.sum()) - 1
+    if not res:
+        return None
+    r_all, rep_all = np.concatenate(res), np.concatenate(rep)
+    used = np.unique(rep_all)
+    for r in used:
+        r_all[rep_all == r] -= r_all[rep_all == r].mean(axis=0)
+    dof = n_free - (len(used) - 1)
+    if dof <= 0:
+        return None
+    return np.sqrt(np.sum(r_all ** 2, axis=0) / dof), int(3 * dof)
+
+
+def repeat_floor_um(groups: Groups) -> tuple[float, int] | None:
+    """The scatter between repeats as one number (RMS over x, y, z; µm) and its dof."""
+    rep = repeat_scatter_um(groups)
+    return None if rep is None else (float(np.sqrt(np.mean(rep[0] ** 2))), rep[1])

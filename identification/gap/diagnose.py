@@ -33,7 +33,13 @@ from identification.gap.attribute import (
     gap_p_value,
     score,
 )
-from identification.gap.data import Groups, TouchData, group_touches, repeat_floor_um
+from identification.gap.data import (
+    Groups,
+    TouchData,
+    group_touches,
+    repeat_floor_um,
+    repeat_scatter_um,
+)
 from identification.gap.linear import FullFit, Problem, columns, fit, held_out, projected
 from identification.gap.locate import breakdowns
 from identification.gap.split import TIME_BLOCKS, TIME_FAMILIES, folds
@@ -118,19 +124,23 @@ def diagnose(machine: Machine, artefact: Artefact, touches: TouchData, stylus_ra
 
 def _repeat_floor(groups: Groups) -> tuple[Groups, str]:
     """With repeated ball-poses, the centre scatter between repeats is the better floor: it
-    holds every non-repeatable error (indexing, short-term thermal), the form residual only the
-    trigger noise. If it is clearly larger, the centre covariances are scaled up to it."""
-    rep = repeat_floor_um(groups)
+    holds every non-repeatable error (indexing, clamping), the form residual only the trigger
+    noise. Where it is clearly larger, the difference is added per axis to the centre
+    covariances (an independent per-visit scatter on top of the sphere fit's)."""
+    rep = repeat_scatter_um(groups)
     if rep is None:
         return groups, ""
     std, dof = rep
-    sphere = float(np.sqrt(np.mean(np.trace(groups.centre_cov_um2, axis1=1, axis2=2)) / 3))
-    if dof < MIN_REPEAT_DOF or std <= REPEAT_INFLATE * sphere:
-        return groups, f"; repeats agree ({std:.3f} µm per coordinate, {dof} dof)"
-    scaled = replace(groups, centre_cov_um2=groups.centre_cov_um2 * (std / sphere) ** 2,
+    sphere = np.sqrt(np.mean(np.diagonal(groups.centre_cov_um2, axis1=1, axis2=2), axis=0))
+    xyz = "/".join(f"{v:.3f}" for v in std)
+    if dof < MIN_REPEAT_DOF or np.all(std <= REPEAT_INFLATE * sphere):
+        return groups, f"; repeats agree ({xyz} µm x/y/z, {dof} dof)"
+    extra = np.diag(np.maximum(std ** 2 - sphere ** 2, 0.0))
+    scaled = replace(groups, centre_cov_um2=groups.centre_cov_um2 + extra[None],
                      sigma_dof=min(groups.sigma_dof, dof))
-    return scaled, (f"; centre covariances scaled to the repeatability between repeats "
-                    f"({std:.3f} µm vs {sphere:.3f} µm from the form residuals, {dof} dof)")
+    return scaled, (f"; per-visit scatter between repeats added to the centre covariances "
+                    f"({xyz} µm x/y/z vs {'/'.join(f'{v:.3f}' for v in sphere)} µm from the "
+                    f"form residuals, {dof} dof)")
 
 
 def _add_known(problem: Problem, known: Sequence[tuple[Effect, np.ndarray | None]], twin: Twin,
