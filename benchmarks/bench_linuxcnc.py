@@ -1,14 +1,17 @@
-"""A 14-pose verification through LinuxCNC (linuxcncrsh, MDI streaming): wall time, time per
-touch, and the daemon's own overhead per touch (its CPU time and the time not spent waiting for
-LinuxCNC). Needs LinuxCNC (bash .ci/install-peers.sh linuxcnc); skipped with a note otherwise.
+"""A 14-pose verification through LinuxCNC, remote (linuxcncrsh, MDI streaming) and local (the
+``linuxcnc`` module, AUTO run of a program file): wall time, time per touch, and the daemon's own
+overhead per touch (its CPU time and the time not spent waiting for LinuxCNC), on one LinuxCNC.
+Needs LinuxCNC (bash .ci/install-peers.sh linuxcnc); skipped with a note otherwise.
 
-    .venv/bin/python -m benchmarks linuxcnc        (~5 min: 280 touches)
+    .venv/bin/python -m benchmarks linuxcnc        (~10 min: 2 x 280 touches)
+    .venv/bin/python -m benchmarks.bench_linuxcnc local-auto remote-mdi local-mdi
 """
 
 from __future__ import annotations
 
 import asyncio
 import shutil
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -28,9 +31,18 @@ MACHINE = ROOT / "config/machines/linuxcnc_xyzbc.yaml"
 ARTEFACT = ROOT / "config/artefacts/thesis_4ball.yaml"
 ERRORS = ROOT / "config/errors/linuxcnc_xyzbc.yaml"
 PLAN = ROOT / "config/plans/thesis_annexB_14poses.yaml"
+VARIANTS = ("remote-mdi", "local-auto")
 
 
-async def _run(setup: MachineSetup, port: int) -> dict:
+def _link(variant: str, peer: linuxcnc_peer.Peer) -> dict:
+    if variant == "remote-mdi":
+        return {"transport": "linuxcnc", "port": peer.port, "prelude_mdi": ["M429"]}
+    mode, run = variant.split("-")
+    return {"transport": "linuxcnc", "mode": mode, "run": run, "prelude_mdi": ["M429"],
+            "local_home": str(peer.dir / "home")}
+
+
+async def _run(setup: MachineSetup, link_cfg: dict) -> dict:
     waited = [0.0]
     ask = lcnc_link._Rsh.ask
 
@@ -52,7 +64,7 @@ async def _run(setup: MachineSetup, port: int) -> dict:
 
     lcnc_link._Rsh.ask = timed_ask  # type: ignore[method-assign]
     asyncio.sleep = timed_sleep  # type: ignore[assignment]
-    link = make_link({"transport": "linuxcnc", "port": port, "prelude_mdi": ["M429"]})
+    link = make_link(link_cfg)
     try:
         t0, c0 = time.perf_counter(), time.process_time()
         prepared = pipeline.prepare(setup, "bench")
@@ -76,9 +88,13 @@ async def _run(setup: MachineSetup, port: int) -> dict:
         await link.close()
 
 
-def main() -> None:
+def main(variants: tuple[str, ...] = VARIANTS) -> None:
     if shutil.which("linuxcnc", path="/usr/bin") is None:
         print("LinuxCNC not installed: skipped (bash .ci/install-peers.sh linuxcnc)")
+        return
+    unknown = [v for v in variants if v not in ("remote-mdi", "local-mdi", "local-auto")]
+    if unknown:
+        print(f"unknown variants {unknown}: remote-mdi, local-mdi, local-auto")
         return
     m, mf = load_machine(MACHINE)
     plan = load_plan(PLAN)
@@ -86,6 +102,7 @@ def main() -> None:
                          TriggersFile(), Tolerances(), 60.0, tuple(plan.indices("validate")),
                          False)
     truth = TruthModel.from_files(MACHINE, ARTEFACT, ERRORS)
+    results = {}
     with tempfile.TemporaryDirectory(prefix="rumba-bench-lcnc.") as tmp:
         spec = Path(tmp) / "spec.json"
         write_spec(truth, spec)
@@ -93,25 +110,32 @@ def main() -> None:
         peer = linuxcnc_peer.up(spec, workdir=Path(tmp) / "peer")
         t_up = time.perf_counter() - t0
         try:
-            r = asyncio.run(_run(setup, peer.port))
+            for v in variants:
+                results[v] = asyncio.run(_run(setup, _link(v, peer)))
         finally:
             t1 = time.perf_counter()
             linuxcnc_peer.down(peer.dir)
             t_down = time.perf_counter() - t1
-    n = max(r["touches"], 1)
-    print(f"plan {plan.name}: {r['touches']} touches, {r['blocks']} MDI blocks "
-          f"({r['blocks'] / n:.1f} per touch)")
-    print(f"LinuxCNC up {t_up:.1f} s, down {t_down:.1f} s")
-    print(f"prepare {r['prepare_s']:.2f} s | stream+capture {r['run_s']:.1f} s "
-          f"({r['run_s'] / n:.2f} s/touch) | identify {r['analyse_s']:.2f} s | "
-          f"total {r['total_s']:.1f} s")
-    print(f"daemon overhead per touch: CPU {r['cpu_run_s'] / n * 1e3:.1f} ms, not waiting "
-          f"for LinuxCNC {(r['run_s'] - r['io_wait_s']) / n * 1e3:.1f} ms "
-          f"(of {r['run_s'] / n * 1e3:.0f} ms)")
-    for name, v in r["links"].items():
-        want = truth.errors.links.get(name, 0.0)
-        print(f"  {name}: {v['value']:8.2f} ± {v['std']:5.2f} {v['unit']} (injected {want:g})")
+    print(f"plan {plan.name}; LinuxCNC up {t_up:.1f} s, down {t_down:.1f} s")
+    for v, r in results.items():
+        n = max(r["touches"], 1)
+        print(f"-- {v}: {r['touches']} touches, {r['blocks']} MDI blocks "
+              f"({r['blocks'] / n:.1f} per touch)")
+        print(f"prepare {r['prepare_s']:.2f} s | run+capture {r['run_s']:.1f} s "
+              f"({r['run_s'] / n:.3f} s/touch) | identify {r['analyse_s']:.2f} s | "
+              f"total {r['total_s']:.1f} s")
+        print(f"daemon overhead per touch: CPU {r['cpu_run_s'] / n * 1e3:.1f} ms, not waiting "
+              f"for LinuxCNC {(r['run_s'] - r['io_wait_s']) / n * 1e3:.1f} ms "
+              f"(of {r['run_s'] / n * 1e3:.0f} ms)")
+        for name, val in r["links"].items():
+            want = truth.errors.links.get(name, 0.0)
+            print(f"  {name}: {val['value']:8.2f} ± {val['std']:5.2f} {val['unit']} "
+                  f"(injected {want:g}, {abs(val['value'] - want) / val['std']:.1f} u)")
+    if len(results) > 1:
+        base = results[variants[0]]["run_s"]
+        print("run time vs " + variants[0] + ": " + ", ".join(
+            f"{v} {r['run_s'] / base:.2f}x" for v, r in results.items()))
 
 
 if __name__ == "__main__":
-    main()
+    main(tuple(sys.argv[1:]) or VARIANTS)

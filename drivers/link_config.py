@@ -96,6 +96,13 @@ class LinuxCncLinkConfig(_Strict):
 
     transport: Literal["linuxcnc"]
     mode: Literal["remote", "local"] = "remote"
+    # how the program runs: "mdi" streams it block by block (remote and local); "auto" writes
+    # it to a file on this PC and runs it in AUTO mode (local only; opt-in: LinuxCNC <= 2.9 can
+    # stop an AUTO probing program with "Queue is not empty after probing", config/linuxcnc/)
+    run: Literal["mdi", "auto"] = "mdi"
+    # local auto: folder of the per-run program file (default: the system temp folder); the
+    # LinuxCNC user must be able to read it
+    program_dir: str | None = Field(None, pattern=r"^/[^\x00-\x1f]{0,200}$")
     host: str = "127.0.0.1"
     port: int = Field(5007, ge=1, le=65535)  # linuxcncrsh --port
     hello_password: str = Field("EMC", pattern=r"^[A-Za-z0-9_.-]{1,64}$")
@@ -113,6 +120,13 @@ class LinuxCncLinkConfig(_Strict):
     connect_timeout_s: float = Field(10.0, gt=0)
     command_timeout_s: float = Field(120.0, gt=0)  # longest single block (a long rapid)
     poll_interval_s: float = Field(0.005, gt=0, le=1.0)  # operator_display while a touch runs
+
+    @model_validator(mode="after")
+    def _run_mode(self) -> LinuxCncLinkConfig:
+        if self.run == "auto" and self.mode == "remote":
+            raise ValueError("run: auto needs mode: local (the program file is written on the "
+                             "LinuxCNC PC; linuxcncrsh has no upload) — use run: mdi remotely")
+        return self
 
 
 class CanPanelConfig(_Strict):

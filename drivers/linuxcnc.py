@@ -1,11 +1,12 @@
-"""LinuxCNC link: streams the linuxcnc-dialect program block by block as MDI, remotely through
-linuxcncrsh (TCP) or locally through the ``linuxcnc`` Python module (drivers/linuxcnc_local.py).
+"""LinuxCNC link: runs the linuxcnc-dialect program remotely through linuxcncrsh (TCP, MDI
+streaming) or locally through the ``linuxcnc`` Python module (drivers/linuxcnc_local.py), there
+streaming too (``run: mdi``, the default) or, opt-in, as one AUTO run of a file (``run: auto``).
 
-Why MDI streaming: linuxcncrsh's ``set open FILE`` opens a path *on the LinuxCNC host* and it has
-no upload command, and the dialect's ``(LOG,…)`` writes a file there too; neither needs a shared
-file system when the daemon sends each block with ``set mdi`` (``set set_wait received``:
-LinuxCNC takes a block once the previous one has finished) and reads each touch result back
-through LinuxCNC's own message channel. Per program line (daemon/dialects.py,
+Remote, why MDI streaming: linuxcncrsh's ``set open FILE`` opens a path *on the LinuxCNC host*
+and it has no upload command, and the dialect's ``(LOG,…)`` writes a file there too; neither
+needs a shared file system when the daemon sends each block with ``set mdi`` (``set set_wait
+received``: LinuxCNC takes a block once the previous one has finished) and reads each touch
+result back through LinuxCNC's own message channel. Per program line (daemon/dialects.py,
 gcode_templates/linuxcnc/README.md):
 
 * ``%``, empty lines, plain comments, ``(LOGOPEN,…)``, ``(LOGCLOSE)``, ``M2``: not sent.
@@ -21,8 +22,30 @@ gcode_templates/linuxcnc/README.md):
   parameters of a line together, after substituting the line's message), the last of them
   together with the result line; everything else is sent as is.
 After every sent block ``get error`` is drained: any error stops the run with LinuxCNC's text.
-Cost: linuxcncrsh polls completion in 100 ms steps, so a block takes ≥ 0.1 s (~1.2 s per touch
-measured, config/linuxcnc/README.md), mostly hidden behind the motion of each block.
+Cost: every block starts and ends at rest, and linuxcncrsh polls completion in 100 ms steps
+(~1.2 s per touch measured, config/linuxcnc/README.md).
+
+Local AUTO run (``mode: local``, ``run: auto``): the program goes, line for line (so
+LinuxCNC's line numbers are the program's), into a per-run file in a private folder
+(``program_dir`` or the temp folder), with each ``(LOG,RUMBA …)`` as ``(DEBUG,RUMBA …)`` and the
+other ``(LOG…)`` comments neutralised (``auto_program``); the miss check stays (LinuxCNC's own
+G38.2 error aborts the program first). Prelude in MDI, then ``set mode auto``, ``set open``,
+``set run``; ``wait event`` returns LinuxCNC's messages in channel order. Checked on LinuxCNC
+2.9: a ``(DEBUG,…)`` after a G38.2 is shown once the probe move ended (a probe is a queue
+buster: the interpreter waits for the motion before it reads #5061…), in program order; a miss
+is an operator error "G38.2 move finished without making contact." with ``motion_line`` = the
+G38.2 line, and the program stops. A result → a hit; an error → ``ControllerAlarm`` naming the
+program line and touch; the end of the program with every touch → done (fewer: alarm). An
+absolute path needs no PROGRAM_PREFIX. After the run ``set plan_init`` unloads the file before
+it is deleted (else LinuxCNC's next MDI O-word call fails to reopen it); a run cancelled (abort)
+or failed drops the helper, which aborts its program and unloads the file; a killed LinuxCNC is
+``LOST`` in the helper → ``LinkError``, hits already yielded kept. Gain: no per-block stop or
+poll, 1 ms of daemon CPU per touch instead of 3-30 ms; the run is then bound by the program's
+own motion (14 poses: 318 s AUTO, 339 s remote MDI, 378 s local MDI). Why not the default:
+LinuxCNC 2.9's task can read the line after a G38.2 before the motion status shows the probe
+queued, and stops the program with "Queue is not empty after probing" (LinuxCNC issues #263,
+#662, #3650; fix PR #3971, not in 2.9) — seen here once in ~1750 AUTO touches; MDI waits for an
+empty queue and is immune. config/linuxcnc/README.md.
 
 Verdict write-back: ``M68 E<verdict_output> Q<code>`` (motion.analog-out-NN, immediate;
 config/linuxcnc/rumba_xyzbc.hal nets analog-out-00 to ``rumba-verdict``) and
@@ -36,9 +59,10 @@ import contextlib
 import logging
 import os
 import re
+import shutil
 import sys
+import tempfile
 from collections.abc import AsyncIterator
-from dataclasses import dataclass
 from pathlib import Path
 
 from daemon.messages import ProbeHit
@@ -52,78 +76,19 @@ from drivers.base import (
     Verdict,
 )
 from drivers.link_config import LinuxCncLinkConfig
+from drivers.linuxcnc_program import Step, auto_program, name_error, plan_steps, where
+
+__all__ = ["LinuxCncLink", "Step", "auto_program", "plan_steps"]
 
 log = logging.getLogger("rumba.linuxcnc")
-_ASSIGN = re.compile(r"^#\d+\s*=\s*(?:[-+]?[0-9.]+|#\d+)$")
-_LOG = re.compile(r"^\(LOG,(RUMBA .*)\)$", re.IGNORECASE)
-_SKIP = re.compile(r"^(%|\(.*\)|o\d+\s+(if|endif|else)\b.*|M0*2|M30)$", re.IGNORECASE)
-_MAX_LINE = 240  # RS274NGC lines are < 256 characters
 HELPER = Path(__file__).resolve().parent / "linuxcnc_local.py"
-
-
-@dataclass(frozen=True)
-class Step:
-    """One thing to do for a program line: an MDI block, or read a result."""
-
-    kind: str  # "mdi" | "result"
-    text: str
-    line: int  # 1-based program line
-    touch: str = ""  # identity of the touch a probing block belongs to (for messages)
-    prefix: str = ""  # result steps: parameter settings sent on the same MDI line
-
-
-def plan_steps(text: str) -> list[Step]:
-    """Turn the linuxcnc-dialect program into MDI steps (rules in the module docstring)."""
-    lines = text.replace("\r\n", "\n").split("\n")
-    steps: list[Step] = []
-    pending: list[tuple[int, str]] = []
-
-    def flush() -> None:
-        while pending:
-            first, merged = pending[0][0], pending[0][1]
-            del pending[0]
-            while pending and len(merged) + 1 + len(pending[0][1]) <= _MAX_LINE:
-                merged += " " + pending.pop(0)[1]
-            steps.append(Step("mdi", merged, first))
-
-    for n, raw in enumerate(lines, 1):
-        s = raw.strip()
-        if not s:
-            continue
-        if len(s) > _MAX_LINE or not s.isascii() or "\x00" in s:
-            raise LinkError(f"program line {n}: not a LinuxCNC MDI line (ASCII, < {_MAX_LINE})")
-        m = _LOG.match(s)
-        if m:
-            # the last settings ride on the result's MDI line (one block less per touch);
-            # LinuxCNC substitutes the message's parameters before the line's settings apply
-            prefix: list[str] = []
-            while pending and len(" ".join([pending[-1][1], *prefix])) + len(s) < _MAX_LINE:
-                prefix.insert(0, pending.pop()[1])
-            flush()
-            steps.append(Step("result", m.group(1), n, prefix=" ".join(prefix)))
-            continue
-        if _SKIP.match(s):
-            continue
-        if _ASSIGN.match(s):
-            pending.append((n, re.sub(r"\s*=\s*", "=", s)))
-            continue
-        flush()
-        steps.append(Step("mdi", s, n))
-    flush()
-    # name each probing block by the identity of the result line that follows it
-    ident = ""
-    for i in range(len(steps) - 1, -1, -1):
-        st = steps[i]
-        if st.kind == "result":
-            f = st.text.split()
-            ident = f"touch seq {f[1]} pose {f[3]} ball {f[4]} touch {f[5]}" if len(f) > 5 else ""
-        elif "G38" in st.text.upper():
-            steps[i] = Step(st.kind, st.text, st.line, ident)
-    return steps
+_WAIT_S = 0.5  # local AUTO: longest helper wait per `wait event` (abort and kill stay prompt)
 
 
 class _Rsh:
     """linuxcncrsh line protocol over TCP (replies end in \\r\\n or \\n\\r; echo turned off)."""
+
+    name = "linuxcncrsh"
 
     def __init__(self, cfg: LinuxCncLinkConfig) -> None:
         self.cfg = cfg
@@ -169,11 +134,11 @@ class _Rsh:
             try:
                 data = await asyncio.wait_for(self.reader.read(4096), timeout_s)
             except TimeoutError:
-                raise LinkError(f"linuxcncrsh silent for {timeout_s:g} s") from None
+                raise LinkError(f"{self.name} silent for {timeout_s:g} s") from None
             except OSError as e:
-                raise LinkError(f"linuxcncrsh connection lost: {e}") from None
+                raise LinkError(f"{self.name} connection lost: {e}") from None
             if not data:
-                raise LinkError("linuxcncrsh closed the connection (LinuxCNC stopped?)")
+                raise LinkError(f"{self.name} closed the connection (LinuxCNC stopped?)")
             self._buf += data
 
     async def ask(self, cmd: str, timeout_s: float | None = None) -> str:
@@ -192,6 +157,8 @@ class _Rsh:
 class _Local(_Rsh):
     """The same command subset answered by drivers/linuxcnc_local.py through the ``linuxcnc``
     module, in a child process of Debian's /usr/bin/python3 (the only one that has it)."""
+
+    name = "local LinuxCNC helper"
 
     def __init__(self, cfg: LinuxCncLinkConfig) -> None:
         super().__init__(cfg)
@@ -212,6 +179,12 @@ class _Local(_Rsh):
         if not rep.startswith("HELLO ACK"):
             raise LinkError(f"local LinuxCNC helper: {rep}")
 
+    async def line(self, timeout_s: float) -> str:
+        rep = await super().line(timeout_s)
+        if rep.startswith("LOST "):  # the helper saw LinuxCNC's task process die, and ended
+            raise LinkError(rep.removeprefix("LOST "))
+        return rep
+
     async def close(self) -> None:
         if self.proc is not None and self.proc.returncode is None:
             with contextlib.suppress(Exception):
@@ -225,11 +198,6 @@ class _Local(_Rsh):
         self.reader = self.writer = None
 
 
-def _where(step: Step) -> str:
-    where = f"program line {step.line} '{step.text}'" if step.line else f"'{step.text}'"
-    return where + (f" ({step.touch})" if step.touch else "")
-
-
 class LinuxCncLink(CncLink):
     """A LinuxCNC controller (see the module docstring for the protocol)."""
 
@@ -238,6 +206,10 @@ class LinuxCncLink(CncLink):
 
     def __init__(self, cfg: LinuxCncLinkConfig) -> None:
         self.cfg = cfg
+        if cfg.run == "auto":
+            self.capabilities = Capabilities(start_request=False, streams_blocks=False,
+                                             loads_program=True, writes_verdict=True,
+                                             can_abort=True)
         self._ch: _Rsh | None = None
         self._verdicts = 0
         self.blocks_sent = 0
@@ -319,7 +291,7 @@ class LinuxCncLink(CncLink):
         if rep != "SET MDI ACK":
             errs += await self._errors()
             raise ControllerAlarm(f"LinuxCNC: {'; '.join(errs) or 'block refused (' + rep + ')'}"
-                                  f" at {_where(step)}")
+                                  f" at {where(step)}")
         if errs:  # remote: found when the next block was taken; local: this block's own
             raise self._alarm(errs, step if self.cfg.mode == "local" else prev or step)
 
@@ -328,7 +300,7 @@ class LinuxCncLink(CncLink):
         text = "; ".join(errs)
         if self._probe is not None and ("G38" in text or "probe" in text.lower()):
             step = self._probe
-        return ControllerAlarm(f"LinuxCNC: {text} at {_where(step)}")
+        return ControllerAlarm(f"LinuxCNC: {text} at {where(step)}")
 
     async def _display(self, text: str, step: Step, prefix: str = "") -> str:
         """Send ``(DEBUG,text)`` and wait until LinuxCNC shows it (substituted) through
@@ -365,13 +337,22 @@ class LinuxCncLink(CncLink):
         if job.codec is None:
             raise LinkError("the LinuxCNC job carries no linuxcnc result decoder")
         dialect = job.codec
-        steps = plan_steps(job.text)
+        steps = plan_steps(job.text)  # also checks every line before anything moves
+        auto = self.cfg.run == "auto"
+        program = auto_program(job.text) if auto else ""
         done = False
         try:
             await self._ready()
             self._prev = self._probe = None
+            if auto:  # unload a program file a crashed run may have left loaded (helper doc)
+                await self._set("set plan_init")
             for cmd in self.cfg.prelude_mdi:
                 await self._mdi(Step("mdi", cmd, 0))
+            if auto:
+                async for hit in self._run_auto(job, program, steps):
+                    yield hit
+                done = True
+                return
             for st in steps:
                 if st.kind == "mdi":
                     await self._mdi(st)
@@ -387,8 +368,76 @@ class LinuxCncLink(CncLink):
             await self._display(f"RUMBA-END {job.run_id}", Step("mdi", "", len(steps)))
             done = True
         finally:
-            if not done:  # a reply may still be due on this connection: never reuse it
-                await self._drop()
+            if not done:  # a reply may still be due on this connection: never reuse it; the
+                await self._drop()  # local helper aborts a program it started when dropped
+
+    async def _run_auto(self, job: ProgramJob, program: str,
+                        steps: list[Step]) -> AsyncIterator[ProbeHit]:
+        """Local AUTO run: the program in a per-run file, opened and run by LinuxCNC; results
+        and errors read in channel order through ``wait event`` (drivers/linuxcnc_local.py)."""
+        assert self._ch is not None and job.codec is not None
+        ch, parse = self._ch, job.codec.parse_result
+        probes = [st for st in steps if st.touch]  # the probing blocks, in program order
+        lines = job.text.replace("\r\n", "\n").split("\n")
+        where = self.cfg.program_dir or tempfile.gettempdir()
+        try:
+            folder = tempfile.mkdtemp(prefix="rumba-lcnc-", dir=where)
+        except OSError as e:
+            raise LinkError(f"cannot write the LinuxCNC program in {where}: {e.strerror} "
+                            "(link config program_dir)") from None
+        try:
+            name = re.sub(r"[^A-Za-z0-9_.-]", "_", job.run_id)[:64]
+            path = Path(folder) / f"rumba_{name}.ngc"
+            try:
+                os.chmod(folder, 0o755)  # LinuxCNC may run as another user; only we write
+                path.write_text(program, encoding="ascii")
+                path.chmod(0o644)
+            except OSError as e:
+                raise LinkError(f"cannot write the LinuxCNC program {path}: {e.strerror}") from None
+            for cmd in ("set mode auto", f"set open {path}", "set run"):
+                await self._set(cmd)
+            n, loop = 0, asyncio.get_running_loop()
+            quiet_since = loop.time()
+            while True:
+                rep = await ch.ask(f"wait event {_WAIT_S}", _WAIT_S + self.cfg.command_timeout_s)
+                kind, _, rest = rep.removeprefix("EVENT ").partition(" ")
+                if kind == "DISPLAY":
+                    try:
+                        hit = parse(rest)
+                    except ValueError as e:
+                        raise LinkError(f"LinuxCNC result after touch {n}: {e}") from None
+                    if hit is None:  # an operator message of the machine's own (a remap)
+                        log.info("LinuxCNC: %s", rest)
+                        continue
+                    n += 1
+                    quiet_since = loop.time()
+                    yield hit
+                elif kind == "ERROR":
+                    errs = [rest]
+                    while len(errs) < 10:  # what LinuxCNC said right after, in order
+                        more = await ch.ask("wait event 0")
+                        if not more.startswith("EVENT ERROR "):
+                            break
+                        errs.append(more.removeprefix("EVENT ERROR "))
+                    msg = f"LinuxCNC: {name_error(errs, n, probes, lines)}"
+                    if "Queue is not empty after probing" in msg:
+                        msg += (" - a LinuxCNC AUTO-mode race after G38.2 (LinuxCNC issues "
+                                "#263, #662, #3650; fix PR #3971): use run: mdi")
+                    raise ControllerAlarm(msg)
+                elif kind == "IDLE":
+                    break
+                elif kind == "NONE":
+                    if loop.time() - quiet_since > self.cfg.command_timeout_s:
+                        raise LinkError(f"no result from LinuxCNC for "
+                                        f"{self.cfg.command_timeout_s:g} s after touch {n}")
+                else:
+                    raise LinkError(f"local LinuxCNC helper: unexpected reply {rep!r}")
+            if n != job.touch_count:
+                raise ControllerAlarm(f"LinuxCNC program stopped after {n} of {job.touch_count}"
+                                      " touches without an error (aborted on the controller?)")
+            await self._set("set plan_init")  # unload the file before deleting it (helper doc)
+        finally:
+            shutil.rmtree(folder, ignore_errors=True)
 
     async def _drop(self) -> None:
         ch, self._ch = self._ch, None

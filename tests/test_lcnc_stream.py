@@ -1,6 +1,7 @@
 """LinuxCNC link and HAL probe logic that needs no LinuxCNC (runs in `make test`): the MDI step
-plan of a real program, the probe's contact geometry, the link config's injection guard, and
-our chain against the xyzbc-trt-kins formulas (trtfuncs.c, tests/peers/PEERS_FINDINGS.md)."""
+plan and the AUTO program file of a real program, how an AUTO error names its touch, the probe's
+contact geometry, the link config's guards, and our chain against the xyzbc-trt-kins formulas
+(trtfuncs.c, tests/peers/PEERS_FINDINGS.md)."""
 
 from __future__ import annotations
 
@@ -14,7 +15,8 @@ from daemon import pipeline
 from daemon.config import ConfigError, load_artefact, load_machine, load_plan
 from daemon.daemon_config import MachineSetup, TriggersFile
 from daemon.judge import Tolerances
-from drivers.linuxcnc import plan_steps
+from drivers.base import LinkError
+from drivers.linuxcnc_program import auto_program, name_error, plan_steps
 from drivers.registry import link_config
 from identification.kinematics import ChainState, frames, to_model
 from simulators.hal_probe import ProbeModel, write_spec
@@ -58,6 +60,43 @@ def test_mdi_steps_of_a_real_program() -> None:
         assert p.touch == f"touch seq {f[1]} pose {f[3]} ball {f[4]} touch {f[5]}"
 
 
+def test_auto_program_keeps_lines_and_sends_results_through_debug() -> None:
+    prep = _program()
+    text = prep.job.text
+    src, out = text.split("\n"), auto_program(text).split("\n")
+    assert out[-1] == "" and len(out) - 1 == len(src) - (src[-1] == "")  # LinuxCNC line = ours
+    debug = [ln for ln in out if ln.startswith("(DEBUG,")]
+    assert len(debug) == prep.job.touch_count
+    assert debug[0] == "(DEBUG,RUMBA 1 0 0 B1 1 #5070 #5061 #5062 #5063 #5065 #5066)"
+    assert not any(ln.upper().startswith("(LOG") for ln in out)  # no log file on the PC
+    for a, b in zip(src, out, strict=False):
+        if not a.upper().startswith("(LOG"):
+            assert a.strip() == b  # motion, probing, miss check and M2 untouched
+    assert sum("G38.2" in ln for ln in out) == prep.job.touch_count
+    with pytest.raises(LinkError, match="program line 2"):
+        auto_program("%\nG0 X1 (caf\u00e9)\n%")
+
+
+def test_auto_error_names_the_touch_and_the_line() -> None:
+    text = _program().job.text
+    steps, lines = plan_steps(text), text.split("\n")
+    probes = [st for st in steps if st.touch]
+    g38 = probes[1].line  # the second probing block: seq 2
+    msg = name_error([f"{g38} G38.2 move finished without making contact."], 1, probes, lines)
+    assert msg.startswith("G38.2 move finished without making contact. at "
+                          f"program line {g38} 'N12 G38.2 ")
+    assert msg.endswith("(touch seq 2 pose 0 ball B1 touch 2)")
+    # a probe error reported on another line: the touch after the last result
+    msg = name_error(["3 Probe tripped during non-probe move."], 4, probes, lines)
+    assert "touch seq 5 " in msg
+    # any other error: the program line LinuxCNC stopped at
+    line = next(st.line for st in steps if st.text.startswith("N9 "))
+    msg = name_error([f"{line} Joint 0 following error", f"{line} Spindle stopped"], 2, probes,
+                     lines)
+    assert msg == (f"Joint 0 following error; Spindle stopped at program line {line} "
+                   "'N9 G0 X-82.8000' (after touch 2)")
+
+
 def test_probe_plane_crosses_where_the_sphere_is(tmp_path: Path) -> None:
     truth = TruthModel.from_files(MACHINE, ARTEFACT, ERRORS)
     spec = write_spec(truth, tmp_path / "s.json")
@@ -86,7 +125,17 @@ def test_probe_plane_crosses_where_the_sphere_is(tmp_path: Path) -> None:
 
 def test_link_config_refuses_injection_and_unknown_keys() -> None:
     ok = link_config({"transport": "linuxcnc", "port": 5007, "prelude_mdi": ["M429"]})
-    assert ok.mode == "remote" and ok.host == "127.0.0.1"
+    assert ok.mode == "remote" and ok.host == "127.0.0.1" and ok.run == "mdi"
+    local = link_config({"transport": "linuxcnc", "mode": "local"})
+    assert local.run == "mdi"  # AUTO is opt-in (LinuxCNC's probe race, config/linuxcnc/)
+    assert link_config({"transport": "linuxcnc", "mode": "local", "run": "auto"}).run \
+        == "auto"
+    with pytest.raises(ConfigError, match="needs mode: local"):
+        link_config({"transport": "linuxcnc", "run": "auto"})  # no upload through linuxcncrsh
+    with pytest.raises(ConfigError, match="program_dir"):  # a line break would reach the helper
+        link_config({"transport": "linuxcnc", "mode": "local", "program_dir": "/tmp/a\nM2"})
+    with pytest.raises(ConfigError, match="program_dir"):
+        link_config({"transport": "linuxcnc", "mode": "local", "program_dir": "relative/dir"})
     with pytest.raises(ConfigError, match="prelude_mdi"):
         link_config({"transport": "linuxcnc", "prelude_mdi": ["M429 (DEBUG,x)"]})
     with pytest.raises(ConfigError, match="prelude_mdi"):

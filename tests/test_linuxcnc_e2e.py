@@ -1,5 +1,7 @@
 """End to end against LinuxCNC 2.9 (config/linuxcnc/, xyzbc-trt-kins, HAL probe from our truth):
-kinematics cross-check, a verification run through linuxcncrsh, a missed ball, a killed LinuxCNC.
+kinematics cross-check; a verification run, a missed ball, an abort and a killed LinuxCNC, each
+through linuxcncrsh (remote, MDI streaming) and through the ``linuxcnc`` module (local, AUTO run
+of a program file); local MDI streaming on one pose.
 
 One LinuxCNC for the module (only one can run per machine; simulators.linuxcnc_peer serialises
 with a flock and always stops it, cleaning shared memory). Run with ``pytest -m linuxcnc``.
@@ -16,6 +18,7 @@ import signal
 import socket
 import subprocess
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -42,6 +45,15 @@ MACHINE = ROOT / "config/machines/linuxcnc_xyzbc.yaml"
 ARTEFACT = ROOT / "config/artefacts/thesis_4ball.yaml"
 ERRORS = ROOT / "config/errors/linuxcnc_xyzbc.yaml"
 PLAN = ROOT / "config/plans/linuxcnc_4poses.yaml"
+VARIANTS = ("remote", "local-auto")  # linuxcncrsh + MDI streaming; linuxcnc module + AUTO run
+RACE = "Queue is not empty after probing"
+
+
+def _xfail_on_race(variant: str, reason: str) -> None:
+    """LinuxCNC 2.9's own AUTO-mode race after G38.2 (config/linuxcnc/README.md, "Why AUTO is
+    not the default"): reported as such, never as a pass, and never hidden in MDI runs."""
+    if variant == "local-auto" and RACE in reason:
+        pytest.xfail(f"LinuxCNC AUTO race (issues #263/#662/#3650, fix PR #3971): {reason}")
 
 
 class Rsh:
@@ -77,6 +89,17 @@ class Rsh:
         err = self.ask("get error")
         assert err == "ERROR OK", f"{block}: {err}"
 
+    def home_mdi(self) -> None:
+        """Home the joints when needed, then MDI mode."""
+        if "NO" in self.ask("get joint_homed").split()[1:6]:
+            self.ask("set mode manual")
+            self.ask("set home -1")
+            for _ in range(100):
+                time.sleep(0.1)
+                if "NO" not in self.ask("get joint_homed").split()[1:6]:
+                    break
+        assert self.ask("set mode mdi") == "SET MODE ACK"
+
     def floats(self, cmd: str) -> list[float]:
         return [float(v) for v in self.ask(cmd).split()[1:]]
 
@@ -92,25 +115,45 @@ def halcmd(peer: linuxcnc_peer.Peer, *args: str) -> str:
     return out.stdout.strip()
 
 
+@dataclass
+class Lcnc:
+    """The module's LinuxCNC (restarted after a test killed it)."""
+
+    peer: linuxcnc_peer.Peer
+    truth: TruthModel
+    spec: Path
+
+    def restart(self) -> None:
+        linuxcnc_peer.down(self.peer.dir)
+        self.peer = linuxcnc_peer.up(self.spec, workdir=self.peer.dir)
+
+
 @pytest.fixture(scope="module")
 def lcnc(tmp_path_factory: pytest.TempPathFactory):
     work = tmp_path_factory.mktemp("lcnc")
     truth = TruthModel.from_files(MACHINE, ARTEFACT, ERRORS)
     spec = work / "probe_spec.json"
     write_spec(truth, spec)
-    peer = linuxcnc_peer.up(spec, workdir=work / "peer")
+    state = Lcnc(linuxcnc_peer.up(spec, workdir=work / "peer"), truth, spec)
     try:
-        yield peer, truth
+        yield state
     finally:
-        linuxcnc_peer.down(peer.dir)
+        linuxcnc_peer.down(state.peer.dir)
         assert not linuxcnc_peer.lcnc_running(), "LinuxCNC processes left behind"
 
 
-def _setup(port: int) -> MachineSetup:
+def _link(peer: linuxcnc_peer.Peer, variant: str, **extra: object) -> dict:
+    if variant == "remote":
+        return {"transport": "linuxcnc", "port": peer.port, "prelude_mdi": ["M429"], **extra}
+    run = variant.removeprefix("local-")
+    return {"transport": "linuxcnc", "mode": "local", "run": run, "prelude_mdi": ["M429"],
+            "local_home": str(peer.dir / "home"), **extra}
+
+
+def _setup(link: dict) -> MachineSetup:
     m, mf = load_machine(MACHINE)
     plan = load_plan(PLAN)
-    link_cfg = make_link({"transport": "linuxcnc", "port": port,
-                          "prelude_mdi": ["M429"]}).cfg
+    link_cfg = make_link(link).cfg
     tol = Tolerances(default_rotation_urad=Limit(warn=100, fail=200),
                      default_translation_um=Limit(warn=300, fail=500))
     return MachineSetup("lcnc", m, mf, load_artefact(ARTEFACT), plan, "linuxcnc", link_cfg,
@@ -127,7 +170,7 @@ async def _session(setup: MachineSetup, tmp: Path) -> tuple[Session, Store]:
 def test_forward_kinematics_match_xyzbc_trt_kins(lcnc) -> None:
     """Our nominal chain (WCBFXYZT, B/C point_mm) vs LinuxCNC's xyzbc-trt-kins: joints set in
     identity kinematics (M429), then M428 recomputes the world position from the same joints."""
-    peer, _ = lcnc
+    peer = lcnc.peer
     machine, _ = load_machine(MACHINE)
     rng = np.random.default_rng(2026)
     joints = np.column_stack([rng.uniform(-150, 150, 50), rng.uniform(-150, 150, 50),
@@ -146,11 +189,7 @@ def test_forward_kinematics_match_xyzbc_trt_kins(lcnc) -> None:
     rsh = Rsh(peer.port)
     got, used = [], []
     try:
-        if "NO" in rsh.ask("get joint_homed").split()[1:6]:
-            rsh.ask("set mode manual")
-            rsh.ask("set home -1")
-            time.sleep(1.0)
-        rsh.ask("set mode mdi")
+        rsh.home_mdi()
         for q in joints:
             rsh.mdi("M429")
             rsh.mdi("G0 X{:.6f} Y{:.6f} Z{:.6f} B{:.6f} C{:.6f}".format(*q))
@@ -177,14 +216,26 @@ def test_forward_kinematics_match_xyzbc_trt_kins(lcnc) -> None:
     assert np.abs(tip_w - used_a[:, :3]).max() > 10.0
 
 
-async def test_verification_run_identifies_injected_links(lcnc, tmp_path: Path) -> None:
-    peer, truth = lcnc
-    setup = _setup(peer.port)
+@pytest.mark.parametrize("variant", VARIANTS)
+async def test_verification_run_identifies_injected_links(lcnc, tmp_path: Path,
+                                                          variant: str) -> None:
+    peer, truth = lcnc.peer, lcnc.truth
+    programs = tmp_path / "programs"  # local AUTO: the per-run program file goes here
+    programs.mkdir()
+    setup = _setup(_link(peer, variant, **({"program_dir": str(programs)}
+                                           if variant == "local-auto" else {})))
+    rsh = Rsh(peer.port)  # before the link connects: linuxcncrsh enables one client at a time
+    try:  # zero what a previous link wrote back (a new link counts its verdicts from 1)
+        rsh.home_mdi()
+        rsh.mdi("M68 E0 Q0")
+        rsh.mdi("M68 E1 Q0")
+    finally:
+        rsh.close()
     session, store = await _session(setup, tmp_path)
     try:
-        before = float(halcmd(peer, "getp", "motion.analog-out-01"))
         run_id = session.start("cli")
         status = await asyncio.wait_for(session.wait(), 600)
+        _xfail_on_race(variant, status["reason"])
         assert status["state"] == str(State.IDLE), status["reason"]
         hits = store.hits(run_id)
         assert len(hits) == setup.plan.poses.__len__() * 4 * 5
@@ -200,27 +251,40 @@ async def test_verification_run_identifies_injected_links(lcnc, tmp_path: Path) 
         # the verdict went back to LinuxCNC: motion.analog-out-00 = code, -01 counts verdicts
         code = {"PASS": 1, "WARN": 2, "FAIL": 3, "ERROR": 4}[status["verdict"]["status"]]
         assert float(halcmd(peer, "getp", "motion.analog-out-00")) == code
-        assert float(halcmd(peer, "getp", "motion.analog-out-01")) == before + 1
+        assert float(halcmd(peer, "getp", "motion.analog-out-01")) == 1
         # LinuxCNC latched the first servo sample past contact: overshoot small and tight
         over_um = _overshoot_um(truth, hits, setup.artefact.ids)
         assert 0.0 < over_um.mean() < 5.0 and over_um.std() < 1.5, (over_um.mean(),
                                                                       over_um.std())
+        # the program file is gone and LinuxCNC no longer has it loaded: an MDI O-word call
+        # (the M429 remap) would otherwise fail with "cannot reopen file"
+        assert list(programs.iterdir()) == []
+        rsh = Rsh(peer.port)
+        try:
+            assert rsh.ask("set mode mdi") == "SET MODE ACK"
+            rsh.mdi("M429")
+        finally:
+            rsh.close()
     finally:
         await session.link.close()
         store.close()
 
 
-async def test_missing_ball_stops_with_linuxcnc_probe_error(lcnc, tmp_path: Path) -> None:
-    peer, _ = lcnc
-    setup = _setup(peer.port)
+@pytest.mark.parametrize("variant", VARIANTS)
+async def test_missing_ball_stops_with_linuxcnc_probe_error(lcnc, tmp_path: Path,
+                                                            variant: str) -> None:
+    peer = lcnc.peer
+    setup = _setup(_link(peer, variant))
     halcmd(peer, "setp", "rumba-probe.ball-0-present", "0")  # B1 removed from the table
     session, store = await _session(setup, tmp_path)
     try:
         run_id = session.start("cli")
         status = await asyncio.wait_for(session.wait(), 120)
+        _xfail_on_race(variant, status["reason"])
         assert status["state"] == str(State.FAILED)
         assert "G38.2 move finished without making contact" in status["reason"]
         assert "ball B1" in status["reason"] and "touch seq 1 " in status["reason"]
+        assert "G38.2 X-110.3945 Y-90.3945" in status["reason"]  # the block LinuxCNC ran
         assert store.run(run_id).state == "FAILED"
         assert float(halcmd(peer, "getp", "motion.analog-out-00")) == 4  # ERROR written back
     finally:
@@ -252,15 +316,14 @@ async def test_local_mode_through_the_linuxcnc_module(lcnc) -> None:
     from daemon import pipeline
     from daemon.config import plan_from_dict
 
-    peer, truth = lcnc
-    setup = _setup(peer.port)
+    peer, truth = lcnc.peer, lcnc.truth
+    setup = _setup(_link(peer, "local-mdi"))
     plan = plan_from_dict({"name": "one", "stylus_diameter_mm": 6, "poses": [[30, 60]],
                            "standoff_mm": 1, "overtravel_mm": 1, "clearance_mm": 5,
                            "feeds": {"probe_mm_min": 300, "approach_mm_min": 3000}})
     setup = MachineSetup(**{**setup.__dict__, "plan": plan})
     job = pipeline.prepare(setup, "local-1").job
-    link = make_link({"transport": "linuxcnc", "mode": "local", "prelude_mdi": ["M429"],
-                      "local_home": str(peer.dir / "home")})
+    link = make_link(_link(peer, "local-mdi"))
     try:
         hits = [h async for h in link.run(job)]
     finally:
@@ -271,15 +334,17 @@ async def test_local_mode_through_the_linuxcnc_module(lcnc) -> None:
     assert 0.0 < over.mean() < 5.0 and over.std() < 1.5, (over.mean(), over.std())
 
 
-async def test_abort_stops_linuxcnc_mid_run(lcnc, tmp_path: Path) -> None:
-    peer, _ = lcnc
-    session, store = await _session(_setup(peer.port), tmp_path)
+@pytest.mark.parametrize("variant", VARIANTS)
+async def test_abort_stops_linuxcnc_mid_run(lcnc, tmp_path: Path, variant: str) -> None:
+    peer = lcnc.peer
+    session, store = await _session(_setup(_link(peer, variant)), tmp_path)
     try:
         run_id = session.start("cli")
         for _ in range(600):
             if store.hit_count(run_id) >= 2:
                 break
             await asyncio.sleep(0.05)
+        _xfail_on_race(variant, session.reason)
         assert await session.abort("hmi")
         assert session.state == State.ABORTED and session.reason == "aborted by hmi"
         rsh = Rsh(peer.port)
@@ -296,9 +361,11 @@ async def test_abort_stops_linuxcnc_mid_run(lcnc, tmp_path: Path) -> None:
         store.close()
 
 
-async def test_linuxcnc_killed_mid_run_fails_and_keeps_hits(lcnc, tmp_path: Path) -> None:
-    peer, _ = lcnc
-    setup = _setup(peer.port)
+@pytest.mark.parametrize("variant", VARIANTS)
+async def test_linuxcnc_killed_mid_run_fails_and_keeps_hits(lcnc, tmp_path: Path,
+                                                            variant: str) -> None:
+    peer = lcnc.peer
+    setup = _setup(_link(peer, variant))
     session, store = await _session(setup, tmp_path)
     try:
         run_id = session.start("cli")
@@ -306,6 +373,7 @@ async def test_linuxcnc_killed_mid_run_fails_and_keeps_hits(lcnc, tmp_path: Path
             if store.hit_count(run_id) >= 3:
                 break
             await asyncio.sleep(0.1)
+        _xfail_on_race(variant, session.reason)
         assert store.hit_count(run_id) >= 3
         # kill -9 the whole instance: the process group and the detached daemons
         fifo = (peer.dir / "fifo.path").read_text().strip()
@@ -315,10 +383,12 @@ async def test_linuxcnc_killed_mid_run_fails_and_keeps_hits(lcnc, tmp_path: Path
             os.kill(p, signal.SIGKILL)
         status = await asyncio.wait_for(session.wait(), 60)
         assert status["state"] == str(State.FAILED)
-        assert "linuxcncrsh" in status["reason"]
+        want = "linuxcncrsh" if variant == "remote" else "task process milltask"
+        assert want in status["reason"], status["reason"]
         kept = store.hits(run_id)
         assert len(kept) >= 3 and all(h.triggered for h in kept)
         assert [h.seq for h in kept] == list(range(1, len(kept) + 1))
     finally:
         await session.link.close()
         store.close()
+        lcnc.restart()  # a fresh LinuxCNC for the tests after this one
