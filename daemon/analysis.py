@@ -92,6 +92,7 @@ def analyse_centres(machine: Machine, artefact: Artefact, data: CentreData, *,
         "estimation": {"status": est.status, "iterations": est.iterations,
                        "centres": len(est_c), "sigma_um": _v(est.sigma_um),
                        "sigma_from": "given" if est.sigma_given else "residuals",
+                       "sigma_dof": est.sigma_dof,  # None (JSON) when given: infinite
                        "fixed_radius": fixed_radius},
         "volumetric": [
             {"pose": int(c.pose[k]), "repeat": int(data.repeat[k]), "b_deg": float(c.b_deg[k]),

@@ -13,6 +13,8 @@ import math
 from dataclasses import dataclass, field
 from typing import Any
 
+from identification.estimate import coverage_factor
+
 STATUS_ORDER = {"PASS": 0, "WARN": 1, "FAIL": 2, "ERROR": 3}
 """ERROR: the measurement itself is not trusted (health limits), so no statement on the machine."""
 
@@ -81,7 +83,7 @@ def _grade(quantity: str, value: float, std: float | None, unit: str, lim: Limit
     elif lim.warn is not None and mag > lim.warn:
         status, why = "WARN", f"|value| > warn {lim.warn:g} {unit}"
     elif lim.fail is not None and u > 0 and mag + k * u > lim.fail:
-        status, why = "WARN", (f"|value| + {k:g}u ≥ fail {lim.fail:g} {unit} "
+        status, why = "WARN", (f"|value| + {k:.3g}u ≥ fail {lim.fail:g} {unit} "
                                "(conformance not proven)")
     if lim.warn is not None or lim.fail is not None:
         out.append(Check(quantity, value, std, unit, status, why))
@@ -117,6 +119,12 @@ def judge(analysis: dict[str, Any], tol: Tolerances,
     ``last_good`` is the analysis of the last PASS run of the same machine (drift reference)."""
     checks: list[Check] = []
     ref_links = (last_good or {}).get("links", {})
+    # The guard band k·u at coverage_k's normal coverage (k = 2: 95.45 %), widened when u
+    # rests on a σ estimated from few residual degrees of freedom (Student t, GUM G.3).
+    dof = (analysis.get("estimation") or {}).get("sigma_dof")
+    k = tol.coverage_k
+    if dof and k > 0:
+        k = coverage_factor(float(dof), math.erf(k / math.sqrt(2.0)))
     for name, est in sorted((analysis.get("links") or {}).items()):
         unit = est.get("unit", "")
         lim = tol.links.get(name) or (
@@ -125,7 +133,7 @@ def judge(analysis: dict[str, Any], tol: Tolerances,
             continue
         ref = ref_links.get(name, {}).get("value")
         checks += _grade(name, float(est["value"]), est.get("std"), _unit(unit), lim,
-                         tol.coverage_k, ref)
+                         k, ref)
     if tol.volumetric_max_um is not None:
         vmax = volumetric_max_um(analysis)
         if vmax is None:
@@ -134,7 +142,7 @@ def judge(analysis: dict[str, Any], tol: Tolerances,
         else:
             ref = volumetric_max_um(last_good) if last_good else None
             checks += _grade("volumetric distortion max", vmax, None, "µm",
-                             tol.volumetric_max_um, tol.coverage_k, ref)
+                             tol.volumetric_max_um, k, ref)
     checks += _health(analysis, tol)
     missing = sorted(set(tol.links) - set(analysis.get("links") or {}))
     status = max((c.status for c in checks), key=STATUS_ORDER.__getitem__, default="PASS")

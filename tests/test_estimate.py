@@ -224,3 +224,20 @@ def test_uncertainties_are_calibrated_under_anisotropic_repeatability(thesis) ->
             z.setdefault(k, []).append((v - THESIS_LINKS_UM_URAD[k]) / s)
     ratios = {k: float(np.std(v)) for k, v in z.items()}
     assert all(0.75 < r < 1.3 for r in ratios.values()), ratios
+
+
+def test_sigma_dof_and_coverage_factor(thesis) -> None:
+    """The uncertainty says how many residual degrees of freedom its σ rests on, and the
+    coverage factor for "3 u" (99.73 %) widens with few of them (Student t, GUM G.3)."""
+    from identification.estimate import coverage_factor
+
+    m, a = thesis
+    c = rows_to_centres(make_rows(m, a, _poses("thesis_ch3_7poses"), _truth(5),
+                                  touch_noise_um=0.5), a, 3.0).centres
+    e = estimate(m, a, c)
+    # per-axis σ from the residuals: 28 centres, 23 parameters shared over 3 axes
+    assert e.sigma_dof == pytest.approx(len(c) - e.layout.size / 3)
+    assert estimate(m, a, c, sigma_um=0.5).sigma_dof == float("inf")
+    assert coverage_factor(float("inf")) == pytest.approx(3.0, abs=1e-4)
+    assert coverage_factor(e.sigma_dof) == pytest.approx(3.42, abs=0.01)
+    assert coverage_factor(8.33) > 4.2 > coverage_factor(48) > 3.1

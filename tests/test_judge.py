@@ -50,6 +50,18 @@ def test_uncertainty_guard_band_warns_when_conformance_not_proven():
     assert judge(analysis(eb0c=15.0, std=2.0), TOL).status == "PASS"
 
 
+def test_guard_band_widens_when_the_uncertainty_rests_on_few_residuals():
+    # 15 + 2 × 11.5 = 38 < 40: PASS with σ known; with σ from ν = 5 residual dof the 95.45 %
+    # factor is t(5) = 2.65 and 15 + 2.65 × 11.5 > 40 (GUM G.3)
+    a = analysis(eb0c=15.0, std=11.5)
+    assert judge(a, TOL).status == "PASS"
+    a["estimation"] = {"sigma_dof": 5.0}
+    j = judge(a, TOL)
+    assert j.status == "WARN" and "|value| + 2.65u" in j.reasons[0]
+    a["estimation"] = {"sigma_dof": 500.0}
+    assert judge(a, TOL).status == "PASS"
+
+
 def test_drift_against_last_good_run():
     ref = analysis(eb0c=10.0)
     assert judge(analysis(eb0c=13.0), TOL, ref).status == "PASS"

@@ -5,6 +5,7 @@ CNC side, identified link errors vs the simulator's truth, and simulator faults.
 from __future__ import annotations
 
 import asyncio
+import math
 from pathlib import Path
 
 import pytest
@@ -15,6 +16,7 @@ from daemon.session import Session, State
 from daemon.store import Store
 from drivers.link_config import OpcUaLinkConfig
 from drivers.opcua import OpcUaLink
+from identification.estimate import coverage_factor
 from simulators.controller import VirtualController
 from simulators.faults import Fault, FaultPlan
 from simulators.frontends.opcua import OpcUaFrontend
@@ -64,9 +66,10 @@ async def test_start_of_shift_verdict_on_cnc_and_links_match_truth(cnc, tmp_path
     assert ctrl.verdict == 1 and s.verdict["status"] == "PASS"  # PASS arrived on the CNC side
     assert s.store.run(run_id).hits == 140
     truth = yaml.safe_load(ERRORS.read_text())["links"]
-    links = s.store.analysis(run_id)["links"]
-    for name, v in links.items():
-        assert abs(v["value"] - truth[name]) < 3 * v["std"], (name, v, truth[name])
+    analysis = s.store.analysis(run_id)
+    k = coverage_factor(analysis["estimation"]["sigma_dof"] or math.inf)  # "3 u", GUM G.3
+    for name, v in analysis["links"].items():
+        assert abs(v["value"] - truth[name]) < k * v["std"], (name, v, truth[name], k)
 
 
 @pytest.mark.slow
