@@ -109,24 +109,23 @@ def prepare(setup: MachineSetup, run_id: str, last_good: dict[str, Any] | None =
         raise PipelineError(f"program refused by the safety check: {e}") from None
     except (gen.ProgramError, ValueError) as e:
         raise PipelineError(f"program not generated: {e}") from None
-    prepared = prepared_from_program(prog, text, run_id, setup.dialect, files)
+    prepared = prepared_from_program(prog, text, run_id, setup.dialect, dialect, files)
     prepared.notes.append(f"safety: {report.moves} moves checked, min slack "
                           f"{report.min_slack_mm:.2f} mm")
     return prepared
 
 
-def prepared_from_program(prog: Any, text: str, run_id: str, dialect: str,
+def prepared_from_program(prog: Any, text: str, run_id: str, dialect: str, codec: Any,
                           files: dict[str, str] | None = None) -> Prepared:
-    """The job and its touch table from a generated ``daemon.program.Program``."""
-    from daemon.dialects import get_dialect
-
+    """The job and its touch table from a generated ``daemon.program.Program``; ``codec``:
+    the dialect object that rendered ``text`` (it decodes the result lines)."""
     touches = {t.id.seq: TouchInfo(t.id, float(t.b_deg), float(t.c_deg),
                                    tuple(map(float, t.direction)), float(t.feed_mm_min))
                for t in prog.touches}
     ids = tuple(touches[k].id for k in sorted(touches))
     job = ProgramJob(run_id=run_id, text=text, dialect=dialect, touch_count=len(ids),
                      touches=ids, meta={"program": "rumba"}, files=dict(files or {}),
-                     codec=get_dialect(dialect))
+                     codec=codec)
     est = getattr(prog, "estimated_s", None)
     return Prepared(job, touches, float(est) if est is not None else None)
 

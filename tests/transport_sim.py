@@ -3,10 +3,12 @@ the transport tests: generator → link → front-end → controller → dialect
 
 from __future__ import annotations
 
+import pytest
+
 from daemon.config import plan_from_dict
 from daemon.dialects import get_dialect
 from daemon.program import generate
-from drivers.base import ProgramJob
+from drivers.base import ControllerAlarm, ProgramJob
 from simulators.controller import VirtualController
 from simulators.truth import TruthModel
 from tests.test_sim_probe import TABLE_B2, truth_with
@@ -51,3 +53,14 @@ def latched_equal(hits, vc: VirtualController, job: ProgramJob, tol_mm: float) -
 
 def first_touch_of(job: ProgramJob, ball: str) -> int:
     return min(t.seq for t in job.touches if t.ball == ball)
+
+
+async def hits_until_miss(link, job: ProgramJob, miss: int) -> list:
+    """Run ``job``; it must end with the controller alarm of the untriggered touch ``miss``.
+    Every hit the link yielded before it, the untriggered one last (so it is journaled)."""
+    got = []
+    with pytest.raises(ControllerAlarm, match=f"did not trigger at touch seq {miss}"):
+        async for h in link.run(job):
+            got.append(h)
+    assert [(h.seq, h.triggered) for h in got] == [(k, k < miss) for k in range(1, miss + 1)]
+    return got

@@ -219,6 +219,7 @@ def _analyse(machine: Machine, artefact: Artefact, data: TouchData, groups: Grou
     base = problem.base  # the twin: setup + links (+ the known effects fitted with them)
     known = {e.label for e, _ in opt.known}
 
+    rep_floor = repeat_floor_um(groups)
     noise_floor = float(np.sqrt(np.mean(
         (np.trace(groups.centre_cov_um2, axis1=1, axis2=2) + groups.sigma_touch_um**2) / 4)))
     base_full = fit(problem, base)
@@ -318,7 +319,7 @@ def _analyse(machine: Machine, artefact: Artefact, data: TouchData, groups: Grou
                         f"{100 * time_check['explained_fraction']:.0f} % of held-out stretches "
                         "of the run (time blocks): its time course does not extrapolate — a "
                         "drift of another shape (a thermal cycle, a step)?")
-        elif repeat_floor_um(groups) is None:
+        elif rep_floor is None:
             message += ("; without repeats the floor knows only the trigger noise — a "
                         "non-repeatable centre scatter (indexing, clamping) looks like this: "
                         "run the plan with repeats ≥ 2 to measure it")
@@ -332,8 +333,7 @@ def _analyse(machine: Machine, artefact: Artefact, data: TouchData, groups: Grou
         "noise_floor_um": round(noise_floor, 4),
         "noise": {"source": "sphere-fit form residuals", "sigma_touch_um":
                   round(groups.sigma_touch_um, 4), "dof": groups.sigma_dof,
-                  "repeat_floor_um": (round(repeat_floor_um(groups)[0], 4)
-                                      if repeat_floor_um(groups) else None),
+                  "repeat_floor_um": round(rep_floor[0], 4) if rep_floor else None,
                   "holdout_floor_um": round(holdout_floor, 4),
                   "radius_dev_mean_um": round(mean_dev, 4)},
         "split": split,
