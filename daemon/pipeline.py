@@ -16,6 +16,7 @@ from daemon.analysis import AnalysisError, analyse_centres
 from daemon.daemon_config import MachineSetup
 from daemon.messages import ProbeHit, TouchId
 from daemon.probelog import LogRow, ProbeLogError, rows_to_centres
+from daemon.safepath import plain_name
 from drivers.base import ProgramJob
 from identification.kinematics import Machine
 
@@ -105,9 +106,11 @@ def prepare(setup: MachineSetup, run_id: str, last_good: dict[str, Any] | None =
         dialect = dialects.get_dialect(setup.dialect)
         text = dialect.render(prog)
         files = dialect.aux_files(prog)
+        for name in files:  # they become files on the controller (and next to `gcode -o`)
+            plain_name(name, f"{setup.dialect} auxiliary file")
     except safety.SafetyError as e:
         raise PipelineError(f"program refused by the safety check: {e}") from None
-    except (gen.ProgramError, ValueError) as e:
+    except (gen.ProgramError, ValueError) as e:  # UnsafePathError is a ValueError too
         raise PipelineError(f"program not generated: {e}") from None
     prepared = prepared_from_program(prog, text, run_id, setup.dialect, dialect, files)
     prepared.notes.append(f"safety: {report.moves} moves checked, min slack "

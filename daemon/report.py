@@ -21,7 +21,8 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 from daemon.judge import Limit, Tolerances, volumetric_max_um
-from daemon.store import Store
+from daemon.safepath import contained_path
+from daemon.store import Store, validate_run_id
 
 VERDICT_COLOURS = {"PASS": "#1b873f", "WARN": "#c77700", "FAIL": "#c62828", "ERROR": "#6a1b9a"}
 
@@ -267,11 +268,15 @@ def build(store: Store, run_id: str, tol: Tolerances | None) -> tuple[str, dict[
 
 def write_report(store: Store, run_id: str, reports_dir: Path,
                  setup: Any | None = None) -> tuple[Path, Path]:
-    """Write ``<reports_dir>/<run_id>.html`` and ``.json``; returns both paths."""
+    """Write ``<reports_dir>/<run_id>.html`` and ``.json``; returns both paths. The run id
+    names the files: it is checked, and both paths are proven to stay in ``reports_dir``."""
+    validate_run_id(run_id)
     html, doc = build(store, run_id, getattr(setup, "tolerances", None))
+    reports_dir = Path(reports_dir)
     reports_dir.mkdir(parents=True, exist_ok=True)
-    html_path = reports_dir / f"{run_id}.html"
-    json_path = reports_dir / f"{run_id}.json"
+    # after mkdir, so that the containment check sees the real directory and its symlinks
+    html_path = contained_path(reports_dir, f"{run_id}.html")
+    json_path = contained_path(reports_dir, f"{run_id}.json")
     json_path.write_text(json.dumps(doc, indent=1), encoding="utf-8")
     html_path.write_text(html, encoding="utf-8")
     return html_path, json_path

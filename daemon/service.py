@@ -65,7 +65,8 @@ class Service:
     # ------------------------------------------------------------------------------ startup
     async def start(self) -> None:
         cfg = self.config
-        self.store = Store(cfg.store_path, cfg.synchronous)  # type: ignore[arg-type]
+        self.store = Store(cfg.store_path, cfg.synchronous,  # type: ignore[arg-type]
+                           source=f"{cfg.path}: store.path")
         self.interrupted = self.store.mark_interrupted()
         for rid in self.interrupted:
             log.warning("run %s was interrupted (daemon stopped mid-run); hits kept", rid)

@@ -23,7 +23,7 @@ from daemon import pipeline
 from daemon.daemon_config import MachineSetup
 from daemon.judge import judge
 from daemon.messages import ProbeHit
-from daemon.store import Store
+from daemon.store import Store, validate_run_id
 from drivers.base import CncLink, ControllerAlarm, LinkError, Verdict
 
 log = logging.getLogger("rumba.session")
@@ -58,8 +58,10 @@ class RunFailed(Exception):
 
 
 def new_run_id() -> str:
-    """Sortable, unique and G-code safe (letters, digits, '-'), 21 characters."""
-    return time.strftime("%Y%m%dT%H%M%SZ", time.gmtime()) + "-" + secrets.token_hex(2)
+    """Sortable, unique and G-code safe (letters, digits, '-'), 21 characters: within
+    ``daemon.store.RUN_ID_PATTERN``, which every run id entering the journal must match."""
+    return validate_run_id(time.strftime("%Y%m%dT%H%M%SZ", time.gmtime()) + "-"
+                           + secrets.token_hex(2))
 
 
 class Session:

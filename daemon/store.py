@@ -8,14 +8,17 @@ already received. Measured in ``benchmarks/bench_daemon.py``.
 
 from __future__ import annotations
 
+import contextlib
 import json
+import re
 import sqlite3
 import time
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
 
+from daemon.config import ConfigError
 from daemon.messages import ProbeHit
 
 FINAL_STATES = ("DONE", "ABORTED", "FAILED", "INTERRUPTED", "IMPORTED")
@@ -26,6 +29,31 @@ Synchronous = Literal["FULL", "NORMAL"]
 
 class StoreError(Exception):
     """The journal cannot be opened or used; the message is one line for the operator."""
+
+
+class StoreOpenError(StoreError, ConfigError):
+    """The journal cannot be created or opened (a ConfigError too: the CLI prints one line)."""
+
+
+class RunIdError(StoreError, ConfigError):
+    """A run id outside the safe charset (it names report files and reaches G-code)."""
+
+
+RUN_ID_PATTERN = r"[A-Za-z0-9][A-Za-z0-9-]{0,63}"
+"""Run ids: what ``daemon.session.new_run_id`` makes (letters, digits, '-'), 1-64 characters,
+not starting with '-'. No '.', '/', '\\', space or line break: an id is safe as a file name, in a
+URL and in a G-code comment."""
+_RUN_ID = re.compile(RUN_ID_PATTERN)
+
+
+def validate_run_id(run_id: str, where: str = "run id") -> str:
+    """``run_id`` unchanged if it is safe, else ``RunIdError`` naming ``where`` (e.g.
+    ``"log.csv: line 7: column run_id"``). fullmatch, never ``match`` with ``$``: ``$`` also
+    matches before a trailing line break."""
+    if not isinstance(run_id, str) or not _RUN_ID.fullmatch(run_id):
+        raise RunIdError(f"{where}: invalid run id {run_id!r}: expected 1-64 letters, digits "
+                         "or '-', starting with a letter or digit")
+    return run_id
 
 
 # Each migration is applied once, in order, inside one transaction, and recorded in
@@ -71,6 +99,14 @@ MIGRATIONS: list[list[str]] = [
 SCHEMA_VERSION = len(MIGRATIONS)
 
 
+def _why(e: OSError, directory: Path) -> str:
+    # "File exists" is what mkdir says when a regular file is in the way: say that instead
+    for p in (directory, *directory.parents):
+        if p.exists() and not p.is_dir():
+            return f"{p} is a file, not a directory"
+    return e.strerror or str(e)
+
+
 @dataclass(frozen=True)
 class RunRow:
     id: str
@@ -98,21 +134,30 @@ class Store:
     """The journal of one daemon. Single writer (the daemon's event loop); readers may be other
     processes (``rumba history``) thanks to WAL."""
 
-    def __init__(self, path: Path | str, synchronous: Synchronous = "FULL") -> None:
+    def __init__(self, path: Path | str, synchronous: Synchronous = "FULL",
+                 source: str | None = None) -> None:
+        """``source``: where the path was configured, e.g. ``"daemon.yaml: store.path"``; it
+        prefixes an opening failure so the operator knows what to fix."""
         self.path = Path(path)
+        where = source or str(self.path)
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)
+        except OSError as e:
+            raise StoreOpenError(f"{where}: cannot create the journal directory "
+                                 f"{self.path.parent}: {_why(e, self.path.parent)}") from None
+        try:
             # Autocommit mode: every statement outside an explicit BEGIN is its own transaction.
             self.db = sqlite3.connect(self.path, isolation_level=None, check_same_thread=False)
             mode = self.db.execute("PRAGMA journal_mode=WAL").fetchone()[0]
             if str(mode).lower() != "wal":
-                raise StoreError(f"{self.path}: cannot switch the journal to WAL (got {mode})")
+                raise StoreOpenError(f"{where}: cannot switch the journal {self.path} to WAL "
+                                     f"(got {mode})")
             self.db.execute(f"PRAGMA synchronous={'FULL' if synchronous == 'FULL' else 'NORMAL'}")
             self.db.execute("PRAGMA foreign_keys=ON")
             self.db.execute("PRAGMA busy_timeout=5000")
             self._migrate()
         except sqlite3.Error as e:
-            raise StoreError(f"{self.path}: cannot open the journal: {e}") from None
+            raise StoreOpenError(f"{where}: cannot open the journal {self.path}: {e}") from None
 
     # ------------------------------------------------------------------------------- schema
     def _migrate(self) -> None:
@@ -140,11 +185,29 @@ class Store:
     def close(self) -> None:
         self.db.close()
 
+    @contextlib.contextmanager
+    def transaction(self) -> Iterator[None]:
+        """All or nothing: the writes inside are committed together or not at all. Nested
+        calls join the outer transaction (so bulk writers can be grouped)."""
+        if self.db.in_transaction:
+            yield
+            return
+        self.db.execute("BEGIN IMMEDIATE")
+        try:
+            yield
+        except BaseException:
+            self.db.execute("ROLLBACK")
+            raise
+        self.db.execute("COMMIT")
+
     # --------------------------------------------------------------------------------- runs
     def new_run(self, run_id: str, machine: str, trigger: str, *, plan: str = "",
                 artefact: str = "", dialect: str = "", touch_total: int = 0,
                 state: str = "PREPARE", imported: bool = False,
                 started_at: float | None = None) -> None:
+        validate_run_id(run_id)
+        if self.db.execute("SELECT 1 FROM runs WHERE id=?", (run_id,)).fetchone():
+            raise StoreError(f"run {run_id} is already in the journal {self.path}")
         self.db.execute(
             "INSERT INTO runs (id, machine, trigger, state, plan, artefact, dialect, touch_total,"
             " started_at, imported) VALUES (?,?,?,?,?,?,?,?,?,?)",
@@ -153,6 +216,7 @@ class Store:
 
     def set_state(self, run_id: str, state: str, reason: str | None = None, *,
                   touch_total: int | None = None) -> None:
+        validate_run_id(run_id)
         ended = time.time() if state in FINAL_STATES else None
         self.db.execute(
             "UPDATE runs SET state=?, reason=COALESCE(?, reason), ended_at=COALESCE(?, ended_at),"
@@ -173,6 +237,7 @@ class Store:
         return ids
 
     def run(self, run_id: str) -> RunRow:
+        validate_run_id(run_id)
         rows = self._runs("WHERE r.id = ?", (run_id,))
         if not rows:
             raise StoreError(f"no run {run_id!r} in {self.path}")
@@ -194,6 +259,7 @@ class Store:
     # --------------------------------------------------------------------------------- hits
     def journal_hit(self, run_id: str, hit: ProbeHit) -> None:
         """Commit one hit now (its own transaction): raw data first, before anything else."""
+        validate_run_id(run_id)
         self.db.execute(
             "INSERT INTO hits VALUES (?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?)",
             (run_id, hit.seq, hit.t_s, hit.repeat, hit.pose, hit.b_cmd_deg, hit.c_cmd_deg,
@@ -203,15 +269,10 @@ class Store:
     def journal_hits(self, run_id: str, hits: Iterable[ProbeHit]) -> int:
         """Bulk insert in one transaction (imports only, never live capture)."""
         n = 0
-        self.db.execute("BEGIN")
-        try:
+        with self.transaction():
             for hit in hits:
                 self.journal_hit(run_id, hit)
                 n += 1
-            self.db.execute("COMMIT")
-        except BaseException:
-            self.db.execute("ROLLBACK")
-            raise
         return n
 
     def hit_count(self, run_id: str) -> int:
@@ -219,6 +280,7 @@ class Store:
                                    (run_id,)).fetchone()[0])
 
     def hits(self, run_id: str) -> list[ProbeHit]:
+        validate_run_id(run_id)
         rows = self.db.execute(
             "SELECT seq, t_s, repeat, pose, b_cmd_deg, c_cmd_deg, ball, touch, dir_x, dir_y,"
             " dir_z, axes, triggered, feed_mm_min, raw, extra FROM hits WHERE run_id=?"
@@ -231,14 +293,10 @@ class Store:
     # ----------------------------------------------------------------------------- results
     def save_centres(self, run_id: str, rows: Iterable[tuple]) -> None:
         """rows: (pose, ball, b_deg, c_deg, x_mm, y_mm, z_mm, radius_dev_um, form_um)."""
-        self.db.execute("BEGIN")
-        try:
+        validate_run_id(run_id)
+        with self.transaction():
             self.db.executemany("INSERT OR REPLACE INTO centres VALUES (?,?,?,?,?,?,?,?,?,?)",
                                 [(run_id, *r) for r in rows])
-            self.db.execute("COMMIT")
-        except BaseException:
-            self.db.execute("ROLLBACK")
-            raise
 
     def centres(self, run_id: str) -> list[tuple]:
         return self.db.execute(
@@ -246,6 +304,7 @@ class Store:
             " FROM centres WHERE run_id=? ORDER BY pose, ball", (run_id,)).fetchall()
 
     def save_analysis(self, run_id: str, analysis: dict[str, Any]) -> None:
+        validate_run_id(run_id)
         self.db.execute("INSERT OR REPLACE INTO estimates VALUES (?, ?)",
                         (run_id, json.dumps(analysis)))
 
@@ -256,18 +315,15 @@ class Store:
 
     def save_verdict(self, run_id: str, status: str, reasons: list[str],
                      checks: list[dict[str, Any]], summary: str) -> None:
-        self.db.execute("BEGIN")
-        try:
+        validate_run_id(run_id)
+        with self.transaction():
             self.db.execute("INSERT OR REPLACE INTO verdicts VALUES (?,?,?,?,0)",
                             (run_id, status, json.dumps(reasons), json.dumps(checks)))
             self.db.execute("UPDATE runs SET verdict=?, summary=? WHERE id=?",
                             (status, summary, run_id))
-            self.db.execute("COMMIT")
-        except BaseException:
-            self.db.execute("ROLLBACK")
-            raise
 
     def mark_written_back(self, run_id: str) -> None:
+        validate_run_id(run_id)
         self.db.execute("UPDATE verdicts SET written_back=1 WHERE run_id=?", (run_id,))
 
     def verdict(self, run_id: str) -> dict[str, Any] | None:
@@ -279,10 +335,12 @@ class Store:
                 "written_back": bool(row[3])}
 
     def save_report(self, run_id: str, html_path: Path, json_path: Path) -> None:
+        validate_run_id(run_id)
         self.db.execute("INSERT OR REPLACE INTO reports VALUES (?,?,?)",
                         (run_id, str(html_path), str(json_path)))
 
     def report(self, run_id: str) -> tuple[Path, Path] | None:
+        validate_run_id(run_id)
         row = self.db.execute("SELECT html_path, json_path FROM reports WHERE run_id=?",
                               (run_id,)).fetchone()
         return (Path(row[0]), Path(row[1])) if row else None
@@ -316,38 +374,3 @@ class Store:
         """Signed-out session ids → expiry; forgets those expired (their cookies are dead)."""
         self.db.execute("DELETE FROM hmi_revoked WHERE expires_at < ?", (time.time(),))
         return dict(self.db.execute("SELECT session_id, expires_at FROM hmi_revoked"))
-
-
-# ---------------------------------------------------------------------------- probing-log CSV
-
-
-def export_csv(store: Store, run_id: str, path: Path | str, machine: Any) -> int:
-    """Write the journaled hits of ``run_id`` as a probing log (DESIGN.md contract); returns
-    the number of rows. Untriggered hits are left out (the log holds latched touches only)."""
-    from daemon.pipeline import hit_to_row
-    from daemon.probelog import write_log
-
-    store.run(run_id)  # raises StoreError for an unknown run
-    rows = [hit_to_row(run_id, h, machine) for h in store.hits(run_id) if h.triggered]
-    write_log(path, rows)
-    return len(rows)
-
-
-def import_csv(store: Store, path: Path | str, machine_name: str, machine: Any,
-               artefact: Any) -> tuple[str, int]:
-    """Journal a probing log as a new (imported) run of ``machine_name``; returns (run id, rows).
-    The log's run id is kept unless the store has it already."""
-    from daemon.pipeline import row_to_hit
-    from daemon.probelog import read_log
-
-    rows = read_log(path, artefact)
-    run_ids = sorted({r.run_id for r in rows})
-    if len(run_ids) != 1:
-        raise StoreError(f"{path}: contains runs {run_ids}; import one run at a time")
-    run_id = run_ids[0]
-    if store.db.execute("SELECT 1 FROM runs WHERE id=?", (run_id,)).fetchone():
-        raise StoreError(f"{path}: run {run_id} is already in the journal")
-    store.new_run(run_id, machine_name, "import", artefact=getattr(artefact, "name", ""),
-                  touch_total=len(rows), state="IMPORTED", imported=True)
-    n = store.journal_hits(run_id, (row_to_hit(r, machine) for r in rows))
-    return run_id, n

@@ -79,3 +79,24 @@ def test_single_run_has_no_trend_plot_and_run_without_analysis_is_refused(tmp_pa
     with pytest.raises(ValueError, match="R0 has no analysis"):
         report.build(s, "R0", None)
     s.close()
+
+
+@pytest.mark.parametrize("run_id", ["../evil", "../../x/PWNED", "a.b"])
+def test_report_of_a_bad_run_id_is_refused_and_writes_nothing(store_with_runs, tmp_path,
+                                                               run_id):
+    """A run id journaled before ids were checked (copied here into the journal by SQL) must
+    not name a file outside the reports directory."""
+    s, setup, _ = store_with_runs
+    copy = Store(tmp_path / "copy.sqlite")
+    s.db.backup(copy.db)  # a copy: the module's journal stays as it is
+    copy.db.execute("INSERT INTO runs SELECT ?, machine, trigger, state, reason, plan, artefact,"
+                    " dialect, touch_total, started_at, ended_at, verdict, summary, imported"
+                    " FROM runs WHERE id='R2'", (run_id,))
+    copy.db.execute("INSERT INTO estimates SELECT ?, analysis FROM estimates WHERE run_id='R2'",
+                    (run_id,))
+    reports = tmp_path / "a" / "b" / "reports"
+    with pytest.raises(ValueError, match="invalid run id"):  # RunIdError
+        report.write_report(copy, run_id, reports, setup)
+    copy.close()
+    written = [p for p in tmp_path.rglob("*") if p.suffix in (".html", ".json")]
+    assert written == [], written

@@ -11,9 +11,10 @@ import time
 
 import pytest
 
+from daemon.journal_csv import export_csv, import_csv
 from daemon.messages import ProbeHit
 from daemon.probelog import read_log
-from daemon.store import SCHEMA_VERSION, Store, StoreError, export_csv, import_csv
+from daemon.store import SCHEMA_VERSION, Store, StoreError
 from tests.daemon_helpers import thesis_rows, thesis_setup
 
 
@@ -116,3 +117,24 @@ def test_csv_export_import_round_trip(tmp_path):
     assert csv.read_text() == out.read_text()
     with pytest.raises(StoreError):
         export_csv(s, "nope", out, setup.machine)
+
+
+def test_import_is_all_or_nothing(tmp_path, monkeypatch):
+    """A row the journal refuses (here: a seq already used, let through by a stubbed log
+    reader) leaves no half-imported run behind, so the corrected log imports."""
+    import dataclasses
+
+    import daemon.journal_csv
+
+    setup = thesis_setup()
+    rows = thesis_rows(setup)
+    bad = [*rows[:-1], dataclasses.replace(rows[-1], seq=rows[0].seq)]
+    monkeypatch.setattr(daemon.journal_csv, "read_log", lambda path, artefact: bad)
+    s = Store(tmp_path / "j.sqlite")
+    with pytest.raises(StoreError, match="refuses run synth"):
+        import_csv(s, tmp_path / "log.csv", "mill1", setup.machine, setup.artefact)
+    assert s.runs() == [] and s.db.execute("SELECT COUNT(*) FROM hits").fetchone()[0] == 0
+    monkeypatch.setattr(daemon.journal_csv, "read_log", lambda path, artefact: rows)
+    assert import_csv(s, tmp_path / "log.csv", "mill1", setup.machine,
+                      setup.artefact) == ("synth", len(rows))
+    s.close()

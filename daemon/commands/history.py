@@ -5,17 +5,27 @@ judged and reported like a live run)."""
 from __future__ import annotations
 
 import argparse
+import sqlite3
 import time
+from pathlib import Path
 
+import numpy as np
 from rich.console import Console
 from rich.table import Table
 
 from daemon.cli import UserError
-from daemon.daemon_config import DaemonConfig, load_daemon_config
-from daemon.judge import judge, volumetric_max_um
-from daemon.pipeline import PipelineError, analyse
+from daemon.daemon_config import DaemonConfig, MachineSetup, load_daemon_config
+from daemon.journal_csv import export_csv, journal_import, read_import
+from daemon.judge import Judgement, judge, volumetric_max_um
+from daemon.messages import ProbeHit
+from daemon.pipeline import Analysis, PipelineError, analyse, row_to_hit
 from daemon.probelog import ProbeLogError
-from daemon.store import Store, StoreError, export_csv, import_csv
+from daemon.store import Store, StoreError
+from identification.spherefit import SphereFitError
+
+# What bad data (absurd coordinates, degenerate ball-poses …) makes the analysis raise; the
+# import then stops with one line and journals nothing.
+ANALYSIS_ERRORS = (PipelineError, ProbeLogError, SphereFitError, np.linalg.LinAlgError)
 
 STYLE = {"PASS": "green", "WARN": "yellow", "FAIL": "red"}
 
@@ -35,7 +45,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def _open(cfg: DaemonConfig) -> Store:
     try:
-        return Store(cfg.store_path, cfg.synchronous)  # type: ignore[arg-type]
+        return Store(cfg.store_path, cfg.synchronous,  # type: ignore[arg-type]
+                     source=f"{cfg.path}: store.path")
     except StoreError as e:
         raise UserError(str(e)) from None
 
@@ -75,35 +86,58 @@ def _unknown(machine: str, config: str) -> None:
 
 
 def _import(cfg: DaemonConfig, store: Store, args: argparse.Namespace) -> int:
+    """All or nothing: the log is read, checked, analysed and judged first, then the run, its
+    hits and its results are committed in one transaction. A bad row or a failed analysis
+    leaves the journal as it was, so the corrected file imports."""
     if not args.machine:
         raise UserError("--import needs --machine NAME (whose artefact and plan the log uses)")
     setup = cfg.machines[args.machine]
+    path = args.import_csv
     try:
-        run_id, n = import_csv(store, args.import_csv, setup.name, setup.machine,
-                               setup.artefact)
+        run_id, rows = read_import(store, path, setup.artefact)
     except (StoreError, ProbeLogError, OSError) as e:
         raise UserError(str(e)) from None
+    hits = [row_to_hit(r, setup.machine) for r in rows]
+    result = None if args.no_analyse else _analyse(setup, store, hits, run_id, path)
+    try:
+        with store.transaction():
+            n = journal_import(store, run_id, hits, setup.name, setup.artefact)
+            if result is not None:
+                a, j = result
+                store.save_centres(run_id, a.centre_rows)
+                store.save_analysis(run_id, a.data)
+                store.save_verdict(run_id, j.status, list(j.reasons),
+                                   [c.as_dict() for c in j.checks], j.summary)
+                store.set_state(run_id, "DONE")
+    except sqlite3.IntegrityError as e:
+        raise UserError(f"{path}: run {run_id} refused by the journal ({e}: two rows with "
+                        "the same seq?); nothing imported") from None
+    except (StoreError, sqlite3.Error) as e:
+        raise UserError(f"{path}: run {run_id} not imported: {e}") from None
     print(f"imported run {run_id}: {n} touches")
-    if args.no_analyse:
+    if result is None:
         return 0
     from daemon import report
 
-    try:
-        a = analyse(setup, store.hits(run_id), run_id)
-    except PipelineError as e:
-        store.set_state(run_id, "FAILED", str(e))
-        raise UserError(f"run {run_id}: {e}") from None
-    store.save_centres(run_id, a.centre_rows)
-    store.save_analysis(run_id, a.data)
-    ref = store.last_good(setup.name, before=run_id)
-    j = judge(a.data, setup.tolerances, ref[1] if ref else None)
-    store.save_verdict(run_id, j.status, list(j.reasons), [c.as_dict() for c in j.checks],
-                       j.summary)
-    store.set_state(run_id, "DONE")
-    html, _ = report.write_report(store, run_id, cfg.reports_dir, setup)
-    store.save_report(run_id, html, html.with_suffix(".json"))
-    print(f"{j.summary}\nreport: {html}")
+    try:  # after the commit: rendering takes seconds, the daemon must not wait on the journal
+        html, json_path = report.write_report(store, run_id, cfg.reports_dir, setup)
+        store.save_report(run_id, html, json_path)
+    except OSError as e:
+        raise UserError(f"run {run_id} imported ({result[1].summary}), but its report cannot be "
+                        f"written in {cfg.reports_dir}: {e.strerror or e}") from None
+    print(f"{result[1].summary}\nreport: {html}")
     return 0
+
+
+def _analyse(setup: MachineSetup, store: Store, hits: list[ProbeHit], run_id: str,
+             path: str | Path) -> tuple[Analysis, Judgement]:
+    try:
+        a = analyse(setup, hits, run_id)
+    except ANALYSIS_ERRORS as e:
+        raise UserError(f"{path}: run {run_id}: analysis failed: {e}; nothing imported (use "
+                        "--no-analyse to journal the touches anyway)") from None
+    ref = store.last_good(setup.name, before=run_id)
+    return a, judge(a.data, setup.tolerances, ref[1] if ref else None)
 
 
 def _list(store: Store, machine: str | None, limit: int) -> None:
