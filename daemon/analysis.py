@@ -10,6 +10,7 @@ from typing import Any
 
 import numpy as np
 
+from daemon.config import ConfigError
 from daemon.probelog import CentreData
 from identification.analyses import (
     clusters,
@@ -30,8 +31,10 @@ _THESIS = {  # thesis Table B.2 / Fig B.2 names of the WCBXFZYT link errors
 _GREEK = {"A": "α", "B": "β", "C": "γ"}
 
 
-class AnalysisError(ValueError):
-    """The centres cannot be analysed as asked (held-out poses absent, rank deficiency …)."""
+class AnalysisError(ConfigError):
+    """The centres cannot be analysed as asked (held-out poses absent, rank deficiency, a
+    numerical failure caused by the data …); a ``ConfigError``, so every ``rumba`` command
+    ends on it with one ``error:`` line."""
 
 
 def thesis_name(iso: str) -> str:
@@ -63,11 +66,36 @@ def analyse_centres(machine: Machine, artefact: Artefact, data: CentreData, *,
     held = np.isin(c.pose, list(validate_poses))
     if held.all():
         raise AnalysisError("every pose is held out for validation; nothing left to estimate")
+    where = f"{source}: " if source else ""
+    bad = ~np.isfinite(c.xyz_mm).all(axis=1) | ~np.isfinite(c.b_deg) | ~np.isfinite(c.c_deg)
+    if bad.any():
+        k = int(np.flatnonzero(bad)[0])
+        raise AnalysisError(f"{where}centre of ball {artefact.ids[c.ball[k]]} pose "
+                            f"{int(c.pose[k])} is not a finite number")
     est_c = c.subset(~held)
     try:
-        est = estimate(machine, artefact, est_c, links, sigma_um=repeatability_um)
+        with np.errstate(all="ignore"):
+            est = estimate(machine, artefact, est_c, links, sigma_um=repeatability_um)
     except RankDeficientError as e:
-        raise AnalysisError(f"{source}: {e}" if source else str(e)) from None
+        raise AnalysisError(f"{where}{e}") from None
+    except (np.linalg.LinAlgError, ValueError, FloatingPointError) as e:
+        raise AnalysisError(f"{where}estimate (setup + links) failed on these centres: "
+                            f"{e}") from None
+    if not (np.isfinite(est.residual_rms_um)
+            and all(np.isfinite(v) for v, _, _ in est.links_si().values())):
+        raise AnalysisError(f"{where}estimate (setup + links) did not converge to finite "
+                            "numbers (centres far outside the machine's range?)")
+    try:
+        with np.errstate(all="ignore"):
+            return _analyses(machine, artefact, data, est, est_c, held, fixed_radius)
+    except (np.linalg.LinAlgError, FloatingPointError) as e:
+        raise AnalysisError(f"{where}analysis of the estimate failed: {e}") from None
+
+
+def _analyses(machine: Machine, artefact: Artefact, data: CentreData, est: Any, est_c: Any,
+              held: np.ndarray, fixed_radius: bool) -> dict[str, Any]:
+    """Volumetric, clusters, distances, stability, validation → the JSON dict."""
+    c = data.centres
     ids = artefact.ids
     vol = volumetric(machine, artefact, est, c)
     pred_setup = c.xyz_mm - vol.before_um * 1e-3  # nominal machine + estimated setup

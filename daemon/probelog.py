@@ -1,37 +1,73 @@
 """The probing-log CSV (DESIGN.md contract): read/validate, write, and turn touches into centres.
 
 Format: first line ``# rumba-probing-log v1``, then the header ``HEADER``, one row per touch.
-Reading is strict: a malformed row, a non-finite number, an unknown ball id, a touch outside
-1..5 or a duplicated (run, repeat, pose, ball, touch) is a ``ProbeLogError`` naming file, line
-and column — the data are ambiguous and nothing can be guessed. A ball-pose with fewer than
-five touches (an aborted run) is dropped with a ``ProbeLogWarning``: the other groups are
-complete and the estimator itself reports whether what is left is still enough.
+Reading is strict: a malformed row, a number that is not plain ASCII decimal (``1_0``, ``٣``,
+``nan`` and ``inf`` are refused), a coordinate beyond its ceiling, an unknown ball id, a touch
+outside 1..5, a duplicated (run, repeat, pose, ball, touch) or a duplicated (run, seq) is a
+``ProbeLogError`` naming file, line and column — the data are ambiguous and nothing can be
+guessed. A ball-pose with fewer than five touches (an aborted run) is dropped with a
+``ProbeLogWarning``: the other groups are complete and the estimator itself reports whether what
+is left is still enough. Gaps in ``seq`` (hits lost in transfer, untriggered touches the daemon
+leaves out of an export, rows deleted by hand) are a ``ProbeLogWarning`` listing the missing
+ranges: every row names its own pose, ball and touch, so the touches present are unaffected and
+the ball-poses the lost ones belonged to are dropped (and named) as incomplete.
+
+Ceilings (a log beyond them is refused with one line, before it can exhaust memory or time):
+``MAX_LOG_BYTES`` = 64 MiB per file, ``MAX_LOG_ROWS`` = 250 000 touch rows (100 repeats of a
+49-pose × 4-ball plan is 98 000), ``MAX_LINE_BYTES`` = 4 096 bytes per line, ``MAX_ABS_MM`` =
+1e5 mm on x/y/z (no machine is 100 m long), ``MAX_ABS_DEG`` = 1e5° on the rotary columns,
+|dir| ≤ 10, 0 ≤ t_s ≤ 1e8 s, 0 ≤ feed ≤ 1e6 mm/min, integers < 1e9, ids ≤ 200 characters.
+The reader streams the file line by line and keeps the rows in typed columns (``ProbeLog``,
+about 150 bytes a row), so memory does not depend on the text's size.
 """
 
 from __future__ import annotations
 
 import csv
 import io
-import math
+import os
+import re
 import warnings
-from collections.abc import Iterable, Sequence
+from array import array
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import astuple, dataclass, fields
 from pathlib import Path
+from typing import overload
 
 import numpy as np
 
+from daemon.config import ConfigError
 from identification.model import Artefact, Centres
-from identification.spherefit import fit_spheres
+from identification.spherefit import SphereFitError, fit_spheres
 
 MAGIC = "# rumba-probing-log v1"
 HEADER = ["run_id", "seq", "t_s", "repeat", "pose", "b_cmd_deg", "c_cmd_deg", "ball", "touch",
           "dir_x", "dir_y", "dir_z", "x_mm", "y_mm", "z_mm", "b_deg", "c_deg", "feed_mm_min"]
 TOUCHES_PER_BALL = 5
 ROTARY_SPREAD_DEG = 0.01  # latched B/C of the five touches of one group must agree this well
+MAX_LOG_BYTES = 64 * 2**20
+MAX_LOG_ROWS = 250_000
+MAX_LINE_BYTES = 4096
+MAX_ID_CHARS = 200
+MAX_ABS_MM = 1e5
+MAX_ABS_DEG = 1e5
+# (low, high) per float column; NaN fails every comparison, so it is refused as well
+_RANGES = {"t_s": (0.0, 1e8), "b_cmd_deg": (-MAX_ABS_DEG, MAX_ABS_DEG),
+           "c_cmd_deg": (-MAX_ABS_DEG, MAX_ABS_DEG), "b_deg": (-MAX_ABS_DEG, MAX_ABS_DEG),
+           "c_deg": (-MAX_ABS_DEG, MAX_ABS_DEG), "dir_x": (-10.0, 10.0),
+           "dir_y": (-10.0, 10.0), "dir_z": (-10.0, 10.0), "x_mm": (-MAX_ABS_MM, MAX_ABS_MM),
+           "y_mm": (-MAX_ABS_MM, MAX_ABS_MM), "z_mm": (-MAX_ABS_MM, MAX_ABS_MM),
+           "feed_mm_min": (0.0, 1e6)}
+# ASCII only: Python's int()/float() also take '٣', '１', '1_0', ' nan', 'infinity'
+_INT_RE = re.compile(r"[ \t]*[+-]?[0-9]{1,9}[ \t]*")
+_FLOAT_RE = re.compile(r"[ \t]*[+-]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]{1,3})?[ \t]*")
+_CONTROL_RE = re.compile(r"[\x00-\x1f\x7f]")
 
 
-class ProbeLogError(ValueError):
-    """The log cannot be used as is; the message names file, line and column."""
+class ProbeLogError(ConfigError):
+    """The log cannot be used as is; the message names file, line and column (or ball/pose).
+
+    A ``ConfigError``, so every ``rumba`` command ends on it with one ``error:`` line."""
 
 
 class ProbeLogWarning(UserWarning):
@@ -63,8 +99,92 @@ class LogRow:
 
 
 _TYPES = {f.name: f.type for f in fields(LogRow)}
-_CONVERTERS = [{"str": str.strip, "int": int, "float": float}[_TYPES[h]] for h in HEADER]
+_STR_COLS = [i for i, h in enumerate(HEADER) if _TYPES[h] == "str"]
+_INT_COLS = [i for i, h in enumerate(HEADER) if _TYPES[h] == "int"]
 _FLOAT_COLS = [i for i, h in enumerate(HEADER) if _TYPES[h] == "float"]
+_FLOAT_RANGES = [_RANGES[HEADER[i]] for i in _FLOAT_COLS]
+
+
+class ProbeLog(Sequence[LogRow]):
+    """The rows of a log, stored by column (run/ball as codes, numbers in typed arrays).
+
+    Behaves as a read-only sequence of ``LogRow`` (made on access) and compares equal to a
+    list of the same rows; ``column(name)`` gives one column as a numpy array."""
+
+    __slots__ = ("_codes", "_floats", "_ints", "_names", "lines")
+
+    def __init__(self) -> None:
+        self._names: dict[int, list[str]] = {i: [] for i in _STR_COLS}  # code → text
+        self._codes: dict[int, array] = {i: array("l") for i in _STR_COLS}
+        self._ints: dict[int, array] = {i: array("q") for i in _INT_COLS}
+        self._floats: dict[int, array] = {i: array("d") for i in _FLOAT_COLS}
+        self.lines = array("q")  # the file line of each row
+
+    def _append(self, strs: Sequence[str], ints: Sequence[int], floats: Sequence[float],
+                line: int, lookup: dict[int, dict[str, int]]) -> None:
+        for i, s in zip(_STR_COLS, strs, strict=True):
+            code = lookup[i].get(s)
+            if code is None:
+                code = lookup[i][s] = len(self._names[i])
+                self._names[i].append(s)
+            self._codes[i].append(code)
+        for i, v in zip(_INT_COLS, ints, strict=True):
+            self._ints[i].append(v)
+        for i, v in zip(_FLOAT_COLS, floats, strict=True):
+            self._floats[i].append(v)
+        self.lines.append(line)
+
+    def __len__(self) -> int:
+        return len(self.lines)
+
+    def _row(self, k: int) -> LogRow:
+        vals: list[object] = [None] * len(HEADER)
+        for i in _STR_COLS:
+            vals[i] = self._names[i][self._codes[i][k]]
+        for i in _INT_COLS:
+            vals[i] = self._ints[i][k]
+        for i in _FLOAT_COLS:
+            vals[i] = self._floats[i][k]
+        return LogRow(*vals)
+
+    @overload
+    def __getitem__(self, k: int) -> LogRow: ...
+
+    @overload
+    def __getitem__(self, k: slice) -> list[LogRow]: ...
+
+    def __getitem__(self, k: int | slice) -> LogRow | list[LogRow]:
+        if isinstance(k, slice):
+            return [self._row(j) for j in range(*k.indices(len(self)))]
+        if k < 0:
+            k += len(self)
+        if not 0 <= k < len(self):
+            raise IndexError("probing-log row index out of range")
+        return self._row(k)
+
+    def __iter__(self) -> Iterator[LogRow]:
+        for k in range(len(self)):
+            yield self._row(k)
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, Sequence) or isinstance(other, str):
+            return NotImplemented
+        return len(self) == len(other) and all(a == b for a, b in zip(self, other, strict=True))
+
+    __hash__ = None  # type: ignore[assignment]  # mutable while reading, like a list
+
+    def __repr__(self) -> str:
+        return f"ProbeLog({len(self)} rows)"
+
+    def column(self, name: str) -> np.ndarray:
+        """One column as a numpy array (strings as an object array)."""
+        i = HEADER.index(name)
+        if i in self._floats:
+            return np.frombuffer(self._floats[i], float).copy()
+        if i in self._ints:
+            return np.frombuffer(self._ints[i], np.int64).copy()
+        names = np.array(self._names[i] + [""], object)[:-1]
+        return names[np.frombuffer(self._codes[i], np.dtype("l"))]
 
 
 @dataclass(frozen=True)
@@ -89,76 +209,175 @@ class CentreData:
     warnings: list[str]
 
 
-def _parse(value: str, typ: str) -> int | float | str:
-    if typ == "str":
-        return value
-    if typ == "int":
-        return int(value)
-    v = float(value)
-    if not math.isfinite(v):
-        raise ValueError("not a finite number")
-    return v
+def _decoded(raw_lines: Iterable[bytes], name: str) -> Iterator[str]:
+    """Bytes lines → text lines, refusing non-UTF-8, over-long lines and over-large files."""
+    total = 0
+    for n, raw in enumerate(raw_lines, start=1):
+        total += len(raw)
+        if total > MAX_LOG_BYTES:
+            raise ProbeLogError(f"{name}: line {n}: the log is larger than {MAX_LOG_BYTES} "
+                                "bytes (the reader's ceiling; one run is far smaller)")
+        if len(raw) > MAX_LINE_BYTES:
+            raise ProbeLogError(f"{name}: line {n}: longer than {MAX_LINE_BYTES} bytes "
+                                "(a touch row is about 200)")
+        try:
+            text = raw.decode("utf-8")
+        except UnicodeDecodeError as e:
+            raise ProbeLogError(f"{name}: line {n}: not UTF-8 text (byte {e.start + 1} of the "
+                                f"line is {raw[e.start:e.start + 1]!r})") from None
+        yield text[1:] if n == 1 and text.startswith("\ufeff") else text
+
+
+def _bad_cell(name: str, lineno: int, cells: Sequence[str]) -> ProbeLogError:
+    """The slow path: the first cell that does not parse, named by its column."""
+    for i, (col, cell) in enumerate(zip(HEADER, cells, strict=True)):
+        if i in _STR_COLS:
+            s = cell.strip()
+            if not s and col == "run_id":
+                return ProbeLogError(f"{name}: line {lineno}: column run_id: empty")
+            if len(s) > MAX_ID_CHARS or _CONTROL_RE.search(s):
+                return ProbeLogError(f"{name}: line {lineno}: column {col}: expected an id of "
+                                     f"at most {MAX_ID_CHARS} printable characters, "
+                                     f"got {s[:40]!r}")
+        elif i in _INT_COLS:
+            if not _INT_RE.fullmatch(cell):
+                return ProbeLogError(f"{name}: line {lineno}: column {col}: expected an "
+                                     f"integer, got {cell[:40]!r} (ASCII digits, < 1e9)")
+        else:
+            lo, hi = _RANGES[col]
+            if not _FLOAT_RE.fullmatch(cell):
+                return ProbeLogError(f"{name}: line {lineno}: column {col}: expected a finite "
+                                     f"number, got {cell[:40]!r} (ASCII decimal)")
+            if not lo <= float(cell) <= hi:
+                return ProbeLogError(f"{name}: line {lineno}: column {col}: {cell.strip()} "
+                                     f"outside [{lo:g}, {hi:g}]")
+    return ProbeLogError(f"{name}: line {lineno}: cannot be read")  # not reached
+
+
+def _ranges(values: np.ndarray) -> list[str]:
+    """Sorted unique ints → the missing runs between them, as 'a' or 'a–b'."""
+    d = np.flatnonzero(np.diff(values) > 1)
+    return [f"{values[k] + 1}" if values[k + 1] - values[k] == 2
+            else f"{values[k] + 1}–{values[k + 1] - 1}" for k in d]
+
+
+def _duplicate(keys: np.ndarray, lines: np.ndarray) -> tuple[int, int] | None:
+    """(first line, repeating line) of the earliest repeated key row, or None."""
+    order = np.lexsort(keys.T[::-1])  # stable: equal keys stay in file order
+    k = keys[order]
+    same = np.flatnonzero(np.all(k[1:] == k[:-1], axis=1))
+    if same.size == 0:
+        return None
+    j = int(same[np.argmin(lines[order[same + 1]])])  # the earliest repeating line
+    start = j
+    while start > 0 and np.all(k[start - 1] == k[j]):
+        start -= 1
+    return int(lines[order[start]]), int(lines[order[j + 1]])
+
+
+def _check_keys(log: ProbeLog, name: str) -> None:
+    """Duplicated touches or seq numbers are errors; seq gaps a warning (see module doc)."""
+    run = np.frombuffer(log._codes[0], np.dtype("l")).astype(np.int64)
+    ball = np.frombuffer(log._codes[HEADER.index("ball")], np.dtype("l")).astype(np.int64)
+    col = {c: log.column(c) for c in ("seq", "repeat", "pose", "touch")}
+    lines = np.frombuffer(log.lines, np.int64)
+    dup = _duplicate(np.stack([run, col["repeat"], col["pose"], ball, col["touch"]], 1), lines)
+    if dup is not None:
+        r = log[int(np.flatnonzero(lines == dup[1])[0])]
+        raise ProbeLogError(f"{name}: line {dup[1]}: touch {r.touch} of ball {r.ball} pose "
+                            f"{r.pose} repeat {r.repeat} run {r.run_id} duplicates line "
+                            f"{dup[0]}")
+    dup = _duplicate(np.stack([run, col["seq"]], 1), lines)
+    if dup is not None:
+        r = log[int(np.flatnonzero(lines == dup[1])[0])]
+        raise ProbeLogError(f"{name}: line {dup[1]}: seq {r.seq} of run {r.run_id} duplicates "
+                            f"line {dup[0]} (two touches cannot share a sequence number)")
+    for code, run_id in enumerate(log._names[0]):
+        missing = _ranges(np.sort(col["seq"][run == code]))
+        if missing:
+            shown = ", ".join(missing[:8]) + (f" and {len(missing) - 8} more gaps"
+                                              if len(missing) > 8 else "")
+            warnings.warn(f"{name}: run {run_id}: seq {shown} missing (touches lost in "
+                          "transfer, not triggered, or rows deleted); the ball-poses they "
+                          "belong to are incomplete and left out", ProbeLogWarning, stacklevel=3)
 
 
 def read_log(path: Path | str, artefact: Artefact | None = None,
-             text: str | None = None) -> list[LogRow]:
+             text: str | None = None) -> ProbeLog:
     """Read and validate a probing log (``text`` instead of the file content if given)."""
     name = str(path)
-    if text is None:
-        try:
-            text = Path(path).read_text(encoding="utf-8")
-        except (OSError, UnicodeDecodeError) as e:
-            raise ProbeLogError(f"{name}: cannot read: {e}") from None
-    lines = text.splitlines()
-    if not lines or lines[0].lstrip("\ufeff").strip() != MAGIC:
-        raise ProbeLogError(f"{name}: line 1: expected {MAGIC!r} (not a rumba probing log?)")
-    if len(lines) < 2 or [h.strip() for h in lines[1].split(",")] != HEADER:
-        raise ProbeLogError(f"{name}: line 2: expected the header {','.join(HEADER)}")
+    try:
+        if text is None:
+            with open(path, "rb") as f:
+                size = os.fstat(f.fileno()).st_size
+                if size > MAX_LOG_BYTES:
+                    raise ProbeLogError(f"{name}: {size} bytes, more than the reader's ceiling "
+                                        f"of {MAX_LOG_BYTES} (one run is far smaller)")
+                return _read(f, name, artefact)
+        return _read(io.BytesIO(text.encode("utf-8", "surrogatepass")), name, artefact)
+    except OSError as e:
+        raise ProbeLogError(f"{name}: cannot read: {e.strerror or e}") from None
+
+
+def _read(raw: Iterable[bytes], name: str, artefact: Artefact | None) -> ProbeLog:
+    reader = csv.reader(_decoded(raw, name))
+    try:
+        first = next(reader, [])
+        if len(first) != 1 or first[0].strip() != MAGIC:
+            raise ProbeLogError(f"{name}: line 1: expected {MAGIC!r} (not a rumba probing "
+                                "log?)")
+        if [h.strip() for h in next(reader, [])] != HEADER:
+            raise ProbeLogError(f"{name}: line 2: expected the header {','.join(HEADER)}")
+        log = _rows(reader, name, artefact)
+    except csv.Error as e:
+        raise ProbeLogError(f"{name}: line {reader.line_num}: not CSV: {e}") from None
+    if not len(log):
+        raise ProbeLogError(f"{name}: no touch rows after the header")
+    _check_keys(log, name)
+    return log
+
+
+def _rows(reader: Iterator[list[str]], name: str, artefact: Artefact | None) -> ProbeLog:
     ids = set(artefact.ids) if artefact is not None else None
-    rows: list[LogRow] = []
-    seen: dict[tuple, int] = {}
-    reader = csv.reader(io.StringIO("\n".join(lines[2:])))
-    for lineno, cells in enumerate(reader, start=3):
+    log = ProbeLog()
+    lookup: dict[int, dict[str, int]] = {i: {} for i in _STR_COLS}
+    int_m, float_m, ctrl = _INT_RE.fullmatch, _FLOAT_RE.fullmatch, _CONTROL_RE.search
+    i_touch, i_pose, i_rep = (_INT_COLS.index(HEADER.index(c)) for c in ("touch", "pose",
+                                                                          "repeat"))
+    for cells in reader:
+        lineno = reader.line_num  # type: ignore[attr-defined]
         if not cells or (len(cells) == 1 and not cells[0].strip()):
             continue
         if len(cells) != len(HEADER):
             raise ProbeLogError(f"{name}: line {lineno}: expected {len(HEADER)} columns, "
                                 f"got {len(cells)}")
-        try:  # fast path; on any failure the slow path below names the column
-            vals = [conv(cell) for conv, cell in zip(_CONVERTERS, cells, strict=True)]
-            if not all(map(math.isfinite, (vals[i] for i in _FLOAT_COLS))):
+        if len(log) >= MAX_LOG_ROWS:
+            raise ProbeLogError(f"{name}: line {lineno}: more than {MAX_LOG_ROWS} touch rows "
+                                "(the reader's ceiling; one run is far smaller)")
+        strs = [cells[i].strip() for i in _STR_COLS]
+        try:
+            if not (all(int_m(cells[i]) for i in _INT_COLS)
+                    and all(float_m(cells[i]) for i in _FLOAT_COLS)
+                    and strs[0] and all(len(s) <= MAX_ID_CHARS and not ctrl(s) for s in strs)):
+                raise ValueError
+            ints = [int(cells[i]) for i in _INT_COLS]
+            floats = [float(cells[i]) for i in _FLOAT_COLS]
+            if not all(lo <= v <= hi for v, (lo, hi) in zip(floats, _FLOAT_RANGES,
+                                                            strict=True)):
                 raise ValueError
         except ValueError:
-            vals = []
-            for col, cell in zip(HEADER, cells, strict=True):
-                typ = _TYPES[col]
-                try:
-                    vals.append(_parse(cell.strip(), typ))
-                except ValueError:
-                    what = "an integer" if typ == "int" else "a finite number"
-                    raise ProbeLogError(f"{name}: line {lineno}: column {col}: expected {what}, "
-                                        f"got {cell!r}") from None
-        row = LogRow(*vals)
-        if not row.run_id:
-            raise ProbeLogError(f"{name}: line {lineno}: column run_id: empty")
-        if ids is not None and row.ball not in ids:
+            raise _bad_cell(name, lineno, cells) from None
+        ball = strs[1]
+        if ids is not None and ball not in ids:
             raise ProbeLogError(f"{name}: line {lineno}: column ball: unknown ball id "
-                                f"{row.ball!r} (artefact {artefact.name} has {sorted(ids)})")
-        if not 1 <= row.touch <= TOUCHES_PER_BALL:
-            raise ProbeLogError(f"{name}: line {lineno}: column touch: {row.touch} outside "
+                                f"{ball!r} (artefact {artefact.name} has {sorted(ids)})")
+        if not 1 <= ints[i_touch] <= TOUCHES_PER_BALL:
+            raise ProbeLogError(f"{name}: line {lineno}: column touch: {ints[i_touch]} outside "
                                 f"1..{TOUCHES_PER_BALL}")
-        if row.pose < 0 or row.repeat < 0:
+        if ints[i_pose] < 0 or ints[i_rep] < 0:
             raise ProbeLogError(f"{name}: line {lineno}: column pose/repeat: must be ≥ 0")
-        key = (row.run_id, row.repeat, row.pose, row.ball, row.touch)
-        if key in seen:
-            raise ProbeLogError(f"{name}: line {lineno}: touch {row.touch} of ball {row.ball} "
-                                f"pose {row.pose} repeat {row.repeat} run {row.run_id} "
-                                f"duplicates line {seen[key]}")
-        seen[key] = lineno
-        rows.append(row)
-    if not rows:
-        raise ProbeLogError(f"{name}: no touch rows after the header")
-    return rows
+        log._append(strs, ints, floats, lineno, lookup)
+    return log
 
 
 def _fmt(v: object) -> str:
@@ -177,46 +396,78 @@ def write_log(path: Path | str | io.TextIOBase, rows: Iterable[LogRow]) -> None:
         Path(path).write_text(text, encoding="utf-8")
 
 
+_NEEDED = ("run_id", "repeat", "pose", "ball", "touch", "x_mm", "y_mm", "z_mm", "b_deg",
+           "c_deg", "t_s")
+
+
+def columns(rows: Sequence[LogRow], names: Sequence[str] = _NEEDED) -> dict[str, np.ndarray]:
+    """Columns of ``rows`` as numpy arrays (straight from a ``ProbeLog``, no row objects)."""
+    if isinstance(rows, ProbeLog):
+        return {h: rows.column(h) for h in names}
+    return {h: np.array([getattr(r, h) for r in rows],
+                        object if _TYPES[h] == "str" else float if _TYPES[h] == "float" else int)
+            for h in names}
+
+
 def rows_to_centres(rows: Sequence[LogRow], artefact: Artefact, stylus_radius_mm: float,
                     fixed_radius: bool = False, source: str = "log") -> CentreData:
     """Fit one centre per (run, repeat, pose, ball); incomplete groups are dropped with a
     ``ProbeLogWarning``. Several runs in one log are an error (setups differ between runs)."""
-    runs = sorted({r.run_id for r in rows})
+    col = columns(rows)
+    runs = sorted(set(col["run_id"].tolist()))
     if len(runs) > 1:
         raise ProbeLogError(f"{source}: contains runs {runs}; analyse one run at a time")
-    groups: dict[tuple[int, int, str], list[LogRow]] = {}
-    for r in rows:
-        groups.setdefault((r.repeat, r.pose, r.ball), []).append(r)
     order = {b: i for i, b in enumerate(artefact.ids)}
-    complete, msgs = [], []
-    for key in sorted(groups, key=lambda k: (k[0], k[1], order.get(k[2], 1 << 30))):
-        g = sorted(groups[key], key=lambda r: r.touch)
-        if len(g) < TOUCHES_PER_BALL:
-            have = [r.touch for r in g]
-            msgs.append(f"{source}: ball {key[2]} pose {key[1]} repeat {key[0]}: only touches "
-                        f"{have} of 1..{TOUCHES_PER_BALL}; this ball-pose is left out")
-            continue
-        spread = max(max(r.b_deg for r in g) - min(r.b_deg for r in g),
-                     max(r.c_deg for r in g) - min(r.c_deg for r in g))
-        if spread > ROTARY_SPREAD_DEG:
-            raise ProbeLogError(f"{source}: ball {key[2]} pose {key[1]} repeat {key[0]}: latched "
-                                f"b/c differ by {spread:.4f}° between touches "
-                                "(the rotary axes moved during probing)")
-        complete.append((key, g))
+    unknown = sorted(set(col["ball"].tolist()) - set(order))
+    if unknown:
+        raise ProbeLogError(f"{source}: unknown ball id(s) {unknown} (artefact {artefact.name} "
+                            f"has {list(artefact.ids)})")
+    touch = col["touch"]
+    if len(touch) and not np.all((touch >= 1) & (touch <= TOUCHES_PER_BALL)):
+        raise ProbeLogError(f"{source}: touch numbers outside 1..{TOUCHES_PER_BALL}")
+    ball = np.array([order[b] for b in col["ball"]], int)
+    keys = np.stack([col["repeat"], col["pose"], ball], axis=1).reshape(-1, 3)
+    uniq, inv = np.unique(keys, axis=0, return_inverse=True)  # sorted: repeat, pose, ball
+    slot = inv.reshape(-1) * TOUCHES_PER_BALL + touch - 1
+    if np.bincount(slot, minlength=1).max(initial=0) > 1:
+        g = uniq[inv.reshape(-1)[np.argmax(np.bincount(slot)[slot] > 1)]]
+        raise ProbeLogError(f"{source}: ball {artefact.ids[g[2]]} pose {g[1]} repeat {g[0]}: "
+                            "a touch number appears twice")
+    idx = np.full((len(uniq), TOUCHES_PER_BALL), -1)
+    idx.reshape(-1)[slot] = np.arange(len(slot))
+    msgs = []
+    for (rep, pose, b), have in zip(uniq, idx >= 0, strict=True):
+        if not have.all():
+            msgs.append(f"{source}: ball {artefact.ids[b]} pose {pose} repeat {rep}: only "
+                        f"touches {[int(t) + 1 for t in np.flatnonzero(have)]} of "
+                        f"1..{TOUCHES_PER_BALL}; this ball-pose is left out")
+    complete = np.all(idx >= 0, axis=1)
+    uniq, idx = uniq[complete], idx[complete]
+    b_g, c_g = col["b_deg"][idx], col["c_deg"][idx]
+    spread = np.maximum(np.ptp(b_g, axis=1), np.ptp(c_g, axis=1)) if len(idx) else b_g[:, 0]
+    if np.any(spread > ROTARY_SPREAD_DEG):
+        k = int(np.argmax(spread > ROTARY_SPREAD_DEG))
+        rep, pose, b = uniq[k]
+        raise ProbeLogError(f"{source}: ball {artefact.ids[b]} pose {pose} repeat {rep}: latched "
+                            f"b/c differ by {spread[k]:.4f}° between touches "
+                            "(the rotary axes moved during probing)")
     for m in msgs:
         warnings.warn(m, ProbeLogWarning, stacklevel=2)
-    if not complete:
+    if not len(uniq):
         raise ProbeLogError(f"{source}: no ball-pose has all {TOUCHES_PER_BALL} touches")
-    # (G, 5, 6) numbers per group: x y z b c t
-    num = np.array([[(r.x_mm, r.y_mm, r.z_mm, r.b_deg, r.c_deg, r.t_s) for r in g]
-                    for _, g in complete])
-    r_nom = np.array([artefact.balls[order[k[2]]].diameter_mm / 2 + stylus_radius_mm
-                      for k, _ in complete])
-    fit = fit_spheres(num[:, :, :3], r_nom, fixed_radius=fixed_radius)
-    pose = np.array([k[1] for k, _ in complete])
-    ball = np.array([order[k[2]] for k, _ in complete])
-    b_deg, c_deg, t_s = num[:, :, 3:].mean(axis=1).T
-    health = [GroupHealth(runs[0], k[0], k[1], k[2], float(fit.radius_dev_um[i]),
-                          float(fit.form_rms_um[i])) for i, (k, _) in enumerate(complete)]
-    centres = Centres(pose, ball, b_deg, c_deg, fit.centre_mm, t_s)
-    return CentreData(centres, np.array([k[0] for k, _ in complete]), health, msgs)
+    pts = np.stack([col["x_mm"], col["y_mm"], col["z_mm"]], axis=1)[idx]  # (G, 5, 3)
+    r_nom = np.array([artefact.balls[b].diameter_mm / 2 for b in uniq[:, 2]]) + stylus_radius_mm
+    try:
+        fit = fit_spheres(pts, r_nom, fixed_radius=fixed_radius)
+    except SphereFitError as e:
+        where = ""
+        if e.groups:
+            rep, pose, b = uniq[e.groups[0]]
+            where = f"ball {artefact.ids[b]} pose {pose} repeat {rep}: "
+        raise ProbeLogError(f"{source}: {where}sphere fit failed: {e.reason}") from None
+    health = [GroupHealth(runs[0], int(rep), int(pose), artefact.ids[b],
+                          float(fit.radius_dev_um[i]), float(fit.form_rms_um[i]))
+              for i, (rep, pose, b) in enumerate(uniq)]
+    centres = Centres(uniq[:, 1].copy(), uniq[:, 2].copy(), b_g.mean(axis=1), c_g.mean(axis=1),
+                      fit.centre_mm, col["t_s"][idx].mean(axis=1))
+    return CentreData(centres, uniq[:, 0].copy(), health, msgs)

@@ -172,6 +172,11 @@ def estimate(
     """
     if len(centres) == 0:
         raise RankDeficientError("no ball centre to estimate from")
+    finite = (np.isfinite(centres.xyz_mm).all(axis=1) & np.isfinite(centres.b_deg)
+              & np.isfinite(centres.c_deg))
+    if not finite.all():  # the SVD below would fail with a bare LinAlgError
+        bad = sorted({int(p) for p in centres.pose[~finite]})
+        raise ValueError(f"centres of poses {bad[:10]} are not finite numbers")
     try:
         ident = identifiable_links(machine, artefact, centres)
     except ValueError:

@@ -10,6 +10,7 @@ radius deviation = fitted − nominal radius (µm) and form residual RMS (µm).
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -19,7 +20,19 @@ _GN_TOL_MM = 1e-12
 
 
 class SphereFitError(ValueError):
-    """The points of a group cannot define a sphere (too few or degenerate)."""
+    """The points of a group cannot define a sphere (too few, degenerate, not finite).
+
+    ``groups``: indices of the offending groups (empty when the whole input is wrong), so a
+    caller can name them (ball, pose); ``reason``: the failure without the indices."""
+
+    def __init__(self, reason: str, groups: Sequence[int] | np.ndarray = ()) -> None:
+        self.reason = reason
+        self.groups = [int(g) for g in groups]
+        super().__init__(reason + (f" in groups {self.groups[:10]}" if self.groups else ""))
+
+
+def _bad_groups(mask: np.ndarray) -> np.ndarray:
+    return np.flatnonzero(mask.reshape(mask.shape[0], -1).any(axis=1))
 
 
 @dataclass(frozen=True)
@@ -38,10 +51,11 @@ def _algebraic(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     rhs = np.sum(points**2, axis=2)
     ata = a.transpose(0, 2, 1) @ a
     atb = (a.transpose(0, 2, 1) @ rhs[..., None])[..., 0]
-    cond = np.linalg.cond(ata)
+    with np.errstate(all="ignore"):
+        cond = np.linalg.cond(ata)
     if np.any(~np.isfinite(cond) | (cond > 1e14)):
         bad = np.flatnonzero(~np.isfinite(cond) | (cond > 1e14))
-        raise SphereFitError(f"degenerate point sets (coplanar/collinear) in groups {bad[:10]}")
+        raise SphereFitError("degenerate points (identical, collinear or coplanar)", bad)
     sol = np.linalg.solve(ata, atb[..., None])[..., 0]
     c = sol[:, :3]
     r = np.sqrt(np.maximum(sol[:, 3] + np.sum(c**2, axis=1), 0.0))
@@ -61,9 +75,23 @@ def fit_spheres(points_mm: np.ndarray, nominal_radius_mm: np.ndarray | float,
         raise SphereFitError(f"{n} points per group; a {'fixed' if fixed_radius else 'free'}"
                              f"-radius sphere needs at least {need}")
     r_nom = np.broadcast_to(np.asarray(nominal_radius_mm, float), (g,)).copy()
-    # Work relative to the group mean: better conditioned normal equations.
-    mean = pts.mean(axis=1, keepdims=True)
-    p = pts - mean
+    if not np.all(np.isfinite(pts)):
+        raise SphereFitError("coordinates are not finite", _bad_groups(~np.isfinite(pts)))
+    # Work relative to the group mean: better conditioned normal equations. Coordinates near
+    # the float range (1e308) overflow here; squared (1e155 and up) in the solves below.
+    with np.errstate(all="ignore"):
+        mean = pts.mean(axis=1, keepdims=True)
+        p = pts - mean
+        huge = ~np.isfinite(p) | ~np.isfinite(np.sum(p**2, axis=2))[..., None]
+    if huge.any():
+        raise SphereFitError("coordinates too large to fit", _bad_groups(huge))
+    with np.errstate(all="ignore"):
+        return _fit(p, mean, r_nom, fixed_radius)
+
+
+def _fit(p: np.ndarray, mean: np.ndarray, r_nom: np.ndarray, fixed_radius: bool) -> SphereFit:
+    """Gauss-Newton on mean-centred points (see ``fit_spheres``)."""
+    g, n, _ = p.shape
     if fixed_radius and n < 4:
         c = np.zeros((g, 3))
     else:
@@ -78,7 +106,12 @@ def fit_spheres(points_mm: np.ndarray, nominal_radius_mm: np.ndarray | float,
         jac = -u if fixed_radius else np.concatenate([-u, -np.ones((g, n, 1))], axis=2)
         jtj = jac.transpose(0, 2, 1) @ jac
         jtr = (jac.transpose(0, 2, 1) @ res[..., None])[..., 0]
-        step = -np.linalg.solve(jtj, jtr[..., None])[..., 0]
+        try:
+            step = -np.linalg.solve(jtj, jtr[..., None])[..., 0]
+        except np.linalg.LinAlgError:
+            cond = np.linalg.cond(jtj)
+            raise SphereFitError("singular normal equations (degenerate points)",
+                                 np.flatnonzero(~np.isfinite(cond) | (cond > 1e14))) from None
         c = c + step[:, :3]
         if not fixed_radius:
             r = r + step[:, 3]
@@ -86,4 +119,7 @@ def fit_spheres(points_mm: np.ndarray, nominal_radius_mm: np.ndarray | float,
             break
     res = np.linalg.norm(p - c[:, None, :], axis=2) - r[:, None]
     form = np.sqrt(np.mean(res**2, axis=1)) * 1e3
+    bad = ~np.isfinite(c).all(axis=1) | ~np.isfinite(r) | ~np.isfinite(form)
+    if bad.any():
+        raise SphereFitError("the fit did not converge to finite numbers", np.flatnonzero(bad))
     return SphereFit(c + mean[:, 0, :], r, (r - r_nom) * 1e3, form)

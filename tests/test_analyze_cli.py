@@ -9,7 +9,7 @@ import pytest
 from daemon.cli import main
 from daemon.commands.analyze import run_analysis
 from daemon.config import load_artefact, load_machine, load_plan
-from daemon.probelog import write_log
+from daemon.probelog import HEADER, write_log
 from tests.synth import THESIS_LINKS_UM_URAD, Truth, make_rows, to_internal
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -133,3 +133,84 @@ def test_repeats_give_one_centre_and_cluster_per_repeat(tmp_path: Path) -> None:
     assert sorted((x["pose"], x["repeat"]) for x in r["cluster"]) == [
         (p, k) for p in range(7) for k in (0, 1)]
     assert r["links"]["EX0C"]["value"] == pytest.approx(-50.0, abs=1.0)
+
+
+def _edit(log: Path, out: Path, fn) -> Path:
+    """Rewrite the data rows of ``log`` with ``fn(index, cells)`` (index from 0) into ``out``."""
+    lines = log.read_text().splitlines()
+    rows = [line.split(",") for line in lines[2:]]
+    for i, cells in enumerate(rows):
+        fn(i, cells)
+    out.write_text("\n".join([*lines[:2], *(",".join(c) for c in rows)]) + "\n")
+    return out
+
+
+X, Y, Z = (HEADER.index(c) for c in ("x_mm", "y_mm", "z_mm"))
+
+
+@pytest.mark.parametrize(("value", "match"), [
+    ("1e15", "line 9: column y_mm: 1e15 outside [-100000, 100000]"),
+    ("1e308", "line 9: column y_mm: 1e308 outside [-100000, 100000]"),
+    ("1_0.5", "line 9: column y_mm: expected a finite number, got '1_0.5' (ASCII decimal)"),
+])
+def test_absurd_coordinates_are_one_line_naming_the_cell(log, tmp_path, capsys, value,
+                                                          match) -> None:
+    def fn(i, cells):
+        if i == 6:
+            cells[Y] = value
+    bad = _edit(log, tmp_path / "big.csv", fn)
+    assert main(_args(bad)) == 2
+    err = capsys.readouterr().err
+    assert err == f"error: {bad}: {match}\n"
+
+
+@pytest.mark.parametrize("shape", ["identical", "collinear", "coplanar"])
+def test_degenerate_touches_are_one_line_naming_ball_and_pose(log, tmp_path, capsys,
+                                                               shape) -> None:
+    group = range((3 * 4 + 1) * 5, (3 * 4 + 2) * 5)  # pose 3, ball B2
+
+    def fn(i, cells):
+        if i in group:
+            k = i - group.start
+            xyz = {"identical": (10.0, 20.0, 30.0), "collinear": (k, 2.0 * k, 3.0 * k),
+                   "coplanar": (float(cells[X]), float(cells[Y]), 0.0)}[shape]
+            cells[X], cells[Y], cells[Z] = (repr(float(v)) for v in xyz)
+    bad = _edit(log, tmp_path / "flat.csv", fn)
+    assert main(_args(bad)) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"error: {bad}: ball B2 pose 3 repeat 0: sphere fit failed: "
+                          "degenerate points") and err.count("\n") == 1
+
+
+def test_non_finite_centres_are_an_analysis_error_naming_ball_and_pose(log) -> None:
+    from daemon.analysis import AnalysisError, analyse_centres
+    from daemon.config import ConfigError
+    from daemon.probelog import read_log, rows_to_centres
+
+    m, _ = load_machine(MACHINE)
+    a = load_artefact(ARTEFACT)
+    data = rows_to_centres(read_log(log, a), a, 3.0)
+    data.centres.xyz_mm[5] = [1e308, np.inf, 0.0]
+    with pytest.raises(AnalysisError, match=r"x.csv: centre of ball B2 pose 1 is not a finite"):
+        analyse_centres(m, a, data, source="x.csv")
+    data.centres.xyz_mm[5] = [1e150, -1e150, 1e150]  # finite, but the estimate cannot cope
+    with pytest.raises(AnalysisError, match=r"x.csv: estimate \(setup \+ links\)"):
+        analyse_centres(m, a, data, source="x.csv")
+    assert issubclass(AnalysisError, ConfigError)  # the CLI prints it as one line
+
+
+def test_seq_gaps_and_duplicates(log, tmp_path, capsys) -> None:
+    def drop(i, cells):
+        if i in (40, 41):
+            cells[:] = []
+    gap = _edit(log, tmp_path / "gap.csv", drop)
+    gap.write_text("\n".join(x for x in gap.read_text().splitlines() if x) + "\n")
+    r = run_analysis(gap, MACHINE, ARTEFACT)
+    assert any("seq 41–42 missing" in w for w in r["warnings"])
+    assert any("ball B1 pose 2 repeat 0: only touches [3, 4, 5]" in w for w in r["warnings"])
+
+    def dup(i, cells):
+        if i == 30:
+            cells[1] = "2"
+    assert main(_args(_edit(log, tmp_path / "dup.csv", dup))) == 2
+    assert "line 33: seq 2 of run synth duplicates line 4" in capsys.readouterr().err

@@ -132,3 +132,128 @@ def test_mixed_runs_and_moving_rotary_are_errors(setup) -> None:
     moved[2] = moved[2].__class__(**{**moved[2].__dict__, "c_deg": 0.5})
     with pytest.raises(ProbeLogError, match="rotary axes moved"):
         rows_to_centres(moved, a, 3.0)
+
+
+# ------------------------------------------------------------------ issue 10: strict numbers,
+# seq, ceilings, encodings, numerical failures named by ball and pose
+
+
+@pytest.mark.parametrize(("col", "value", "match"), [
+    ("seq", "٣", r"line 7: column seq: expected an integer, got '٣'"),
+    ("pose", "１", r"line 7: column pose: expected an integer, got '１'"),
+    ("seq", "1_0", r"line 7: column seq: expected an integer, got '1_0'"),
+    ("x_mm", "1_0.5", r"line 7: column x_mm: expected a finite number, got '1_0.5'"),
+    ("x_mm", "٣.5", r"line 7: column x_mm: expected a finite number"),
+    ("y_mm", "Infinity", r"line 7: column y_mm: expected a finite number"),
+    ("z_mm", " nan ", r"line 7: column z_mm: expected a finite number"),
+    ("x_mm", "1e15", r"line 7: column x_mm: 1e15 outside \[-100000, 100000\]"),
+    ("y_mm", "-1e308", r"line 7: column y_mm: -1e308 outside"),
+    ("z_mm", "1e999", r"line 7: column z_mm: 1e999 outside"),
+    ("feed_mm_min", "-5", r"line 7: column feed_mm_min: -5 outside"),
+    ("run_id", "a\x00b", r"line 7: column run_id: expected an id"),
+])
+def test_numbers_are_ascii_decimal_and_within_ceilings(setup, tmp_path, col, value,
+                                                        match) -> None:
+    _, a, _, rows = setup
+    with pytest.raises(ProbeLogError, match=match):
+        read_log(_corrupt(tmp_path, rows, 7, col, value), a)
+
+
+def test_plain_ascii_forms_are_accepted(setup, tmp_path) -> None:
+    _, a, _, rows = setup
+    for col, value in [("x_mm", "+1.5e+2"), ("y_mm", ".5"), ("z_mm", " -3. "), ("seq", "+5")]:
+        got = read_log(_corrupt(tmp_path, rows, 7, col, value), a)
+        assert getattr(got[4], col) == float(value)
+
+
+def test_duplicated_seq_names_both_lines(setup, tmp_path) -> None:
+    _, a, _, rows = setup
+    p = _corrupt(tmp_path, rows, 9, "seq", str(rows[1].seq))  # line 4 holds rows[1]
+    with pytest.raises(ProbeLogError, match=r"line 9: seq 2 of run synth duplicates line 4"):
+        read_log(p, a)
+
+
+def test_seq_gaps_are_a_warning_listing_the_missing_ranges(setup, tmp_path) -> None:
+    _, a, _, rows = setup
+    kept = [r for r in rows if r.seq not in (3, 10, 11, 12)]
+    write_log(tmp_path / "gap.csv", kept)
+    with pytest.warns(ProbeLogWarning, match=r"run synth: seq 3, 10–12 missing"):
+        got = read_log(tmp_path / "gap.csv", a)
+    assert len(got) == len(kept)
+
+
+def test_ceilings_on_bytes_rows_and_line_length(setup, tmp_path, monkeypatch) -> None:
+    import daemon.probelog as pl
+
+    _, a, _, rows = setup
+    write_log(tmp_path / "log.csv", rows)
+    size = (tmp_path / "log.csv").stat().st_size
+    monkeypatch.setattr(pl, "MAX_LOG_BYTES", size - 1)
+    with pytest.raises(ProbeLogError, match=rf"{size} bytes, more than the reader's ceiling"):
+        read_log(tmp_path / "log.csv", a)
+    with pytest.raises(ProbeLogError, match=r"line 62: the log is larger than"):
+        read_log("text", a, text=(tmp_path / "log.csv").read_text())
+    monkeypatch.setattr(pl, "MAX_LOG_BYTES", 10 * size)
+    monkeypatch.setattr(pl, "MAX_LOG_ROWS", 10)
+    with pytest.raises(ProbeLogError, match=r"line 13: more than 10 touch rows"):
+        read_log(tmp_path / "log.csv", a)
+    monkeypatch.setattr(pl, "MAX_LOG_ROWS", 10**6)
+    p = _corrupt(tmp_path, rows, 8, "run_id", "r" * 5000)
+    with pytest.raises(ProbeLogError, match=r"line 8: longer than 4096 bytes"):
+        read_log(p, a)
+
+
+def test_encodings_bom_crlf_and_bad_bytes(setup, tmp_path) -> None:
+    _, a, _, rows = setup
+    lines = _lines(tmp_path, rows)
+    p = tmp_path / "crlf.csv"
+    p.write_bytes(b"\xef\xbb\xbf" + "\r\n".join(lines).encode() + b"\r\n")
+    assert read_log(p, a) == rows
+    raw = "\n".join(lines).encode().split(b"\n")
+    raw[10] = raw[10][:5] + b"\xff\xfe" + raw[10][5:]
+    p.write_bytes(b"\n".join(raw))
+    with pytest.raises(ProbeLogError, match=r"line 11: not UTF-8 text \(byte 6"):
+        read_log(p, a)
+
+
+def test_columns_are_compact_and_rows_compare_equal(setup, tmp_path) -> None:
+    _, a, _, rows = setup
+    write_log(tmp_path / "log.csv", rows)
+    got = read_log(tmp_path / "log.csv", a)
+    assert got == rows and rows == got and got[-1] == rows[-1] and got[:3] == rows[:3]
+    assert got.column("x_mm").dtype == float and list(got.column("ball")[:5]) == ["B1"] * 5
+    assert list(got.lines[:2]) == [3, 4]
+
+
+def _moved(rows, pose: int, ball: str, fn) -> list:
+    from dataclasses import replace
+
+    out = []
+    for r in rows:
+        if r.pose == pose and r.ball == ball:
+            x, y, z = fn(r)
+            r = replace(r, x_mm=x, y_mm=y, z_mm=z)
+        out.append(r)
+    return out
+
+
+@pytest.mark.parametrize(("fn", "what"), [
+    (lambda r: (1.0, 2.0, 3.0), "degenerate"),  # all five touches at one point
+    (lambda r: (r.touch * 1.0, r.touch * 2.0, r.touch * 3.0), "degenerate"),  # collinear
+    (lambda r: (r.x_mm, r.y_mm, 7.0), "degenerate"),  # coplanar: the pole on the equator
+    (lambda r: (1e308 * (-1) ** r.touch, 1e308, 0.0), "too large"),
+    (lambda r: (1e15 + r.touch, 1e15, -1e15), ""),
+    (lambda r: (float("nan"), 0.0, 0.0), "not finite"),
+])
+def test_numerical_failures_name_the_ball_and_pose(setup, fn, what) -> None:
+    _, a, _, rows = setup
+    bad = _moved(rows, 1, "B3", fn)
+    with pytest.raises(ProbeLogError, match=rf"ball B3 pose 1 repeat 0: sphere fit failed: "
+                                            rf".*{what}"):
+        rows_to_centres(bad, a, 3.0, source="x.csv")
+
+
+def test_probelog_errors_are_config_errors_the_cli_prints_as_one_line() -> None:
+    from daemon.config import ConfigError
+
+    assert issubclass(ProbeLogError, ConfigError)

@@ -64,3 +64,30 @@ def test_degenerate_or_too_few_points() -> None:
         fit_spheres(line, 1.0)
     with pytest.raises(SphereFitError, match="at least 4"):
         fit_spheres(np.zeros((1, 3, 3)), 1.0)
+
+
+@pytest.mark.parametrize(("scale", "reason"), [(1e308, "too large"), (1e200, "too large"),
+                                               (np.inf, "not finite"), (np.nan, "not finite")])
+def test_huge_or_non_finite_points_name_their_group(scale, reason) -> None:
+    pts = _pattern(np.zeros((3, 3)), 15.0)
+    with np.errstate(all="ignore"):
+        pts[1] = DIRS * scale  # |components| ≤ 1: finite for 1e308
+    with pytest.raises(SphereFitError, match=reason) as e:
+        fit_spheres(pts, 15.0)
+    assert e.value.groups == [1] and reason in e.value.reason
+
+
+@pytest.mark.parametrize("shape", ["identical", "collinear", "coplanar"])
+@pytest.mark.parametrize("fixed", [False, True])
+def test_degenerate_groups_are_named(shape, fixed) -> None:
+    pts = _pattern(np.zeros((4, 3)), 15.0)
+    k = np.arange(5.0)[:, None]
+    pts[2] = {"identical": np.full((5, 3), 7.0), "collinear": k * [1.0, 2.0, 3.0],
+              "coplanar": np.concatenate([pts[2][:, :2], np.zeros((5, 1))], axis=1)}[shape]
+    try:
+        fit = fit_spheres(pts, 15.0, fixed_radius=fixed)
+    except SphereFitError as e:
+        assert e.groups == [2] and "degenerate" in e.reason
+    else:  # a fixed-radius fit can place a sphere on coplanar points; then it is finite
+        assert fixed and shape == "coplanar" and np.isfinite(fit.centre_mm).all()
+

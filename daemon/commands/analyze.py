@@ -73,7 +73,10 @@ def run_analysis(log: Path | str, machine_path: Path | str, artefact_path: Path 
     artefact = load_artefact(artefact_path)
     chosen = parse_links(links, machine.location_error_names())
     try:
-        rows = read_log(log, artefact)
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")  # the reader's (seq gaps) go into the JSON too
+            rows = read_log(log, artefact)
+        read_warnings = [str(w.message) for w in caught]
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # returned in data.warnings and reported below
             data = rows_to_centres(rows, artefact, stylus_diameter_mm / 2, fixed_radius,
@@ -83,6 +86,7 @@ def run_analysis(log: Path | str, machine_path: Path | str, artefact_path: Path 
                               fixed_radius=fixed_radius, source=str(log))
     except (ProbeLogError, AnalysisError) as e:
         raise _user_error(str(e)) from None
+    out["warnings"] = read_warnings + out["warnings"]
     return {"log": str(log), **out}
 
 

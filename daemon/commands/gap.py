@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from daemon.config import load_artefact, load_machine, load_plan
-from daemon.probelog import LogRow, ProbeLogError, read_log
+from daemon.probelog import LogRow, ProbeLogError, columns, read_log
 from identification.effects import FAMILIES, Effect, library
 from identification.gap import Options, TouchData, diagnose
 from identification.gap.split import SPLITS
@@ -30,20 +30,25 @@ def _user_error(msg: str) -> Exception:
 
 def touches_from_rows(rows: Sequence[LogRow], artefact: Artefact, source: str) -> TouchData:
     """Probing-log rows → touch arrays (one run only: setups differ between runs)."""
-    runs = sorted({r.run_id for r in rows})
+    col = columns(rows, ("run_id", "repeat", "pose", "ball", "touch", "t_s", "b_deg", "c_deg",
+                         "dir_x", "dir_y", "dir_z", "x_mm", "y_mm", "z_mm"))
+    runs = sorted(set(col["run_id"].tolist()))
     if len(runs) > 1:
         raise ProbeLogError(f"{source}: contains runs {runs}; diagnose one run at a time")
     order = {b: i for i, b in enumerate(artefact.ids)}
-    d = np.array([[r.dir_x, r.dir_y, r.dir_z] for r in rows], float)
+    unknown = sorted(set(col["ball"].tolist()) - set(order))
+    if unknown:
+        raise ProbeLogError(f"{source}: unknown ball id(s) {unknown} (artefact "
+                            f"{artefact.name} has {list(artefact.ids)})")
+    d = np.stack([col["dir_x"], col["dir_y"], col["dir_z"]], axis=1).reshape(-1, 3)
     n = np.linalg.norm(d, axis=1)
     if np.any(n < 1e-9):
         raise ProbeLogError(f"{source}: a touch has a zero approach direction (dir_x/y/z)")
     return TouchData(
-        repeat=np.array([r.repeat for r in rows]), pose=np.array([r.pose for r in rows]),
-        ball=np.array([order[r.ball] for r in rows]), touch=np.array([r.touch for r in rows]),
-        t_s=np.array([r.t_s for r in rows], float), b_deg=np.array([r.b_deg for r in rows]),
-        c_deg=np.array([r.c_deg for r in rows]), direction=d / n[:, None],
-        xyz_mm=np.array([[r.x_mm, r.y_mm, r.z_mm] for r in rows], float))
+        repeat=col["repeat"], pose=col["pose"],
+        ball=np.array([order[b] for b in col["ball"]], int), touch=col["touch"],
+        t_s=col["t_s"], b_deg=col["b_deg"], c_deg=col["c_deg"], direction=d / n[:, None],
+        xyz_mm=np.stack([col["x_mm"], col["y_mm"], col["z_mm"]], axis=1).reshape(-1, 3))
 
 
 def _families(text: str | None) -> tuple[str, ...]:

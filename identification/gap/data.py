@@ -19,7 +19,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from identification.model import Artefact, Centres
-from identification.spherefit import fit_spheres
+from identification.spherefit import SphereFitError, fit_spheres
 
 TOUCHES = 5
 
@@ -108,7 +108,14 @@ def group_touches(data: TouchData, artefact: Artefact, stylus_radius_mm: float) 
     uniq, idx, t_g = uniq[order], idx[order], t_g[order]
     pts = data.xyz_mm[idx]
     r_nom = np.array([artefact.balls[b].diameter_mm / 2 for b in uniq[:, 2]]) + stylus_radius_mm
-    fit = fit_spheres(pts, r_nom)
+    try:
+        fit = fit_spheres(pts, r_nom)
+    except SphereFitError as e:
+        if not e.groups:
+            raise
+        rep, pose, ball = (int(v) for v in uniq[e.groups[0]])
+        raise ValueError(f"ball {artefact.ids[ball]} pose {pose} repeat {rep}: sphere fit "
+                         f"failed: {e.reason}") from None
     diff = pts - fit.centre_mm[:, None, :]
     dist = np.linalg.norm(diff, axis=2)
     normal = diff / dist[..., None]

@@ -1,0 +1,126 @@
+"""Property-based fuzzing of the probing-log reader: a mutated log is read or refused cleanly."""
+
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from daemon.config import load_artefact, load_machine
+from daemon.probelog import (
+    HEADER,
+    ProbeLog,
+    ProbeLogError,
+    ProbeLogWarning,
+    read_log,
+    rows_to_centres,
+    write_log,
+)
+from tests.synth import Truth, make_rows
+
+CFG = Path(__file__).resolve().parents[1] / "config"
+ARTEFACT = load_artefact(CFG / "artefacts/thesis_4ball.yaml")
+
+
+@pytest.fixture(scope="module")
+def valid(tmp_path_factory) -> tuple[Path, list[bytes]]:
+    m, _ = load_machine(CFG / "machines/thesis_wcbxfzyt.yaml")
+    rows = make_rows(m, ARTEFACT, [(0.0, 0.0), (30.0, 90.0)], Truth({"EX0C": -0.1}),
+                     touch_noise_um=0.5, seed=1)
+    d = tmp_path_factory.mktemp("fuzz")
+    write_log(d / "valid.csv", rows)
+    return d / "fuzz.csv", (d / "valid.csv").read_bytes().split(b"\n")
+
+
+_NUMBERS = st.one_of(
+    st.floats(allow_nan=True, allow_infinity=True).map(repr),
+    st.integers(min_value=-10**30, max_value=10**30).map(str),
+    st.sampled_from(["1e15", "-1e308", "1e999", "1_0", "٣", "１", "0x10", "", " ", "+", "-.",
+                     "1e", "NaN", "inf", "9" * 400, "1.5.2", "\u00a01", "1\x00", '"1,2"']))
+_CELLS = st.one_of(_NUMBERS, st.text(max_size=30), st.sampled_from(["B1", "B4", "B9", "synth"]))
+_MUTATION = st.one_of(
+    st.tuples(st.just("cell"), st.integers(0, 50), st.integers(0, len(HEADER) - 1), _CELLS),
+    st.tuples(st.just("drop"), st.integers(0, 50)),
+    st.tuples(st.just("dup"), st.integers(0, 50)),
+    st.tuples(st.just("swap"), st.integers(0, 50), st.integers(0, 50)),
+    st.tuples(st.just("bytes"), st.integers(0, 50), st.integers(0, 300), st.binary(max_size=6)),
+    st.tuples(st.just("long"), st.integers(0, 50), st.integers(100, 20_000)),
+    st.tuples(st.just("nul"), st.integers(0, 50), st.integers(0, 300)),
+    st.tuples(st.sampled_from(["bom", "crlf", "cr", "truncate"]), st.integers(0, 5000)),
+)
+
+
+def _mutate(lines: list[bytes], ops: list[tuple]) -> bytes:
+    lines = list(lines)
+    for op in ops:
+        kind, k = op[0], op[1] % max(len(lines), 1)
+        if not lines:
+            break
+        if kind == "cell":
+            cells = lines[k].split(b",")
+            cells[op[2] % len(cells)] = op[3].encode("utf-8", "surrogatepass")
+            lines[k] = b",".join(cells)
+        elif kind == "drop":
+            del lines[k]
+        elif kind == "dup":
+            lines.insert(k, lines[k])
+        elif kind == "swap":
+            j = op[2] % len(lines)
+            lines[k], lines[j] = lines[j], lines[k]
+        elif kind in ("bytes", "nul"):
+            insert = op[3] if kind == "bytes" else b"\x00"
+            pos = op[2] % (len(lines[k]) + 1)
+            lines[k] = lines[k][:pos] + insert + lines[k][pos:]
+        elif kind == "long":
+            lines[k] = lines[k] + b"9" * op[2]
+        elif kind == "bom":
+            lines[0] = b"\xef\xbb\xbf" + lines[0]
+    data = b"\n".join(lines)
+    for op in ops:
+        if op[0] == "crlf":
+            data = data.replace(b"\n", b"\r\n")
+        elif op[0] == "cr":
+            data = data.replace(b"\n", b"\r")
+        elif op[0] == "truncate":
+            data = data[:op[1] % (len(data) + 1)]
+    return data
+
+
+def _clean(e: ProbeLogError, path: Path) -> None:
+    msg = str(e)
+    assert "\n" not in msg and msg.startswith(str(path)), msg
+    assert len(msg) < 600, msg
+
+
+@settings(max_examples=150, deadline=None, derandomize=True,
+          suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(ops=st.lists(_MUTATION, min_size=1, max_size=4))
+def test_mutated_log_is_read_or_refused_with_one_named_line(valid, ops) -> None:
+    path, lines = valid
+    path.write_bytes(_mutate(lines, ops))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ProbeLogWarning)
+        try:
+            log = read_log(path, ARTEFACT)
+        except ProbeLogError as e:
+            _clean(e, path)
+            msg = str(e)
+            assert ": line " in msg or "no touch rows" in msg or "bytes, more than" in msg, msg
+            return
+        assert isinstance(log, ProbeLog) and len(log) > 0
+        for name in ("x_mm", "y_mm", "z_mm"):
+            assert np.all(np.abs(log.column(name)) <= 1e5)
+        try:
+            data = rows_to_centres(log, ARTEFACT, 3.0, source=str(path))
+        except ProbeLogError as e:
+            _clean(e, path)
+            return
+        assert np.isfinite(data.centres.xyz_mm).all()
+
+
+def test_the_unmutated_log_reads(valid) -> None:
+    path, lines = valid
+    path.write_bytes(b"\n".join(lines))
+    assert len(rows_to_centres(read_log(path, ARTEFACT), ARTEFACT, 3.0).centres) == 8
