@@ -18,9 +18,27 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 from identification.kinematics import Axis, Machine, TopologyError
 from identification.model import Artefact, Ball, CalibratedDistance
 
-SAFE_NAME = re.compile(r"^[A-Za-z0-9_.-]{1,32}$")
+SAFE_NAME = re.compile(r"\A[A-Za-z0-9_.-]{1,32}\Z")
 """Names that reach G-code (ball ids, machine and plan names) must match this: no spaces,
-parentheses, semicolons, quotes or line breaks, so nothing can be injected into a program."""
+parentheses, semicolons, quotes or line breaks, so nothing can be injected into a program.
+Use ``fullmatch``: with ``match`` and ``$`` a trailing newline would slip through (``\\Z`` also
+guards a caller that uses ``match``)."""
+
+MAX_YAML_BYTES = 1 << 20
+"""Ceiling on the size of a configuration file (1 MiB; the shipped ones are under 2 kB)."""
+MAX_YAML_NODES = 100_000
+"""Ceiling on the values in one file, aliases counted each time they are used (a YAML "billion
+laughs" file is small on disk and huge once expanded)."""
+MAX_YAML_DEPTH = 32
+"""Ceiling on the nesting of lists and mappings (the schemas need 5)."""
+MAX_POSES = 2_000
+"""Ceiling on the poses of a plan (list or grid; the biggest shipped plan has 175), checked
+before a grid is expanded."""
+MAX_TOUCHES = 20_000
+"""Ceiling on the touches of one program: visits (poses × repeats, + 1 with drift_check) ×
+balls × 5 (the biggest shipped plan gives 3 500)."""
+MAX_BALLS = 32
+"""Ceiling on the balls of an artefact (the shipped ones have 4 or 5)."""
 
 
 class ConfigError(ValueError):
@@ -28,7 +46,8 @@ class ConfigError(ValueError):
 
 
 class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    # allow_inf_nan=False: .nan / .inf / 1e400 are refused in every float of every file schema
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
 Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]
@@ -42,7 +61,7 @@ def _finite(v: list[float]) -> list[float]:
 
 
 def _safe_name(v: str) -> str:
-    if not SAFE_NAME.match(v):
+    if not SAFE_NAME.fullmatch(v):
         raise ValueError(
             "must be 1-32 characters of letters, digits, '_', '.', '-' (it is written into G-code)"
         )
@@ -162,7 +181,7 @@ class ArtefactFile(_Strict):
     name: str
     ball_diameter_mm: float = Field(25.4, gt=0, le=200)
     rod_diameter_mm: float = Field(8.0, gt=0, le=100)
-    balls: list[BallFile] = Field(min_length=1)
+    balls: list[BallFile] = Field(min_length=1, max_length=MAX_BALLS)
     distances: list[DistanceFile] = []
     _n = field_validator("name")(_safe_name)
 
@@ -194,6 +213,17 @@ class Grid(_Strict):
     b: GridAxis
     c: GridAxis
 
+    @model_validator(mode="after")
+    def _ceiling(self) -> Grid:
+        # counted from range / step before anything is expanded (step_deg: 1e-7 must not
+        # allocate for half a minute and run out of memory)
+        n = _grid_size(self.b) * _grid_size(self.c)
+        if n > MAX_POSES:
+            raise ValueError(f"the grid gives {n:.4g} poses ({_grid_size(self.b):.4g} b × "
+                             f"{_grid_size(self.c):.4g} c), more than the ceiling of "
+                             f"{MAX_POSES} poses per plan; use a larger step_deg")
+        return self
+
 
 class PoseFile(_Strict):
     b_deg: float
@@ -212,7 +242,7 @@ class PlanFile(_Strict):
     # the stylus stem, checked by the safety check as a cylinder from the tip along the spindle
     stylus_length_mm: float = Field(50.0, gt=0, le=300)
     stem_diameter_mm: float | None = Field(None, gt=0, le=50)  # default: 0.75 × ball diameter
-    poses: list[PoseFile | Range2] | None = None
+    poses: list[PoseFile] | None = None  # [b_deg, c_deg] entries are read as PoseFile
     grid: Grid | None = None
     feeds: FeedsFile = FeedsFile()
     standoff_mm: float = Field(2.0, gt=0, le=50)
@@ -225,6 +255,23 @@ class PlanFile(_Strict):
     # the health limit run_drift_um). Costs one pose.
     drift_check: bool = False
     _n = field_validator("name")(_safe_name)
+
+    @field_validator("poses", mode="before")
+    @classmethod
+    def _pose_ceiling(cls, v: Any) -> Any:
+        if not isinstance(v, list):
+            return v
+        if len(v) > MAX_POSES:
+            raise ValueError(f"{len(v)} poses, more than the ceiling of {MAX_POSES} per plan")
+        # [b, c] → {b_deg, c_deg}: one schema, so errors name poses.<i>.<key>, not union arms
+        out = []
+        for i, p in enumerate(v):
+            if isinstance(p, list):
+                if len(p) != 2:
+                    raise ValueError(f"pose {i}: expected [b_deg, c_deg], got {len(p)} items")
+                p = {"b_deg": p[0], "c_deg": p[1]}
+            out.append(p)
+        return out
 
     @model_validator(mode="after")
     def _one_pose_source(self) -> PlanFile:
@@ -266,30 +313,111 @@ class Plan(_Strict):
         return [i for i, p in enumerate(self.poses) if p.role == role]
 
 
+def _grid_size(g: GridAxis) -> float:
+    """How many values a grid axis gives, from range / step without expanding it (inf when the
+    span overflows)."""
+    span = (g.stop_deg - g.start_deg) / g.step_deg
+    return float(max(math.floor(span + 1e-9) + 1, 0)) if span < 1e15 else span
+
+
 def _grid(g: GridAxis) -> list[float]:
-    n = math.floor((g.stop_deg - g.start_deg) / g.step_deg + 1e-9) + 1
-    return [round(g.start_deg + k * g.step_deg, 9) for k in range(max(n, 0))]
+    n = int(_grid_size(g))  # bounded by Grid._ceiling
+    return [round(g.start_deg + k * g.step_deg, 9) for k in range(n)]
 
 
-def _read_yaml(path: Path) -> Any:
+def _one_line(text: object, limit: int = 200) -> str:
+    """A user-supplied fragment made printable on one line (keys, parser messages)."""
+    s = str(text)
+    if not s.isprintable() or len(s) > limit:
+        s = repr(s[:limit])
+    return s
+
+
+def _check_shape(data: Any, path: Path | str) -> None:
+    """Refuse too deep or (with aliases expanded) too many values: iterative, so a deep file
+    cannot exhaust the stack here or later in validation."""
+    stack: list[tuple[Any, int, str]] = [(data, 0, "")]
+    count = 0
+    while stack:
+        node, depth, key = stack.pop()
+        count += 1
+        if count > MAX_YAML_NODES:
+            raise ConfigError(f"{path}: {key or '<top>'}: more than {MAX_YAML_NODES} values "
+                              "(aliases counted each time they are used)")
+        if isinstance(node, dict | list):
+            if depth >= MAX_YAML_DEPTH:
+                raise ConfigError(f"{path}: {key or '<top>'}: nested deeper than "
+                                  f"{MAX_YAML_DEPTH} levels")
+            items = node.items() if isinstance(node, dict) else enumerate(node)
+            for k, v in items:
+                sub = f"{key}.{_one_line(k, 40)}" if key else _one_line(k, 40)
+                stack.append((v, depth + 1, sub))
+
+
+class _TooDeep(Exception):
+    pass
+
+
+class _Loader(yaml.SafeLoader):
+    """The safe loader, stopping at MAX_YAML_DEPTH while composing (not after scanning 50 000
+    brackets and overflowing the stack)."""
+
+    _depth = 0
+
+    def compose_node(self, parent: Any, index: Any) -> Any:
+        self._depth += 1
+        try:
+            if self._depth > MAX_YAML_DEPTH + 1:
+                raise _TooDeep
+            return super().compose_node(parent, index)
+        finally:
+            self._depth -= 1
+
+
+def read_yaml(path: Path | str) -> Any:
+    """The one YAML reader of every schema: size ceiling (MAX_YAML_BYTES), UTF-8, safe loader,
+    nesting and value-count ceilings; any failure is one ``ConfigError`` line naming the file."""
+    path = Path(path)
     try:
-        text = Path(path).read_text(encoding="utf-8")
-    except OSError as e:
-        raise ConfigError(f"{path}: cannot read: {e.strerror}") from None
+        with path.open("rb") as f:
+            raw = f.read(MAX_YAML_BYTES + 1)
+    except (OSError, ValueError) as e:  # ValueError: a NUL in the path
+        raise ConfigError(f"{path}: cannot read: {getattr(e, 'strerror', None) or e}") from None
+    if len(raw) > MAX_YAML_BYTES:
+        raise ConfigError(f"{path}: larger than {MAX_YAML_BYTES} bytes: not a configuration file")
     try:
-        return yaml.safe_load(text)
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as e:
+        raise ConfigError(f"{path}: byte {e.start}: not UTF-8 text") from None
+    try:
+        loader = _Loader(text)
+        try:
+            data = loader.get_single_data()
+        finally:
+            loader.dispose()
     except yaml.YAMLError as e:
         mark = getattr(e, "problem_mark", None)
         where = f" line {mark.line + 1} column {mark.column + 1}" if mark else ""
-        raise ConfigError(f"{path}:{where}: not valid YAML: {getattr(e, 'problem', e)}") from None
+        problem = _one_line(getattr(e, "problem", None) or e)
+        raise ConfigError(f"{path}:{where}: not valid YAML: {problem}") from None
+    except (RecursionError, _TooDeep):
+        raise ConfigError(f"{path}: nested deeper than {MAX_YAML_DEPTH} levels") from None
+    except (ValueError, OverflowError) as e:  # an integer of > 4300 digits, a bad timestamp
+        raise ConfigError(f"{path}: not a valid value: {_one_line(e)}") from None
+    _check_shape(data, path)
+    return data
+
+
+_read_yaml = read_yaml  # the name the other schema modules imported first
 
 
 def format_validation(path: Path | str, err: ValidationError) -> str:
     """One line per problem: ``file: key.path: message``."""
     parts = []
     for e in err.errors():
-        loc = ".".join(str(x) for x in e["loc"] if not str(x).startswith(("function-after",)))
-        msg = e["msg"].removeprefix("Value error, ")
+        loc = ".".join(_one_line(x, 40) for x in e["loc"]
+                       if not str(x).startswith(("function-after",)))
+        msg = _one_line(e["msg"].removeprefix("Value error, "), 300)
         if e["type"] == "extra_forbidden":
             msg = "unknown key (not in the schema; check spelling)"
         parts.append(f"{path}: {loc or '<top>'}: {msg}")
@@ -349,8 +477,7 @@ def plan_from_dict(data: Any, path: Path | str = "<plan>") -> Plan:
     if pf.grid is not None:
         poses = [PoseFile(b_deg=b, c_deg=c) for b in _grid(pf.grid.b) for c in _grid(pf.grid.c)]
     else:
-        poses = [p if isinstance(p, PoseFile) else PoseFile(b_deg=p[0], c_deg=p[1])
-                 for p in pf.poses or []]
+        poses = list(pf.poses or [])
     if not poses:
         raise ConfigError(f"{path}: poses: the plan has no pose")
     return Plan(name=pf.name, stylus_diameter_mm=pf.stylus_diameter_mm,
@@ -359,6 +486,22 @@ def plan_from_dict(data: Any, path: Path | str = "<plan>") -> Plan:
                 feeds=pf.feeds, standoff_mm=pf.standoff_mm, overtravel_mm=pf.overtravel_mm,
                 clearance_mm=pf.clearance_mm, dwell_s=pf.dwell_s, repeats=pf.repeats,
                 drift_check=pf.drift_check)
+
+
+def touch_count(plan: Plan, artefact: Artefact) -> int:
+    """Touches of the program of ``plan`` on ``artefact``: visits × balls × 5."""
+    visits = len(plan.poses) * plan.repeats + (1 if plan.drift_check else 0)
+    return visits * len(artefact.balls) * 5
+
+
+def check_touch_count(plan: Plan, artefact: Artefact, where: str) -> None:
+    """``ConfigError`` naming ``where`` when the program would exceed MAX_TOUCHES."""
+    n = touch_count(plan, artefact)
+    if n > MAX_TOUCHES:
+        raise ConfigError(
+            f"{where}: {n} touches ({len(plan.poses)} poses × {plan.repeats} repeats"
+            f"{' + 1 drift check' if plan.drift_check else ''} × {len(artefact.balls)} balls × "
+            f"5), more than the ceiling of {MAX_TOUCHES} touches per program")
 
 
 def load_plan(path: Path | str) -> Plan:

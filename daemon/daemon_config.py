@@ -21,13 +21,14 @@ from daemon.config import (
     ConfigError,
     MachineFile,
     Plan,
-    _read_yaml,
     _safe_name,
     _validate,
+    check_touch_count,
     format_validation,
     load_artefact,
     load_machine,
     load_plan,
+    read_yaml,
 )
 from daemon.judge import Limit, Tolerances
 from identification.kinematics import Machine
@@ -35,7 +36,8 @@ from identification.model import Artefact
 
 
 class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    # allow_inf_nan=False: .nan / .inf / 1e400 are refused in every float of this schema
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
 class LimitFile(_Strict):
@@ -202,6 +204,14 @@ def _resolve(base: Path, p: str) -> Path:
     return q if q.is_absolute() else (base / q)
 
 
+def _named_file(base: Path, p: str, key: str) -> Path:
+    """A file named in daemon.yaml: a missing one is reported under daemon.yaml's key."""
+    q = _resolve(base, p)
+    if not q.is_file():
+        raise ConfigError(f"{key}: file {str(q)!r} not found")
+    return q
+
+
 def read_token_file(path: Path, where: str) -> str:
     """A token file must be private (no group/other permission bits) and ≥ 16 characters."""
     try:
@@ -251,14 +261,15 @@ def _check_identifiable(machine: Machine, artefact: Artefact, plan: Plan, names:
 
 def load_daemon_config(path: Path | str) -> DaemonConfig:
     path = Path(path)
-    df: DaemonFile = _validate(DaemonFile, path, _read_yaml(path))
+    df: DaemonFile = _validate(DaemonFile, path, read_yaml(path))
     base = path.parent
     machines: dict[str, MachineSetup] = {}
     for i, m in enumerate(df.machines):
         key = f"{path}: machines.{i}"
-        machine, mfile = load_machine(_resolve(base, m.machine))
-        artefact = load_artefact(_resolve(base, m.artefact))
-        plan = load_plan(_resolve(base, m.plan))
+        machine, mfile = load_machine(_named_file(base, m.machine, f"{key}.machine"))
+        artefact = load_artefact(_named_file(base, m.artefact, f"{key}.artefact"))
+        plan = load_plan(_named_file(base, m.plan, f"{key}.plan"))
+        check_touch_count(plan, artefact, f"{key}.plan")
         known = set(machine.location_error_names())
         for name in m.tolerances.links:
             if name not in known:

@@ -37,6 +37,7 @@ from pathlib import Path
 
 import jinja2
 
+from daemon.config import SAFE_NAME
 from daemon.cycletime import estimate
 from daemon.messages import TOUCH_DIRECTIONS, ProbeHit
 from daemon.program import Move, Program, ProgramError, Touch
@@ -46,7 +47,7 @@ RING_SLOTS = 8
 SLOT_FIELDS = 11
 FIELDS = ("seq", "rep", "pose", "ball", "touch", "trig", "x", "y", "z", "r1", "r2")
 MISS_TOL_MM = 0.001  # a latch this close to the commanded end point counts as "not triggered"
-_SAFE_TEXT = re.compile(r"^[A-Za-z0-9 _.,:=+\-]*$")
+_SAFE_TEXT = re.compile(r"\A[A-Za-z0-9 _.,:=+\-]*\Z")  # fullmatch: "$" lets a final "\n" by
 _NUM = r"[+-]?(?:\d+\.?\d*|\.\d+)"
 VERDICT_CODES = (1, 2, 3, 4)  # drivers.base.VERDICT_CODES without "none yet" (0)
 _LINE = re.compile(
@@ -58,8 +59,8 @@ _LINE = re.compile(
 def safe_text(s: str) -> str:
     """Refuse any string that could break out of a comment or a message (only ``[A-Za-z0-9
     _.,:=+-]`` reach a program)."""
-    if not _SAFE_TEXT.match(s):
-        bad = sorted({ch for ch in s if not _SAFE_TEXT.match(ch)})
+    if not isinstance(s, str) or not _SAFE_TEXT.fullmatch(s):
+        bad = sorted({ch for ch in str(s) if not _SAFE_TEXT.fullmatch(ch)})
         raise ProgramError(f"text {s!r} contains {bad}: not allowed in a program")
     return s
 
@@ -138,7 +139,7 @@ class Dialect:
         """Decode one result line; None for other output; ValueError for a broken RUMBA line."""
         if not line.lstrip().startswith("RUMBA"):
             return None
-        m = _LINE.match(line.rstrip("\r\n"))
+        m = _LINE.fullmatch(line.rstrip("\r\n"))
         if not m:
             raise ValueError(f"result line does not match the grammar "
                              f"'RUMBA seq rep pose ball touch trig x y z r1 r2': {line.strip()!r}")
@@ -176,11 +177,15 @@ class Dialect:
         return Code(" ".join(f"{a}{fmt(v)}" for a, v in zip(letters, values, strict=True)))
 
     def check_ball_id(self, ball: str) -> None:
-        safe_text(ball)
+        # a ball id is a word of the result line and part of file names: a safe name, not text
+        if not isinstance(ball, str) or not SAFE_NAME.fullmatch(ball):
+            raise ProgramError(f"ball id {ball!r} is not a safe name (letters, digits, '_', "
+                               "'.', '-', 1-32 characters)")
 
     def touch_context(self, program: Program, t: Touch) -> dict:
         letters = program.axis_letters
         seq = t.id.seq
+        self.check_ball_id(t.id.ball)  # printed in result lines, messages and file names
         consts = [t.id.seq, t.id.repeat, t.id.pose, t.ball_number, t.id.touch]
         ctx = {
             "seq": seq, "rep": t.id.repeat, "pose": t.id.pose, "ball": t.id.ball,
@@ -226,6 +231,11 @@ class Dialect:
 
     def context(self, program: Program) -> dict:
         plan = program.plan
+        for what, name in (("plan", plan.name), ("machine", program.machine.name),
+                           ("artefact", program.artefact.name)):
+            if not isinstance(name, str) or not SAFE_NAME.fullmatch(name):  # a bypass
+                raise ProgramError(f"{what} name {name!r} is not a safe name: not allowed in a "
+                                   "program")
         info = [f"PLAN {plan.name}", f"MACHINE {program.machine.name}",
                 f"ARTEFACT {program.artefact.name}", f"TOUCHES {len(program.touches)}",
                 f"TARGETS {program.targets.source}",
@@ -349,7 +359,7 @@ class Heidenhain(Dialect):
             ctx["cycle"] = 0
             ctx["axis"] = "XYZ"[k] + ("+" if u[k] > 0 else "-")
         ctx["print"] = [Code(f"Q{self.print_base + f}") for f in range(SLOT_FIELDS)]
-        ctx["format_file"] = f"RUMBA_{safe_text(t.id.ball)}.A"
+        ctx["format_file"] = Code(f"RUMBA_{t.id.ball}.A")  # checked by touch_context
         return ctx
 
     def render(self, program: Program) -> str:
@@ -361,7 +371,7 @@ class Heidenhain(Dialect):
         out = {}
         q = [f"Q{self.print_base + f}" for f in range(SLOT_FIELDS) if f != 3]
         for b in program.artefact.balls:
-            safe_text(b.id)
+            self.check_ball_id(b.id)  # inside a quoted format string and a file name
             fmt_ = ("RUMBA %.0LF %.0LF %.0LF " + b.id
                     + " %.0LF %.0LF %.4LF %.4LF %.4LF %.4LF %.4LF\\n")
             out[f"RUMBA_{b.id}.A"] = f'"{fmt_}", ' + ", ".join(q) + ";\n"

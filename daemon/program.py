@@ -28,9 +28,10 @@ from pathlib import Path
 
 import numpy as np
 
-from daemon.config import SAFE_NAME, ConfigError, MachineFile, Plan
+from daemon.config import MAX_TOUCHES, SAFE_NAME, ConfigError, MachineFile, Plan, touch_count
 from daemon.messages import TOUCH_DIRECTIONS, TouchId
 from daemon.program_geometry import (
+    MAX_SWEEP_SAMPLES,
     PoseFrame,
     ProgramError,
     keepout_tops,
@@ -226,8 +227,12 @@ def build_program(machine: Machine, machine_file: MachineFile, artefact: Artefac
                   targets: Targets | None = None) -> Program:
     """Generate the tool path of every repeat × pose × ball × touch (dialect-free)."""
     targets = targets or Targets()
+    n_touch = touch_count(plan, artefact)  # before anything is allocated
+    if n_touch > MAX_TOUCHES:
+        raise ProgramError(f"plan {plan.name}: {n_touch} touches, more than the ceiling of "
+                           f"{MAX_TOUCHES} touches per program")
     for b in artefact.balls:
-        if not SAFE_NAME.match(b.id):
+        if not SAFE_NAME.fullmatch(b.id):
             raise ProgramError(f"ball id {b.id!r} is not a safe name")
     est = targets.source == "estimate"
     standoff = min(plan.standoff_mm, ESTIMATE_STANDOFF_MM) if est else plan.standoff_mm
@@ -256,7 +261,12 @@ def build_program(machine: Machine, machine_file: MachineFile, artefact: Artefac
     def sweep_height(a: tuple[float, float], b: tuple[float, float]) -> float:
         """Highest retract value over the rectangle of rotary values between two poses (any
         interpolation of a two-axis rotary rapid stays inside it)."""
-        u, v = np.meshgrid(sweep_grid(a[0], b[0]), sweep_grid(a[1], b[1]), indexing="ij")
+        g1, g2 = sweep_grid(a[0], b[0]), sweep_grid(a[1], b[1])
+        if len(g1) * len(g2) > MAX_SWEEP_SAMPLES:  # e.g. C -36000 → +36000 in one index
+            raise ProgramError(f"index from {r1}{a[0]:g} {r2}{a[1]:g} to {r1}{b[0]:g} "
+                               f"{r2}{b[1]:g}: {len(g1) * len(g2)} rotary samples, more than "
+                               f"{MAX_SWEEP_SAMPLES}; add an intermediate pose")
+        u, v = np.meshgrid(g1, g2, indexing="ij")
         z = sweep_required(machine, machine_file, artefact, balls_w, state, k_ret,
                            u.ravel(), v.ravel(), rs + clr)
         best = float(z.max() if sgn > 0 else z.min())

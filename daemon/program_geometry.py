@@ -15,6 +15,7 @@ from identification.kinematics import ChainState, Machine, frames, solve_centre,
 from identification.model import Artefact
 
 SWEEP_STEP_DEG = 2.0  # rotary sampling used to size the retract before an index
+MAX_SWEEP_SAMPLES = 1_000_000  # rotary samples of one index move (175-pose grid: < 2 000)
 
 
 class ProgramError(ValueError):
@@ -131,7 +132,11 @@ def keepout_tops(machine_file: MachineFile, artefact: Artefact, balls_w: np.ndar
 
 def sweep_grid(x0: float, x1: float) -> np.ndarray:
     """Samples from x0 to x1 (both included) at most SWEEP_STEP_DEG apart."""
-    n = max(2, math.ceil(abs(x1 - x0) / SWEEP_STEP_DEG) + 1)
+    span = abs(x1 - x0) / SWEEP_STEP_DEG
+    if not span < MAX_SWEEP_SAMPLES:  # counted before allocating (also inf / nan)
+        raise ProgramError(f"rotary index {x0:g} → {x1:g} deg: more than {MAX_SWEEP_SAMPLES} "
+                           "samples; add an intermediate pose")
+    n = max(2, math.ceil(span) + 1)
     return np.linspace(x0, x1, n)
 
 

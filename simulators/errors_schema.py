@@ -13,14 +13,15 @@ from typing import Annotated, Any
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
-from daemon.config import ConfigError, _read_yaml, _validate
+from daemon.config import ConfigError, _validate, read_yaml
 
 Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]
-ISO_LINK = re.compile(r"^E[XYZABC]0[XYZABC]$")
+ISO_LINK = re.compile(r"\AE[XYZABC]0[XYZABC]\Z")  # fullmatch: "$" lets a final "\n" by
 
 
 class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    # allow_inf_nan=False: .nan / .inf / 1e400 are refused in every float of this schema
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
 class SetupFile(_Strict):
@@ -68,7 +69,7 @@ class EffectFile(_Strict):
 
 class ErrorsFile(_Strict):
     machine: str | None = None  # name of the machine file these errors belong to (checked)
-    seed: int = 0  # default random seed (``--seed`` overrides)
+    seed: int = Field(0, ge=0, lt=2**63)  # default random seed (``--seed`` overrides)
     links: dict[str, float] = {}  # ISO 230-1 name → µrad (rotations) or µm (translations)
     setup: SetupFile = SetupFile()
     probe: ProbeFile = ProbeFile()
@@ -80,7 +81,7 @@ class ErrorsFile(_Strict):
     @classmethod
     def _iso(cls, v: dict[str, float]) -> dict[str, float]:
         for name in v:
-            if not ISO_LINK.match(name):
+            if not isinstance(name, str) or not ISO_LINK.fullmatch(name):
                 raise ValueError(f"{name!r} is not an ISO 230-1 location error name (e.g. EB0Z)")
         return v
 
@@ -98,7 +99,7 @@ def errors_from_dict(data: Any, path: Path | str = "<errors>") -> ErrorsFile:
 
 def load_errors(path: Path | str) -> ErrorsFile:
     """Load and validate an errors file; ``ConfigError`` names file, key and reason."""
-    return errors_from_dict(_read_yaml(Path(path)), path)
+    return errors_from_dict(read_yaml(Path(path)), path)
 
 
 __all__ = ["ConfigError", "ErrorsFile", "errors_from_dict", "link_to_model", "load_errors"]

@@ -11,10 +11,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
-import yaml
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from daemon.config import ConfigError, _validate
+from daemon.config import _validate, read_yaml
 
 FaultKind = Literal[
     "disconnect", "late_xon", "missing_xon", "garbled",  # front-end (transport) faults
@@ -28,7 +27,7 @@ class Fault(BaseModel):
     time since program start) or ``at_touch`` (touch sequence number) says when it fires;
     ``count`` how many consecutive touches / lines / blocks it affects."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     kind: FaultKind
     at_block: int | None = Field(None, ge=1)
@@ -49,7 +48,7 @@ class Fault(BaseModel):
 
 
 class FaultsFile(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
     faults: list[Fault] = []
 
 
@@ -63,10 +62,7 @@ class FaultPlan:
 
     @classmethod
     def load(cls, path: Path | str) -> FaultPlan:
-        try:
-            data = yaml.safe_load(Path(path).read_text(encoding="utf-8"))
-        except (OSError, yaml.YAMLError) as e:
-            raise ConfigError(f"{path}: cannot read faults: {e}") from None
+        data = read_yaml(path)  # the schemas' one reader: size, UTF-8, depth ceilings
         return cls(list(_validate(FaultsFile, path, data).faults))
 
     def reset(self) -> None:

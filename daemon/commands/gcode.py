@@ -8,7 +8,7 @@ import time
 from pathlib import Path
 
 from daemon.cli import UserError
-from daemon.config import load_artefact, load_machine, load_plan
+from daemon.config import check_touch_count, load_artefact, load_machine, load_plan
 from daemon.dialects import DIALECTS
 
 
@@ -40,6 +40,7 @@ def run(args: argparse.Namespace) -> int:
     machine, mfile = load_machine(args.machine)
     artefact = load_artefact(args.artefact)
     plan = load_plan(args.plan)
+    check_touch_count(plan, artefact, f"{args.plan}: poses")  # before anything is allocated
     targets = load_targets(args.targets, artefact) if args.targets else None
     t0 = time.perf_counter()
     try:
