@@ -26,10 +26,16 @@ import importlib.util, json, resource, sys, time, warnings
 sys.path.insert(0, sys.argv[3])
 from identification.model import Artefact  # noqa: F401  (imports before the RSS baseline)
 from daemon.config import load_artefact
-spec = importlib.util.spec_from_file_location("probelog_under_test", sys.argv[2])
-mod = importlib.util.module_from_spec(spec)
-sys.modules[spec.name] = mod  # dataclasses look their module up
-spec.loader.exec_module(mod)
+import os
+if os.path.samefile(sys.argv[2], os.path.join(sys.argv[3], "daemon", "probelog.py")):
+    import daemon.probelog as mod
+    from daemon.touch_centres import rows_to_centres
+else:  # an older probelog.py (before the touch-centres split it held rows_to_centres)
+    spec = importlib.util.spec_from_file_location("probelog_under_test", sys.argv[2])
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = mod  # dataclasses look their module up
+    spec.loader.exec_module(mod)
+    rows_to_centres = mod.rows_to_centres
 art = load_artefact(sys.argv[4])
 base = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
 t0 = time.perf_counter()
@@ -38,7 +44,7 @@ try:
         warnings.simplefilter("ignore")
         rows = mod.read_log(sys.argv[1], art)
         t1 = time.perf_counter()
-        n = len(mod.rows_to_centres(rows, art, 3.0).centres)
+        n = len(rows_to_centres(rows, art, 3.0).centres)
     outcome = f"{len(rows)} rows, {n} centres; of which centres {time.perf_counter() - t1:.2f} s"
 except Exception as e:  # a refusal is a result here
     outcome = f"refused: {str(e)[-90:]}"

@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 
 from daemon.config import ConfigError
-from daemon.probelog import CentreData
+from daemon.touch_centres import CentreData
 from identification.analyses import (
     clusters,
     distance_analysis,

@@ -15,8 +15,9 @@ from typing import Any
 from daemon.analysis import AnalysisError, analyse_centres
 from daemon.daemon_config import MachineSetup
 from daemon.messages import ProbeHit, TouchId
-from daemon.probelog import LogRow, ProbeLogError, rows_to_centres
+from daemon.probelog import LogRow, ProbeLogError
 from daemon.safepath import plain_name
+from daemon.touch_centres import rows_to_centres
 from drivers.base import ProgramJob
 from identification.kinematics import Machine
 

@@ -185,7 +185,8 @@ def test_degenerate_touches_are_one_line_naming_ball_and_pose(log, tmp_path, cap
 def test_non_finite_centres_are_an_analysis_error_naming_ball_and_pose(log) -> None:
     from daemon.analysis import AnalysisError, analyse_centres
     from daemon.config import ConfigError
-    from daemon.probelog import read_log, rows_to_centres
+    from daemon.probelog import read_log
+    from daemon.touch_centres import rows_to_centres
 
     m, _ = load_machine(MACHINE)
     a = load_artefact(ARTEFACT)

@@ -15,7 +15,8 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 OURS = ("identification", "daemon", "drivers", "simulators")
-CONTRACTS = {"daemon.messages", "daemon.config", "daemon.probelog"}
+CONTRACTS = {"daemon.messages", "daemon.config", "daemon.config_yaml", "daemon.probelog",
+             "daemon.touch_centres"}
 # what simulator front-ends share with the links (they speak what drivers/ speak)
 PROTOCOL_TABLES = {"drivers.opcua_space", "drivers.modbus_map", "drivers.opcua_certs",
                    "drivers.can_panel"}

@@ -13,9 +13,9 @@ from daemon.analysis import analyse_centres
 from daemon.config import load_artefact, load_machine, load_plan
 from daemon.dialects import get_dialect
 from daemon.judge import Tolerances, judge
-from daemon.probelog import rows_to_centres
 from daemon.program import build_program
 from daemon.safety import check_program
+from daemon.touch_centres import rows_to_centres
 from simulators.errors_schema import errors_from_dict
 from simulators.offline import run_sync
 from simulators.truth import TruthModel

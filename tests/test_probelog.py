@@ -6,15 +6,8 @@ import numpy as np
 import pytest
 
 from daemon.config import load_artefact, load_machine
-from daemon.probelog import (
-    HEADER,
-    MAGIC,
-    ProbeLogError,
-    ProbeLogWarning,
-    read_log,
-    rows_to_centres,
-    write_log,
-)
+from daemon.probelog import HEADER, MAGIC, ProbeLogError, ProbeLogWarning, read_log, write_log
+from daemon.touch_centres import rows_to_centres
 from tests.synth import Truth, make_rows, true_centres
 
 CFG = Path(__file__).resolve().parents[1] / "config"

@@ -9,15 +9,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from daemon.config import load_artefact, load_machine
-from daemon.probelog import (
-    HEADER,
-    ProbeLog,
-    ProbeLogError,
-    ProbeLogWarning,
-    read_log,
-    rows_to_centres,
-    write_log,
-)
+from daemon.probelog import HEADER, ProbeLog, ProbeLogError, ProbeLogWarning, read_log, write_log
+from daemon.touch_centres import rows_to_centres
 from tests.synth import Truth, make_rows
 
 CFG = Path(__file__).resolve().parents[1] / "config"

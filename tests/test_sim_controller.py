@@ -217,8 +217,8 @@ async def test_centre_noise_is_common_to_the_five_touches_of_a_visit():
 
     from daemon.config import plan_from_dict
     from daemon.dialects import get_dialect
-    from daemon.probelog import rows_to_centres
     from daemon.program import build_program
+    from daemon.touch_centres import rows_to_centres
     from simulators.offline import run_program
 
     noisy = truth_with({"probe": {"stylus_diameter_mm": 6, "centre_noise_um": [0.66, 0.98, 0.44]}})

@@ -15,7 +15,8 @@ from rich.table import Table
 
 from daemon.analysis import AnalysisError, analyse_centres
 from daemon.config import load_artefact, load_machine
-from daemon.probelog import ProbeLogError, read_log, rows_to_centres
+from daemon.probelog import ProbeLogError, read_log
+from daemon.touch_centres import rows_to_centres
 
 DEFAULT_STYLUS_DIAMETER_MM = 6.0  # the shipped plans' stylus; used for the radius health figure
 

@@ -11,7 +11,8 @@ from pathlib import Path
 import numpy as np
 
 from daemon.config import load_artefact, load_machine, load_plan
-from daemon.probelog import LogRow, ProbeLogError, columns, read_log
+from daemon.probelog import LogRow, ProbeLogError, read_log
+from daemon.touch_centres import columns
 from identification.effects import FAMILIES, Effect, library
 from identification.gap import Options, TouchData, diagnose
 from identification.gap.split import SPLITS
