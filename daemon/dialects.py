@@ -50,10 +50,15 @@ MISS_TOL_MM = 0.001  # a latch this close to the commanded end point counts as "
 _SAFE_TEXT = re.compile(r"\A[A-Za-z0-9 _.,:=+\-]*\Z")  # fullmatch: "$" lets a final "\n" by
 _NUM = r"[+-]?(?:\d+\.?\d*|\.\d+)"
 VERDICT_CODES = (1, 2, 3, 4)  # drivers.base.VERDICT_CODES without "none yet" (0)
+# re.ASCII: without it \d and \s also match '٣' or a no-break space, which no control prints
 _LINE = re.compile(
     rf"^\s*RUMBA\s+(?P<seq>\d+)\s+(?P<rep>\d+)\s+(?P<pose>\d+)\s+(?P<ball>[A-Za-z0-9_.-]{{1,32}})"
     rf"\s+(?P<touch>[1-5])\s+(?P<trig>{_NUM})\s+(?P<x>{_NUM})\s+(?P<y>{_NUM})\s+(?P<z>{_NUM})"
-    rf"\s+(?P<r1>{_NUM})\s+(?P<r2>{_NUM})\s*$")
+    rf"\s+(?P<r1>{_NUM})\s+(?P<r2>{_NUM})\s*$", re.ASCII)
+# Plausibility of a latched value (drivers.hits has the same ceilings for the record links): a
+# result beyond them is a garbled line, journaling it would only move the failure to analysis.
+MAX_RESULT_MM = 1e5
+MAX_RESULT_DEG = 1e5
 
 
 def safe_text(s: str) -> str:
@@ -146,11 +151,22 @@ class Dialect:
         g = m.groupdict()
         touch = int(g["touch"])
         r1, r2 = float(g["r1"]), float(g["r2"])
+        trig = float(g["trig"])
+        if trig not in (0.0, 1.0):
+            raise ValueError(f"result line: trigger flag {g['trig']} is neither 0 nor 1: "
+                             f"{line.strip()!r}")
+        for key, limit, unit in (("x", MAX_RESULT_MM, "mm"), ("y", MAX_RESULT_MM, "mm"),
+                                 ("z", MAX_RESULT_MM, "mm"), ("r1", MAX_RESULT_DEG, "deg"),
+                                 ("r2", MAX_RESULT_DEG, "deg")):
+            value = float(g[key])
+            if not math.isfinite(value) or abs(value) > limit:
+                raise ValueError(f"result line: {key} = {g[key][:24]} {unit} is beyond "
+                                 f"±{limit:g} {unit}: {line.strip()[:120]!r}")
         # Unbound: rotary values under the log's column names b / c (BoundDialect uses letters).
         return ProbeHit(seq=int(g["seq"]), pose=int(g["pose"]), ball=g["ball"], touch=touch,
                         axes={"X": float(g["x"]), "Y": float(g["y"]), "Z": float(g["z"]),
                               "b": r1, "c": r2},
-                        triggered=float(g["trig"]) > 0.5, repeat=int(g["rep"]), raw=line.strip(),
+                        triggered=trig == 1.0, repeat=int(g["rep"]), raw=line.strip(),
                         b_cmd_deg=r1, c_cmd_deg=r2, direction=TOUCH_DIRECTIONS[touch])
 
     def bind(self, program: Program) -> BoundDialect:

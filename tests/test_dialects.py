@@ -46,6 +46,24 @@ def test_parse_result_ignores_other_output_and_rejects_broken_lines():
         d.parse_result("RUMBA 7 0 1 B3 6 1 1 2 3 4 5")  # touch 6 does not exist
 
 
+@pytest.mark.parametrize("name", sorted(DIALECTS))
+@pytest.mark.parametrize(("line", "match"), [
+    # non-ASCII digits and spaces: Python's \d and \s take them unless the grammar is ASCII
+    ("RUMBA 1 0 0 B1 1 1.0000 -111.1697 -91.2982 152.1619 0.0000 \u0663", "grammar"),
+    ("RUMBA \u0661 0 0 B1 1 1 1 2 3 4 5", "grammar"),
+    ("RUMBA 1 0 0 B1 1 1 1\u00a02 3 4 5 6", "grammar"),
+    ("RUMBA 1 0 0 B1 1 1 1\u20282 3 4 5 6", "grammar"),
+    # plausibility: a garbled line must not reach the journal as a position
+    ("RUMBA 1 0 0 B1 1 1 1 2 " + "9" * 300 + " 4 5", "beyond"),
+    ("RUMBA 1 0 0 B1 1 1 1 2 3 100001 5", "beyond"),
+    ("RUMBA 1 0 0 B1 1 7 1 2 3 4 5", "neither 0 nor 1"),
+    ("RUMBA 1 0 0 B1 1 0.5 1 2 3 4 5", "neither 0 nor 1"),
+])
+def test_parse_result_refuses_non_ascii_and_implausible_values(name, line, match):
+    with pytest.raises(ValueError, match=match):
+        get_dialect(name).parse_result(line)
+
+
 def test_bound_parser_checks_identity_and_fills_the_program_side():
     t = PROG.touches[6]
     bound = get_dialect("siemens").bind(PROG)
