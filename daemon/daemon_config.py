@@ -132,6 +132,19 @@ class HmiFile(_Strict):
     token_file: str | None = None
     allow_remote: bool = False  # must be true to bind anything but loopback
     tls: TlsFile | None = None
+    # scheme://name[:port] operators type when it differs from host (a DNS name, a proxy):
+    # the Host and Origin checks (DNS-rebinding defence) accept these besides host itself
+    public_origins: list[str] = []
+
+    @field_validator("public_origins")
+    @classmethod
+    def _origins(cls, v: list[str]) -> list[str]:
+        from daemon.hmi.limits import normal_origin
+
+        bad = [o for o in v if normal_origin(o.rstrip("/")) is None]
+        if bad:
+            raise ValueError(f"{bad}: expected http(s)://host[:port], no path")
+        return v
 
     @model_validator(mode="after")
     def _checks(self) -> HmiFile:

@@ -132,7 +132,8 @@ class Service:
         except SecretError as e:
             raise ServiceError(str(e)) from None
         app = create_app(self.sessions, self.store, cfg.hmi_token or "",  # type: ignore[arg-type]
-                         secure_cookie=ctx is not None, secret=secret)
+                         secure_cookie=ctx is not None, secret=secret,
+                         bind_host=cfg.hmi.host, public_origins=cfg.hmi.public_origins)
         self._runner = web.AppRunner(app, access_log=None, handle_signals=False)
         await self._runner.setup()
         site = web.TCPSite(self._runner, cfg.hmi.host, cfg.hmi.port, ssl_context=ctx)

@@ -11,6 +11,7 @@ import time
 import aiohttp
 import pytest
 
+from daemon.config import ConfigError
 from daemon.daemon_config import load_daemon_config
 from daemon.service import Service
 from tests.daemon_helpers import thesis_rows, thesis_setup, write_daemon_yaml
@@ -287,3 +288,44 @@ async def test_browser_start_progress_verdict_report(sim_service, tmp_path):
         if proc.returncode is None:
             proc.kill()
         await proc.wait()
+
+
+async def test_service_serves_with_the_hmi_limits(service):
+    """The daemon's own runner gets the header timeout and sizes (``handler_args`` of the app),
+    not aiohttp's defaults (a one-hour keep-alive held half-sent headers that long)."""
+    from daemon.hmi.limits import HmiLimits
+
+    kwargs = service._runner.server._kwargs  # what every connection's RequestHandler gets
+    limits = HmiLimits()
+    assert kwargs["keepalive_timeout"] == limits.header_timeout_s
+    assert kwargs["max_line_size"] == limits.max_line_bytes
+    assert kwargs["lingering_time"] == limits.linger_s
+    assert service._runner.app._client_max_size == limits.max_body_bytes
+
+
+async def test_public_origins_from_daemon_yaml(tmp_path):
+    """``hmi.public_origins`` reaches the service: that DNS name is served, others get 421."""
+    path = write_daemon_yaml(tmp_path, token=TOKEN)
+    path.write_text(path.read_text().replace(
+        f"token: {TOKEN}}}",
+        f"token: {TOKEN}, public_origins: ['http://rumba.plant.example:8470']}}"))
+    setup = thesis_setup()
+    rows = thesis_rows(setup)
+    svc = Service(load_daemon_config(path), lambda s: ReplayLink(rows, s.machine),
+                  prepare=prepare_from_rows(rows))
+    await svc.start()
+    try:
+        async with aiohttp.ClientSession() as http:
+            for host, status in (("rumba.plant.example:8470", 200), ("evil.example:8470", 421)):
+                r = await http.get(svc.hmi_url + "api/status", headers={**bearer(), "Host": host})
+                assert r.status == status, host
+    finally:
+        await svc.stop()
+
+
+def test_bad_public_origin_is_one_line(tmp_path):
+    path = write_daemon_yaml(tmp_path, token=TOKEN)
+    path.write_text(path.read_text().replace(
+        f"token: {TOKEN}}}", f"token: {TOKEN}, public_origins: ['rumba.local/x']}}"))
+    with pytest.raises(ConfigError, match=r"hmi.public_origins: .*expected http\(s\)://host"):
+        load_daemon_config(path)

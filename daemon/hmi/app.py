@@ -4,8 +4,10 @@ Abort, last verdict, history and reports, behind a token.
 Auth: ``Authorization: Bearer <token>`` (scripts) or a login form that sets an HttpOnly,
 SameSite=Strict (and, over TLS, Secure) signed session cookie that survives a daemon restart
 (``daemon.hmi.auth``); tokens are compared in constant time. Cookie-authenticated POSTs also
-need the per-session CSRF token (header ``X-CSRF-Token``) and a same-origin ``Origin``.
-Reports are looked up by run id in the store, never by a path from the request.
+need the per-session CSRF token (header ``X-CSRF-Token``) and an allowed ``Origin``. Every
+request needs an allowed ``Host`` (DNS rebinding); wrong tokens are limited daemon-wide, and
+headers, bodies and query values are bounded (``daemon.hmi.limits``). Reports are looked up by
+a validated run id in the store, never by a path from the request.
 """
 
 from __future__ import annotations
@@ -14,18 +16,20 @@ import asyncio
 import contextlib
 import hmac
 import json
-from collections.abc import Awaitable, Callable, Mapping
+import re
+from collections.abc import Awaitable, Callable, Iterable, Mapping
 from importlib import resources
 from typing import Any
+from urllib.parse import parse_qsl
 
 from aiohttp import web
 
 from daemon.hmi.auth import SESSION_TTL_S, Auth
+from daemon.hmi.limits import AuthLimiter, HmiLimits, Origins
 from daemon.session import Refused, Session
 from daemon.store import Store, StoreError
 
 COOKIE = "rumba_session"
-LOGIN_FAIL_DELAY_S = 0.5  # slows token guessing; the token has ≥ 16 characters anyway
 SSE_KEEPALIVE_S = 15.0
 CSP = ("default-src 'none'; script-src 'self'; style-src 'self'; img-src 'self' data:; "
        "connect-src 'self'; form-action 'self'; frame-ancestors 'none'; base-uri 'none'")
@@ -36,6 +40,9 @@ SESSIONS_KEY = web.AppKey("sessions", dict)
 STORE_KEY = web.AppKey("store", Store)
 AUTH_KEY = web.AppKey("auth", object)
 STREAMS_KEY = web.AppKey("streams", set)
+LIMITS_KEY = web.AppKey("limits", HmiLimits)
+LIMITER_KEY = web.AppKey("limiter", AuthLimiter)
+ORIGINS_KEY = web.AppKey("origins", Origins)
 VIA_KEY = web.RequestKey("via", str)
 CSRF_KEY = web.RequestKey("csrf", str)
 
@@ -44,30 +51,101 @@ def _asset(name: str) -> str:
     return resources.files("daemon.hmi").joinpath(name).read_text(encoding="utf-8")
 
 
+def _local(request: web.Request) -> tuple[str, int]:
+    """The (address, port) the client connected to: the port is only known once listening."""
+    sock = request.transport.get_extra_info("sockname") if request.transport else None
+    if not isinstance(sock, tuple) or len(sock) < 2:
+        raise web.HTTPBadRequest(text="connection closed")
+    return str(sock[0]), int(sock[1])
+
+
+def _locked_out(request: web.Request) -> None:
+    """429 (token not looked at) while this client or everybody is locked out."""
+    wait = request.app[LIMITER_KEY].retry_after(request.remote)
+    if wait > 0:
+        raise web.HTTPTooManyRequests(
+            text=f"too many wrong tokens: try again in {wait:.0f} s",
+            headers={"Retry-After": str(max(1, round(wait)))})
+
+
+def _origin_ok(request: web.Request) -> bool:
+    """A state-changing request comes from the HMI's own pages (or a script): Origin one of
+    the allowed origins, and the browser's fetch metadata, which pages cannot forge, not
+    cross-site. Under ``Referrer-Policy: no-referrer`` Chromium sends ``Origin: null`` with the
+    page's own form posts: accepted only with ``Sec-Fetch-Site: same-origin``."""
+    site = request.headers.get("Sec-Fetch-Site")
+    if site in ("cross-site", "same-site"):
+        return False
+    origin = request.headers.get("Origin")
+    if origin is None:  # scripts, old browsers: the CSRF token still has to be right
+        return True
+    if origin == "null":
+        return site == "same-origin"
+    return request.app[ORIGINS_KEY].origin_ok(origin, _local(request), request.scheme)
+
+
+def _authenticate(request: web.Request) -> None:
+    """Bearer token or session cookie (+ CSRF, Origin), else 401 / 403 / 429 / redirect."""
+    auth: Auth = request.app[AUTH_KEY]  # type: ignore[assignment]
+    header = request.headers.get("Authorization", "")
+    if header.startswith("Bearer "):
+        _locked_out(request)
+        limiter = request.app[LIMITER_KEY]
+        if not auth.token_ok(header[7:].strip()):
+            limiter.failed(request.remote, "bearer")
+            raise web.HTTPUnauthorized(text="wrong token", headers={"WWW-Authenticate": "Bearer"})
+        limiter.succeeded(request.remote)
+        request[VIA_KEY] = "bearer"  # not sent by browsers on their own: no CSRF risk
+        return
+    # A cookie is signed with a 256-bit key: a wrong one is not a token guess (and expired
+    # ones come from honest browsers), so it is not counted and works during a lockout.
+    csrf = auth.session(request.cookies.get(COOKIE))
+    if csrf is not None:
+        request[VIA_KEY] = "cookie"
+        request[CSRF_KEY] = csrf
+        if request.method not in ("GET", "HEAD"):
+            if not _origin_ok(request):
+                raise web.HTTPForbidden(text="cross-origin request refused")
+            sent = request.headers.get("X-CSRF-Token", "")
+            if not hmac.compare_digest(sent.encode(), csrf.encode()):
+                raise web.HTTPForbidden(text="missing or wrong CSRF token")
+    elif request.path.startswith("/api/") or request.method != "GET":
+        raise web.HTTPUnauthorized(text="token required", headers={"WWW-Authenticate": "Bearer"})
+    else:
+        raise web.HTTPFound("/login")
+
+
+async def _read_body(request: web.Request) -> None:
+    """Read the whole body now, within the body timeout (aiohttp has none) and the size cap;
+    handlers then get it from the request's cache."""
+    try:
+        async with asyncio.timeout(request.app[LIMITS_KEY].body_timeout_s):
+            await request.read()
+    except TimeoutError:
+        raise web.HTTPRequestTimeout(text="request body too slow",
+                                     headers={"Connection": "close"}) from None
+    except web.HTTPException:
+        raise  # 413 from the size cap
+    except (web.RequestPayloadError, ConnectionError, ValueError) as e:  # bad chunks, cut body
+        raise web.HTTPBadRequest(text=f"bad request body: {e}",
+                                 headers={"Connection": "close"}) from None
+
+
 @web.middleware
 async def security(request: web.Request, handler: Callable[[web.Request], Awaitable]
                    ) -> web.StreamResponse:
-    auth: Auth = request.app[AUTH_KEY]  # type: ignore[assignment]
+    # DNS rebinding: a page of evil.example whose name now points here would be same-origin
+    # for the browser; its requests still say "Host: evil.example".
+    if not request.app[ORIGINS_KEY].host_ok(request.headers.get("Host"), _local(request),
+                                            request.scheme):
+        raise web.HTTPMisdirectedRequest(text="unknown Host; add it to hmi.public_origins")
     if request.path not in PUBLIC:
-        header = request.headers.get("Authorization", "")
-        csrf = auth.session(request.cookies.get(COOKIE))
-        if header.startswith("Bearer ") and auth.token_ok(header[7:].strip()):
-            request[VIA_KEY] = "bearer"  # not sent by browsers on their own: no CSRF risk
-        elif csrf is not None:
-            request[VIA_KEY] = "cookie"
-            request[CSRF_KEY] = csrf
-            if request.method not in ("GET", "HEAD"):
-                origin = request.headers.get("Origin")
-                if origin is not None and origin != f"{request.scheme}://{request.host}":
-                    raise web.HTTPForbidden(text="cross-origin request refused")
-                sent = request.headers.get("X-CSRF-Token", "")
-                if not hmac.compare_digest(sent.encode(), csrf.encode()):
-                    raise web.HTTPForbidden(text="missing or wrong CSRF token")
-        elif request.path.startswith("/api/") or request.method != "GET":
-            raise web.HTTPUnauthorized(text="token required",
-                                       headers={"WWW-Authenticate": "Bearer"})
-        else:
-            raise web.HTTPFound("/login")
+        _authenticate(request)
+    if request.body_exists:
+        if request.headers.get("Content-Encoding", "identity").lower() != "identity":
+            raise web.HTTPUnsupportedMediaType(text="compressed request bodies are not accepted",
+                                               headers={"Connection": "close"})
+        await _read_body(request)
     resp = await handler(request)
     if resp.prepared:  # a stream (SSE) set its own headers before sending them
         return resp
@@ -89,11 +167,22 @@ async def login_page(request: web.Request) -> web.Response:
 
 async def login(request: web.Request) -> web.Response:
     auth: Auth = request.app[AUTH_KEY]  # type: ignore[assignment]
-    form = await request.post()
-    if not auth.token_ok(str(form.get("token", ""))):
-        await asyncio.sleep(LOGIN_FAIL_DELAY_S)
+    if not _origin_ok(request):  # login CSRF: signing a victim in from another site
+        raise web.HTTPForbidden(text="cross-origin request refused")
+    if request.content_type != "application/x-www-form-urlencoded":
+        raise web.HTTPUnsupportedMediaType(text="send the login form (urlencoded)")
+    try:
+        form = dict(parse_qsl((await request.read()).decode("utf-8", "replace"),
+                              keep_blank_values=True, max_num_fields=8))
+    except ValueError:
+        raise web.HTTPBadRequest(text="too many form fields") from None
+    _locked_out(request)
+    limiter = request.app[LIMITER_KEY]
+    if not auth.token_ok(form.get("token", "")):
+        limiter.failed(request.remote, "login")
         return web.Response(status=401, content_type="text/html", text=_asset(
             "login.html").replace("{{error}}", '<p class="error">Wrong token.</p>'))
+    limiter.succeeded(request.remote)
     cookie, _ = auth.new_session()
     resp = web.HTTPSeeOther("/")
     resp.set_cookie(COOKIE, cookie, httponly=True, samesite="Strict", secure=auth.secure_cookie,
@@ -166,19 +255,47 @@ async def abort(request: web.Request) -> web.Response:
     return web.json_response(s.status())
 
 
+# Query values are bounded here, before any use: a value outside gets 400 with the reason.
+_INT = re.compile(r"[0-9]{1,9}")
+# The run-id charset of ``session.new_run_id`` (letters, digits, '-'): the store's pattern
+# where it has one (it validates every id it journals), else the same one here.
+try:
+    from daemon.store import RUN_ID_PATTERN
+except ImportError:  # a store without run-id validation
+    RUN_ID_PATTERN = r"[A-Za-z0-9][A-Za-z0-9-]{0,63}"
+_RUN_ID = re.compile(RUN_ID_PATTERN)
+MAX_RUNS = 500
+
+
+def int_param(request: web.Request, name: str, default: int, lo: int, hi: int) -> int:
+    """Query parameter ``name`` as an integer in [lo, hi]; 400 naming the bounds otherwise."""
+    raw = request.query.get(name)
+    if raw is None:
+        return default
+    if not _INT.fullmatch(raw) or not lo <= int(raw) <= hi:
+        raise web.HTTPBadRequest(text=f"{name} must be an integer from {lo} to {hi}")
+    return int(raw)
+
+
+def run_id_ok(run_id: str) -> bool:
+    """Whether ``run_id`` has the run-id form (checked before it reaches the store)."""
+    return _RUN_ID.fullmatch(run_id) is not None
+
+
 async def runs(request: web.Request) -> web.Response:
     store = request.app[STORE_KEY]
     machine = request.query.get("machine")
-    try:
-        limit = min(int(request.query.get("limit", "20")), 500)
-    except ValueError:
-        raise web.HTTPBadRequest(text="limit must be an integer") from None
+    if machine is not None and not 0 < len(machine) <= 64:
+        raise web.HTTPBadRequest(text="machine must be a machine name (1 to 64 characters)")
+    limit = int_param(request, "limit", 20, 1, MAX_RUNS)
     return web.json_response([_run_dict(r, store) for r in store.runs(machine, limit)])
 
 
 async def report_file(request: web.Request) -> web.StreamResponse:
     store = request.app[STORE_KEY]
     run_id, kind = request.match_info["run_id"], request.match_info["kind"]
+    if not run_id_ok(run_id):
+        raise web.HTTPNotFound(text="no such run")
     try:
         paths = store.report(run_id)
     except StoreError:
@@ -232,13 +349,23 @@ async def events(request: web.Request) -> web.StreamResponse:
 
 
 def create_app(sessions: Mapping[str, Session], store: Store, token: str,
-               secure_cookie: bool = False, secret: bytes | None = None) -> web.Application:
+               secure_cookie: bool = False, secret: bytes | None = None, *,
+               limits: HmiLimits | None = None, bind_host: str | None = None,
+               public_origins: Iterable[str] = ()) -> web.Application:
     """``secret``: the session signing secret (``auth.load_or_create_secret``); without it
-    sessions end with this app."""
-    app = web.Application(middlewares=[security], client_max_size=64 * 1024)
+    sessions end with this app. ``bind_host`` (``hmi.host``) and ``public_origins``
+    (``scheme://name[:port]`` the operators type) are accepted as Host / Origin besides the
+    address the client connected to (and localhost names on loopback). The timeouts and
+    sizes of ``limits`` apply to any ``web.AppRunner`` of this app (``handler_args``)."""
+    limits = limits or HmiLimits()
+    app = web.Application(middlewares=[security], client_max_size=limits.max_body_bytes,
+                          handler_args=limits.server_args())
     app[SESSIONS_KEY] = dict(sessions)
     app[STORE_KEY] = store
     app[AUTH_KEY] = Auth(token, secure_cookie, secret=secret, store=store)
+    app[LIMITS_KEY] = limits
+    app[LIMITER_KEY] = AuthLimiter(limits)
+    app[ORIGINS_KEY] = Origins(bind_host, public_origins)
     app[STREAMS_KEY] = set()
 
     async def end_streams(app: web.Application) -> None:
