@@ -46,7 +46,7 @@ def plan_steps(text: str) -> list[Step]:
             continue
         if len(s) > _MAX_LINE or not s.isascii() or "\x00" in s:
             raise LinkError(f"program line {n}: not a LinuxCNC MDI line (ASCII, < {_MAX_LINE})")
-        m = _LOG.match(s)
+        m = _LOG.fullmatch(s)
         if m:
             # the last settings ride on the result's MDI line (one block less per touch);
             # LinuxCNC substitutes the message's parameters before the line's settings apply
@@ -56,9 +56,9 @@ def plan_steps(text: str) -> list[Step]:
             flush()
             steps.append(Step("result", m.group(1), n, prefix=" ".join(prefix)))
             continue
-        if _SKIP.match(s):
+        if _SKIP.fullmatch(s):
             continue
-        if _ASSIGN.match(s):
+        if _ASSIGN.fullmatch(s):
             pending.append((n, re.sub(r"\s*=\s*", "=", s)))
             continue
         flush()
@@ -87,10 +87,10 @@ def auto_program(text: str) -> str:
         s = raw.strip()
         if len(s) > _MAX_LINE or not s.isascii() or "\x00" in s:
             raise LinkError(f"program line {n}: not a LinuxCNC line (ASCII, < {_MAX_LINE})")
-        m = _LOG.match(s)
+        m = _LOG.fullmatch(s)
         if m:
             s = f"(DEBUG,{m.group(1)})"
-        elif _LOGFILE.match(s):
+        elif _LOGFILE.fullmatch(s):
             s = "(rumba: results through DEBUG)"
         out.append(s)
     return "\n".join(out).rstrip("\n") + "\n"

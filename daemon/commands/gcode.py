@@ -10,6 +10,7 @@ from pathlib import Path
 from daemon.cli import UserError
 from daemon.config import check_touch_count, load_artefact, load_machine, load_plan
 from daemon.dialects import DIALECTS
+from daemon.safepath import contained_path
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -58,7 +59,7 @@ def run(args: argparse.Namespace) -> int:
         try:
             args.output.write_text(text, encoding="ascii")
             for name, body in dialect.aux_files(prog).items():
-                (args.output.parent / name).write_text(body, encoding="ascii")
+                contained_path(args.output.parent, name).write_text(body, encoding="ascii")
         except OSError as e:
             raise UserError(f"{args.output}: cannot write: {e.strerror}") from None
     else:

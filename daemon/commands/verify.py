@@ -56,7 +56,8 @@ async def verify(cfg_path: str, machine: str, *, strict: bool = False, quiet: bo
                         f"{', '.join(cfg.machines)})")
     console = console or Console(stderr=True)
     try:
-        store = Store(cfg.store_path, cfg.synchronous)  # type: ignore[arg-type]
+        store = Store(cfg.store_path, cfg.synchronous,  # type: ignore[arg-type]
+                      source=f"{cfg.path}: store.path")
     except StoreError as e:
         raise UserError(str(e)) from None
     link = link_factory(setup)
