@@ -28,7 +28,7 @@ from drivers.base import (
     StartRequest,
     Verdict,
 )
-from drivers.hits import HitFactory, with_backoff
+from drivers.hits import HitFactory, MalformedResult, with_backoff
 from drivers.link_config import ModbusLinkConfig
 from drivers.modbus_map import (
     ALARM_CODES,
@@ -50,6 +50,72 @@ from drivers.modbus_map import (
 
 logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
 STATE_NAMES = {v: k for k, v in STATE_CODES.items()}
+FLAGS_OFFSET = 12
+RESERVED_OFFSETS = range(13, SLOT_WORDS)
+# Status registers whose value must lie in a documented set (drivers/README.md); anything else
+# is a corrupted map, which would otherwise stall the stream until a timeout.
+STATUS_VALUES: dict[str, frozenset[int]] = {
+    "MAP_ID": frozenset({MAP_ID}),
+    "MAP_VERSION": frozenset({MAP_VERSION}),
+    "STATE": frozenset(STATE_CODES.values()),
+    "ALARM_CODE": frozenset(ALARM_CODES),
+    "REQUEST": frozenset({0, 1}),
+    "BUSY": frozenset({0, 1}),
+    "DONE": frozenset({0, 1}),
+    "VERDICT": frozenset(range(5)),
+    "COMMAND": frozenset({0, *COMMANDS.values()}),
+    "RING_SLOTS": frozenset({RING_SLOTS}),
+    "MBX_READY": frozenset({0, 1}),
+}
+
+
+def check_status(regs: list[int]) -> dict[str, int]:
+    """The status block (registers 0..16) as named values; ``MalformedResult`` naming the
+    register, its value and the allowed values when one holds something the map never does."""
+    if len(regs) != STATUS_WORDS:
+        raise MalformedResult(f"malformed status block: {len(regs)} registers, expected "
+                              f"{STATUS_WORDS}")
+    for name, allowed in STATUS_VALUES.items():
+        value = regs[addr(name)]
+        if value not in allowed:
+            raise MalformedResult(f"malformed status block: {name} (register {addr(name)}) = "
+                                  f"{value}, expected one of {sorted(allowed)}")
+    return {"state": regs[addr("STATE")], "alarm": regs[addr("ALARM_CODE")],
+            "request": regs[addr("REQUEST")], "done": regs[addr("DONE")],
+            "command": regs[addr("COMMAND")], "counter": regs[addr("RESULT_COUNTER")],
+            "ready": regs[addr("MBX_READY")], "ack": regs[addr("MBX_ACK")],
+            "seq": regs[addr("MBX_SEQ")]}
+
+
+def check_mailbox(st: dict[str, int], seq: int, prev_seq: int) -> None:
+    """The mailbox registers against what this run wrote: MBX_SEQ is the last block sent and
+    MBX_ACK that block or the one before (the CNC has not taken it yet)."""
+    if seq and st["seq"] != seq:
+        raise MalformedResult(f"malformed mailbox: MBX_SEQ (register {addr('MBX_SEQ')}) = "
+                              f"{st['seq']}, expected {seq} (the last block sent)")
+    if st["ack"] not in (prev_seq, seq):
+        expected = f"{prev_seq} or {seq}" if seq else "0 (reset by BEGIN)"
+        raise MalformedResult(f"malformed mailbox: MBX_ACK (register {addr('MBX_ACK')}) = "
+                              f"{st['ack']}, expected {expected}")
+
+
+def slot_hit(hits: HitFactory, regs: list[int], slot: int) -> ProbeHit:
+    """Decode and validate one result slot: the next touch in program order, FLAGS 0 or 1,
+    reserved registers 0, plausible positions; ``MalformedResult`` otherwise."""
+    where = f"result slot {slot}, registers {slot_address(slot)}..+{SLOT_WORDS - 1}"
+    if len(regs) != SLOT_WORDS or any(not 0 <= r <= 0xFFFF for r in regs):
+        raise MalformedResult(f"malformed result ({where}): {regs!r} is not {SLOT_WORDS} "
+                              "16-bit registers")
+    flags = regs[FLAGS_OFFSET]
+    if flags not in (0, 1):
+        raise MalformedResult(f"malformed result ({where}): FLAGS (+{FLAGS_OFFSET}) = "
+                              f"{flags:#06x}, expected 0 or 1 (bit 0 triggered, others reserved)")
+    for off in RESERVED_OFFSETS:
+        if regs[off]:
+            raise MalformedResult(f"malformed result ({where}): reserved register +{off} = "
+                                  f"{regs[off]:#06x}, expected 0")
+    tseq, axes, triggered = decode_slot(regs)
+    return hits.make(tseq, axes, triggered, f"slot={slot} regs={regs[:13]}", where=where)
 
 
 def program_blocks(text: str) -> list[str]:
@@ -130,26 +196,28 @@ class ModbusLink(CncLink):
             raise LinkError(f"modbus write {address}: refused by the controller ({rr})")
 
     async def _status(self) -> dict[str, int]:
-        r = await self._read(0, STATUS_WORDS)
-        return {"state": r[addr("STATE")], "alarm": r[addr("ALARM_CODE")],
-                "request": r[addr("REQUEST")], "done": r[addr("DONE")],
-                "command": r[addr("COMMAND")], "counter": r[addr("RESULT_COUNTER")],
-                "ready": r[addr("MBX_READY")], "ack": r[addr("MBX_ACK")]}
+        return check_status(await self._read(0, STATUS_WORDS))
+
+    async def _handshake(self) -> tuple[int, int]:
+        """REQUEST and DONE only: waiting for a request does not judge the rest of the map
+        (a run does, at its first poll), so a PLC still booting is simply waited for."""
+        r = await self._read(addr("REQUEST"), 3)
+        return r[0], r[2]
 
     # ------------------------------------------------------------------ handshake
 
     async def wait_start_request(self) -> StartRequest:
         while True:
             try:
-                st = await self._status()
+                request, done = await self._handshake()
             except LinkError:
                 await self._reconnect()  # controller restarted or cable pulled: back off, retry
                 continue
-            if st["done"] and not st["request"]:
+            if done and not request:
                 await self._write(addr("DONE"), [0])
                 await self._write(addr("VERDICT"), [0])
                 continue
-            if st["request"] and not st["done"]:
+            if request and not done:
                 await self._write(addr("BUSY"), [1])
                 return StartRequest(source="cnc", detail="REQUEST register = 1")
             await asyncio.sleep(max(self.cfg.poll_interval_s, 0.05))
@@ -163,7 +231,11 @@ class ModbusLink(CncLink):
     async def _command(self, name: str) -> None:
         await self._write(addr("COMMAND"), [COMMANDS[name]])
         deadline = time.monotonic() + self.cfg.block_timeout_s
-        while (await self._read(addr("COMMAND"), 1))[0] != 0:
+        while (value := (await self._read(addr("COMMAND"), 1))[0]) != 0:
+            if value not in COMMANDS.values():  # garbage would only end at the timeout
+                raise MalformedResult(f"malformed status block: COMMAND (register "
+                                      f"{addr('COMMAND')}) = {value} while waiting for "
+                                      f"{name} to be executed, expected {COMMANDS[name]} or 0")
             if time.monotonic() > deadline:
                 raise LinkError(f"controller did not execute command {name} within "
                                 f"{self.cfg.block_timeout_s:g} s")
@@ -180,30 +252,46 @@ class ModbusLink(CncLink):
         return text or ALARM_CODES.get(code, f"code {code}")
 
     async def run(self, job: ProgramJob) -> AsyncIterator[ProbeHit]:
+        try:
+            async with contextlib.aclosing(self._run(job)) as agen:
+                async for hit in agen:
+                    yield hit
+        except MalformedResult:
+            # The connection works but the map holds garbage: stop the program (the CNC would
+            # otherwise starve mid-stream) and fail with what was wrong.
+            await self.abort()
+            raise
+
+    async def _run(self, job: ProgramJob) -> AsyncIterator[ProbeHit]:
         blocks = program_blocks(job.text)
         hits = HitFactory(job)
         await self._command("BEGIN")
         last = got = 0
-        i, seq, end_sent = 0, 0, False
+        i, seq, prev_seq, end_sent = 0, 0, 0, False
         poll = 0.0
         progress_t = time.monotonic()
         self.blocks_sent = 0
         while True:
             st = await self._status()
+            check_mailbox(st, seq, prev_seq)
             new = (st["counter"] - last) & 0xFFFF
             if new:
+                if job.touch_count and got + new > job.touch_count:
+                    raise MalformedResult(
+                        f"malformed status block: RESULT_COUNTER (register "
+                        f"{addr('RESULT_COUNTER')}) = {st['counter']}, expected at most "
+                        f"{(last + job.touch_count - got) & 0xFFFF} (the program has "
+                        f"{job.touch_count} touches, {got} read)")
                 if new > RING_SLOTS:
                     raise LinkError(f"result ring overrun: {new} touches since the last poll, "
                                     f"ring holds {RING_SLOTS}")
                 for n in range(last + 1, last + new + 1):
                     slot = (n - 1) % RING_SLOTS
-                    regs = await self._read(slot_address(slot), SLOT_WORDS)
-                    tseq, axes, triggered = decode_slot(regs)
-                    hit = hits.make(tseq, axes, triggered, f"slot={slot} regs={regs[:13]}")
+                    hit = slot_hit(hits, await self._read(slot_address(slot), SLOT_WORDS), slot)
                     got += 1
                     yield hit
-                    if not triggered:
-                        raise ControllerAlarm(f"probe did not trigger at touch seq {tseq}")
+                    if not hit.triggered:
+                        raise ControllerAlarm(f"probe did not trigger at touch seq {hit.seq}")
                 last = (last + new) & 0xFFFF
                 progress_t = time.monotonic()
                 poll = 0.0
@@ -213,7 +301,7 @@ class ModbusLink(CncLink):
                                       f"{await self._alarm_text(st['alarm'])}")
             if i < len(blocks):
                 if st["ready"] == 0 and st["ack"] == seq:
-                    seq = seq % 65535 + 1
+                    prev_seq, seq = seq, seq % 65535 + 1
                     await self._send_block(seq, blocks[i])
                     i += 1
                     self.blocks_sent = i

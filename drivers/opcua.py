@@ -13,6 +13,7 @@ import asyncio
 import contextlib
 import json
 import logging
+import math
 import time
 from collections.abc import AsyncIterator
 from typing import Any
@@ -30,9 +31,9 @@ from drivers.base import (
     StartRequest,
     Verdict,
 )
-from drivers.hits import HitFactory, wait_event, with_backoff
+from drivers.hits import HitFactory, MalformedResult, wait_event, with_backoff
 from drivers.link_config import OpcUaLinkConfig
-from drivers.opcua_space import BY_ROLE, RESULT_ROLES, RING_SLOTS, node_id
+from drivers.opcua_space import BY_ROLE, RESULT_ROLES, RING_SLOTS, STATES, node_id
 
 logging.getLogger("asyncua").setLevel(logging.ERROR)
 log = logging.getLogger("rumba.opcua")
@@ -59,6 +60,65 @@ class _Notify:
 
 def _double(value: float) -> ua.DataValue:
     return ua.DataValue(ua.Variant(float(value), ua.VariantType.Double))
+
+
+def _number(value: Any, role: str, where: str, integer: bool) -> float:
+    """``value`` as a finite number (an integer when ``integer``), else ``MalformedResult``."""
+    ok = isinstance(value, int | float) and not isinstance(value, bool)
+    if ok:
+        try:
+            ok = math.isfinite(value) and (not integer or float(value).is_integer())
+        except OverflowError:  # an int too large for a float
+            ok = False
+    if not ok:
+        kind = "an integer" if integer else "a finite number"
+        raise MalformedResult(f"malformed result ({where}): {BY_ROLE[role].path} = "
+                              f"{value!r}, expected {kind}")
+    return value
+
+
+def check_counter(counter: Any, state: Any, last: int, high: int | None) -> int:
+    """The touch counter and state as read during a run; ``MalformedResult`` when the counter
+    is not a whole number between the last one read and ``high`` (the counter after the
+    program's last touch; None: unknown), or the state is not one of the address space's
+    states (either would stall the run silently or crash it)."""
+    where = "status"
+    if state not in STATES:
+        raise MalformedResult(f"malformed result ({where}): {BY_ROLE['state'].path} = "
+                              f"{state!r}, expected one of {', '.join(STATES)}")
+    n = int(_number(counter, "touch_counter", where, integer=True))
+    if n < last or (high is not None and n > high):
+        raise MalformedResult(f"malformed result ({where}): {BY_ROLE['touch_counter'].path} = "
+                              f"{counter!r}, expected {last}..{'' if high is None else high} "
+                              "(from the last one read to the program's last touch)")
+    return n
+
+
+def ring_hit(hits: HitFactory, rows: list[Any], n: int) -> ProbeHit:
+    """Decode and validate result ``n`` from the ring arrays (``RESULT_ROLES`` order): arrays of
+    ``RING_SLOTS`` elements, a whole seq (the next in program order), finite plausible
+    positions, a trigger flag 0 or 1; ``MalformedResult`` otherwise."""
+    slot = (n - 1) % RING_SLOTS
+    where = f"ring slot {slot}, touch counter {n}"
+    if len(rows) != len(RESULT_ROLES):
+        raise MalformedResult(f"malformed result ({where}): {len(rows)} result arrays, "
+                              f"expected {len(RESULT_ROLES)}")
+    values = []
+    for role, row in zip(RESULT_ROLES, rows, strict=True):
+        if not isinstance(row, list | tuple) or len(row) != RING_SLOTS:
+            size = len(row) if isinstance(row, list | tuple) else type(row).__name__
+            raise MalformedResult(f"malformed result ({where}): {BY_ROLE[role].path} holds "
+                                  f"{size}, expected an array of {RING_SLOTS}")
+        integer = role in ("result_seq", "result_triggered")
+        values.append(_number(row[slot], role, where, integer))
+    seq, x, y, z, b, c, trig = values
+    if trig not in (0, 1):
+        raise MalformedResult(f"malformed result ({where}): {BY_ROLE['result_triggered'].path}"
+                              f" = {trig!r}, expected 0 or 1")
+    axes = {"X": float(x), "Y": float(y), "Z": float(z), "b": float(b), "c": float(c)}
+    raw = (f"slot={slot} counter={n} seq={seq} X={x!r} Y={y!r} Z={z!r} b={b!r} c={c!r} "
+           f"trig={trig}")
+    return hits.make(int(seq), axes, bool(trig), raw, where=where)
 
 
 class OpcUaLink(CncLink):
@@ -243,7 +303,8 @@ class OpcUaLink(CncLink):
                          ua.Variant(json.dumps(job.files) if job.files else "",
                                     ua.VariantType.String))
         (last,) = await self._read(("touch_counter",))
-        last = int(last)
+        last = int(_number(last, "touch_counter", "after LoadProgram", integer=True))
+        high = last + job.touch_count if job.touch_count else None
         hits = HitFactory(job)
         await self._call("start")
         got = 0
@@ -251,7 +312,11 @@ class OpcUaLink(CncLink):
         while True:
             counter, state, alarm = await self._read_during_run(("touch_counter", "state",
                                                                  "alarm"))
-            counter = int(counter)
+            try:
+                counter = check_counter(counter, state, last, high)
+            except MalformedResult:
+                await self._abort_quietly()
+                raise
             if counter > last:
                 progress_t = time.monotonic()
                 if counter - last > RING_SLOTS:
@@ -259,13 +324,11 @@ class OpcUaLink(CncLink):
                                     f"last read, ring holds {RING_SLOTS}")
                 rows = await self._read_during_run(RESULT_ROLES)
                 for n in range(last + 1, counter + 1):
-                    slot = (n - 1) % RING_SLOTS
-                    seq, x, y, z, b, c, trig = (r[slot] for r in rows)
-                    axes = {"X": float(x), "Y": float(y), "Z": float(z), "b": float(b),
-                            "c": float(c)}
-                    raw = (f"slot={slot} counter={n} seq={seq} X={x!r} Y={y!r} Z={z!r} "
-                           f"b={b!r} c={c!r} trig={trig}")
-                    hit = hits.make(int(seq), axes, bool(trig), raw)
+                    try:
+                        hit = ring_hit(hits, rows, n)
+                    except MalformedResult:
+                        await self._abort_quietly()
+                        raise
                     last, got = n, got + 1
                     yield hit
                     if not hit.triggered:
@@ -287,6 +350,11 @@ class OpcUaLink(CncLink):
     async def abort(self) -> None:
         if self._client is not None:
             await self._call("abort")
+
+    async def _abort_quietly(self) -> None:
+        """Stop a program whose results are garbage (the connection itself works)."""
+        with contextlib.suppress(LinkError):
+            await self.abort()
 
     async def close(self) -> None:
         client, self._client = self._client, None

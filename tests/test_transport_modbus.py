@@ -13,6 +13,7 @@ from hypothesis import strategies as st
 from pymodbus.client import AsyncModbusTcpClient
 
 from drivers.base import LinkError, Verdict
+from drivers.hits import MalformedResult
 from drivers.link_config import ModbusLinkConfig
 from drivers.modbus import ModbusLink, program_blocks
 from drivers.modbus_map import (
@@ -233,3 +234,103 @@ async def test_every_dialect_streams_through_the_mailbox(dialect):
         await link.close()
         await fe.stop()
     latched_equal(hits, ctrl, job, tol_mm=0.5 / LINEAR_COUNTS_PER_MM + 1e-9)
+
+
+# ---------------------------------------------------------------------------- garbage in the map
+
+class GarbageFrontend(ModbusFrontend):
+    """The simulator's server whose registers ``garbage`` read as the given values once the
+    controller has taken ``after_blocks`` mailbox blocks (a PLC program overwriting the map);
+    the controller itself runs on unaware."""
+
+    def __init__(self, ctrl: VirtualController, garbage: dict[int, int],
+                 after_blocks: int = 0) -> None:
+        super().__init__(ctrl)
+        self.garbage, self.after_blocks = garbage, after_blocks
+
+    async def _access(self, fc, start, address, count, registers, values):
+        result = await super()._access(fc, start, address, count, registers, values)
+        if values is None and self.blocks_taken >= self.after_blocks:
+            for a, v in self.garbage.items():
+                if address <= a < address + count:
+                    registers[a - start] = v
+        return result
+
+
+SLOT0 = slot_address(0)
+GARBAGE = [  # register → value, when, what the error must name
+    pytest.param({addr("MBX_ACK"): 0xBEEF}, 5, r"MBX_ACK \(register 16\) = 48879, expected",
+                 id="mbx-ack"),
+    pytest.param({addr("MBX_READY"): 7}, 5, r"MBX_READY \(register 14\) = 7, expected",
+                 id="mbx-ready"),
+    pytest.param({addr("MBX_SEQ"): 3}, 9, r"MBX_SEQ \(register 15\) = 3, expected", id="mbx-seq"),
+    pytest.param({addr("STATE"): 0x4142}, 5, r"STATE \(register 3\) = 16706", id="state"),
+    pytest.param({addr("COMMAND"): 0x5555}, 5, r"COMMAND \(register 9\) = 21845", id="command"),
+    pytest.param({addr("RESULT_COUNTER"): 999}, 5, r"RESULT_COUNTER \(register 10\) = 999",
+                 id="counter"),
+    pytest.param({SLOT0 + 1: 999}, 0, r"slot 0.*touch seq 999, expected 1", id="slot-seq"),
+    pytest.param({SLOT0 + 2: 0x7FFF}, 0, r"slot 0.*X = 2147\d+\.\d+ mm, expected a finite",
+                 id="slot-x"),
+    pytest.param({SLOT0 + 12: 0x0101}, 0, r"slot 0.*FLAGS \(\+12\) = 0x0101, expected 0 or 1",
+                 id="slot-flags"),
+    pytest.param({SLOT0 + 14: 0xDEAD}, 0, r"slot 0.*reserved register \+14 = 0xdead",
+                 id="slot-reserved"),
+]
+
+
+@pytest.mark.parametrize(("garbage", "after_blocks", "reason"), GARBAGE)
+async def test_garbage_in_the_map_fails_the_run_at_once_naming_it(garbage, after_blocks,
+                                                                  reason):
+    ctrl = VirtualController(make_truth(), dialect=DIALECT)
+    fe = GarbageFrontend(ctrl, garbage, after_blocks)
+    # Timeouts far beyond the guard: only the validation can end this run in time.
+    link = ModbusLink(ModbusLinkConfig(transport="modbus", port=await fe.start(),
+                                       block_timeout_s=3600, result_timeout_s=3600))
+    await link.connect()
+    hits = []
+    try:
+        async with asyncio.timeout(60):
+            with pytest.raises(MalformedResult, match=reason):
+                async for h in link.run(make_job(ctrl.truth, DIALECT)):
+                    hits.append(h)
+        assert [h.seq for h in hits] == list(range(1, len(hits) + 1))  # nothing garbage kept
+        await until(lambda: ctrl.state == "idle")  # the link stopped the program
+    finally:
+        await link.close()
+        await fe.stop()
+
+
+async def test_mailbox_garbage_fails_the_service_run_with_the_reason(tmp_path):
+    """daemon.yaml → Service → Modbus link: garbage in MBX_ACK mid-stream. With every silence
+    timeout at an hour the run must still end at once, FAILED, naming the register; the CNC
+    gets ERROR and its program is stopped."""
+    from daemon.daemon_config import load_daemon_config
+    from daemon.service import Service
+    from daemon.session import State
+    from tests.daemon_helpers import write_daemon_yaml
+
+    ctrl = VirtualController(make_truth(), dialect=DIALECT)
+    fe = GarbageFrontend(ctrl, {addr("MBX_ACK"): 0xBEEF}, after_blocks=40)
+    port = await fe.start()
+    link = (f"{{transport: modbus, port: {port}, block_timeout_s: 3600, "
+            "result_timeout_s: 3600}")
+    path = write_daemon_yaml(tmp_path, link=link)
+    path.write_text(path.read_text().replace("touch_timeout_s: 30", "touch_timeout_s: 3600")
+                    .replace("hmi: {host: 127.0.0.1, port: 0, token: t0k3n-for-tests-"
+                             "0123456789}", "hmi: {enabled: false}"))
+    service = Service(load_daemon_config(path))
+    await service.start()
+    session = service.sessions["mill1"]
+    try:
+        ctrl.raise_start_request()
+        await until(lambda: session.run_id is not None)
+        # Session.wait() swallows a cancellation, so the guard is asyncio.wait's timeout.
+        done, _ = await asyncio.wait({asyncio.ensure_future(session.wait())}, timeout=60)
+        assert done, f"run still {session.state} after 60 s with mailbox garbage"
+        assert session.state == State.FAILED
+        assert "MBX_ACK (register 16) = 48879, expected" in session.reason, session.reason
+        await until(lambda: ctrl.verdict == 4 and ctrl.state == "idle")  # ERROR, stopped
+    finally:
+        await session.abort("test teardown")  # else Service.stop waits for a hung run
+        await service.stop()
+        await fe.stop()

@@ -14,6 +14,7 @@ import pytest_asyncio
 from asyncua import Client, ua
 
 from drivers.base import LinkError, Verdict
+from drivers.hits import MalformedResult
 from drivers.link_config import OpcUaLinkConfig
 from drivers.opcua import OpcUaLink
 from drivers.opcua_certs import ensure_certificate
@@ -304,3 +305,53 @@ async def test_load_while_running_is_refused(pki, secure_server, truth):
     finally:
         await ctrl.abort()
         await link.close()
+
+
+class GarbageOpcUa(OpcUaFrontend):
+    """The simulator's server writing ``value`` into ``role`` from result 3 on (array roles:
+    into result 3's slot, kept there), before the counter that announces it, as a CNC program
+    with a bad variable would."""
+
+    def __init__(self, ctrl: VirtualController, role: str, value: object) -> None:
+        super().__init__(ctrl, security="none")
+        self.bad_role, self.bad_value = role, value
+
+    async def _write(self, role: str, value):
+        if role == self.bad_role and self.counter >= 3:
+            if isinstance(value, list):
+                if self.counter == 3:  # into the ring itself: later writes resend it
+                    self._ring[role][2] = self.bad_value
+                    value = list(self._ring[role])
+            else:
+                value = self.bad_value
+        await super()._write(role, value)
+
+
+@pytest.mark.parametrize(("role", "value", "reason"), [
+    ("result_x", float("nan"), r"ring slot 2.*RUMBA_X = nan, expected a finite number"),
+    ("result_y", -1e9, r"ring slot 2.*Y = -1000000000\.0 mm, expected a finite value"),
+    ("result_seq", 99, r"ring slot 2.*touch seq 99, expected 3"),
+    ("result_triggered", 7, r"ring slot 2.*RUMBA_TRIG = 7, expected 0 or 1"),
+    ("touch_counter", float("nan"), r"R\[u1,5\] = nan, expected an integer"),
+])
+async def test_garbage_result_fails_the_run_at_once_naming_it(truth, role, value, reason):
+    ctrl = VirtualController(truth, dialect=DIALECT)
+    fe = GarbageOpcUa(ctrl, role, value)
+    url = await fe.start()
+    # Silence timeout far beyond the guard: only the validation can end this run in time.
+    link = OpcUaLink(OpcUaLinkConfig(transport="opcua", url=url, security="none",
+                                     result_timeout_s=3600))
+    await link.connect()
+    hits = []
+    try:
+        async with asyncio.timeout(60):
+            with pytest.raises(MalformedResult, match=reason):
+                async for h in link.run(make_job(truth, DIALECT)):
+                    hits.append(h)
+            await wait_for(lambda: ctrl.state == "idle")  # the link stopped the program
+        # nothing of the garbage result kept (a bad counter may come before any result)
+        assert [h.seq for h in hits] == [1, 2][:len(hits)]
+        assert role == "touch_counter" or len(hits) == 2
+    finally:
+        await link.close()
+        await fe.stop()
