@@ -180,15 +180,13 @@ class Session:
             return False
         self._abort_reason = f"aborted by {source}"
         self._task.cancel()
-        with contextlib.suppress(asyncio.CancelledError):
-            await asyncio.shield(self._task)
+        await _await_run(self._task)
         return True
 
     async def wait(self) -> dict[str, Any]:
         """Wait for the current run to end; returns the final status."""
         if self._task is not None:
-            with contextlib.suppress(asyncio.CancelledError):
-                await asyncio.shield(self._task)
+            await _await_run(self._task)
         return self.status()
 
     # ---------------------------------------------------------------------------------- run
@@ -303,3 +301,14 @@ class Session:
 
 def replace_hit(hit: ProbeHit, **changes: Any) -> ProbeHit:
     return dataclasses.replace(hit, **changes)
+
+
+async def _await_run(task: asyncio.Task) -> None:
+    """Wait for a run task to end, its own cancellation (an abort) included, but never swallow
+    the caller's: a service stopping while it waits on a stalled run must stop."""
+    try:
+        await asyncio.shield(task)
+    except asyncio.CancelledError:
+        current = asyncio.current_task()
+        if current is not None and current.cancelling():
+            raise

@@ -176,3 +176,22 @@ async def test_disabled_trigger_is_refused(env):
     s, _ = make(env, setup=replace(setup, triggers=TriggersFile(can=False)))
     with pytest.raises(Refused, match="trigger 'can' is disabled"):
         s.start("can")
+
+
+async def test_waiting_on_a_stalled_run_can_itself_be_cancelled(env):
+    """A caller waiting on the run (the service's CNC trigger) must stop when it is cancelled
+    (service shutdown): the wait used to swallow the caller's own cancellation and hang."""
+    s, _link = make(env, faults=Faults(hang_at=3))
+    stalled = asyncio.Event()  # two hits in: the controller is now silent before seq 3
+    s.listeners.append(lambda st: stalled.set() if st["done"] >= 2 or st["state"] in
+                       ("IDLE", "FAILED", "ABORTED") else None)
+    s.start("cnc")
+    await stalled.wait()
+    assert s.status()["state"] == "CAPTURE", s.status()
+    waiter = asyncio.ensure_future(s.wait())
+    await asyncio.sleep(0)
+    waiter.cancel()
+    done, _ = await asyncio.wait({waiter}, timeout=5)
+    assert done, "s.wait() swallowed its caller's cancellation"
+    assert waiter.cancelled()
+    assert await s.abort("test")
