@@ -16,11 +16,9 @@ import concurrent.futures
 import contextlib
 import logging
 import os
-import re
 import termios
 import threading
 import time
-from collections import deque
 from collections.abc import AsyncIterator, Callable
 
 import serial
@@ -39,33 +37,27 @@ from drivers.base import (
 )
 from drivers.hits import HitFactory, wait_event
 from drivers.link_config import SerialLinkConfig
+from drivers.serial_dnc_line import (  # noqa: F401 (re-exported: the link's public names)
+    MAX_LINE_BYTES,
+    REQUEST_HOLDOFF_S,
+    XOFF,
+    XON,
+    _DncProtocol,
+    parse_request,
+)
 
 log = logging.getLogger("rumba.serial")
 
-XON, XOFF = 0x11, 0x13
+MAX_WRITE_BYTES = 32
+"""At most this much per write and per pass through the event loop's timers (a UART's transmit
+FIFO is 16-64 bytes): a peer reading the line on its own ≈ 1 ms timer (the pty simulator's
+paced receive) is never handed more per tick than it takes; 32 per ms is still ≥ 115 200 baud."""
+
 FRAME = {"7E1": (7, "E", 1, 10), "8N1": (8, "N", 1, 10), "7E2": (7, "E", 2, 11),
          "8N2": (8, "N", 2, 11)}
 """framing → (data bits, parity, stop bits, bits per character on the line)."""
 
 ResultParser = Callable[[str], "ProbeHit | None"]
-
-# The start-of-shift macro's request line (gcode_templates/*/README.md; the dialect's macro
-# clears the verdict variable, prints this line, waits for the verdict).
-_REQUEST = re.compile(r"^\s*RUMBA\s+REQUEST\s+(?P<machine>[A-Za-z0-9_.-]{1,32})\s*$")
-_REQUEST_HEAD = re.compile(r"^\s*RUMBA\s+REQUEST\b", re.IGNORECASE)
-
-
-def parse_request(line: str) -> str | None:
-    """The machine named by a start-of-shift request line ``RUMBA REQUEST <machine>`` (printed
-    by the CNC's start-of-shift macro), None for any other line; ``ValueError`` for a line that
-    starts like a request but breaks the grammar (a request is never guessed)."""
-    if not _REQUEST_HEAD.match(line):
-        return None
-    m = _REQUEST.match(line.rstrip("\r\n"))
-    if not m:
-        raise ValueError(f"request line does not match 'RUMBA REQUEST <machine>' with machine "
-                         f"[A-Za-z0-9_.-]{{1,32}}: {line.strip()[:80]!r}")
-    return m.group("machine")
 
 
 def _is_pty(url: str) -> bool:
@@ -93,72 +85,6 @@ def frame_program(text: str, eol: str, seven_bit: bool) -> bytes:
         lines.append("%")
     sep = "\r\n" if eol == "CRLF" else "\n"
     return (sep.join(lines) + sep).encode("latin-1")
-
-
-class _DncProtocol(asyncio.Protocol):
-    """Splits received bytes into lines and tracks the controller's XON/XOFF state.
-
-    Request lines go to ``requests`` (only while no program runs: a request during a run is
-    refused, never queued for later); other lines go to ``lines`` while a program runs and are
-    otherwise logged and kept in ``unsolicited`` (the last 100), never mistaken for results."""
-
-    def __init__(self) -> None:
-        self.lines: asyncio.Queue[str | BaseException] = asyncio.Queue()
-        self.requests: asyncio.Queue[tuple[str, str] | BaseException] = asyncio.Queue()
-        self.unsolicited: deque[str] = deque(maxlen=100)
-        self.running = False
-        self.xon = asyncio.Event()
-        self.xon.set()
-        self.xoff_count = 0
-        self._partial = bytearray()
-        self.transport: asyncio.BaseTransport | None = None
-
-    def connection_made(self, transport: asyncio.BaseTransport) -> None:
-        self.transport = transport
-
-    def data_received(self, data: bytes) -> None:
-        if XON in data or XOFF in data:
-            for b in data:
-                if b == XOFF:
-                    self.xon.clear()
-                    self.xoff_count += 1
-                elif b == XON:
-                    self.xon.set()
-                else:
-                    self._partial.append(b)
-        else:
-            self._partial += data
-        while (nl := self._partial.find(b"\n")) >= 0:
-            raw = bytes(self._partial[:nl])
-            del self._partial[:nl + 1]
-            line = raw.decode("ascii", "replace").strip("\r").strip()
-            if line:
-                self._dispatch(line)
-
-    def _dispatch(self, line: str) -> None:
-        try:
-            machine = parse_request(line)
-        except ValueError as e:
-            log.warning("serial: %s; ignored", e)
-            self.unsolicited.append(line)
-            return
-        if machine is not None:
-            if self.running:
-                log.warning("serial: start request %r during a run: refused", line)
-                self.unsolicited.append(line)
-            else:
-                self.requests.put_nowait((machine, line))
-        elif self.running:
-            self.lines.put_nowait(line)
-        else:
-            log.info("serial: line outside a run ignored: %r", line[:120])
-            self.unsolicited.append(line)
-
-    def connection_lost(self, exc: Exception | None) -> None:
-        err = LinkError(f"serial line closed{f': {exc}' if exc else ''}")
-        self.lines.put_nowait(err)
-        self.requests.put_nowait(err)
-        self.xon.set()
 
 
 class _ThreadTransport:
@@ -211,6 +137,9 @@ class SerialDncLink(CncLink):
         self._sender: asyncio.Task | None = None
         self.bytes_sent = 0
         self.stream_s = 0.0  # wall time of the last stream (throughput = bytes_sent / stream_s)
+        self._holdoff_until = 0.0  # survives a reconnect: see REQUEST_HOLDOFF_S
+        # A real UART's output queue is read with TIOCOUTQ; ptys and sockets have none.
+        self._real_tty = "://" not in cfg.url and not _is_pty(cfg.url)
 
     @property
     def chars_per_s(self) -> float:
@@ -226,7 +155,7 @@ class SerialDncLink(CncLink):
             bits, parity, stop = 8, "N", 1
         kw = dict(baudrate=self.cfg.baudrate, bytesize=bits, parity=parity, stopbits=stop,
                   xonxoff=False, rtscts=False)
-        proto = _DncProtocol()
+        proto = _DncProtocol(self.cfg.request_machine, self._holdoff_until)
         loop = asyncio.get_running_loop()
         try:
             if self.cfg.url.startswith("rfc2217://"):
@@ -245,22 +174,24 @@ class SerialDncLink(CncLink):
 
     async def wait_start_request(self) -> StartRequest:
         """The next ``RUMBA REQUEST <machine>`` line printed by the CNC's start-of-shift macro
-        (with ``request_machine`` set, requests naming another machine are logged, ignored)."""
+        (with ``request_machine`` set, requests naming another machine are logged, ignored).
+        Calling it again ends the service of the previous request: repeats are refused until
+        then and for ``REQUEST_HOLDOFF_S`` after that run's end."""
         if self._proto is None:
             raise LinkError("serial link not connected")
         proto = self._proto
-        while True:
-            item = await proto.requests.get()
-            if isinstance(item, BaseException):
-                raise LinkError(str(item))
-            machine, line = item
-            want = self.cfg.request_machine
-            if want is not None and machine.upper() != want.upper():
-                log.warning("serial: start request for machine %s ignored (this line serves %s)",
-                            machine, want)
-                proto.unsolicited.append(line)
-                continue
-            return StartRequest(source="cnc", machine=machine, detail=f"serial line: {line}")
+        proto.serving = False
+        item = await proto.requests.get()
+        if isinstance(item, BaseException):
+            raise LinkError(str(item))
+        machine, line = item
+        proto.serving = True
+        return StartRequest(source="cnc", machine=machine, detail=f"serial line: {line}")
+
+    def _run_ended(self) -> None:
+        self._holdoff_until = time.monotonic() + REQUEST_HOLDOFF_S
+        if self._proto is not None:
+            self._proto.holdoff_until = self._holdoff_until
 
     async def _stream(self, payload: bytes, measure: bool = True) -> None:
         async with self._tx_lock:
@@ -269,28 +200,61 @@ class SerialDncLink(CncLink):
             self._tape_open = False
 
     async def _paced(self, payload: bytes, measure: bool) -> None:
+        """Feed ``payload`` as a UART would, never more than ``tx_chunk_bytes`` in flight.
+
+        In flight = written but, at the line rate, not yet through the line: everything in
+        flight still reaches the control after it sends XOFF, so it must fit the control's
+        slack above its high-water mark (``tx_chunk_bytes`` is set to at most that). The line
+        clock ``line_t`` is when the last byte written leaves the line; like a UART it never
+        runs ahead of real time after a stall (no catch-up burst: a line idle during a stall
+        carried nothing, so what the line did not carry then is still in flight later). Each
+        write is what fits in the budget at that moment."""
         assert self._proto is not None and self._transport is not None
-        cps, chunk = self.chars_per_s, self.cfg.tx_chunk_bytes
-        t0 = t = time.monotonic()
+        proto, transport = self._proto, self._transport
+        cps, budget = self.chars_per_s, self.cfg.tx_chunk_bytes
+        t0 = line_t = time.monotonic()
         i = 0
         while i < len(payload):
-            if self.cfg.xonxoff and not self._proto.xon.is_set():
-                if not await wait_event(self._proto.xon, self.cfg.xoff_timeout_s):
+            if self.cfg.xonxoff and not proto.xon.is_set():
+                if not await wait_event(proto.xon, self.cfg.xoff_timeout_s):
                     raise LinkError(f"controller held XOFF for {self.cfg.xoff_timeout_s:g} s "
                                     f"(no XON) after {i} of {len(payload)} bytes")
-                t = time.monotonic()
-            piece = payload[i:i + chunk]
-            self._transport.write(piece)  # type: ignore[union-attr]
-            i += len(piece)
-            if measure:
-                self.bytes_sent += len(piece)
-            # Keep to the line rate (a UART would): at most one chunk is ever ahead of an XOFF.
-            t = max(t + len(piece) / cps, time.monotonic() - chunk / cps)
-            delay = t - time.monotonic()
-            if delay > 0:
-                await asyncio.sleep(delay)
+                continue
+            now = time.monotonic()
+            ahead = max(line_t - now, 0.0) * cps + self._os_pending()
+            room = int(budget - ahead)
+            if room >= 1:
+                piece = payload[i:i + min(room, MAX_WRITE_BYTES)]
+                transport.write(piece)  # type: ignore[union-attr]
+                # The clock read after the write: the line starts on these bytes no earlier.
+                line_t = max(line_t, time.monotonic()) + len(piece) / cps
+                i += len(piece)
+                if measure:
+                    self.bytes_sent += len(piece)
+                ahead += len(piece)
+            # One write per pass through the loop's timers, then sleep until a byte fits (the
+            # timer granularity, ≈ 1 ms with epoll, makes it longer; on waking whatever fits
+            # by then goes out). An XOFF arriving meanwhile is read before we wake (I/O
+            # callbacks run before timers); one sent in the same pass is not, which the
+            # budget covers.
+            await asyncio.sleep(max((ahead + 1 - budget) / cps, 1e-6))
         if measure:
             self.stream_s = time.monotonic() - t0
+
+    def _os_pending(self) -> int:
+        """Bytes the transport or the OS still holds unsent (a real UART's output queue; 0 for
+        a pty or socket, which hand bytes on at once)."""
+        t = self._transport
+        pending = 0
+        if t is not None and hasattr(t, "get_write_buffer_size"):
+            pending = t.get_write_buffer_size()
+        ser = getattr(t, "serial", None) if self._real_tty else None
+        if ser is not None:
+            try:
+                pending += ser.out_waiting
+            except (OSError, serial.SerialException, AttributeError, NotImplementedError):
+                self._real_tty = False  # no TIOCOUTQ here: the line clock alone
+        return pending
 
     async def run(self, job: ProgramJob) -> AsyncIterator[ProbeHit]:
         if self._proto is None:
@@ -357,6 +321,7 @@ class SerialDncLink(CncLink):
                     raise ControllerAlarm(f"probe did not trigger at touch seq {hit.seq}")
         finally:
             proto.running = False
+            self._run_ended()
             if not sender.done():
                 sender.cancel()
                 with contextlib.suppress(asyncio.CancelledError, Exception):
@@ -386,7 +351,10 @@ class SerialDncLink(CncLink):
                             "inside the interrupted program (plain DNC has no remote reset); "
                             "reset the control")
         payload = frame_program(text, self.cfg.eol, self.cfg.framing.startswith("7"))
-        await self._stream(payload, measure=False)
+        try:
+            await self._stream(payload, measure=False)
+        finally:
+            self._run_ended()
 
     async def abort(self) -> None:
         # DNC has no remote reset: stop feeding; the controller starves at the end of its buffer.

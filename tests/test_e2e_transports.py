@@ -80,7 +80,7 @@ async def start_rig(transport: str, ctrl: VirtualController) -> Rig:
             url = f"socket://127.0.0.1:{await fe.open_tcp('127.0.0.1', 0)}"
         link = {"transport": "serial", "url": url, "baudrate": BAUD, "framing": "7E1",
                 "request_machine": ctrl.machine_id, "tx_chunk_bytes": 64}
-        return Rig(transport, ctrl, link, fe.close)
+        return Rig(transport, ctrl, link, fe.close, {"frontend": fe})
     if transport == "opcua":
         from simulators.frontends.opcua import OpcUaFrontend
 
@@ -145,8 +145,33 @@ def copy_aux_files(ctrl: VirtualController, setup: MachineSetup) -> None:
     ctrl.files.update(prepare(setup, "setup").job.files)
 
 
-async def run_start_of_shift(rig: Rig, dialect: str, tmp: Path, plan: str = PLAN
-                             ) -> dict[str, Any]:
+async def wait_verdict_on_cnc(session: Any, ctrl: VirtualController, timeout_s: float) -> None:
+    """Wait until the run has ended and its verdict arrived on the CNC side (the macro waits
+    for the verdict variable to become non-zero). A run that ended FAILED or ABORTED raises
+    at once with its reason: the CNC will never see a PASS, so waiting longer only hides it."""
+    async with asyncio.timeout(timeout_s):
+        while session.run_id is None:
+            await asyncio.sleep(0.01)
+        run_id = session.run_id
+        await session.wait()
+        if session.state in (State.FAILED, State.ABORTED):
+            raise AssertionError(f"run {session.run_id} {session.state}: {session.reason}")
+        while not (ctrl.verdict and ctrl.done):
+            if session.run_id != run_id:  # e.g. a queued repeat of the request
+                raise AssertionError(f"run {session.run_id} started after run {run_id}")
+            if ctrl.state == "alarm":  # the verdict program will never run to its end
+                raise AssertionError(f"run {session.run_id}: CNC in alarm: {ctrl.alarm}")
+            await asyncio.sleep(0.01)
+
+
+def _requests_pending(link: Any) -> int | None:
+    """Start requests a serial link still holds for later runs (None: not a serial link)."""
+    proto = getattr(link, "_proto", None)
+    return proto.requests.qsize() if proto is not None else None
+
+
+async def run_start_of_shift(rig: Rig, dialect: str, tmp: Path, plan: str = PLAN,
+                             requests: int = 1) -> dict[str, Any]:
     """daemon.yaml → Service; the CNC raises its request; returns what the test checks (and
     benchmarks/bench_e2e.py measures: ``marks`` = first time of each session state, and the
     simulated machine time of the probing program)."""
@@ -175,14 +200,9 @@ async def run_start_of_shift(rig: Rig, dialect: str, tmp: Path, plan: str = PLAN
 
         session.listeners.append(mark)
         t0 = time.monotonic()
-        ctrl.raise_start_request()  # the start-of-shift macro / PLC
-        async with asyncio.timeout(RUN_TIMEOUT_S):
-            while session.run_id is None:
-                await asyncio.sleep(0.01)
-            await session.wait()
-            # The CNC side: its macro waits for the verdict variable to become non-zero.
-            while not (ctrl.verdict and ctrl.done):
-                await asyncio.sleep(0.01)
+        for _ in range(requests):  # > 1: a macro printing its request line in a loop
+            ctrl.raise_start_request()  # the start-of-shift macro / PLC
+        await wait_verdict_on_cnc(session, ctrl, RUN_TIMEOUT_S)
         wall_s = time.monotonic() - t0
         out = {"session": session, "trigger": session.trigger, "state": session.state,
                "reason": session.reason, "verdict": session.verdict, "run_id": session.run_id,
@@ -190,7 +210,9 @@ async def run_start_of_shift(rig: Rig, dialect: str, tmp: Path, plan: str = PLAN
                "machine_s": machine_s[0] if machine_s else float("nan"),
                "cnc_variable": ctrl.variables.get(VERDICT_VARIABLE[dialect]),
                "run": service.store.run(session.run_id),
-               "analysis": service.store.analysis(session.run_id)}
+               "analysis": service.store.analysis(session.run_id),
+               "runs": [row.id for row in service.store.runs("mill1")],
+               "requests_pending": _requests_pending(service.links["mill1"])}
         ctrl.request = False  # the CNC read the verdict and drops its request
         return out
     finally:
@@ -220,3 +242,34 @@ async def test_start_of_shift_verdict_on_cnc_and_links_match_truth(rigs, tmp_pat
     k = coverage_factor(r["analysis"]["estimation"]["sigma_dof"] or math.inf)  # "3 u"
     for name, v in links.items():
         assert abs(v["value"] - truth[name]) < k * v["std"], (name, v, truth[name], k)
+
+
+@pytest.mark.asyncio(loop_scope="module")
+async def test_burst_of_serial_request_lines_starts_exactly_one_run(rigs, tmp_path):
+    """A start request is a level: 50 request lines printed in a burst are one run; the 49
+    repeats are refused (pending / being served), none is left to start a run after it."""
+    rig = await rigs("serial-pty")
+    r = await run_start_of_shift(rig, "fanuc", tmp_path, requests=50)
+    assert r["state"] == State.IDLE, r["reason"]
+    assert r["runs"] == [r["run_id"]]  # no second run started from a queued repeat
+    assert r["requests_pending"] == 0  # nor queued for one after the test ends
+
+
+@pytest.mark.asyncio(loop_scope="module")
+@pytest.mark.parametrize("state", [State.FAILED, State.ABORTED])
+async def test_waiting_for_the_verdict_fails_at_once_with_the_reason_of_a_failed_run(state):
+    class EndedRun:  # a session whose run has already ended without a verdict for the CNC
+        run_id = "r1"
+        reason = "controller: ALARM: serial receive buffer overflow (256 bytes)"
+
+        def __init__(self) -> None:
+            self.state = state
+
+        async def wait(self) -> dict[str, Any]:
+            return {}
+
+    ctrl = VirtualController(make_truth())  # its verdict variable stays 0
+    t0 = time.monotonic()
+    with pytest.raises(AssertionError, match=f"r1 {state}: controller: ALARM: serial receive"):
+        await wait_verdict_on_cnc(EndedRun(), ctrl, RUN_TIMEOUT_S)
+    assert time.monotonic() - t0 < RUN_TIMEOUT_S / 2  # not after the whole timeout

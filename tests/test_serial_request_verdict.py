@@ -217,3 +217,57 @@ async def test_verdict_needs_a_dialect():
     finally:
         await link.close()
         await fe.close()
+
+
+async def _until(cond, what: str, timeout_s: float = 10.0) -> None:
+    """Poll ``cond()`` (the simulated control prints asynchronously); fails naming ``what``."""
+    try:
+        async with asyncio.timeout(timeout_s):
+            while not cond():
+                await asyncio.sleep(0.005)
+    except TimeoutError:
+        raise AssertionError(f"{what}: not all received within {timeout_s:g} s") from None
+
+
+async def test_a_burst_of_request_lines_is_one_request_and_repeats_are_refused(monkeypatch):
+    import drivers.serial_dnc as dnc
+
+    monkeypatch.setattr(dnc, "REQUEST_HOLDOFF_S", 3600.0)  # "just finished" for the test
+    vc, job = real_setup("fanuc")
+    fe, link = await serial_rig(vc, baud=115200)
+    proto = link._proto
+    line = f"RUMBA REQUEST {vc.machine_id}"
+
+    async def burst(n: int = 50) -> None:
+        seen = proto.requests_seen + n
+        for _ in range(n):
+            vc.output(line)  # the macro printing its request line in a loop
+        await _until(lambda: proto.requests_seen >= seen, "request lines")
+
+    try:
+        await burst()
+        assert proto.requests.qsize() == 1 and proto.requests_refused == 49
+        req = await asyncio.wait_for(link.wait_start_request(), 5)
+        assert req.machine == vc.machine_id
+        await burst()  # served, run not started yet: refused
+        assert proto.requests.empty()
+        hits = []
+        async for h in link.run(job):
+            if h.seq == 1:
+                for _ in range(50):
+                    vc.output(line)  # during the run
+            hits.append(h)
+        assert len(hits) == job.touch_count
+        await link.write_verdict(Verdict("PASS", "r1"))
+        await burst()  # just finished
+        waiter = asyncio.create_task(link.wait_start_request())  # the service asks again
+        await burst()  # still within the hold-off
+        assert proto.requests.empty() and not waiter.done()
+        assert proto.requests_seen == 250 and proto.requests_refused == 249
+        proto.holdoff_until = 0.0  # the hold-off has passed
+        await burst()
+        req2 = await asyncio.wait_for(waiter, 5)
+        assert req2.machine == vc.machine_id and proto.requests.empty()
+    finally:
+        await link.close()
+        await fe.close()
