@@ -23,7 +23,12 @@ class SerialLinkConfig(_Strict):
     framing: Literal["7E1", "8N1", "7E2", "8N2"] = "7E1"
     eol: Literal["LF", "CRLF"] = "LF"
     xonxoff: bool = True
-    tx_chunk_bytes: int = Field(16, ge=1, le=256)  # bytes written ahead of an XOFF (a UART FIFO)
+    # bytes in flight at most (written but not yet on the line): set it at or below the
+    # control's slack above its XOFF high-water mark
+    tx_chunk_bytes: int = Field(16, ge=1, le=256)
+    # start-request lines within this time after a run's end are refused (echoes of the
+    # request just served, not a new start of shift)
+    request_holdoff_s: float = Field(5.0, ge=0, le=3600)
     xoff_timeout_s: float = Field(120.0, gt=0)  # XOFF held longer than this → link error
     result_timeout_s: float = Field(300.0, gt=0)  # no result line for this long after the end
     connect_timeout_s: float = Field(10.0, gt=0)

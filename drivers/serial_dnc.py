@@ -176,7 +176,7 @@ class SerialDncLink(CncLink):
         """The next ``RUMBA REQUEST <machine>`` line printed by the CNC's start-of-shift macro
         (with ``request_machine`` set, requests naming another machine are logged, ignored).
         Calling it again ends the service of the previous request: repeats are refused until
-        then and for ``REQUEST_HOLDOFF_S`` after that run's end."""
+        then and for ``request_holdoff_s`` after that run's end."""
         if self._proto is None:
             raise LinkError("serial link not connected")
         proto = self._proto
@@ -189,7 +189,7 @@ class SerialDncLink(CncLink):
         return StartRequest(source="cnc", machine=machine, detail=f"serial line: {line}")
 
     def _run_ended(self) -> None:
-        self._holdoff_until = time.monotonic() + REQUEST_HOLDOFF_S
+        self._holdoff_until = time.monotonic() + self.cfg.request_holdoff_s
         if self._proto is not None:
             self._proto.holdoff_until = self._holdoff_until
 

@@ -23,12 +23,12 @@ receive buffer never grows past this."""
 REQUEST_HOLDOFF_S = 5.0
 """Start-request repeats within this time after a run's end (its verdict fed or the run
 stopped) are refused: the macro's repeated request lines still on the line are echoes of the
-request just served, not a new start-of-shift (wanted as ``request_holdoff_s`` in
-drivers/link_config.py)."""
+request just served, not a new start-of-shift. The default of ``request_holdoff_s`` in the
+link's configuration."""
 
 # The start-of-shift macro's request line (gcode_templates/*/README.md; the dialect's macro
 # clears the verdict variable, prints this line, waits for the verdict).
-_REQUEST = re.compile(r"^\s*RUMBA\s+REQUEST\s+(?P<machine>[A-Za-z0-9_.-]{1,32})\s*$")
+_REQUEST = re.compile(r"^\s*RUMBA\s+REQUEST\s+(?P<machine>[A-Za-z0-9_.-]{1,32})\s*$", re.ASCII)
 _REQUEST_HEAD = re.compile(r"^\s*RUMBA\s+REQUEST\b", re.IGNORECASE)
 
 
@@ -36,9 +36,9 @@ def parse_request(line: str) -> str | None:
     """The machine named by a start-of-shift request line ``RUMBA REQUEST <machine>`` (printed
     by the CNC's start-of-shift macro), None for any other line; ``ValueError`` for a line that
     starts like a request but breaks the grammar (a request is never guessed)."""
-    if not _REQUEST_HEAD.match(line):
+    if not _REQUEST_HEAD.match(line):  # a prefix test: match is meant
         return None
-    m = _REQUEST.match(line.rstrip("\r\n"))
+    m = _REQUEST.fullmatch(line.rstrip("\r\n"))
     if not m:
         raise ValueError(f"request line does not match 'RUMBA REQUEST <machine>' with machine "
                          f"[A-Za-z0-9_.-]{{1,32}}: {line.strip()[:80]!r}")

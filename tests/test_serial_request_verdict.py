@@ -7,6 +7,7 @@ from __future__ import annotations
 import asyncio
 import shutil
 import subprocess
+import time
 
 import pytest
 
@@ -229,12 +230,10 @@ async def _until(cond, what: str, timeout_s: float = 10.0) -> None:
         raise AssertionError(f"{what}: not all received within {timeout_s:g} s") from None
 
 
-async def test_a_burst_of_request_lines_is_one_request_and_repeats_are_refused(monkeypatch):
-    import drivers.serial_dnc as dnc
-
-    monkeypatch.setattr(dnc, "REQUEST_HOLDOFF_S", 3600.0)  # "just finished" for the test
+async def test_a_burst_of_request_lines_is_one_request_and_repeats_are_refused():
     vc, job = real_setup("fanuc")
-    fe, link = await serial_rig(vc, baud=115200)
+    # request_holdoff_s from the link's configuration: "just finished" for the whole test
+    fe, link = await serial_rig(vc, baud=115200, request_holdoff_s=3600.0)
     proto = link._proto
     line = f"RUMBA REQUEST {vc.machine_id}"
 
@@ -271,3 +270,12 @@ async def test_a_burst_of_request_lines_is_one_request_and_repeats_are_refused(m
     finally:
         await link.close()
         await fe.close()
+
+
+@pytest.mark.parametrize("holdoff_s", [0.0, 7.5])
+def test_request_holdoff_comes_from_the_link_configuration(holdoff_s):
+    link = SerialDncLink(SerialLinkConfig(transport="serial", url="socket://127.0.0.1:9",
+                                          request_holdoff_s=holdoff_s))
+    t0 = time.monotonic()
+    link._run_ended()
+    assert t0 + holdoff_s <= link._holdoff_until <= time.monotonic() + holdoff_s
