@@ -17,7 +17,7 @@ $(STAMP): pyproject.toml | $(BIN)/python
 	@touch $(STAMP)
 
 demo: $(STAMP)
-	$(BIN)/python -m daemon.demo_e2e
+	$(BIN)/python -m demos.e2e
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q
@@ -38,7 +38,7 @@ linuxcnc-down: $(STAMP)
 
 demo-linuxcnc: $(STAMP)
 	bash .ci/install-peers.sh linuxcnc
-	$(BIN)/python -m daemon.demo_linuxcnc
+	$(BIN)/python -m demos.linuxcnc
 
 lint: $(STAMP)
 	$(BIN)/ruff check .

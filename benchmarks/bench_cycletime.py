@@ -7,11 +7,11 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-from daemon.config import load_artefact, load_machine, load_plan
-from daemon.cycletime import estimate
-from daemon.dialects import DIALECTS, get_dialect
-from daemon.program import build_program
-from daemon.safety import check_program
+from contracts.setup_files import load_artefact, load_machine, load_plan
+from programs.cycletime import estimate
+from programs.dialects import DIALECTS, get_dialect
+from programs.safety import check_program
+from programs.toolpath import build_program
 
 CONFIG = Path(__file__).resolve().parent.parent / "config"
 

@@ -27,7 +27,7 @@ def _rss_mb() -> float:
 
 
 def bench_journal(n: int = 400) -> None:
-    from daemon.messages import ProbeHit
+    from contracts.messages import ProbeHit
     from daemon.store import Store
 
     for sync in ("FULL", "NORMAL"):
@@ -92,7 +92,7 @@ async def bench_session_175() -> None:
 
 async def bench_transport(transport: str, time_scale: float = 0.1) -> None:
     """Capture wall time minus the simulator's scaled machine time, per touch (7-pose plan)."""
-    from daemon.daemon_config import MachineSetup
+    from daemon.daemon_yaml import MachineSetup
     from daemon.service import make_link
     from daemon.session import Session
     from daemon.store import Store
@@ -145,7 +145,7 @@ async def bench_transport(transport: str, time_scale: float = 0.1) -> None:
 
 def bench_demo() -> None:
     t = time.perf_counter()
-    p = subprocess.run([sys.executable, "-m", "daemon.demo_e2e"], cwd=ROOT,
+    p = subprocess.run([sys.executable, "-m", "demos.e2e"], cwd=ROOT,
                        capture_output=True, text=True, timeout=600)
     verdict = next((ln for ln in p.stdout.splitlines() if ln.startswith("verdict")), p.stderr)
     print(f"demo (python -m daemon.demo_e2e): {time.perf_counter() - t:.1f} s wall, exit "

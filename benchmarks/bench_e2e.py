@@ -51,10 +51,10 @@ async def one(transport: str, dialect: str, baud: int | None = None,
 
 def program_bytes(dialect: str) -> int:
     """Bytes the DNC link sends for the annex-B program (7E1 framing: 10 bits/char)."""
-    from daemon.config import load_artefact, load_machine, load_plan
-    from daemon.dialects import get_dialect
-    from daemon.program import build_program
-    from drivers.serial_dnc import frame_program
+    from contracts.setup_files import load_artefact, load_machine, load_plan
+    from drivers.serial.link import frame_program
+    from programs.dialects import get_dialect
+    from programs.toolpath import build_program
 
     cfg = ROOT / "config"
     m, mf = load_machine(cfg / "machines/thesis_wcbxfzyt.yaml")

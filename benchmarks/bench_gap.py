@@ -23,7 +23,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from daemon.config import load_artefact, load_machine, load_plan  # noqa: E402
+from contracts.setup_files import load_artefact, load_machine, load_plan  # noqa: E402
 from identification.effects import make_effect  # noqa: E402
 from identification.gap import Options, diagnose, selfcheck  # noqa: E402
 from identification.gap.simlog import Truth, simulate  # noqa: E402

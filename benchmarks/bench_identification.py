@@ -10,9 +10,9 @@ from pathlib import Path
 
 import numpy as np
 
+from contracts.probing_log import write_log
+from contracts.setup_files import load_artefact, load_machine, load_plan
 from daemon.commands.analyze import run_analysis
-from daemon.config import load_artefact, load_machine, load_plan
-from daemon.probelog import write_log
 from identification import montecarlo as mc
 from tests.synth import THESIS_LINKS_UM_URAD, Truth, make_rows, thesis_noise, to_internal
 

@@ -16,11 +16,11 @@ import tempfile
 import time
 from pathlib import Path
 
+from contracts.setup_files import load_artefact, load_machine, load_plan
 from daemon import pipeline
-from daemon.config import load_artefact, load_machine, load_plan
-from daemon.daemon_config import MachineSetup, TriggersFile
+from daemon.daemon_yaml import MachineSetup, TriggersFile
 from daemon.judge import Tolerances
-from drivers import linuxcnc as lcnc_link
+from drivers.linuxcnc import link as lcnc_link
 from drivers.registry import make_link
 from simulators import linuxcnc_peer
 from simulators.hal_probe import write_spec

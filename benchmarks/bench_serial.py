@@ -12,8 +12,8 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 async def _stream(baud: int, time_scale: float, n_poses: int) -> str:
-    from drivers.link_config import SerialLinkConfig
-    from drivers.serial_dnc import SerialDncLink
+    from drivers.serial.link import SerialDncLink
+    from drivers.serial.schema import SerialLinkConfig
     from simulators.frontends.serial import SerialFrontend, SerialSettings
     from tests.transport_sim import real_setup
 

@@ -6,9 +6,9 @@ from __future__ import annotations
 import asyncio
 import time
 
-from daemon.config import load_artefact, load_machine, load_plan
-from daemon.dialects import get_dialect
-from daemon.program import build_program
+from contracts.setup_files import load_artefact, load_machine, load_plan
+from programs.dialects import get_dialect
+from programs.toolpath import build_program
 from simulators.offline import run_program
 from simulators.truth import TruthModel
 

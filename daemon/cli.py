@@ -22,7 +22,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 import daemon.commands
-from daemon.config import ConfigError
+from contracts.yaml_files import ConfigError
 
 
 class UserError(Exception):

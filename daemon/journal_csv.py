@@ -6,9 +6,9 @@ import sqlite3
 from pathlib import Path
 from typing import Any
 
-from daemon.messages import ProbeHit
+from contracts.messages import ProbeHit
+from contracts.probing_log import LogRow, read_log, write_log
 from daemon.pipeline import hit_to_row, row_to_hit
-from daemon.probelog import LogRow, read_log, write_log
 from daemon.store import Store, StoreError, validate_run_id
 
 

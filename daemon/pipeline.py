@@ -12,13 +12,13 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
 
-from daemon.analysis import AnalysisError, analyse_centres
-from daemon.daemon_config import MachineSetup
-from daemon.messages import ProbeHit, TouchId
-from daemon.probelog import LogRow, ProbeLogError
+from contracts.jobs import ProgramJob
+from contracts.messages import ProbeHit, TouchId
+from contracts.probing_log import LogRow, ProbeLogError
+from daemon.daemon_yaml import MachineSetup
+from daemon.identify import AnalysisError, analyse_centres
 from daemon.safepath import plain_name
 from daemon.touch_centres import rows_to_centres
-from drivers.base import ProgramJob
 from identification.kinematics import Machine
 
 
@@ -82,7 +82,7 @@ class Prepared:
 def targets_from(analysis: dict[str, Any] | None) -> Any:
     """Program targets: the setup estimated by the last good run when there is one (smaller
     standoffs, faster cycles), else nominal."""
-    from daemon.program import Targets
+    from programs.toolpath import Targets
 
     if not analysis or "setup" not in analysis:
         return Targets()
@@ -96,8 +96,8 @@ def prepare(setup: MachineSetup, run_id: str, last_good: dict[str, Any] | None =
             ) -> Prepared:
     """Generate the program for ``setup``, check it against travel limits and keep-outs, and
     render it in the machine's dialect. Nothing leaves the daemon without passing here."""
-    from daemon import dialects, safety
-    from daemon import program as gen
+    from programs import dialects, safety
+    from programs import toolpath as gen
 
     try:
         targets = targets_from(last_good if setup.program_targets == "last_good" else None)

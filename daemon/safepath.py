@@ -5,7 +5,7 @@ from __future__ import annotations
 import os
 from pathlib import Path, PurePosixPath, PureWindowsPath
 
-from daemon.config import ConfigError
+from contracts.yaml_files import ConfigError
 
 
 class UnsafePathError(ConfigError):

@@ -18,7 +18,7 @@ from typing import Any
 
 from aiohttp import web
 
-from daemon.daemon_config import DaemonConfig, MachineSetup
+from daemon.daemon_yaml import DaemonConfig, MachineSetup
 from daemon.session import Refused, Session
 from daemon.store import Store
 from drivers.base import CncLink, LinkError
@@ -37,8 +37,8 @@ LinkFactory = Callable[[MachineSetup], CncLink]
 
 def make_link(setup: MachineSetup) -> CncLink:
     """The transport object for a machine's ``link`` section (drivers.registry)."""
-    from daemon.dialects import get_dialect
     from drivers.registry import make_link as registry_link
+    from programs.dialects import get_dialect
 
     return registry_link(setup.link, dialect=get_dialect(setup.dialect))
 
@@ -110,8 +110,8 @@ class Service:
             log.warning("%s: could not stop a leftover program: %s", name, e)
 
     async def _start_hmi(self) -> None:
-        from daemon.config import ConfigError
-        from daemon.daemon_config import is_loopback
+        from contracts.yaml_files import ConfigError
+        from daemon.daemon_yaml import is_loopback
         from daemon.hmi.app import create_app
         from daemon.hmi.auth import SECRET_FILE, SecretError, load_or_create_secret
         from daemon.hmi.tls import server_context
@@ -152,7 +152,7 @@ class Service:
         if not self.config.can_panel:
             return
         try:
-            from drivers import can_panel
+            from drivers.can import panel as can_panel
         except ImportError as e:
             raise ServiceError(f"{self.config.path}: can_panel: driver unavailable: {e}") from None
         self.panel = can_panel.attach(self.config.can_panel, self)
@@ -191,7 +191,7 @@ class Service:
 
     def _reconnector(self, name: str) -> Callable[[], Any]:
         async def reconnect() -> None:
-            from drivers.hits import with_backoff
+            from drivers.retry import with_backoff
 
             link, session = self.links[name], self.sessions.get(name)
             with contextlib.suppress(Exception):

@@ -19,12 +19,13 @@ from enum import StrEnum
 from pathlib import Path
 from typing import Any
 
+from contracts.jobs import Verdict
+from contracts.messages import ProbeHit
 from daemon import pipeline
-from daemon.daemon_config import MachineSetup
+from daemon.daemon_yaml import MachineSetup
 from daemon.judge import judge
-from daemon.messages import ProbeHit
 from daemon.store import Store, validate_run_id
-from drivers.base import CncLink, ControllerAlarm, LinkError, Verdict
+from drivers.base import CncLink, ControllerAlarm, LinkError
 
 log = logging.getLogger("rumba.session")
 

@@ -18,8 +18,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
 
-from daemon.config import ConfigError
-from daemon.messages import ProbeHit
+from contracts.messages import ProbeHit
+from contracts.yaml_files import ConfigError
 
 FINAL_STATES = ("DONE", "ABORTED", "FAILED", "INTERRUPTED", "IMPORTED")
 """A run in any other state was cut short by a crash (marked INTERRUPTED on the next start)."""

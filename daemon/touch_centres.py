@@ -8,7 +8,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from daemon.probelog import (
+from contracts.probing_log import (
     COLUMN_TYPES,
     ROTARY_SPREAD_DEG,
     TOUCHES_PER_BALL,

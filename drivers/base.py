@@ -9,29 +9,10 @@ from __future__ import annotations
 
 import abc
 from collections.abc import AsyncIterator
-from dataclasses import dataclass, field
-from typing import Literal, Protocol
+from dataclasses import dataclass
 
-from daemon.messages import ProbeHit, TouchId
-
-VerdictStatus = Literal["PASS", "WARN", "FAIL", "ERROR"]
-VERDICT_CODES: dict[str, int] = {"PASS": 1, "WARN": 2, "FAIL": 3, "ERROR": 4}
-"""Numeric verdict written to the CNC (variable, register or node); 0 = no verdict yet."""
-
-
-class DialectCodec(Protocol):
-    """What a link needs of a controller dialect, handed to it by the daemon (implemented by
-    ``daemon.dialects.Dialect``): links never import the program generator."""
-
-    name: str
-
-    def parse_result(self, line: str) -> ProbeHit | None:
-        """A touch's result line (DPRNT, WRITE, F-PRINT, LOG) → hit; None for other lines."""
-        ...
-
-    def verdict_program(self, code: int) -> str:
-        """The small program that sets the controller's verdict variable to ``code``."""
-        ...
+from contracts.jobs import ProgramJob, Verdict
+from contracts.messages import ProbeHit
 
 
 @dataclass(frozen=True)
@@ -52,32 +33,6 @@ class StartRequest:
     detail: str = ""
 
 
-@dataclass(frozen=True)
-class Verdict:
-    status: VerdictStatus
-    run_id: str
-    summary: str = ""
-    reasons: tuple[str, ...] = ()
-
-    @property
-    def code(self) -> int:
-        return VERDICT_CODES[self.status]
-
-
-@dataclass(frozen=True)
-class ProgramJob:
-    """What a link needs to run one verification program."""
-
-    run_id: str
-    text: str  # the whole program as the controller receives it
-    dialect: str  # fanuc | siemens | heidenhain | linuxcnc
-    touch_count: int
-    meta: dict[str, str] = field(default_factory=dict)
-    touches: tuple[TouchId, ...] = ()  # touch table by seq (seq k at index k-1): lets a link
-    # that only receives (seq, axes) from the controller (OPC UA, Modbus) name pose/ball/touch
-    files: dict[str, str] = field(default_factory=dict)  # auxiliary files the program needs on
-    # the control (Heidenhain FN 16 format files); OPC UA transfers them with the program
-    codec: DialectCodec | None = None  # decodes the program's result lines (links that read
     # the controller's printed output: serial DNC, LinuxCNC)
 
 

@@ -7,18 +7,26 @@ Like python-can's interface registry: a dict of lazily imported classes, so a sh
 from __future__ import annotations
 
 import importlib
-from typing import Any, get_args
+from typing import Annotated, Any, get_args
 
-from pydantic import BaseModel, ValidationError
+from pydantic import BaseModel, Field, ValidationError
 
-from drivers.base import CncLink, DialectCodec
-from drivers.link_config import LinkConfig
+from contracts.jobs import DialectCodec
+from drivers.base import CncLink
+from drivers.linuxcnc.schema import LinuxCncLinkConfig
+from drivers.modbus.schema import ModbusLinkConfig
+from drivers.opcua.schema import OpcUaLinkConfig
+from drivers.serial.schema import SerialLinkConfig
+
+LinkConfig = Annotated[SerialLinkConfig | OpcUaLinkConfig | ModbusLinkConfig | LinuxCncLinkConfig,
+                       Field(discriminator="transport")]
+
 
 TRANSPORTS: dict[str, tuple[str, str]] = {
-    "serial": ("drivers.serial_dnc", "SerialDncLink"),
-    "opcua": ("drivers.opcua", "OpcUaLink"),
-    "modbus": ("drivers.modbus", "ModbusLink"),
-    "linuxcnc": ("drivers.linuxcnc", "LinuxCncLink"),
+    "serial": ("drivers.serial.link", "SerialDncLink"),
+    "opcua": ("drivers.opcua.link", "OpcUaLink"),
+    "modbus": ("drivers.modbus.link", "ModbusLink"),
+    "linuxcnc": ("drivers.linuxcnc.link", "LinuxCncLink"),
 }
 
 _CONFIGS: dict[str, type[BaseModel]] = {
@@ -31,7 +39,7 @@ def link_config(data: Any, where: str = "link") -> Any:
     """Validate a ``link:`` section (unknown keys are errors) → the transport's config model.
 
     Raises ``daemon.config.ConfigError`` with one line per problem, naming ``where``."""
-    from daemon.config import ConfigError, format_validation
+    from contracts.yaml_files import ConfigError, format_validation
 
     if not isinstance(data, dict) or data.get("transport") not in TRANSPORTS:
         got = data.get("transport") if isinstance(data, dict) else type(data).__name__

@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from daemon.messages import TOUCH_DIRECTIONS
+from contracts.messages import TOUCH_DIRECTIONS
 from simulators.faults import FRONT_END_KINDS, Fault, FaultPlan
 from simulators.gcode import Alarm, ProbeOutcome, make_interpreter, run
 from simulators.probe import collision, first_contact

@@ -11,20 +11,18 @@ import re
 from pathlib import Path
 from typing import Annotated, Any
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator
+from pydantic import Field, field_validator
 
-from daemon.config import ConfigError, _validate, read_yaml
+from contracts.setup_files import _validate
+from contracts.yaml_files import ConfigError, StrictModel, read_yaml
 
 Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]
 ISO_LINK = re.compile(r"\AE[XYZABC]0[XYZABC]\Z")  # fullmatch: "$" lets a final "\n" by
 
 
-class _Strict(BaseModel):
-    # allow_inf_nan=False: .nan / .inf / 1e400 are refused in every float of this schema
-    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
-class SetupFile(_Strict):
+class SetupFile(StrictModel):
     """Setup errors: where each ball and the stylus tip really are, relative to nominal."""
 
     balls_um: dict[str, Vec3] = {}  # ball id → offset in the last workpiece frame
@@ -33,7 +31,7 @@ class SetupFile(_Strict):
     random_probe_std_um: float = Field(0.0, ge=0, le=5000)
 
 
-class ProbeFile(_Strict):
+class ProbeFile(StrictModel):
     """The probing system: true stylus size, pre-travel and repeatability."""
 
     stylus_diameter_mm: float = Field(6.0, gt=0, le=50)
@@ -50,7 +48,7 @@ class ProbeFile(_Strict):
         return v
 
 
-class ObstacleFile(_Strict):
+class ObstacleFile(StrictModel):
     """A sphere in the last workpiece frame the stylus can hit early (a chip, a clamp edge)."""
 
     name: str
@@ -58,7 +56,7 @@ class ObstacleFile(_Strict):
     radius_mm: float = Field(gt=0, le=500)
 
 
-class EffectFile(_Strict):
+class EffectFile(StrictModel):
     """One effect family instance, e.g. ``{family: straightness, axis: X, params: {...}}``."""
 
     family: str
@@ -67,7 +65,7 @@ class EffectFile(_Strict):
     options: dict[str, Any] = {}
 
 
-class ErrorsFile(_Strict):
+class ErrorsFile(StrictModel):
     machine: str | None = None  # name of the machine file these errors belong to (checked)
     seed: int = Field(0, ge=0, lt=2**63)  # default random seed (``--seed`` overrides)
     links: dict[str, float] = {}  # ISO 230-1 name → µrad (rotations) or µm (translations)

@@ -11,9 +11,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import Field, model_validator
 
-from daemon.config import _validate, read_yaml
+from contracts.setup_files import _validate
+from contracts.yaml_files import StrictModel, read_yaml
 
 FaultKind = Literal[
     "disconnect", "late_xon", "missing_xon", "garbled",  # front-end (transport) faults
@@ -22,12 +23,11 @@ FaultKind = Literal[
 FRONT_END_KINDS = frozenset({"disconnect", "late_xon", "missing_xon", "garbled"})
 
 
-class Fault(BaseModel):
+class Fault(StrictModel):
     """One fault. Exactly one of ``at_block`` (1-based program line), ``at_time_s`` (machine
     time since program start) or ``at_touch`` (touch sequence number) says when it fires;
     ``count`` how many consecutive touches / lines / blocks it affects."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     kind: FaultKind
     at_block: int | None = Field(None, ge=1)
@@ -47,8 +47,7 @@ class Fault(BaseModel):
         return self
 
 
-class FaultsFile(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+class FaultsFile(StrictModel):
     faults: list[Fault] = []
 
 

@@ -359,7 +359,7 @@ def main(argv: list[str] | None = None) -> int:
     if a.cmd == "down":
         down(a.dir)
         return 0
-    from daemon.config import ConfigError
+    from contracts.yaml_files import ConfigError
     from simulators.hal_probe import write_spec
     from simulators.truth import TruthModel
 

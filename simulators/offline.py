@@ -17,8 +17,8 @@ import tracemalloc
 from dataclasses import dataclass
 from pathlib import Path
 
-from daemon.messages import TOUCH_DIRECTIONS
-from daemon.probelog import LogRow
+from contracts.messages import TOUCH_DIRECTIONS
+from contracts.probing_log import LogRow
 from simulators.controller import VirtualController
 from simulators.faults import FaultPlan
 from simulators.truth import TruthModel

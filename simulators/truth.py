@@ -14,7 +14,8 @@ from typing import Any
 
 import numpy as np
 
-from daemon.config import ConfigError, MachineFile, load_artefact, load_machine
+from contracts.setup_files import MachineFile, load_artefact, load_machine
+from contracts.yaml_files import ConfigError
 from identification.kinematics import ChainState, Machine, MotionErrorFn, frames, to_model
 from identification.model import Artefact
 from simulators.errors_schema import ErrorsFile, errors_from_dict, link_to_model, load_errors

@@ -6,10 +6,10 @@ from pathlib import Path
 
 import numpy as np
 
-from daemon.config import load_artefact, load_machine, load_plan
-from daemon.daemon_config import MachineSetup, TriggersFile
+from contracts.probing_log import LogRow
+from contracts.setup_files import load_artefact, load_machine, load_plan
+from daemon.daemon_yaml import MachineSetup, TriggersFile
 from daemon.judge import Limit, Tolerances
-from daemon.probelog import LogRow
 from tests.synth import THESIS_LINKS_UM_URAD, Truth, make_rows, thesis_noise, to_internal
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -12,8 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
-from daemon.config import load_artefact, load_machine, load_plan
-from daemon.probelog import write_log
+from contracts.probing_log import write_log
+from contracts.setup_files import load_artefact, load_machine, load_plan
 from tests.synth import THESIS_LINKS_UM_URAD, Truth, make_rows, thesis_noise, to_internal
 
 ROOT = Path(__file__).resolve().parents[1]

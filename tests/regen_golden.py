@@ -5,9 +5,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from daemon.config import artefact_from_dict, load_machine, plan_from_dict
-from daemon.dialects import DIALECTS, get_dialect
-from daemon.program import Program, build_program
+from contracts.setup_files import artefact_from_dict, load_machine, plan_from_dict
+from programs.dialects import DIALECTS, get_dialect
+from programs.toolpath import Program, build_program
 
 ROOT = Path(__file__).resolve().parent.parent
 GOLDEN = Path(__file__).resolve().parent / "golden"

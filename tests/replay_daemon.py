@@ -8,10 +8,10 @@ from __future__ import annotations
 import asyncio
 import sys
 
+from contracts.yaml_files import ConfigError
 from daemon.cli import UserError
 from daemon.commands.run import serve
-from daemon.config import ConfigError
-from daemon.daemon_config import load_daemon_config
+from daemon.daemon_yaml import load_daemon_config
 from daemon.service import Service
 from tests.daemon_helpers import thesis_rows
 from tests.replay_link import ReplayLink, prepare_from_rows

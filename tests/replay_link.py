@@ -10,18 +10,11 @@ import asyncio
 from collections.abc import AsyncIterator, Sequence
 from dataclasses import dataclass, field, replace
 
-from daemon.messages import ProbeHit, TouchId
+from contracts.jobs import ProgramJob, Verdict
+from contracts.messages import ProbeHit, TouchId
+from contracts.probing_log import LogRow
 from daemon.pipeline import Prepared, TouchInfo, row_to_hit
-from daemon.probelog import LogRow
-from drivers.base import (
-    Capabilities,
-    CncLink,
-    ControllerAlarm,
-    LinkError,
-    ProgramJob,
-    StartRequest,
-    Verdict,
-)
+from drivers.base import Capabilities, CncLink, ControllerAlarm, LinkError, StartRequest
 from identification.kinematics import Machine
 
 

@@ -8,7 +8,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from daemon.messages import TOUCH_DIRECTIONS
+from contracts.messages import TOUCH_DIRECTIONS
 from simulators.truth import TruthModel
 
 _CENTRES: dict = {}

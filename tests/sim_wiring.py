@@ -17,7 +17,9 @@ async def sim_link(transport: str, ctrl: Any, **kw: Any
     """Start the simulator front-end of ``transport`` for ``ctrl`` on a free loopback port;
     return the matching daemon link config and the front-end's stop coroutine function.
     ``kw`` goes to the link config (e.g. baudrate for serial)."""
-    from drivers.link_config import ModbusLinkConfig, OpcUaLinkConfig, SerialLinkConfig
+    from drivers.modbus.schema import ModbusLinkConfig
+    from drivers.opcua.schema import OpcUaLinkConfig
+    from drivers.serial.schema import SerialLinkConfig
 
     if transport == "opcua":
         from simulators.frontends.opcua import OpcUaFrontend

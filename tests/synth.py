@@ -15,8 +15,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from daemon.messages import TOUCH_DIRECTIONS
-from daemon.probelog import LogRow
+from contracts.messages import TOUCH_DIRECTIONS
+from contracts.probing_log import LogRow
 from identification.kinematics import ChainState, Machine, rotary_columns, solve_centre
 from identification.model import Artefact
 

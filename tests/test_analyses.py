@@ -5,7 +5,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from daemon.config import load_artefact, load_machine, load_plan
+from contracts.setup_files import load_artefact, load_machine, load_plan
 from daemon.touch_centres import rows_to_centres
 from identification.analyses import (
     cluster_fit,

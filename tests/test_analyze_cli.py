@@ -6,10 +6,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from contracts.probing_log import HEADER, write_log
+from contracts.setup_files import load_artefact, load_machine, load_plan
 from daemon.cli import main
 from daemon.commands.analyze import run_analysis
-from daemon.config import load_artefact, load_machine, load_plan
-from daemon.probelog import HEADER, write_log
 from tests.synth import THESIS_LINKS_UM_URAD, Truth, make_rows, to_internal
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -183,9 +183,9 @@ def test_degenerate_touches_are_one_line_naming_ball_and_pose(log, tmp_path, cap
 
 
 def test_non_finite_centres_are_an_analysis_error_naming_ball_and_pose(log) -> None:
-    from daemon.analysis import AnalysisError, analyse_centres
-    from daemon.config import ConfigError
-    from daemon.probelog import read_log
+    from contracts.probing_log import read_log
+    from contracts.yaml_files import ConfigError
+    from daemon.identify import AnalysisError, analyse_centres
     from daemon.touch_centres import rows_to_centres
 
     m, _ = load_machine(MACHINE)

@@ -1,9 +1,8 @@
 """The dependency direction of DESIGN.md, checked on every import statement (lazy ones too).
 
-`identification` imports nothing of ours; `drivers` and `simulators` never import the daemon's
-application (program generator, sessions, store, CLI) — only its data contracts, leaf modules
-that themselves import nothing but `identification`; the daemon imports the simulator only in
-its demo and ``rumba sim`` entry points.
+``identification ← contracts ← {programs, drivers, simulators} ← daemon ← {demos, benchmarks}``:
+a package imports only packages of a lower layer (and itself); packages of one layer never import
+each other; and no module imports itself back through a chain of imports. No exceptions.
 """
 
 from __future__ import annotations
@@ -11,16 +10,10 @@ from __future__ import annotations
 import ast
 from pathlib import Path
 
-import pytest
-
 ROOT = Path(__file__).resolve().parents[1]
-OURS = ("identification", "daemon", "drivers", "simulators")
-CONTRACTS = {"daemon.messages", "daemon.config", "daemon.config_yaml", "daemon.probelog",
-             "daemon.touch_centres"}
-# what simulator front-ends share with the links (they speak what drivers/ speak)
-PROTOCOL_TABLES = {"drivers.opcua_space", "drivers.modbus_map", "drivers.opcua_certs",
-                   "drivers.can_panel"}
-DAEMON_SIM_ENTRY_POINTS = {"daemon.demo_e2e", "daemon.demo_linuxcnc", "daemon.commands.sim"}
+LAYERS = {"identification": 0, "contracts": 1, "programs": 2, "drivers": 2, "simulators": 2,
+          "daemon": 3, "demos": 4, "benchmarks": 4}
+OURS = tuple(LAYERS)
 
 
 def _module(path: Path) -> str:
@@ -36,7 +29,7 @@ def _imports(path: Path) -> set[str]:
         if isinstance(node, ast.Import):
             names = [a.name for a in node.names]
         elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
-            # ``from daemon import dialects`` imports daemon.dialects
+            # ``from programs import dialects`` imports programs.dialects
             names = [node.module] + [f"{node.module}.{a.name}" for a in node.names]
         else:
             continue
@@ -48,15 +41,10 @@ def _graph() -> dict[str, set[str]]:
     files = [p for pkg in OURS for p in (ROOT / pkg).rglob("*.py")]
     mods = {_module(p): p for p in files}
     # keep only names that are modules (``from drivers.base import LinkError`` → drivers.base)
-    return {m: {i for i in _imports(p) if i in mods} for m, p in mods.items()}
+    return {m: {i for i in _imports(p) if i in mods and i != m} for m, p in mods.items()}
 
 
 GRAPH = _graph()
-
-
-def _violations(rule) -> list[str]:
-    return sorted(f"{m} imports {i}" for m, deps in GRAPH.items() for i in deps
-                  if not rule(m, i))
 
 
 def _pkg(name: str) -> str:
@@ -65,37 +53,66 @@ def _pkg(name: str) -> str:
 
 def test_the_graph_is_not_empty():
     # a broken walker (wrong root, wrong suffix) would make every rule below pass vacuously
-    assert len(GRAPH) > 60
-    assert "daemon.messages" in GRAPH["drivers.base"]
+    assert len(GRAPH) > 80
+    assert "contracts.messages" in GRAPH["drivers.base"]
     assert "identification.kinematics" in GRAPH["simulators.truth"]
+    assert {_pkg(m) for m in GRAPH} == set(LAYERS)
 
 
-def test_identification_imports_nothing_of_ours():
-    assert _violations(lambda m, i: _pkg(m) != "identification"
-                       or _pkg(i) == "identification") == []
+def test_every_import_points_down_the_layers():
+    bad = sorted(f"{m} imports {i}" for m, deps in GRAPH.items() for i in deps
+                 if _pkg(i) != _pkg(m) and LAYERS[_pkg(i)] >= LAYERS[_pkg(m)])
+    assert bad == []
 
 
-def test_contracts_are_leaves_over_identification():
-    assert _violations(lambda m, i: m not in CONTRACTS
-                       or i in CONTRACTS or _pkg(i) == "identification"
-                       or i == "daemon") == []
+def _cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """Strongly connected components with more than one module (Tarjan, iterative)."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    on: set[str] = set()
+    stack: list[str] = []
+    out: list[list[str]] = []
+    for root in sorted(graph):
+        if root in index:
+            continue
+        work = [(root, iter(sorted(graph[root])))]
+        index[root] = low[root] = len(index)
+        stack.append(root)
+        on.add(root)
+        while work:
+            v, it = work[-1]
+            w = next(it, None)
+            if w is not None:
+                if w not in index:
+                    index[w] = low[w] = len(index)
+                    stack.append(w)
+                    on.add(w)
+                    work.append((w, iter(sorted(graph[w]))))
+                elif w in on:
+                    low[v] = min(low[v], index[w])
+                continue
+            work.pop()
+            if work:
+                low[work[-1][0]] = min(low[work[-1][0]], low[v])
+            if low[v] == index[v]:
+                comp = []
+                while True:
+                    w = stack.pop()
+                    on.discard(w)
+                    comp.append(w)
+                    if w == v:
+                        break
+                if len(comp) > 1:
+                    out.append(sorted(comp))
+    return out
 
 
-@pytest.mark.parametrize("pkg", ["drivers", "simulators"])
-def test_links_and_simulator_use_only_the_daemons_contracts(pkg):
-    assert _violations(lambda m, i: _pkg(m) != pkg or _pkg(i) != "daemon"
-                       or i in CONTRACTS or i == "daemon") == []
+def test_no_import_circle():
+    assert _cycles(GRAPH) == []
 
 
-def test_drivers_never_import_the_simulator():
-    assert _violations(lambda m, i: _pkg(m) != "drivers" or _pkg(i) != "simulators") == []
-
-
-def test_simulator_uses_only_the_protocol_tables_of_drivers():
-    assert _violations(lambda m, i: _pkg(m) != "simulators" or _pkg(i) != "drivers"
-                       or i in PROTOCOL_TABLES or i == "drivers") == []
-
-
-def test_daemon_imports_the_simulator_only_in_demo_entry_points():
-    assert _violations(lambda m, i: _pkg(m) != "daemon" or _pkg(i) != "simulators"
-                       or m in DAEMON_SIM_ENTRY_POINTS) == []
+def test_the_cycle_finder_sees_a_planted_circle():
+    graph = {m: set(deps) for m, deps in GRAPH.items()}
+    graph["identification.model"].add("identification.kinematics")
+    graph["identification.kinematics"].add("identification.model")
+    assert ["identification.kinematics", "identification.model"] in _cycles(graph)

@@ -9,9 +9,9 @@ from types import SimpleNamespace
 import can
 import pytest
 
-from daemon.config import ConfigError
-from drivers.can_panel import CanPanel, attach, lamp_for
-from drivers.link_config import CanPanelConfig
+from contracts.yaml_files import ConfigError
+from drivers.can.panel import CanPanel, attach, lamp_for
+from drivers.can.schema import CanPanelConfig
 from simulators.frontends.can import SimulatedPanel
 
 

@@ -17,17 +17,9 @@ import yaml
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from daemon.config import (
-    MAX_POSES,
-    MAX_TOUCHES,
-    MAX_YAML_BYTES,
-    ConfigError,
-    load_artefact,
-    load_machine,
-    load_plan,
-    read_yaml,
-)
-from daemon.daemon_config import load_daemon_config
+from contracts.setup_files import MAX_POSES, MAX_TOUCHES, load_artefact, load_machine, load_plan
+from contracts.yaml_files import MAX_YAML_BYTES, ConfigError, read_yaml
+from daemon.daemon_yaml import load_daemon_config
 from simulators.errors_schema import load_errors
 from simulators.faults import FaultPlan
 

@@ -7,9 +7,10 @@ import re
 
 import pytest
 
-from daemon.config import ConfigError, artefact_from_dict
-from daemon.dialects import DIALECTS, Fanuc, get_dialect, safe_text
-from daemon.program import ProgramError, build_program
+from contracts.setup_files import artefact_from_dict
+from contracts.yaml_files import ConfigError
+from programs.dialects import DIALECTS, Fanuc, get_dialect, safe_text
+from programs.toolpath import ProgramError, build_program
 from tests.regen_golden import golden_program
 
 PROG = golden_program()

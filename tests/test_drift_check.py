@@ -9,13 +9,13 @@ from pathlib import Path
 import pytest
 import yaml
 
-from daemon.analysis import analyse_centres
-from daemon.config import load_artefact, load_machine, load_plan
-from daemon.dialects import get_dialect
+from contracts.setup_files import load_artefact, load_machine, load_plan
+from daemon.identify import analyse_centres
 from daemon.judge import Tolerances, judge
-from daemon.program import build_program
-from daemon.safety import check_program
 from daemon.touch_centres import rows_to_centres
+from programs.dialects import get_dialect
+from programs.safety import check_program
+from programs.toolpath import build_program
 from simulators.errors_schema import errors_from_dict
 from simulators.offline import run_sync
 from simulators.truth import TruthModel
@@ -105,8 +105,8 @@ def test_the_drift_check_revisit_is_not_taken_for_repeatability(setup, tmp_path)
     # again at the end carries the drift of the whole run, so pooling it would hide that very
     # drift behind a floor it inflated (before the fix: floor 1.7 µm, verdict "none" for a
     # 3.7 µm X drift).
+    from contracts.probing_log import write_log
     from daemon.cli import main
-    from daemon.probelog import write_log
 
     m, mf, a, _, prog = setup
     errors = _thesis_errors()

@@ -34,12 +34,12 @@ import pytest
 import pytest_asyncio
 import yaml
 
-from daemon.daemon_config import MachineSetup, load_daemon_config
-from daemon.dialects import get_dialect
+from contracts.jobs import VERDICT_CODES
+from daemon.daemon_yaml import MachineSetup, load_daemon_config
 from daemon.service import Service
 from daemon.session import State
-from drivers.base import VERDICT_CODES
 from identification.estimate import coverage_factor
+from programs.dialects import get_dialect
 from simulators.controller import VERDICT_VARIABLE, VirtualController
 from simulators.truth import TruthModel
 from tests.daemon_helpers import CONFIG

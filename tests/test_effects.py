@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from daemon.config import load_machine
+from contracts.setup_files import load_machine
 from identification.effects import (
     FAMILIES,
     EffectContext,
@@ -146,7 +146,7 @@ def test_machine_file_gravity_drives_the_sag_in_simulator_and_library():
     # B-about-Y for a horizontal machine (gravity −Y); the machine file says −Z.
     import yaml
 
-    from daemon.config import load_artefact, machine_from_dict
+    from contracts.setup_files import load_artefact, machine_from_dict
     from identification.effects import default_gravity
     from simulators.errors_schema import errors_from_dict
     from simulators.truth import TruthModel
@@ -191,7 +191,8 @@ def test_machine_file_gravity_drives_the_sag_in_simulator_and_library():
 def test_machine_file_gravity_is_validated(value, expect):
     import yaml
 
-    from daemon.config import ConfigError, machine_from_dict
+    from contracts.setup_files import machine_from_dict
+    from contracts.yaml_files import ConfigError
 
     data = yaml.safe_load((CONFIG / "machines/thesis_wcbxfzyt.yaml").read_text())
     data["gravity"] = value

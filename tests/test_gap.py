@@ -8,9 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from contracts.probing_log import LogRow, write_log
+from contracts.setup_files import load_artefact, load_machine, load_plan
 from daemon.cli import main
-from daemon.config import load_artefact, load_machine, load_plan
-from daemon.probelog import LogRow, write_log
 from identification.effects import make_effect
 from identification.gap import TouchData, diagnose, selfcheck
 from identification.gap.data import group_touches
@@ -492,9 +492,9 @@ def test_repeats_on_the_simulated_cnc_floor_per_axis_and_without_the_drift(effec
     hid itself: 'none')."""
     import yaml
 
-    from daemon.config import plan_from_dict
-    from daemon.dialects import get_dialect
-    from daemon.program import build_program
+    from contracts.setup_files import plan_from_dict
+    from programs.dialects import get_dialect
+    from programs.toolpath import build_program
     from simulators.errors_schema import errors_from_dict
     from simulators.offline import run_sync
     from simulators.truth import TruthModel

@@ -9,9 +9,9 @@ import sqlite3
 import numpy as np
 import pytest
 
+from contracts.probing_log import write_log
 from daemon.cli import main as cli_main
 from daemon.pipeline import PipelineError
-from daemon.probelog import write_log
 from identification.spherefit import SphereFitError
 from tests.daemon_helpers import thesis_rows, thesis_setup, write_daemon_yaml
 

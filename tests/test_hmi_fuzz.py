@@ -15,7 +15,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from daemon.daemon_config import load_daemon_config
+from daemon.daemon_yaml import load_daemon_config
 from daemon.hmi.app import AUTH_KEY, COOKIE, LIMITER_KEY, PUBLIC
 from daemon.hmi.limits import HmiLimits
 from daemon.service import Service

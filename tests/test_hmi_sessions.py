@@ -11,7 +11,7 @@ from pathlib import Path
 import aiohttp
 import pytest
 
-from daemon.daemon_config import load_daemon_config
+from daemon.daemon_yaml import load_daemon_config
 from daemon.hmi.app import AUTH_KEY, COOKIE
 from daemon.hmi.auth import SECRET_FILE, SESSION_TTL_S, Auth
 from daemon.service import Service, ServiceError

@@ -21,7 +21,7 @@ from cryptography.hazmat.primitives.asymmetric import ec
 from cryptography.x509.oid import NameOID
 
 from daemon.cli import main as cli_main
-from daemon.daemon_config import load_daemon_config
+from daemon.daemon_yaml import load_daemon_config
 from daemon.hmi.tls import server_context
 from daemon.service import Service, ServiceError
 from tests.daemon_helpers import thesis_rows, thesis_setup, write_daemon_yaml

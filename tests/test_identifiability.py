@@ -4,7 +4,7 @@ from pathlib import Path
 
 import pytest
 
-from daemon.config import load_artefact, load_machine, load_plan
+from contracts.setup_files import load_artefact, load_machine, load_plan
 from identification.identifiability import identifiable_links, nominal_centres
 
 CFG = Path(__file__).resolve().parents[1] / "config"

@@ -16,17 +16,17 @@ import yaml
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from daemon.config import (
-    ConfigError,
+from contracts.setup_files import (
     artefact_from_dict,
     load_machine,
     machine_from_dict,
     plan_from_dict,
 )
-from daemon.daemon_config import config_from_dict
-from daemon.dialects import get_dialect
-from daemon.program import Program, ProgramError, build_program
+from contracts.yaml_files import ConfigError
+from daemon.daemon_yaml import config_from_dict
 from drivers.registry import link_config
+from programs.dialects import get_dialect
+from programs.toolpath import Program, ProgramError, build_program
 from tests.regen_golden import golden_program
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -11,12 +11,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from contracts.setup_files import load_artefact, load_machine, load_plan
+from contracts.yaml_files import ConfigError
 from daemon import pipeline
-from daemon.config import ConfigError, load_artefact, load_machine, load_plan
-from daemon.daemon_config import MachineSetup, TriggersFile
+from daemon.daemon_yaml import MachineSetup, TriggersFile
 from daemon.judge import Tolerances
 from drivers.base import LinkError
-from drivers.linuxcnc_program import auto_program, name_error, plan_steps
+from drivers.linuxcnc.program import auto_program, name_error, plan_steps
 from drivers.registry import link_config
 from identification.kinematics import ChainState, frames, to_model
 from simulators.hal_probe import ProbeModel, write_spec

@@ -25,8 +25,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from daemon.config import load_artefact, load_machine, load_plan
-from daemon.daemon_config import MachineSetup, TriggersFile
+from contracts.setup_files import load_artefact, load_machine, load_plan
+from daemon.daemon_yaml import MachineSetup, TriggersFile
 from daemon.judge import Limit, Tolerances
 from daemon.session import Session, State
 from daemon.store import Store
@@ -319,8 +319,8 @@ def _overshoot_um(truth: TruthModel, hits: list, ids: tuple[str, ...]) -> np.nda
 
 async def test_local_mode_through_the_linuxcnc_module(lcnc) -> None:
     """The daemon on the LinuxCNC PC: same program, the ``linuxcnc`` module in a helper."""
+    from contracts.setup_files import plan_from_dict
     from daemon import pipeline
-    from daemon.config import plan_from_dict
 
     peer, truth = lcnc.peer, lcnc.truth
     setup = _setup(_link(peer, "local-mdi"))

@@ -5,7 +5,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from daemon.config import load_artefact, load_machine
+from contracts.setup_files import load_artefact, load_machine
 from identification import montecarlo as mc
 from identification.estimate import estimate
 from identification.model import Centres

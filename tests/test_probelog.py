@@ -5,8 +5,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from daemon.config import load_artefact, load_machine
-from daemon.probelog import HEADER, MAGIC, ProbeLogError, ProbeLogWarning, read_log, write_log
+from contracts.probing_log import HEADER, MAGIC, ProbeLogError, ProbeLogWarning, read_log, write_log
+from contracts.setup_files import load_artefact, load_machine
 from daemon.touch_centres import rows_to_centres
 from tests.synth import Truth, make_rows, true_centres
 
@@ -176,7 +176,7 @@ def test_seq_gaps_are_a_warning_listing_the_missing_ranges(setup, tmp_path) -> N
 
 
 def test_ceilings_on_bytes_rows_and_line_length(setup, tmp_path, monkeypatch) -> None:
-    import daemon.probelog as pl
+    import contracts.probing_log as pl
 
     _, a, _, rows = setup
     write_log(tmp_path / "log.csv", rows)
@@ -247,6 +247,6 @@ def test_numerical_failures_name_the_ball_and_pose(setup, fn, what) -> None:
 
 
 def test_probelog_errors_are_config_errors_the_cli_prints_as_one_line() -> None:
-    from daemon.config import ConfigError
+    from contracts.yaml_files import ConfigError
 
     assert issubclass(ProbeLogError, ConfigError)

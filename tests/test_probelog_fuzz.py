@@ -8,8 +8,15 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from daemon.config import load_artefact, load_machine
-from daemon.probelog import HEADER, ProbeLog, ProbeLogError, ProbeLogWarning, read_log, write_log
+from contracts.probing_log import (
+    HEADER,
+    ProbeLog,
+    ProbeLogError,
+    ProbeLogWarning,
+    read_log,
+    write_log,
+)
+from contracts.setup_files import load_artefact, load_machine
 from daemon.touch_centres import rows_to_centres
 from tests.synth import Truth, make_rows
 

@@ -12,10 +12,11 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from daemon.config import ConfigError, artefact_from_dict, load_machine, plan_from_dict
-from daemon.messages import TOUCH_DIRECTIONS
-from daemon.program import Targets, ball_positions, build_program, load_targets
+from contracts.messages import TOUCH_DIRECTIONS
+from contracts.setup_files import artefact_from_dict, load_machine, plan_from_dict
+from contracts.yaml_files import ConfigError
 from identification.kinematics import rotary_columns, tip_minus_ball, to_model
+from programs.toolpath import Targets, ball_positions, build_program, load_targets
 
 CONFIG = Path(__file__).resolve().parent.parent / "config"
 MACHINES = ["thesis_wcbxfzyt", "seed001_wbzfxyct", "vertical_wcayfxzt"]
@@ -96,7 +97,7 @@ def test_every_probing_move_starts_outside_crosses_and_follows_its_direction(cas
 
 def _thesis(poses, **kw):
     machine, mf = _machine("thesis_wcbxfzyt")
-    from daemon.config import load_artefact
+    from contracts.setup_files import load_artefact
     art = load_artefact(CONFIG / "artefacts" / "thesis_4ball.yaml")
     plan = plan_from_dict({"name": "t", "stylus_diameter_mm": 6, "poses": poses, **kw})
     return machine, mf, art, plan
@@ -172,7 +173,7 @@ def test_nominal_targets_default():
 
 
 def test_generate_checks_renders_and_times(tmp_path):
-    from daemon.program import generate
+    from programs.toolpath import generate
 
     machine, mf, art, plan = _thesis([[0, 0], [30, 60]])
     g = generate(machine, mf, art, plan, "heidenhain", run_id="r1")

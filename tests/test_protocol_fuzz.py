@@ -11,12 +11,9 @@ import pytest
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
-from daemon.dialects import DIALECTS
-from daemon.messages import ProbeHit, TouchId
-from drivers.base import ProgramJob
-from drivers.hits import MAX_LINEAR_MM, MAX_ROTARY_DEG, HitFactory, MalformedResult
-from drivers.modbus import check_mailbox, check_status, slot_hit
-from drivers.modbus_map import (
+from contracts.jobs import ProgramJob
+from contracts.messages import ProbeHit, TouchId
+from contracts.modbus_map import (
     COMMANDS,
     MAP_ID,
     MAP_VERSION,
@@ -27,9 +24,12 @@ from drivers.modbus_map import (
     addr,
     encode_slot,
 )
-from drivers.opcua import check_counter, ring_hit
-from drivers.opcua_space import RESULT_ROLES, STATES
-from drivers.opcua_space import RING_SLOTS as UA_SLOTS
+from contracts.opcua_space import RESULT_ROLES, STATES
+from contracts.opcua_space import RING_SLOTS as UA_SLOTS
+from drivers.hits import MAX_LINEAR_MM, MAX_ROTARY_DEG, HitFactory, MalformedResult
+from drivers.modbus.link import check_mailbox, check_status, slot_hit
+from drivers.opcua.link import check_counter, ring_hit
+from programs.dialects import DIALECTS
 
 FUZZ = settings(max_examples=150, deadline=None,
                 suppress_health_check=[HealthCheck.too_slow])

@@ -12,9 +12,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from daemon.config import load_artefact, load_machine, plan_from_dict
-from daemon.dialects import get_dialect
-from daemon.program import build_program
+from contracts.setup_files import load_artefact, load_machine, plan_from_dict
+from programs.dialects import get_dialect
+from programs.toolpath import build_program
 from tests.regen_golden import golden_program
 
 RS274 = shutil.which("rs274")

@@ -10,8 +10,7 @@ import numpy as np
 import pytest
 import yaml
 
-from daemon.cli import main
-from daemon.config import (
+from contracts.setup_files import (
     artefact_from_dict,
     load_artefact,
     load_machine,
@@ -19,8 +18,9 @@ from daemon.config import (
     machine_from_dict,
     plan_from_dict,
 )
-from daemon.program import build_program
-from daemon.safety import SafetyError, check_program
+from daemon.cli import main
+from programs.safety import SafetyError, check_program
+from programs.toolpath import build_program
 
 ROOT = Path(__file__).resolve().parent.parent
 CONFIG = ROOT / "config"
@@ -174,7 +174,7 @@ def test_cli_prints_touch_count_and_times(tmp_path, capsys):
 def test_stylus_stem_is_a_keep_out_body_too():
     """A tip segment passing 48 mm under ball B1 (tip clear of ball and rod) while the 50 mm
     stem above it sweeps through the ball: refused only because of the stem."""
-    from daemon.safety import keepout_slack
+    from programs.safety import keepout_slack
     from tests.regen_golden import golden_program
 
     prog = golden_program()
@@ -191,7 +191,7 @@ def test_stylus_stem_is_a_keep_out_body_too():
 
 
 def test_parallelogram_distances_match_brute_force():
-    from daemon.safety import _point_par, _seg_par
+    from programs.safety import _point_par, _seg_par
 
     rng = np.random.default_rng(7)
     n = 100

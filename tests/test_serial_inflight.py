@@ -10,8 +10,8 @@ import time
 import pytest
 
 from drivers.base import LinkError
-from drivers.link_config import SerialLinkConfig
-from drivers.serial_dnc import XOFF, XON, SerialDncLink, _DncProtocol
+from drivers.serial.link import XOFF, XON, SerialDncLink, _DncProtocol
+from drivers.serial.schema import SerialLinkConfig
 
 BAUD, CPS = 115200, 11520.0  # 8N1: 10 bits per character
 BUDGET = 16
@@ -77,7 +77,7 @@ async def test_nothing_is_written_between_xoff_and_xon():
 
 
 def test_overlong_line_is_discarded_and_the_buffer_stays_bounded(caplog):
-    from drivers.serial_dnc import MAX_LINE_BYTES
+    from drivers.serial.link import MAX_LINE_BYTES
 
     proto = _DncProtocol()
     block = b"x" * 65536
@@ -90,7 +90,7 @@ def test_overlong_line_is_discarded_and_the_buffer_stays_bounded(caplog):
 
 
 async def test_overlong_line_during_a_run_ends_the_run_with_the_reason():
-    from drivers.serial_dnc import MAX_LINE_BYTES
+    from drivers.serial.link import MAX_LINE_BYTES
 
     proto = _DncProtocol()
     proto.running = True
@@ -117,7 +117,7 @@ async def test_at_most_max_write_bytes_per_loop_pass_at_921600():
     # A 921 600-baud budget of 128 bytes: a peer pacing its reads on the loop's ≈ 1 ms timer
     # (the pty simulator takes ≈ 64 per tick) fell behind when handed the whole budget per
     # tick, and its backlog arrived after XOFF (e2e overflow).
-    from drivers.serial_dnc import MAX_WRITE_BYTES
+    from drivers.serial.link import MAX_WRITE_BYTES
 
     link = SerialDncLink(SerialLinkConfig(transport="serial", url="socket://127.0.0.1:1",
                                           baudrate=921600, framing="8N1", tx_chunk_bytes=128))

@@ -11,11 +11,12 @@ import time
 
 import pytest
 
-from daemon.dialects import get_dialect
-from daemon.program import ProgramError
-from drivers.base import LinkError, Verdict
-from drivers.link_config import SerialLinkConfig
-from drivers.serial_dnc import SerialDncLink, parse_request
+from contracts.jobs import Verdict
+from drivers.base import LinkError
+from drivers.serial.link import SerialDncLink, parse_request
+from drivers.serial.schema import SerialLinkConfig
+from programs.dialects import get_dialect
+from programs.toolpath import ProgramError
 from simulators.controller import VERDICT_VARIABLE, VirtualController
 from simulators.frontends.serial import SerialFrontend, SerialSettings
 from tests.transport_sim import first_touch_of, make_truth, real_setup

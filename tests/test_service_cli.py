@@ -198,7 +198,7 @@ def test_verify_unknown_machine(tmp_path, capsys):
 
 
 def test_history_import_list_export(tmp_path, capsys):
-    from daemon.probelog import write_log
+    from contracts.probing_log import write_log
     path = write_daemon_yaml(tmp_path)
     setup = thesis_setup()
     rows = thesis_rows(setup)
@@ -229,7 +229,7 @@ async def test_kill_9_with_simulated_cnc_over_opcua(tmp_path):
     import asyncio
     import shutil
 
-    from drivers.opcua_certs import ensure_certificate
+    from contracts.opcua_certs import ensure_certificate
     from simulators.controller import VirtualController
     from simulators.frontends.opcua import OpcUaFrontend
     from simulators.truth import TruthModel
@@ -299,9 +299,9 @@ async def test_can_panel_start_abort_and_lamps(tmp_path):
 
     import can
 
-    from daemon.daemon_config import load_daemon_config
+    from contracts.can_frames import LAMP_NAMES, button_frame
+    from daemon.daemon_yaml import load_daemon_config
     from daemon.service import Service
-    from drivers.can_panel import LAMP_NAMES, button_frame
 
     channel = f"rumba-test-{os.getpid()}-{time.monotonic_ns()}"
     path = write_daemon_yaml(tmp_path, extra_top=f"can_panel: {{interface: virtual, channel: "
@@ -357,8 +357,8 @@ def test_shipped_daemon_yaml_is_valid():
     the transport's schema, and its tolerance names are identifiable on its machine and plan."""
     import yaml
 
-    from daemon.config import load_artefact, load_machine, load_plan
-    from daemon.daemon_config import _check_identifiable, config_from_dict
+    from contracts.setup_files import load_artefact, load_machine, load_plan
+    from daemon.daemon_yaml import _check_identifiable, config_from_dict
     from drivers.registry import link_config
 
     path = ROOT / "config/daemon.yaml"
@@ -376,7 +376,7 @@ def test_shipped_daemon_yaml_is_valid():
 async def test_verify_through_the_running_daemon(tmp_path, capsys):
     """`rumba verify --daemon`: the CLI trigger of a running service, over its HMI API."""
     from daemon.commands.verify import verify_via_daemon
-    from daemon.daemon_config import load_daemon_config
+    from daemon.daemon_yaml import load_daemon_config
     from daemon.service import Service
 
     path = write_daemon_yaml(tmp_path)
@@ -401,7 +401,7 @@ async def test_verify_through_the_running_daemon(tmp_path, capsys):
 async def test_two_machines_run_concurrently_with_one_session_each(tmp_path):
     import asyncio
 
-    from daemon.daemon_config import load_daemon_config
+    from daemon.daemon_yaml import load_daemon_config
     from daemon.service import Service
     from daemon.session import Refused
 

@@ -172,7 +172,7 @@ async def test_disabled_trigger_is_refused(env):
     setup, _rows, _store, _tmp = env
     from dataclasses import replace
 
-    from daemon.daemon_config import TriggersFile
+    from daemon.daemon_yaml import TriggersFile
     s, _ = make(env, setup=replace(setup, triggers=TriggersFile(can=False)))
     with pytest.raises(Refused, match="trigger 'can' is disabled"):
         s.start("can")

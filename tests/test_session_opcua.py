@@ -14,8 +14,8 @@ import yaml
 
 from daemon.session import Session, State
 from daemon.store import Store
-from drivers.link_config import OpcUaLinkConfig
-from drivers.opcua import OpcUaLink
+from drivers.opcua.link import OpcUaLink
+from drivers.opcua.schema import OpcUaLinkConfig
 from identification.estimate import coverage_factor
 from simulators.controller import VirtualController
 from simulators.faults import Fault, FaultPlan

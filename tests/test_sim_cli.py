@@ -4,9 +4,10 @@ from __future__ import annotations
 
 import pytest
 
+from contracts.probing_log import read_log
+from contracts.setup_files import load_artefact, load_machine
+from contracts.yaml_files import ConfigError
 from daemon.cli import main
-from daemon.config import ConfigError, load_artefact, load_machine
-from daemon.probelog import read_log
 from simulators.errors_schema import errors_from_dict, load_errors
 from simulators.truth import TruthModel
 from tests.sim_programs import program

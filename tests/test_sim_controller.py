@@ -162,7 +162,7 @@ async def test_start_of_shift_handshake():
 
 
 def test_fault_file_is_validated(tmp_path):
-    from daemon.config import ConfigError
+    from contracts.yaml_files import ConfigError
 
     p = tmp_path / "f.yaml"
     p.write_text("faults:\n  - {kind: no_trigger, at_touch: 3, at_block: 2}\n")
@@ -215,10 +215,10 @@ async def test_centre_noise_is_common_to_the_five_touches_of_a_visit():
     at every decreasing touch number, inflating the form residual to ~0.6 µm."""
     import numpy as np
 
-    from daemon.config import plan_from_dict
-    from daemon.dialects import get_dialect
-    from daemon.program import build_program
+    from contracts.setup_files import plan_from_dict
     from daemon.touch_centres import rows_to_centres
+    from programs.dialects import get_dialect
+    from programs.toolpath import build_program
     from simulators.offline import run_program
 
     noisy = truth_with({"probe": {"stylus_diameter_mm": 6, "centre_noise_um": [0.66, 0.98, 0.44]}})

@@ -158,8 +158,8 @@ GENERATED = list(DIALECTS)
 
 @pytest.fixture(scope="module")
 def generated():
-    from daemon.config import plan_from_dict
-    from daemon.program import build_program
+    from contracts.setup_files import plan_from_dict
+    from programs.toolpath import build_program
 
     truth = truth_with(TABLE_B2)
     plan = plan_from_dict({"name": "t", "stylus_diameter_mm": 6,
@@ -171,7 +171,7 @@ def generated():
 async def test_generated_programs_latch_exactly(dialect, generated):
     """What daemon/program.py + daemon/dialects.py emit runs to the end on the simulator, and
     every latch is the analytic contact (link and setup errors on, no noise, no effects)."""
-    from daemon.dialects import get_dialect
+    from programs.dialects import get_dialect
 
     truth, prog = generated
     dia = get_dialect(dialect)

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.optimize import brentq
 
-from daemon.messages import TOUCH_DIRECTIONS
+from contracts.messages import TOUCH_DIRECTIONS
 from identification.kinematics import rotary_columns, tip_minus_ball, to_model
 from simulators.errors_schema import errors_from_dict
 from simulators.probe import collision, first_contact
@@ -16,7 +16,7 @@ ROOT = "config"
 
 
 def truth_with(errors: dict) -> TruthModel:
-    from daemon.config import load_artefact, load_machine
+    from contracts.setup_files import load_artefact, load_machine
 
     m, mf = load_machine(f"{ROOT}/machines/thesis_wcbxfzyt.yaml")
     a = load_artefact(f"{ROOT}/artefacts/thesis_4ball.yaml")

@@ -7,11 +7,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from contracts.setup_files import load_artefact, load_machine, load_plan
 from daemon.cli import main
 from daemon.commands.analyze import run_analysis
-from daemon.config import load_artefact, load_machine, load_plan
-from daemon.dialects import get_dialect
-from daemon.program import build_program
+from programs.dialects import get_dialect
+from programs.toolpath import build_program
 from simulators.errors_schema import load_errors
 
 MACHINE = "config/machines/thesis_wcbxfzyt.yaml"

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from daemon.messages import TOUCH_DIRECTIONS
+from contracts.messages import TOUCH_DIRECTIONS
 from identification.spherefit import SphereFitError, fit_spheres
 
 DIRS = np.array(list(TOUCH_DIRECTIONS.values()))

@@ -11,9 +11,9 @@ import time
 
 import pytest
 
+from contracts.messages import ProbeHit
+from contracts.probing_log import read_log
 from daemon.journal_csv import export_csv, import_csv
-from daemon.messages import ProbeHit
-from daemon.probelog import read_log
 from daemon.store import SCHEMA_VERSION, Store, StoreError
 from tests.daemon_helpers import thesis_rows, thesis_setup
 
@@ -104,7 +104,7 @@ def test_csv_export_import_round_trip(tmp_path):
     rows = thesis_rows(setup)
     s = Store(tmp_path / "j.sqlite")
     csv = tmp_path / "log.csv"
-    from daemon.probelog import write_log
+    from contracts.probing_log import write_log
     write_log(csv, rows)
     run_id, n = import_csv(s, csv, "mill1", setup.machine, setup.artefact)
     assert (run_id, n) == ("synth", len(rows))

@@ -9,13 +9,13 @@ from pathlib import Path
 
 import pytest
 
-from daemon.config import ConfigError
+from contracts.yaml_files import ConfigError
 from drivers.base import LinkError
-from drivers.link_config import ModbusLinkConfig
-from drivers.modbus import ModbusLink
-from drivers.opcua import OpcUaLink
+from drivers.modbus.link import ModbusLink
+from drivers.modbus.schema import ModbusLinkConfig
+from drivers.opcua.link import OpcUaLink
 from drivers.registry import link_config, make_link
-from drivers.serial_dnc import SerialDncLink
+from drivers.serial.link import SerialDncLink
 
 ROOT = Path(__file__).resolve().parents[1]
 

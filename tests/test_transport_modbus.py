@@ -12,11 +12,8 @@ from hypothesis import given
 from hypothesis import strategies as st
 from pymodbus.client import AsyncModbusTcpClient
 
-from drivers.base import LinkError, Verdict
-from drivers.hits import MalformedResult
-from drivers.link_config import ModbusLinkConfig
-from drivers.modbus import ModbusLink, program_blocks
-from drivers.modbus_map import (
+from contracts.jobs import Verdict
+from contracts.modbus_map import (
     LINEAR_COUNTS_PER_MM,
     MAP_ID,
     addr,
@@ -28,6 +25,10 @@ from drivers.modbus_map import (
     words_i32,
     words_text,
 )
+from drivers.base import LinkError
+from drivers.hits import MalformedResult
+from drivers.modbus.link import ModbusLink, program_blocks
+from drivers.modbus.schema import ModbusLinkConfig
 from simulators.controller import VirtualController
 from simulators.frontends.modbus import ModbusFrontend
 from tests.transport_sim import (
@@ -304,7 +305,7 @@ async def test_mailbox_garbage_fails_the_service_run_with_the_reason(tmp_path):
     """daemon.yaml → Service → Modbus link: garbage in MBX_ACK mid-stream. With every silence
     timeout at an hour the run must still end at once, FAILED, naming the register; the CNC
     gets ERROR and its program is stopped."""
-    from daemon.daemon_config import load_daemon_config
+    from daemon.daemon_yaml import load_daemon_config
     from daemon.service import Service
     from daemon.session import State
     from tests.daemon_helpers import write_daemon_yaml

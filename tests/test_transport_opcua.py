@@ -13,11 +13,12 @@ import pytest
 import pytest_asyncio
 from asyncua import Client, ua
 
-from drivers.base import LinkError, Verdict
+from contracts.jobs import Verdict
+from contracts.opcua_certs import ensure_certificate
+from drivers.base import LinkError
 from drivers.hits import MalformedResult
-from drivers.link_config import OpcUaLinkConfig
-from drivers.opcua import OpcUaLink
-from drivers.opcua_certs import ensure_certificate
+from drivers.opcua.link import OpcUaLink
+from drivers.opcua.schema import OpcUaLinkConfig
 from simulators.controller import VirtualController
 from simulators.frontends.opcua import OpcUaFrontend
 from tests.transport_sim import first_touch_of, hits_until_miss, latched_equal, make_job, make_truth

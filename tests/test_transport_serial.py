@@ -16,8 +16,8 @@ import pytest
 import serial
 
 from drivers.base import ControllerAlarm, LinkError
-from drivers.link_config import SerialLinkConfig
-from drivers.serial_dnc import SerialDncLink, frame_program
+from drivers.serial.link import SerialDncLink, frame_program
+from drivers.serial.schema import SerialLinkConfig
 from simulators.faults import Fault, FaultPlan
 from simulators.frontends.serial import SerialFrontend, SerialSettings
 from tests.transport_sim import first_touch_of, hits_until_miss, latched_equal, real_setup

@@ -5,10 +5,11 @@ from __future__ import annotations
 
 import pytest
 
-from daemon.config import plan_from_dict
-from daemon.dialects import get_dialect
-from daemon.program import generate
-from drivers.base import ControllerAlarm, ProgramJob
+from contracts.jobs import ProgramJob
+from contracts.setup_files import plan_from_dict
+from drivers.base import ControllerAlarm
+from programs.dialects import get_dialect
+from programs.toolpath import generate
 from simulators.controller import VirtualController
 from simulators.truth import TruthModel
 from tests.test_sim_probe import TABLE_B2, truth_with

@@ -42,9 +42,10 @@ def comment_ok(line: str, name: str, dialect: str) -> bool:
 
 
 def fuzz(rng: random.Random, n: int, limit_s: float = 10.0) -> Tally:
-    from daemon.config import ConfigError, artefact_from_dict, machine_from_dict, plan_from_dict
-    from daemon.dialects import get_dialect
-    from daemon.program import ProgramError, build_program
+    from contracts.setup_files import artefact_from_dict, machine_from_dict, plan_from_dict
+    from contracts.yaml_files import ConfigError
+    from programs.dialects import get_dialect
+    from programs.toolpath import ProgramError, build_program
 
     tally = Tally("G-code names")
     docs = {k: yaml.safe_load((CONFIG / p).read_text(encoding="utf-8")) for k, p in

@@ -110,8 +110,8 @@ def violations(data: bytes) -> list[str]:
 
 
 def fuzz(rng: random.Random, n: int, limit_s: float = 5.0) -> Tally:
-    from daemon.config import load_artefact
-    from daemon.probelog import ProbeLogError, read_log
+    from contracts.probing_log import ProbeLogError, read_log
+    from contracts.setup_files import load_artefact
 
     tally = Tally("probelog read_log")
     base = EXAMPLE.read_text(encoding="utf-8")

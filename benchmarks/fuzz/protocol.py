@@ -15,10 +15,10 @@ LIMIT = 1e5
 
 
 def _job() -> Any:
-    from daemon.config import load_artefact, load_machine, load_plan
-    from daemon.dialects import get_dialect
-    from daemon.program import build_program
-    from drivers.base import ProgramJob
+    from contracts.jobs import ProgramJob
+    from contracts.setup_files import load_artefact, load_machine, load_plan
+    from programs.dialects import get_dialect
+    from programs.toolpath import build_program
 
     m, mf = load_machine(CONFIG / "machines/thesis_wcbxfzyt.yaml")
     prog = build_program(m, mf, load_artefact(CONFIG / "artefacts/thesis_4ball.yaml"),
@@ -41,10 +41,10 @@ def _hit_problem(hit: Any, expected_seq: int | None) -> str:
 
 
 def _modbus(rng: random.Random, n: int, job: Any) -> Tally:
-    from drivers import modbus
+    from contracts.modbus_map import SLOT_WORDS, STATUS_WORDS, decode_slot, encode_slot
     from drivers.base import LinkError
     from drivers.hits import HitFactory
-    from drivers.modbus_map import SLOT_WORDS, STATUS_WORDS, decode_slot, encode_slot
+    from drivers.modbus import link as modbus
 
     tally = Tally("modbus slots/status")
     slot_hit = getattr(modbus, "slot_hit", None)
@@ -91,10 +91,10 @@ OPC_VALUES: list[Any] = [float("nan"), float("inf"), -float("inf"), None, "1", T
 
 
 def _opcua(rng: random.Random, n: int, job: Any) -> Tally:
-    from drivers import opcua
+    from contracts.opcua_space import RESULT_ROLES, RING_SLOTS
     from drivers.base import LinkError
     from drivers.hits import HitFactory
-    from drivers.opcua_space import RESULT_ROLES, RING_SLOTS
+    from drivers.opcua import link as opcua
 
     tally = Tally("opcua ring/counter")
     ring_hit = getattr(opcua, "ring_hit", None)
@@ -139,7 +139,7 @@ RESULT = "RUMBA 1 0 0 B1 1 1.0000 -111.1697 -91.2982 152.1619 0.0000 0.0000"
 
 def _serial(rng: random.Random, n: int, job: Any, prog: Any, get_dialect: Any) -> Tally:
     from drivers.base import LinkError
-    from drivers.serial_dnc import _DncProtocol, parse_request
+    from drivers.serial.link import _DncProtocol, parse_request
 
     tally = Tally("serial lines")
     t1 = prog.touches[0]

@@ -18,8 +18,8 @@ UNKNOWN = "zz_unknown_key"
 
 def loaders(tmp: Path) -> list[tuple[str, Path, Callable[[Path], object]]]:
     """(kind, shipped file, loader) for every schema; daemon.yaml is the tests' own layout."""
-    from daemon.config import load_artefact, load_machine, load_plan
-    from daemon.daemon_config import load_daemon_config
+    from contracts.setup_files import load_artefact, load_machine, load_plan
+    from daemon.daemon_yaml import load_daemon_config
     from simulators.errors_schema import load_errors
     from simulators.faults import FaultPlan
     from tests.daemon_helpers import write_daemon_yaml
@@ -133,7 +133,7 @@ def _nonfinite(node: Any) -> bool:
 
 
 def fuzz(rng: random.Random, n: int, limit_s: float = 5.0) -> Tally:
-    from daemon.config import ConfigError
+    from contracts.yaml_files import ConfigError
 
     tally = Tally("YAML loaders")
     with tempfile.TemporaryDirectory(prefix="rumba-fuzz-") as tmp_s:

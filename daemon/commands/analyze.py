@@ -13,9 +13,9 @@ import numpy as np
 from rich.console import Console
 from rich.table import Table
 
-from daemon.analysis import AnalysisError, analyse_centres
-from daemon.config import load_artefact, load_machine
-from daemon.probelog import ProbeLogError, read_log
+from contracts.probing_log import ProbeLogError, read_log
+from contracts.setup_files import load_artefact, load_machine
+from daemon.identify import AnalysisError, analyse_centres
 from daemon.touch_centres import rows_to_centres
 
 DEFAULT_STYLUS_DIAMETER_MM = 6.0  # the shipped plans' stylus; used for the radius health figure

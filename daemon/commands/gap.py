@@ -10,8 +10,8 @@ from pathlib import Path
 
 import numpy as np
 
-from daemon.config import load_artefact, load_machine, load_plan
-from daemon.probelog import LogRow, ProbeLogError, read_log
+from contracts.probing_log import LogRow, ProbeLogError, read_log
+from contracts.setup_files import load_artefact, load_machine, load_plan
 from daemon.touch_centres import columns
 from identification.effects import FAMILIES, Effect, library
 from identification.gap import Options, TouchData, diagnose

@@ -7,10 +7,10 @@ import sys
 import time
 from pathlib import Path
 
+from contracts.setup_files import check_touch_count, load_artefact, load_machine, load_plan
 from daemon.cli import UserError
-from daemon.config import check_touch_count, load_artefact, load_machine, load_plan
-from daemon.dialects import DIALECTS
 from daemon.safepath import contained_path
+from programs.dialects import DIALECTS
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -33,10 +33,10 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from daemon.cycletime import estimate
-    from daemon.dialects import get_dialect
-    from daemon.program import ProgramError, build_program, load_targets
-    from daemon.safety import SafetyError, check_program
+    from programs.cycletime import estimate
+    from programs.dialects import get_dialect
+    from programs.safety import SafetyError, check_program
+    from programs.toolpath import ProgramError, build_program, load_targets
 
     machine, mfile = load_machine(args.machine)
     artefact = load_artefact(args.artefact)

@@ -13,13 +13,13 @@ import numpy as np
 from rich.console import Console
 from rich.table import Table
 
+from contracts.messages import ProbeHit
+from contracts.probing_log import ProbeLogError
 from daemon.cli import UserError
-from daemon.daemon_config import DaemonConfig, MachineSetup, load_daemon_config
+from daemon.daemon_yaml import DaemonConfig, MachineSetup, load_daemon_config
 from daemon.journal_csv import export_csv, journal_import, read_import
 from daemon.judge import Judgement, judge, volumetric_max_um
-from daemon.messages import ProbeHit
 from daemon.pipeline import Analysis, PipelineError, analyse, row_to_hit
-from daemon.probelog import ProbeLogError
 from daemon.store import Store, StoreError
 from identification.spherefit import SphereFitError
 

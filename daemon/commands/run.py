@@ -9,7 +9,7 @@ import signal
 import sys
 
 from daemon.cli import UserError
-from daemon.daemon_config import load_daemon_config
+from daemon.daemon_yaml import load_daemon_config
 from daemon.service import Service, ServiceError
 from daemon.store import StoreError
 

@@ -66,7 +66,7 @@ def main(args: argparse.Namespace) -> int:
 
 
 def _offline(args: argparse.Namespace, truth, faults) -> int:
-    from daemon.probelog import write_log
+    from contracts.probing_log import write_log
     from simulators.offline import aux_files, run_sync
 
     try:

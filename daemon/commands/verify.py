@@ -16,7 +16,7 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
 
 from daemon.cli import UserError
-from daemon.daemon_config import load_daemon_config
+from daemon.daemon_yaml import load_daemon_config
 from daemon.service import LinkFactory, ServiceError, make_link
 from daemon.session import Session
 from daemon.store import Store, StoreError

@@ -8,7 +8,7 @@ import ssl
 import stat
 from pathlib import Path
 
-from daemon.config import ConfigError
+from contracts.yaml_files import ConfigError
 
 
 class _Encrypted(Exception):

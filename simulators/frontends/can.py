@@ -8,7 +8,7 @@ import contextlib
 
 import can
 
-from drivers.can_panel import (
+from contracts.can_frames import (
     LAMP_NAMES,
     OFFSET_LAMP,
     OFFSET_PANEL,

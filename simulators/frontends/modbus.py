@@ -15,7 +15,7 @@ from pymodbus.constants import ExcCodes
 from pymodbus.server import ModbusTcpServer
 from pymodbus.simulator import DataType, SimData, SimDevice
 
-from drivers.modbus_map import (
+from contracts.modbus_map import (
     ALARM_TEXT_WORDS,
     COMMANDS,
     MAP_ID,

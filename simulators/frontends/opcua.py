@@ -28,8 +28,8 @@ from asyncua.crypto.validator import CertificateValidator, CertificateValidatorO
 from asyncua.server.binary_server_asyncio import BinaryServer
 from asyncua.server.user_managers import UserManager
 
-from drivers.opcua_certs import ensure_certificate
-from drivers.opcua_space import BY_ROLE, NAMESPACE_URI, RESULT_ROLES, RING_SLOTS, STATES
+from contracts.opcua_certs import ensure_certificate
+from contracts.opcua_space import BY_ROLE, NAMESPACE_URI, RESULT_ROLES, RING_SLOTS, STATES
 from simulators.frontends import cancel_tasks
 
 POLICIES = {

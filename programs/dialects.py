@@ -37,10 +37,10 @@ from pathlib import Path
 
 import jinja2
 
-from daemon.config import SAFE_NAME
-from daemon.cycletime import estimate
-from daemon.messages import TOUCH_DIRECTIONS, ProbeHit
-from daemon.program import Move, Program, ProgramError, Touch
+from contracts.messages import TOUCH_DIRECTIONS, ProbeHit
+from contracts.setup_files import SAFE_NAME
+from programs.cycletime import estimate
+from programs.toolpath import Move, Program, ProgramError, Touch
 
 TEMPLATES = Path(__file__).resolve().parent.parent / "gcode_templates"
 RING_SLOTS = 8

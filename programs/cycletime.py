@@ -20,7 +20,7 @@ import numpy as np
 from scipy.sparse.csgraph import minimum_spanning_tree
 from scipy.spatial.distance import cdist
 
-from daemon.program import Program, plan_visits
+from programs.toolpath import Program, plan_visits
 
 
 @dataclass(frozen=True)

@@ -21,19 +21,13 @@ from typing import Any
 from asyncua import Client, ua
 from asyncua.crypto.security_policies import SecurityPolicyBasic256Sha256
 
-from daemon.messages import ProbeHit
-from drivers.base import (
-    Capabilities,
-    CncLink,
-    ControllerAlarm,
-    LinkError,
-    ProgramJob,
-    StartRequest,
-    Verdict,
-)
-from drivers.hits import HitFactory, MalformedResult, wait_event, with_backoff
-from drivers.link_config import OpcUaLinkConfig
-from drivers.opcua_space import BY_ROLE, RESULT_ROLES, RING_SLOTS, STATES, node_id
+from contracts.jobs import ProgramJob, Verdict
+from contracts.messages import ProbeHit
+from contracts.opcua_space import BY_ROLE, RESULT_ROLES, RING_SLOTS, STATES, node_id
+from drivers.base import Capabilities, CncLink, ControllerAlarm, LinkError, StartRequest
+from drivers.hits import HitFactory, MalformedResult
+from drivers.opcua.schema import OpcUaLinkConfig
+from drivers.retry import wait_event, with_backoff
 
 logging.getLogger("asyncua").setLevel(logging.ERROR)
 log = logging.getLogger("rumba.opcua")

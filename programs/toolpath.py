@@ -28,9 +28,12 @@ from pathlib import Path
 
 import numpy as np
 
-from daemon.config import MAX_TOUCHES, SAFE_NAME, ConfigError, MachineFile, Plan, touch_count
-from daemon.messages import TOUCH_DIRECTIONS, TouchId
-from daemon.program_geometry import (
+from contracts.messages import TOUCH_DIRECTIONS, TouchId
+from contracts.setup_files import MAX_TOUCHES, SAFE_NAME, MachineFile, Plan, touch_count
+from contracts.yaml_files import ConfigError
+from identification.kinematics import ChainState, Machine
+from identification.model import Artefact
+from programs.geometry import (
     MAX_SWEEP_SAMPLES,
     PoseFrame,
     ProgramError,
@@ -40,8 +43,6 @@ from daemon.program_geometry import (
     sweep_grid,
     sweep_required,
 )
-from identification.kinematics import ChainState, Machine
-from identification.model import Artefact
 
 APPROACH_GAP_MM = 0.5  # fed at approach feed between clearance and start point
 ESTIMATE_STANDOFF_MM = 1.0  # standoff / overtravel cap when targets come from a last estimate
@@ -315,7 +316,7 @@ def plan_visits(plan: Plan) -> list[tuple[int, int]]:
 
 def _pose_touches(prog: Program, bld: _Builder, pf: PoseFrame, ip: int, rep: int, seq: int,
                   balls_w: np.ndarray, state: ChainState, z_required) -> int:
-    from daemon.safety import keepout_slack, tip_in_workpiece  # safety imports this module
+    from programs.safety import keepout_slack, tip_in_workpiece  # safety imports this module
 
     machine, plan, artefact = prog.machine, prog.plan, prog.artefact
     k = prog.retract_axis
@@ -553,9 +554,9 @@ def generate(machine: Machine, machine_file: MachineFile, artefact: Artefact, pl
              targets: Targets | None = None) -> GeneratedProgram:
     """Generate, check (``daemon.safety.SafetyError`` when unsafe), render and time a program.
     ``run_id`` is accepted for the session's call and not written into the program."""
-    from daemon.cycletime import estimate
-    from daemon.dialects import get_dialect
-    from daemon.safety import check_program
+    from programs.cycletime import estimate
+    from programs.dialects import get_dialect
+    from programs.safety import check_program
 
     d = get_dialect(dialect)
     prog = build_program(machine, machine_file, artefact, plan, targets)

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from daemon.config import MachineFile
+from contracts.setup_files import MachineFile
 from identification.kinematics import ChainState, Machine, frames, solve_centre, to_model
 from identification.model import Artefact
 

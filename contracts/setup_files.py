@@ -12,13 +12,14 @@ from pathlib import Path
 from typing import Annotated, Any, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import BaseModel, Field, ValidationError, field_validator, model_validator
 
-from daemon.config_yaml import (  # noqa: F401 - re-exported: the schemas' error and reader
+from contracts.yaml_files import (  # noqa: F401 - re-exported: the schemas' error and reader
     MAX_YAML_BYTES,
     MAX_YAML_DEPTH,
     MAX_YAML_NODES,
     ConfigError,
+    StrictModel,
     format_validation,
     read_yaml,
 )
@@ -41,9 +42,6 @@ MAX_BALLS = 32
 """Ceiling on the balls of an artefact (the shipped ones have 4 or 5)."""
 
 
-class _Strict(BaseModel):
-    # allow_inf_nan=False: .nan / .inf / 1e400 are refused in every float of every file schema
-    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
 Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]
@@ -67,7 +65,7 @@ def _safe_name(v: str) -> str:
 # ------------------------------------------------------------------------------------ machine
 
 
-class AxisFile(_Strict):
+class AxisFile(StrictModel):
     type: Literal["linear", "rotary"]
     direction: Vec3
     point_mm: Vec3 | None = None
@@ -98,12 +96,12 @@ class AxisFile(_Strict):
         return self
 
 
-class ToolFile(_Strict):
+class ToolFile(StrictModel):
     tip_mm: Vec3 = [0.0, 0.0, 0.0]
     spindle_axis: Vec3 = [0.0, 0.0, 1.0]
 
 
-class DynamicsFile(_Strict):
+class DynamicsFile(StrictModel):
     rapid_mm_min: float = Field(20000.0, gt=0, le=200000)
     rotary_rapid_deg_min: float = Field(5400.0, gt=0, le=200000)
     rotary_clamp_s: float = Field(0.5, ge=0, le=30)
@@ -111,7 +109,7 @@ class DynamicsFile(_Strict):
     max_probe_feed_mm_min: float = Field(1000.0, gt=0, le=10000)
 
 
-class TableFile(_Strict):
+class TableFile(StrictModel):
     """The table (pallet) as a keep-out: a disc of ``radius_mm`` whose top is ``surface_z_mm``
     in the last workpiece frame; nothing of the tool may come below it plus ``clearance_mm``."""
 
@@ -120,7 +118,7 @@ class TableFile(_Strict):
     clearance_mm: float = Field(5.0, ge=0)
 
 
-class KeepOutBox(_Strict):
+class KeepOutBox(StrictModel):
     """An extra keep-out box in the last workpiece frame (a clamp, a fixture)."""
 
     name: str
@@ -129,7 +127,7 @@ class KeepOutBox(_Strict):
     _n = field_validator("name")(_safe_name)
 
 
-class MachineFile(_Strict):
+class MachineFile(StrictModel):
     name: str
     topology: str
     axes: dict[Literal["X", "Y", "Z", "A", "B", "C"], AxisFile]
@@ -157,7 +155,7 @@ class MachineFile(_Strict):
 # ----------------------------------------------------------------------------------- artefact
 
 
-class BallFile(_Strict):
+class BallFile(StrictModel):
     id: str
     position_mm: Vec3
     rod_length_mm: float = Field(gt=0, le=1000)
@@ -167,13 +165,13 @@ class BallFile(_Strict):
     _f = field_validator("position_mm")(_finite)
 
 
-class DistanceFile(_Strict):
+class DistanceFile(StrictModel):
     balls: Annotated[list[str], Field(min_length=2, max_length=2)]
     distance_mm: float = Field(gt=0)
     std_um: float = Field(0.5, gt=0, le=100)
 
 
-class ArtefactFile(_Strict):
+class ArtefactFile(StrictModel):
     name: str
     ball_diameter_mm: float = Field(25.4, gt=0, le=200)
     rod_diameter_mm: float = Field(8.0, gt=0, le=100)
@@ -199,13 +197,13 @@ class ArtefactFile(_Strict):
 # --------------------------------------------------------------------------------------- plan
 
 
-class GridAxis(_Strict):
+class GridAxis(StrictModel):
     start_deg: float
     stop_deg: float
     step_deg: float = Field(gt=0)
 
 
-class Grid(_Strict):
+class Grid(StrictModel):
     b: GridAxis
     c: GridAxis
 
@@ -221,18 +219,18 @@ class Grid(_Strict):
         return self
 
 
-class PoseFile(_Strict):
+class PoseFile(StrictModel):
     b_deg: float
     c_deg: float
     role: Literal["estimate", "validate"] = "estimate"
 
 
-class FeedsFile(_Strict):
+class FeedsFile(StrictModel):
     probe_mm_min: float = Field(300.0, gt=0, le=5000)
     approach_mm_min: float = Field(2000.0, gt=0, le=50000)
 
 
-class PlanFile(_Strict):
+class PlanFile(StrictModel):
     name: str
     stylus_diameter_mm: float = Field(gt=0, le=50)
     # the stylus stem, checked by the safety check as a cylinder from the tip along the spindle
@@ -279,7 +277,7 @@ class PlanFile(_Strict):
 # -------------------------------------------------------------------------- loaded, in domain
 
 
-class Plan(_Strict):
+class Plan(StrictModel):
     """A validated plan with its poses expanded."""
 
     name: str

@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from daemon.config import ConfigError
+from contracts.yaml_files import ConfigError
 from daemon.touch_centres import CentreData
 from identification.analyses import (
     clusters,

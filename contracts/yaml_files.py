@@ -6,7 +6,7 @@ from pathlib import Path
 from typing import Any
 
 import yaml
-from pydantic import ValidationError
+from pydantic import BaseModel, ConfigDict, ValidationError
 
 MAX_YAML_BYTES = 1 << 20
 """Ceiling on the size of a configuration file (1 MiB; the shipped ones are under 2 kB)."""
@@ -117,3 +117,10 @@ def format_validation(path: Path | str, err: ValidationError) -> str:
             msg = "unknown key (not in the schema; check spelling)"
         parts.append(f"{path}: {loc or '<top>'}: {msg}")
     return "; ".join(parts)
+
+
+class StrictModel(BaseModel):
+    """The base of every file schema: unknown keys are errors, values immutable, and
+    ``allow_inf_nan=False`` refuses .nan / .inf / 1e400 in every float."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)

@@ -36,7 +36,7 @@ from typing import overload
 
 import numpy as np
 
-from daemon.config import ConfigError
+from contracts.yaml_files import ConfigError
 from identification.model import Artefact
 
 MAGIC = "# rumba-probing-log v1"

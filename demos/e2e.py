@@ -69,7 +69,7 @@ async def _hmi(stdout: asyncio.StreamReader, timeout_s: float) -> str:
 
 
 async def demo(time_scale: float, work: Path) -> int:
-    from drivers.opcua_certs import ensure_certificate
+    from contracts.opcua_certs import ensure_certificate
     from simulators.controller import VirtualController
     from simulators.frontends.opcua import OpcUaFrontend
     from simulators.truth import TruthModel

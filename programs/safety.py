@@ -22,9 +22,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from daemon.program import Program, ball_positions, chain_state
-from daemon.program_geometry import tip_affine
 from identification.kinematics import frames, to_model
+from programs.geometry import tip_affine
+from programs.toolpath import Program, ball_positions, chain_state
 
 INDEX_STEP_DEG = 0.5
 INDEX_MARGIN_MM = 0.05  # covers the sampling error of the index sweep

@@ -21,29 +21,18 @@ from typing import Any
 import can
 from pydantic import ValidationError
 
-from drivers.link_config import CanPanelConfig
+from contracts.can_frames import (
+    BUTTONS,
+    LAMPS,
+    OFFSET_BUTTON,
+    OFFSET_PANEL,
+    lamp_frame,
+)
+from drivers.can.schema import CanPanelConfig
 
 log = logging.getLogger("rumba.can_panel")
 
-BUTTONS = {1: "start", 2: "abort"}
-BUTTON_CODES = {v: k for k, v in BUTTONS.items()}
-LAMPS = {"off": 0, "idle": 1, "running": 2, "pass": 3, "warn": 4, "fail": 5, "error": 6}
-LAMP_NAMES = {v: k for k, v in LAMPS.items()}
 FLAG_BLINK, FLAG_LINK_DOWN = 0x01, 0x02
-PROGRESS_UNKNOWN = 255
-OFFSET_BUTTON, OFFSET_LAMP, OFFSET_PANEL = 0, 1, 2
-
-
-def lamp_frame(base_id: int, lamp: str, progress: int | None, flags: int, alive: int
-               ) -> can.Message:
-    pct = PROGRESS_UNKNOWN if progress is None else max(0, min(100, int(progress)))
-    return can.Message(arbitration_id=base_id + OFFSET_LAMP, is_extended_id=False,
-                       data=bytes([LAMPS[lamp], pct, flags & 0xFF, alive & 0xFF]))
-
-
-def button_frame(base_id: int, button: str, counter: int) -> can.Message:
-    return can.Message(arbitration_id=base_id + OFFSET_BUTTON, is_extended_id=False,
-                       data=bytes([BUTTON_CODES[button], counter & 0xFF]))
 
 
 def lamp_for(status: dict[str, Any]) -> tuple[str, int | None, int]:
@@ -165,7 +154,7 @@ class _Attached:
 
 def attach(cfg: dict[str, Any], service: Any) -> _Attached:
     """Open the panel bus from the daemon's ``can_panel`` section and wire it to its machine."""
-    from daemon.config import ConfigError, format_validation
+    from contracts.yaml_files import ConfigError, format_validation
 
     where = f"{service.config.path}: can_panel"
     try:

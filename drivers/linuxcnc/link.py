@@ -65,18 +65,11 @@ import tempfile
 from collections.abc import AsyncIterator
 from pathlib import Path
 
-from daemon.messages import ProbeHit
-from drivers.base import (
-    Capabilities,
-    CncLink,
-    ControllerAlarm,
-    LinkError,
-    ProgramJob,
-    StartRequest,
-    Verdict,
-)
-from drivers.link_config import LinuxCncLinkConfig
-from drivers.linuxcnc_program import Step, auto_program, name_error, plan_steps, where
+from contracts.jobs import ProgramJob, Verdict
+from contracts.messages import ProbeHit
+from drivers.base import Capabilities, CncLink, ControllerAlarm, LinkError, StartRequest
+from drivers.linuxcnc.program import Step, auto_program, name_error, plan_steps, where
+from drivers.linuxcnc.schema import LinuxCncLinkConfig
 
 __all__ = ["LinuxCncLink", "Step", "auto_program", "plan_steps"]
 

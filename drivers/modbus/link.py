@@ -18,19 +18,9 @@ from collections.abc import AsyncIterator
 from pymodbus.client import AsyncModbusTcpClient
 from pymodbus.exceptions import ModbusException
 
-from daemon.messages import ProbeHit
-from drivers.base import (
-    Capabilities,
-    CncLink,
-    ControllerAlarm,
-    LinkError,
-    ProgramJob,
-    StartRequest,
-    Verdict,
-)
-from drivers.hits import HitFactory, MalformedResult, with_backoff
-from drivers.link_config import ModbusLinkConfig
-from drivers.modbus_map import (
+from contracts.jobs import ProgramJob, Verdict
+from contracts.messages import ProbeHit
+from contracts.modbus_map import (
     ALARM_CODES,
     ALARM_TEXT_WORDS,
     COMMANDS,
@@ -47,6 +37,10 @@ from drivers.modbus_map import (
     text_words,
     words_text,
 )
+from drivers.base import Capabilities, CncLink, ControllerAlarm, LinkError, StartRequest
+from drivers.hits import HitFactory, MalformedResult
+from drivers.modbus.schema import ModbusLinkConfig
+from drivers.retry import with_backoff
 
 logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
 STATE_NAMES = {v: k for k, v in STATE_CODES.items()}

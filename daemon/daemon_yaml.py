@@ -15,32 +15,25 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+from pydantic import Field, field_validator, model_validator
 
-from daemon.config import (
-    ConfigError,
+from contracts.setup_files import (
     MachineFile,
     Plan,
     _safe_name,
     _validate,
     check_touch_count,
-    format_validation,
     load_artefact,
     load_machine,
     load_plan,
-    read_yaml,
 )
+from contracts.yaml_files import ConfigError, StrictModel, format_validation, read_yaml
 from daemon.judge import Limit, Tolerances
 from identification.kinematics import Machine
 from identification.model import Artefact
 
 
-class _Strict(BaseModel):
-    # allow_inf_nan=False: .nan / .inf / 1e400 are refused in every float of this schema
-    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
-
-
-class LimitFile(_Strict):
+class LimitFile(StrictModel):
     warn: float | None = Field(None, gt=0)
     fail: float | None = Field(None, gt=0)
     drift_warn: float | None = Field(None, gt=0)
@@ -59,7 +52,7 @@ class LimitFile(_Strict):
         return Limit(self.warn, self.fail, self.drift_warn, self.drift_fail)
 
 
-class TolerancesFile(_Strict):
+class TolerancesFile(StrictModel):
     links: dict[str, LimitFile] = {}
     default_translation_um: LimitFile | None = None
     default_rotation_urad: LimitFile | None = None
@@ -79,13 +72,13 @@ class TolerancesFile(_Strict):
                           self.run_drift_um)
 
 
-class TriggersFile(_Strict):
+class TriggersFile(StrictModel):
     cnc: bool = True  # the controller's start-of-shift request (if the link supports it)
     hmi: bool = True
     can: bool = True
 
 
-class MachineEntry(_Strict):
+class MachineEntry(StrictModel):
     name: str
     machine: str  # path to the machine YAML
     artefact: str
@@ -119,12 +112,12 @@ def is_loopback(host: str) -> bool:
         return host == "localhost"
 
 
-class TlsFile(_Strict):
+class TlsFile(StrictModel):
     cert: str
     key: str
 
 
-class HmiFile(_Strict):
+class HmiFile(StrictModel):
     enabled: bool = True
     host: str = "127.0.0.1"
     port: int = Field(8470, ge=0, le=65535)  # 0 = any free port (tests, demo)
@@ -156,12 +149,12 @@ class HmiFile(_Strict):
         return self
 
 
-class StoreFile(_Strict):
+class StoreFile(StrictModel):
     path: str = "rumba.sqlite"
     synchronous: Literal["FULL", "NORMAL"] = "FULL"
 
 
-class DaemonFile(_Strict):
+class DaemonFile(StrictModel):
     store: StoreFile = StoreFile()
     reports_dir: str = "reports"
     hmi: HmiFile = HmiFile(token_file="hmi.token")
@@ -303,7 +296,7 @@ def load_daemon_config(path: Path | str) -> DaemonConfig:
     if df.can_panel is not None:
         from pydantic import ValidationError
 
-        from drivers.link_config import CanPanelConfig
+        from drivers.can.schema import CanPanelConfig
 
         try:
             panel = CanPanelConfig.model_validate(df.can_panel)

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import aiohttp
 
-from daemon.demo_e2e import _hmi, stop_process
+from demos.e2e import _hmi, stop_process
 
 ROOT = Path(__file__).resolve().parents[1]
 CONFIG = ROOT / "config"

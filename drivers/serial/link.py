@@ -24,20 +24,12 @@ from collections.abc import AsyncIterator, Callable
 import serial
 import serial_asyncio_fast
 
-from daemon.messages import ProbeHit
-from drivers.base import (
-    Capabilities,
-    CncLink,
-    ControllerAlarm,
-    DialectCodec,
-    LinkError,
-    ProgramJob,
-    StartRequest,
-    Verdict,
-)
-from drivers.hits import HitFactory, wait_event
-from drivers.link_config import SerialLinkConfig
-from drivers.serial_dnc_line import (  # noqa: F401 (re-exported: the link's public names)
+from contracts.jobs import DialectCodec, ProgramJob, Verdict
+from contracts.messages import ProbeHit
+from drivers.base import Capabilities, CncLink, ControllerAlarm, LinkError, StartRequest
+from drivers.hits import HitFactory
+from drivers.retry import wait_event
+from drivers.serial.lines import (  # noqa: F401 (re-exported: the link's public names)
     MAX_LINE_BYTES,
     REQUEST_HOLDOFF_S,
     XOFF,
@@ -45,6 +37,7 @@ from drivers.serial_dnc_line import (  # noqa: F401 (re-exported: the link's pub
     _DncProtocol,
     parse_request,
 )
+from drivers.serial.schema import SerialLinkConfig
 
 log = logging.getLogger("rumba.serial")
 

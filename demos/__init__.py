@@ -1,0 +1,1 @@
+"""End-to-end demonstrations: the embedded simulator, LinuxCNC."""

@@ -1,0 +1,1 @@
+"""CAN operator panel: panel and configuration schema (frames in contracts)."""

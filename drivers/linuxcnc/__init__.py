@@ -1,0 +1,1 @@
+"""LinuxCNC: linuxcncrsh and local links, program rewriting, schema."""

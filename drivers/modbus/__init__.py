@@ -1,0 +1,1 @@
+"""Modbus TCP: link and configuration schema (register map in contracts)."""

@@ -1,0 +1,1 @@
+"""OPC UA: link and configuration schema (address space in contracts)."""

@@ -1,0 +1,1 @@
+"""Serial DNC drip-feed: link, result/request lines, configuration schema."""

@@ -1,0 +1,1 @@
+"""Probing programs: tool path, geometry, safety check, cycle time, dialects."""
