@@ -1,0 +1,78 @@
+"""The one touch table of a program: what identifies a touch (seq → pose, ball, touch, repeat)
+and what the program says about it (commanded pose, approach, feed). Links, the session and the
+dialect parsers name and complete every hit here, and nowhere else."""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass, replace
+from typing import Any
+
+from contracts.messages import ProbeHit, TouchId
+
+
+@dataclass(frozen=True)
+class TouchInfo:
+    """What the program says about one touch: identity, commanded pose, approach, feed."""
+
+    id: TouchId
+    b_cmd_deg: float = 0.0
+    c_cmd_deg: float = 0.0
+    direction: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    feed_mm_min: float = 0.0
+
+
+class TouchTable:
+    """The touches of one program by sequence number (seq k is the k-th touch, 1-based)."""
+
+    def __init__(self, touches: Iterable[TouchInfo | TouchId] = ()) -> None:
+        infos = [t if isinstance(t, TouchInfo) else TouchInfo(t) for t in touches]
+        self._by_seq = {t.id.seq: t for t in infos}
+        if len(self._by_seq) != len(infos):
+            raise ValueError("touch table: a sequence number appears twice")
+
+    def __len__(self) -> int:
+        return len(self._by_seq)
+
+    def __iter__(self) -> Iterator[TouchInfo]:
+        return iter(self._by_seq[k] for k in sorted(self._by_seq))
+
+    def __contains__(self, seq: object) -> bool:
+        return seq in self._by_seq
+
+    def get(self, seq: int) -> TouchInfo | None:
+        return self._by_seq.get(seq)
+
+    def ids(self) -> tuple[TouchId, ...]:
+        return tuple(t.id for t in self)
+
+    def mismatch(self, hit: ProbeHit) -> str:
+        """Why ``hit`` does not belong to this program ('' when it does): identities are
+        carried through the program into its results, never guessed."""
+        info = self._by_seq.get(hit.seq)
+        if info is None:
+            return f"controller reported touch seq {hit.seq}, not in the program"
+        t = info.id
+        if hit.ball and (hit.pose, hit.ball, hit.touch, hit.repeat) != (t.pose, t.ball, t.touch,
+                                                                        t.repeat):
+            return (f"touch seq {hit.seq} reported as pose {hit.pose} ball {hit.ball} touch "
+                    f"{hit.touch} rep {hit.repeat}, the program has pose {t.pose} ball {t.ball} "
+                    f"touch {t.touch} rep {t.repeat}")
+        return ""
+
+    def complete(self, hit: ProbeHit, **changes: Any) -> ProbeHit:
+        """``hit`` with what a transport cannot know filled from the program: identity (when the
+        transport reported only seq), commanded pose, approach direction and feed; ``changes``
+        (``t_s=…``, ``raw=…``, ``axes=…``) are applied as given."""
+        info = self._by_seq.get(hit.seq)
+        if info is not None:
+            t = info.id
+            changes.setdefault("pose", t.pose)
+            changes.setdefault("ball", t.ball)
+            changes.setdefault("touch", t.touch)
+            changes.setdefault("repeat", t.repeat)
+            changes.setdefault("b_cmd_deg", info.b_cmd_deg)
+            changes.setdefault("c_cmd_deg", info.c_cmd_deg)
+            changes.setdefault("direction", info.direction)
+            changes.setdefault("feed_mm_min", info.feed_mm_min)
+        return replace(hit, **changes) if changes else hit
