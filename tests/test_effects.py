@@ -186,7 +186,7 @@ def test_machine_file_gravity_drives_the_sag_in_simulator_and_library():
     ([0, -1, 0, 0], "gravity: List should have at most 3 items"),
     (["down", "x", "y"], "gravity.0: Input should be a valid number"),
     ("down", "gravity: Input should be a valid list"),
-    ([0, float("nan"), 1], "gravity: values must be finite"),
+    ([0, float("nan"), 1], "gravity.1: Input should be a finite number"),
 ])
 def test_machine_file_gravity_is_validated(value, expect):
     import yaml
