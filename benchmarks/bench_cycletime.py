@@ -39,12 +39,12 @@ def main() -> None:
     prog = build_program(machine, mf, art, plan)
     t1 = time.perf_counter()
     report = check_program(prog)  # raises SafetyError if the shipped plan were unsafe
+    ct = estimate(prog)  # once: every dialect prints the same estimate in its header
     t2 = time.perf_counter()
-    texts = {name: get_dialect(name).render(prog) for name in sorted(DIALECTS)}
+    texts = {name: get_dialect(name).render(prog, ct) for name in sorted(DIALECTS)}
     t3 = time.perf_counter()
-    ct = estimate(prog)
     print(f"thesis 175 poses: {len(prog.touches)} touches, {len(prog.moves)} blocks; "
-          f"tool path {t1 - t0:.2f} s, safety check {t2 - t1:.2f} s "
+          f"tool path {t1 - t0:.2f} s, safety check + cycle time {t2 - t1:.2f} s "
           f"({report.segments} segments), render 4 dialects {t3 - t2:.2f} s "
           f"({', '.join(f'{k} {len(v) / 1e6:.1f} MB' for k, v in texts.items())}); "
           f"{ct.summary()}")

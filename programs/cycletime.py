@@ -20,7 +20,7 @@ import numpy as np
 from scipy.sparse.csgraph import minimum_spanning_tree
 from scipy.spatial.distance import cdist
 
-from programs.toolpath import Program, plan_visits
+from programs.model import Program, plan_visits
 
 
 @dataclass(frozen=True)

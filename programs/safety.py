@@ -17,18 +17,16 @@ from __future__ import annotations
 
 import itertools
 import math
-from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 
 from identification.kinematics import frames, to_model
-from programs.geometry import tip_affine
-from programs.toolpath import Program, ball_positions, chain_state
+from programs.clearance import TOL_MM, keepout_slack, seg_point, tip_in_workpiece
+from programs.model import Program, ball_positions, chain_state
 
 INDEX_STEP_DEG = 0.5
 INDEX_MARGIN_MM = 0.05  # covers the sampling error of the index sweep
-TOL_MM = 1e-6
 
 
 class SafetyError(ValueError):
@@ -43,55 +41,25 @@ class SafetyReport:
     note: str = ""
 
 
-def tip_in_workpiece(prog: Program, q: np.ndarray) -> np.ndarray:
-    """Stylus-tip centre in the last workpiece frame for controller states q (N, 5).
-
-    For fixed rotary joints the chain is affine in the linear axes (no motion errors here), so
-    each distinct rotary state costs four chain evaluations and every point one product."""
-    a, b, inv = _affine(prog, q[:, 3:5])
-    return b[inv] + np.einsum("ni,nij->nj", q[:, :3], a[inv])
-
-
-def _affine(prog: Program, rot: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    uniq, inv = np.unique(rot, axis=0, return_inverse=True)
-    cache: dict = prog.__dict__.setdefault("_affine_cache", {})  # per rotary state
-    missing = [r for r in map(tuple, uniq) if r not in cache]
-    if missing:
-        a, b = tip_affine(prog.machine, prog.state, np.array(missing, float))
-        for r, aa, bb in zip(missing, a, b, strict=True):
-            cache[r] = (aa, bb)
-    a = np.array([cache[r][0] for r in map(tuple, uniq)])
-    b = np.array([cache[r][1] for r in map(tuple, uniq)])
-    return a, b, inv.reshape(-1)
-
-
-def _tip_exact(prog: Program, q: np.ndarray) -> np.ndarray:
-    m, state = prog.machine, prog.state
-    qm = to_model(m, {a: q[:, i] for i, a in enumerate(prog.axis_letters)}, state.linear_scale)
-    f_w, f_t = frames(m, qm, state)
-    tip = np.asarray(m.tool_tip_mm, float) + state.tip_offset_mm
-    tip_f = np.einsum("nij,j->ni", f_t[:, :3, :3], tip) + f_t[:, :3, 3]
-    return np.einsum("nji,nj->ni", f_w[:, :3, :3], tip_f - f_w[:, :3, 3])
-
-
-def stem_direction(prog: Program, rot: np.ndarray) -> np.ndarray:
-    """Unit spindle direction (tip → spindle) in the last workpiece frame per rotary state."""
+def _rotary_frames(prog: Program, rot: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Workpiece and tool frames at zero linear axes for rotary states (N, 2)."""
     m = prog.machine
     n = len(rot)
     qm = to_model(m, {"X": np.zeros(n), "Y": np.zeros(n), "Z": np.zeros(n),
                       prog.rotary[0]: rot[:, 0], prog.rotary[1]: rot[:, 1]})
-    f_w, f_t = frames(m, qm, prog.state)
-    u = np.einsum("nij,j->ni", f_t[:, :3, :3], np.asarray(m.spindle_axis, float))
+    return frames(m, qm, prog.state)
+
+
+def stem_direction(prog: Program, rot: np.ndarray) -> np.ndarray:
+    """Unit spindle direction (tip → spindle) in the last workpiece frame per rotary state."""
+    f_w, f_t = _rotary_frames(prog, rot)
+    u = np.einsum("nij,j->ni", f_t[:, :3, :3], np.asarray(prog.machine.spindle_axis, float))
     return np.einsum("nji,nj->ni", f_w[:, :3, :3], u)
 
 
 def _r_fw(prog: Program, rot: np.ndarray) -> np.ndarray:
     """Rotation foundation ← last workpiece frame for rotary states (N, 2)."""
-    m = prog.machine
-    n = len(rot)
-    qm = to_model(m, {"X": np.zeros(n), "Y": np.zeros(n), "Z": np.zeros(n),
-                      prog.rotary[0]: rot[:, 0], prog.rotary[1]: rot[:, 1]})
-    return frames(m, qm, prog.state)[0][:, :3, :3]
+    return _rotary_frames(prog, rot)[0][:, :3, :3]
 
 
 def _where(prog: Program, i: int) -> str:
@@ -242,82 +210,13 @@ def _check_segments(prog: Program, qa: np.ndarray, qb: np.ndarray, owner: np.nda
     # a dog-leg of a retract leaving its ball must only move away from the ball centre
     for j in np.nonzero((own >= 0) & dog)[0]:
         c = balls_w[own[j]]
-        if _seg_point(pa[j][None], pb[j][None], c[None])[0] < np.linalg.norm(pa[j] - c) - TOL_MM:
+        if seg_point(pa[j][None], pb[j][None], c[None])[0] < np.linalg.norm(pa[j] - c) - TOL_MM:
             fail(j, "a non-linear rapid of this retract would cut into the ball")
     slack, explain = keepout_slack(prog, pa, pb, own, stem_direction(prog, qa[:, 3:5]))
     bad = np.nonzero(slack < 0)[0]
     if bad.size:
         fail(bad[0], explain(int(bad[0])))
     return float(slack[kinds != "probe"].min(initial=math.inf))
-
-
-def keepout_slack(prog: Program, pa: np.ndarray, pb: np.ndarray, own: np.ndarray,
-                  stem: np.ndarray | None = None) -> tuple[np.ndarray, Callable[[int], str]]:
-    """Slack (mm, < 0 = violation) of tip segments pa→pb (workpiece frame) against every keep-out,
-    and a function giving the reason for segment j's tightest one. ``own`` is the ball index a
-    probing or retract segment may touch (its sphere is exempt, its rod has no standoff margin),
-    or -1. ``stem`` (N, 3): unit spindle direction in the workpiece frame; the stylus stem (a
-    cylinder of ``plan.stylus_length_mm`` from the tip) then sweeps a parallelogram per segment
-    that must keep the standoff from every ball and rod (own ball and rod exempt on probing
-    lines). All balls are handled in one vectorised pass (segments × balls)."""
-    plan, art, mf = prog.plan, prog.artefact, prog.machine_file
-    rs, standoff = plan.stylus_radius_mm, prog.standoff_mm
-    balls_w = ball_positions(art, prog.targets)
-    n, nb = len(pa), len(art.balls)
-    r_ball = np.array([b.diameter_mm / 2 for b in art.balls])
-    r_rod = np.array([b.rod_diameter_mm / 2 for b in art.balls])
-    top = balls_w - np.column_stack([np.zeros((nb, 2)),
-                                     np.sqrt(np.maximum(r_ball**2 - r_rod**2, 0.0))])
-    bot = balls_w - np.column_stack([np.zeros((nb, 2)),
-                                     [b.rod_length_mm for b in art.balls]])
-    # (nb·n) pairs: ball k varies slowest
-    tile = lambda x: np.tile(x, (nb, 1))  # noqa: E731
-    rep = lambda x: np.repeat(x, n, axis=0)  # noqa: E731
-    pa_k, pb_k, c_k, top_k, bot_k = tile(pa), tile(pb), rep(balls_w), rep(top), rep(bot)
-    is_own = (np.tile(own, nb) == np.repeat(np.arange(nb), n)).reshape(nb, n)
-    kinds: list[tuple[str, np.ndarray]] = []  # (reason template, gap (nb, n))
-    slacks: list[np.ndarray] = []
-
-    gap = (_seg_point(pa_k, pb_k, c_k).reshape(nb, n) - (r_ball + rs)[:, None])
-    slacks.append(np.where(is_own, np.inf, gap - standoff + TOL_MM))
-    kinds.append(("stylus comes {gap:.3f} mm from ball {ball} (keep-out: ball + stylus radius "
-                  f"+ standoff {standoff:g} mm)", gap))
-    gap = _seg_seg(pa_k, pb_k, top_k, bot_k).reshape(nb, n) - (r_rod + rs)[:, None]
-    slacks.append(gap - np.where(is_own, 0.0, standoff) + TOL_MM)
-    kinds.append(("stylus comes {gap:.3f} mm from the rod of ball {ball}", gap))
-    if stem is not None:
-        e2 = tile(stem * plan.stylus_length_mm)
-        e1 = pb_k - pa_k
-        r_st = plan.stem_radius_mm
-        gap = _point_par(c_k, pa_k, e1, e2).reshape(nb, n) - r_ball[:, None] - r_st
-        slacks.append(np.where(is_own, np.inf, gap - standoff + TOL_MM))
-        kinds.append(("stylus stem comes {gap:.3f} mm from ball {ball}", gap))
-        gap = _seg_par(top_k, bot_k, pa_k, e1, e2).reshape(nb, n) - r_rod[:, None] - r_st
-        slacks.append(np.where(is_own, np.inf, gap - standoff + TOL_MM))
-        kinds.append(("stylus stem comes {gap:.3f} mm from the rod of ball {ball}", gap))
-    t = mf.table
-    hit = _below_disc(pa, pb, t.surface_z_mm + t.clearance_mm + rs,
-                      t.radius_mm + t.clearance_mm + rs)
-    slacks.append(np.where(hit, -1.0, np.inf)[None, :])
-    kinds.append((f"stylus enters the table keep-out (surface z {t.surface_z_mm:g} + clearance "
-                  f"{t.clearance_mm:g} mm, radius {t.radius_mm:g} mm)", np.zeros((1, n))))
-    for box in mf.keep_out:
-        grow = rs + t.clearance_mm
-        lo, hi = np.array(box.min_mm) - grow, np.array(box.max_mm) + grow
-        slacks.append(np.where(_seg_box(pa, pb, lo, hi), -1.0, np.inf)[None, :])
-        kinds.append((f"stylus enters keep-out box {box.name}", np.zeros((1, n))))
-    every = np.concatenate(slacks, axis=0)  # (rows, n)
-    row_kind = np.concatenate([np.full(len(x), i) for i, x in enumerate(slacks)])
-    row_ball = np.concatenate([np.arange(len(x)) for x in slacks])
-    tight = np.argmin(every, axis=0)
-
-    def explain(j: int) -> str:
-        r = int(tight[j])
-        template, gaps = kinds[row_kind[r]]
-        k = int(row_ball[r])
-        return template.format(gap=gaps[k, j], ball=art.balls[k].id if nb else "")
-
-    return every[tight, np.arange(n)], explain
 
 
 def _check_index(prog: Program, index_moves: list) -> None:
@@ -372,111 +271,3 @@ def _check_index(prog: Program, index_moves: list) -> None:
 
 def _grid(a: float, b: float) -> np.ndarray:
     return np.linspace(a, b, max(2, math.ceil(abs(b - a) / INDEX_STEP_DEG) + 1))
-
-
-# ------------------------------------------------------------------ vectorised distance helpers
-
-
-def _seg_point(a: np.ndarray, b: np.ndarray, p: np.ndarray) -> np.ndarray:
-    ab = b - a
-    L2 = np.einsum("ij,ij->i", ab, ab)
-    t = np.where(L2 > 0, np.einsum("ij,ij->i", p - a, ab) / np.where(L2 > 0, L2, 1), 0.0)
-    t = np.clip(t, 0.0, 1.0)
-    return np.linalg.norm(a + t[:, None] * ab - p, axis=1)
-
-
-def _point_par(c: np.ndarray, p0: np.ndarray, e1: np.ndarray, e2: np.ndarray) -> np.ndarray:
-    """Distance from points c to parallelograms p0 + s·e1 + t·e2 (s, t in [0, 1])."""
-    edges = [(p0, p0 + e1), (p0 + e2, p0 + e1 + e2), (p0, p0 + e2), (p0 + e1, p0 + e1 + e2)]
-    d = np.min([_seg_point(a, b, c) for a, b in edges], axis=0)
-    n = np.cross(e1, e2)
-    nn = np.linalg.norm(n, axis=1)
-    ok = nn > 1e-9 * np.maximum(np.linalg.norm(e1, axis=1) * np.linalg.norm(e2, axis=1), 1e-300)
-    if ok.any():
-        w = c[ok] - p0[ok]
-        g = np.stack([e1[ok], e2[ok]], axis=2)  # (M, 3, 2)
-        st = np.linalg.solve(np.einsum("mki,mkj->mij", g, g),
-                             np.einsum("mki,mk->mi", g, w)[..., None])[..., 0]
-        inside = np.all((st >= 0) & (st <= 1), axis=1)
-        perp = np.abs(np.einsum("mi,mi->m", w, n[ok])) / nn[ok]
-        dd = d[ok]
-        dd[inside] = np.minimum(dd[inside], perp[inside])
-        d[ok] = dd
-    return d
-
-
-def _seg_par(r0: np.ndarray, r1: np.ndarray, p0: np.ndarray, e1: np.ndarray,
-             e2: np.ndarray) -> np.ndarray:
-    """Distance from segments r0→r1 to parallelograms p0 + s·e1 + t·e2: the closer of the
-    segment to the four edges and its end points to the face, 0 where it pierces the face."""
-    edges = [(p0, p0 + e1), (p0 + e2, p0 + e1 + e2), (p0, p0 + e2), (p0 + e1, p0 + e1 + e2)]
-    d = np.min([_seg_seg(r0, r1, a, b) for a, b in edges]
-               + [_point_par(r0, p0, e1, e2), _point_par(r1, p0, e1, e2)], axis=0)
-    m = np.stack([e1, e2, r0 - r1], axis=2)  # p0 + s e1 + t e2 = r0 + w (r1 - r0)
-    det = np.linalg.det(m)
-    ok = np.abs(det) > 1e-9
-    if ok.any():
-        x = np.linalg.solve(m[ok], (r0 - p0)[ok][..., None])[..., 0]
-        pierce = np.all((x >= 0) & (x <= 1), axis=1)
-        dd = d[ok]
-        dd[pierce] = 0.0
-        d[ok] = dd
-    return d
-
-
-def _seg_seg(p1: np.ndarray, q1: np.ndarray, p2: np.ndarray, q2: np.ndarray) -> np.ndarray:
-    """Closest distance between segments p1q1 and p2q2 (Ericson, Real-Time Collision Detection
-    §5.1.9), vectorised."""
-    d1, d2, r = q1 - p1, q2 - p2, p1 - p2
-    a = np.einsum("ij,ij->i", d1, d1)
-    e = np.einsum("ij,ij->i", d2, d2)
-    f = np.einsum("ij,ij->i", d2, r)
-    c = np.einsum("ij,ij->i", d1, r)
-    b = np.einsum("ij,ij->i", d1, d2)
-    denom = a * e - b * b
-    eps = 1e-12
-    s = np.where(denom > eps, np.clip((b * f - c * e) / np.where(denom > eps, denom, 1), 0, 1), 0.0)
-    s = np.where(a <= eps, 0.0, s)
-    t = np.where(e > eps, (b * s + f) / np.where(e > eps, e, 1), 0.0)
-    t_c = np.clip(t, 0.0, 1.0)
-    s = np.where((t != t_c) & (a > eps), np.clip((b * t_c - c) / np.where(a > eps, a, 1), 0, 1), s)
-    c1 = p1 + s[:, None] * d1
-    c2 = p2 + t_c[:, None] * d2
-    return np.linalg.norm(c1 - c2, axis=1)
-
-
-def _below_disc(pa: np.ndarray, pb: np.ndarray, z_thr: float, radius: float) -> np.ndarray:
-    """Does the segment have a point with z < z_thr and radial distance < radius?"""
-    dz = pb[:, 2] - pa[:, 2]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        tz = (z_thr - pa[:, 2]) / dz
-    lo = np.where(dz > 0, 0.0, np.where(dz < 0, tz, 0.0))
-    hi = np.where(dz > 0, tz, np.where(dz < 0, 1.0, 1.0))
-    flat_below = (dz == 0) & (pa[:, 2] < z_thr)
-    lo = np.where(dz == 0, np.where(flat_below, 0.0, 1.0), np.clip(lo, 0, 1))
-    hi = np.where(dz == 0, np.where(flat_below, 1.0, 0.0), np.clip(hi, 0, 1))
-    has = (hi > lo) | flat_below
-    # minimum radial distance on [lo, hi] (quadratic in t)
-    a2 = pa[:, :2]
-    d2 = pb[:, :2] - pa[:, :2]
-    dd = np.einsum("ij,ij->i", d2, d2)
-    tstar = np.where(dd > 0, -np.einsum("ij,ij->i", a2, d2) / np.where(dd > 0, dd, 1), 0.0)
-    tstar = np.clip(tstar, lo, np.maximum(lo, hi))
-    rmin = np.linalg.norm(a2 + tstar[:, None] * d2, axis=1)
-    return has & (rmin < radius)
-
-
-def _seg_box(pa: np.ndarray, pb: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
-    """Slab test: does the segment intersect the axis-aligned box?"""
-    d = pb - pa
-    t0 = np.zeros(len(pa))
-    t1 = np.ones(len(pa))
-    for k in range(3):
-        with np.errstate(divide="ignore", invalid="ignore"):
-            ta = (lo[k] - pa[:, k]) / d[:, k]
-            tb = (hi[k] - pa[:, k]) / d[:, k]
-        par = d[:, k] == 0
-        inside = (pa[:, k] >= lo[k]) & (pa[:, k] <= hi[k])
-        t0 = np.where(par, np.where(inside, t0, 2.0), np.maximum(t0, np.minimum(ta, tb)))
-        t1 = np.where(par, np.where(inside, t1, -1.0), np.minimum(t1, np.maximum(ta, tb)))
-    return t0 <= t1

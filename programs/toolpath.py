@@ -1,4 +1,4 @@
-"""Probing-program generator: touch targets and the tool path for a plan × machine × artefact.
+"""The tool-path builder: touch targets and the moves of a plan × machine × artefact.
 
 Geometry (METHOD.md §1): at every pose each ball is touched four times on its equator, approached
 diagonally in the machine X-Y plane (``messages.TOUCH_DIRECTIONS`` 1-4) and once at the accessible
@@ -13,26 +13,23 @@ ball + stylus radius), probe to the expected contact + overtravel, retract along
 Heights are controller values of the retract axis (the one running along the spindle): before
 every index the tool retracts above everything the rotary sweep can raise; between balls it
 retracts to a transit height clearing every keep-out near the way; the four equator touches are
-visited in the cheapest order around the square whose moves (checked with the safety module's
+visited in the cheapest order around the square whose moves (checked with ``programs.clearance``'s
 keep-out test, stem included) are clear, an edge blocked by a neighbour being lifted over it.
 """
 
 from __future__ import annotations
 
 import itertools
-import json
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
 from contracts.messages import TOUCH_DIRECTIONS, TouchId
 from contracts.setup_files import MAX_TOUCHES, SAFE_NAME, MachineFile, Plan, touch_count
-from contracts.yaml_files import ConfigError
 from identification.kinematics import ChainState, Machine
 from identification.model import Artefact
+from programs.clearance import keepout_slack, tip_in_workpiece
 from programs.geometry import (
     MAX_SWEEP_SAMPLES,
     PoseFrame,
@@ -43,166 +40,23 @@ from programs.geometry import (
     sweep_grid,
     sweep_required,
 )
+from programs.model import (
+    Move,
+    Program,
+    Targets,
+    Touch,
+    ball_positions,
+    chain_state,
+    plan_visits,
+)
+from programs.tour import open_tour
 
 APPROACH_GAP_MM = 0.5  # fed at approach feed between clearance and start point
 ESTIMATE_STANDOFF_MM = 1.0  # standoff / overtravel cap when targets come from a last estimate
 ESTIMATE_OVERTRAVEL_MM = 1.0
 
 
-@dataclass(frozen=True)
-class Targets:
-    """Where the balls and the stylus really are: nominal, or the last run's setup estimate."""
-
-    source: str = "nominal"  # "nominal" | "estimate"
-    ball_offsets_mm: Mapping[str, tuple[float, float, float]] = field(default_factory=dict)
-    tip_offset_mm: tuple[float, float, float] = (0.0, 0.0, 0.0)
-
-
-def load_targets(path: Path | str, artefact: Artefact) -> Targets:
-    """Read ``setup.balls.<id>.value`` and ``setup.probe.value`` (µm, as `rumba analyze --json`)."""
-    try:
-        data = json.loads(Path(path).read_text(encoding="utf-8"))
-    except OSError as e:
-        raise ConfigError(f"{path}: cannot read: {e.strerror}") from None
-    except json.JSONDecodeError as e:
-        raise ConfigError(f"{path}: line {e.lineno}: not valid JSON: {e.msg}") from None
-
-    def vec(node: object, key: str) -> tuple[float, float, float]:
-        v = node.get("value") if isinstance(node, dict) else None
-        if (not isinstance(v, list) or len(v) != 3
-                or not all(isinstance(x, int | float) and math.isfinite(x) for x in v)):
-            raise ConfigError(f"{path}: {key}.value: expected 3 finite numbers (µm)")
-        if max(abs(x) for x in v) > 5000:
-            raise ConfigError(f"{path}: {key}.value: {v} µm is beyond 5 mm: not a setup error")
-        return (v[0] / 1000.0, v[1] / 1000.0, v[2] / 1000.0)
-
-    setup = data.get("setup") if isinstance(data, dict) else None
-    if not isinstance(setup, dict) or not isinstance(setup.get("balls"), dict):
-        raise ConfigError(f"{path}: setup.balls: missing (expected the JSON of `rumba analyze`)")
-    balls = setup["balls"]
-    missing = [b for b in artefact.ids if b not in balls]
-    if missing:
-        raise ConfigError(f"{path}: setup.balls: no estimate for balls {missing}")
-    offsets = {b: vec(balls[b], f"setup.balls.{b}") for b in artefact.ids}
-    tip = vec(setup.get("probe"), "setup.probe")
-    return Targets("estimate", offsets, tip)
-
-
-@dataclass(frozen=True)
-class Touch:
-    """One touch: identity, intended relative direction and its controller points (X, Y, Z)."""
-
-    id: TouchId
-    ball_number: int  # 1-based, artefact file order
-    direction: tuple[float, float, float]  # tool relative to workpiece, machine frame
-    b_deg: float
-    c_deg: float
-    centre: tuple[float, float, float]  # controller X Y Z putting the tip on the ball centre
-    start: tuple[float, float, float]
-    contact: tuple[float, float, float]
-    end: tuple[float, float, float]
-    feed_mm_min: float
-
-
-@dataclass(frozen=True)
-class Move:
-    """One block: ``target`` is the full controller state X Y Z r1 r2 after it; ``words`` are the
-    programmed axes. Kinds: rapid; feed (linear at ``feed_mm_min``: to the start point, or a
-    radial move whose dog-legs would not be clear); probe; retract (back out along a probing
-    line: rapid, or linear when ``feed_mm_min`` > 0); dwell."""
-
-    block: int
-    kind: str
-    target: tuple[float, float, float, float, float]
-    words: tuple[str, ...]
-    feed_mm_min: float = 0.0
-    pose: int = -1
-    ball: str = ""
-    touch: Touch | None = None
-    dwell_s: float = 0.0
-
-
-@dataclass
-class Program:
-    """A generated program, dialect-free: the moves a dialect renders and safety simulates."""
-
-    machine: Machine
-    machine_file: MachineFile
-    artefact: Artefact
-    plan: Plan
-    targets: Targets
-    rotary: tuple[str, str]
-    retract_axis: int  # index 0..2 of the controller linear axis along the spindle
-    standoff_mm: float
-    overtravel_mm: float
-    moves: list[Move] = field(default_factory=list)
-    touches: list[Touch] = field(default_factory=list)
-
-    @property
-    def axis_letters(self) -> tuple[str, str, str, str, str]:
-        return ("X", "Y", "Z", *self.rotary)
-
-    @property
-    def state(self) -> ChainState:
-        return chain_state(self.targets)
-
-    def ball_positions_mm(self) -> np.ndarray:
-        """Ball centres in the last workpiece frame used as targets and keep-outs (mm)."""
-        return ball_positions(self.artefact, self.targets)
-
-
-def chain_state(targets: Targets) -> ChainState:
-    return ChainState(tip_offset_mm=np.asarray(targets.tip_offset_mm, float))
-
-
-def ball_positions(artefact: Artefact, targets: Targets) -> np.ndarray:
-    off = np.array([targets.ball_offsets_mm.get(b.id, (0.0, 0.0, 0.0)) for b in artefact.balls])
-    return artefact.nominal_mm + off
-
-
 # ------------------------------------------------------------------------------- generator
-
-
-def _tour(points: np.ndarray, start: np.ndarray) -> list[int]:
-    """Open tour through ``points`` from ``start`` (unknown: NaN → best of every first point):
-    nearest neighbour, then 2-opt (a handful of balls: this finds the optimum in practice)."""
-    n = len(points)
-    known = not np.any(np.isnan(start))
-
-    def length(o: list[int]) -> float:
-        seq = ([start] if known else []) + [points[i] for i in o]
-        return sum(float(np.linalg.norm(a - b)) for a, b in itertools.pairwise(seq))
-
-    def improve(order: list[int]) -> list[int]:
-        lo = 0 if known else 1  # with an unknown start the first point is the choice
-        improved = True
-        while improved:
-            improved = False
-            for i in range(lo, n - 1):
-                for k in range(i + 1, n):
-                    cand = order[:i] + order[i:k + 1][::-1] + order[k + 1:]
-                    if length(cand) < length(order) - 1e-9:
-                        order, improved = cand, True
-        return order
-
-    def nearest(first: int | None) -> list[int]:
-        left = set(range(n))
-        order: list[int] = []
-        cur = start
-        if first is not None:
-            order, cur = [first], points[first]
-            left.remove(first)
-        while left:
-            j = min(left, key=lambda i: (round(float(np.linalg.norm(points[i] - cur)), 9), i))
-            order.append(j)
-            left.remove(j)
-            cur = points[j]
-        return order
-
-    if known:
-        return improve(nearest(None))
-    tours = [improve(nearest(f)) for f in range(n)]
-    return min(tours, key=lambda o: (round(length(o), 6), o))
 
 
 class _Builder:
@@ -304,20 +158,9 @@ def build_program(machine: Machine, machine_file: MachineFile, artefact: Artefac
     return prog
 
 
-def plan_visits(plan: Plan) -> list[tuple[int, int]]:
-    """(repeat, pose index) of every visit in run order: the poses ``repeats`` times, then —
-    with ``drift_check`` — the first pose once more as the next repeat (its centres against
-    the first visit's give the run's thermal stability)."""
-    visits = [(rep, ip) for rep in range(plan.repeats) for ip in range(len(plan.poses))]
-    if plan.drift_check:
-        visits.append((plan.repeats, 0))
-    return visits
-
 
 def _pose_touches(prog: Program, bld: _Builder, pf: PoseFrame, ip: int, rep: int, seq: int,
                   balls_w: np.ndarray, state: ChainState, z_required) -> int:
-    from programs.safety import keepout_slack, tip_in_workpiece  # safety imports this module
-
     machine, plan, artefact = prog.machine, prog.plan, prog.artefact
     k = prog.retract_axis
     rate = 1.0 / float((pf.jinv @ pf.spindle)[k])
@@ -330,7 +173,7 @@ def _pose_touches(prog: Program, bld: _Builder, pf: PoseFrame, ip: int, rep: int
     q_pts = pf.solve(machine, pts, state)
     rs, clr = plan.stylus_radius_mm, plan.clearance_mm
     table_i = len(pts) - 1 - 8 * len(prog.machine_file.keep_out)
-    order = _tour(centres[:, hz], np.array([bld.pos[i] for i in hz]))
+    order = open_tour(centres[:, hz], np.array([bld.pos[i] for i in hz]))
     pose = plan.poses[ip]
     rot = (bld.pos[3], bld.pos[4])
 
@@ -530,39 +373,3 @@ def _axes(values: Mapping[int, float]) -> list[float | None]:
 
 def _t3(v: np.ndarray) -> tuple[float, float, float]:
     return (float(v[0]), float(v[1]), float(v[2]))
-
-
-@dataclass
-class GeneratedProgram:
-    """A checked program ready for a link: text, auxiliary files, touch table and times."""
-
-    text: str
-    aux_files: dict[str, str]
-    program: Program
-    dialect: str
-    estimated_s: float
-    lower_bound_s: float
-    safety: object  # daemon.safety.SafetyReport
-
-    @property
-    def touches(self) -> list[Touch]:
-        return self.program.touches
-
-
-def generate(machine: Machine, machine_file: MachineFile, artefact: Artefact, plan: Plan,
-             dialect: str, run_id: str | None = None,
-             targets: Targets | None = None) -> GeneratedProgram:
-    """Generate, check (``daemon.safety.SafetyError`` when unsafe), render and time a program.
-    ``run_id`` is accepted for the session's call and not written into the program."""
-    from programs.cycletime import estimate
-    from programs.dialects import get_dialect
-    from programs.safety import check_program
-
-    d = get_dialect(dialect)
-    prog = build_program(machine, machine_file, artefact, plan, targets)
-    report = check_program(prog)
-    text = d.render(prog)
-    ct = estimate(prog)
-    _ = run_id
-    return GeneratedProgram(text, d.aux_files(prog), prog, d.name, ct.estimate_s,
-                            ct.lower_bound_s, report)

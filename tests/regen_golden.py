@@ -6,14 +6,16 @@ from __future__ import annotations
 from pathlib import Path
 
 from contracts.setup_files import artefact_from_dict, load_machine, plan_from_dict
-from programs.dialects import DIALECTS, get_dialect
-from programs.toolpath import Program, build_program
+from programs.dialects import DIALECTS
+from programs.generate import generate
+from programs.model import Program
+from programs.toolpath import build_program
 
 ROOT = Path(__file__).resolve().parent.parent
 GOLDEN = Path(__file__).resolve().parent / "golden"
 
 
-def golden_program() -> Program:
+def golden_setup() -> tuple:
     """A small plan: thesis machine, two balls of the thesis artefact, two poses, one dwell."""
     machine, mf = load_machine(ROOT / "config" / "machines" / "thesis_wcbxfzyt.yaml")
     art = artefact_from_dict({"name": "golden-2ball", "ball_diameter_mm": 25.4,
@@ -25,17 +27,22 @@ def golden_program() -> Program:
     plan = plan_from_dict({"name": "golden-2poses", "stylus_diameter_mm": 6,
                            "poses": [[0, 0], [30, 60]], "dwell_s": 0.2,
                            "feeds": {"probe_mm_min": 300, "approach_mm_min": 2000}})
-    return build_program(machine, mf, art, plan)
+    return machine, mf, art, plan
+
+
+def golden_program() -> Program:
+    """The golden plan's tool path (dialect-free)."""
+    return build_program(*golden_setup())
 
 
 def golden_files() -> dict[str, str]:
-    """File name → expected text, for every dialect (plus Heidenhain's format files)."""
-    prog = golden_program()
+    """File name → expected text, for every dialect (plus Heidenhain's format files), as
+    ``programs.generate`` makes them (checked, rendered, timed)."""
     out = {}
     for name in sorted(DIALECTS):
-        d = get_dialect(name)
-        out[f"{name}.{d.extension}"] = d.render(prog)
-        for aux, text in d.aux_files(prog).items():
+        g = generate(*golden_setup(), name)
+        out[f"{name}.{g.dialect.extension}"] = g.text
+        for aux, text in g.aux_files.items():
             out[f"{name}.{aux}"] = text
     return out
 

@@ -1,5 +1,5 @@
 """Hand-rolled probing programs for simulator tests, in each dialect's emitted subset
-(gcode_templates/*/README.md), independent of daemon/program.py: the nominal touch geometry,
+(gcode_templates/*/README.md), independent of programs/toolpath.py: the nominal touch geometry,
 a simple safe path (retract, index, descend beside the ball, feed, probe, retract)."""
 
 from __future__ import annotations

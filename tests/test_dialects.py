@@ -10,7 +10,8 @@ import pytest
 from contracts.setup_files import artefact_from_dict
 from contracts.yaml_files import ConfigError
 from programs.dialects import DIALECTS, Fanuc, get_dialect, safe_text
-from programs.toolpath import ProgramError, build_program
+from programs.geometry import ProgramError
+from programs.toolpath import build_program
 from tests.regen_golden import golden_program
 
 PROG = golden_program()
@@ -75,9 +76,9 @@ def test_bound_parser_checks_identity_and_fills_the_program_side():
     assert (hit.b_cmd_deg, hit.c_cmd_deg) == (t.b_deg, t.c_deg)
     assert hit.direction == t.direction and hit.feed_mm_min == 300
     wrong = line.replace(f" {t.id.ball} ", " B9 ", 1)
-    with pytest.raises(ValueError, match=f"result seq {t.id.seq} says .* ball B9"):
+    with pytest.raises(ValueError, match=f"touch seq {t.id.seq} reported as .* ball B9"):
         bound.parse_result(wrong)
-    with pytest.raises(ValueError, match="not a touch of this program"):
+    with pytest.raises(ValueError, match="touch seq 999, not in the program"):
         bound.parse_result("RUMBA 999 0 0 B1 1 1 1 2 3 0 0")
 
 

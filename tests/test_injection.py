@@ -26,7 +26,9 @@ from contracts.yaml_files import ConfigError
 from daemon.daemon_yaml import config_from_dict
 from drivers.registry import link_config
 from programs.dialects import get_dialect
-from programs.toolpath import Program, ProgramError, build_program
+from programs.geometry import ProgramError
+from programs.model import Program
+from programs.toolpath import build_program
 from tests.regen_golden import golden_program
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -16,7 +16,8 @@ from contracts.messages import TOUCH_DIRECTIONS
 from contracts.setup_files import artefact_from_dict, load_machine, plan_from_dict
 from contracts.yaml_files import ConfigError
 from identification.kinematics import rotary_columns, tip_minus_ball, to_model
-from programs.toolpath import Targets, ball_positions, build_program, load_targets
+from programs.model import Targets, ball_positions, load_targets
+from programs.toolpath import build_program
 
 CONFIG = Path(__file__).resolve().parent.parent / "config"
 MACHINES = ["thesis_wcbxfzyt", "seed001_wbzfxyct", "vertical_wcayfxzt"]
@@ -173,13 +174,18 @@ def test_nominal_targets_default():
 
 
 def test_generate_checks_renders_and_times(tmp_path):
-    from programs.toolpath import generate
+    from programs.generate import generate
 
     machine, mf, art, plan = _thesis([[0, 0], [30, 60]])
-    g = generate(machine, mf, art, plan, "heidenhain", run_id="r1")
+    g = generate(machine, mf, art, plan, "heidenhain")
     assert g.text.startswith("0 BEGIN PGM RUMBA MM") and len(g.touches) == 40
     assert set(g.aux_files) == {f"RUMBA_{b}.A" for b in art.ids}
     assert 0 < g.lower_bound_s < g.estimated_s < 3 * g.lower_bound_s
+    # one estimate: the header prints the one the result carries
+    assert f"CYCLE TIME {g.cycle_time.summary().replace('(', '').replace(')', '')}" in g.text
+    table = g.touch_table()
+    assert table.ids() == tuple(t.id for t in g.touches)
+    assert table.get(3).feed_mm_min == plan.feeds.probe_mm_min
 
 
 def test_cli_with_targets_from_an_estimate(tmp_path, capsys):

@@ -174,7 +174,7 @@ def test_cli_prints_touch_count_and_times(tmp_path, capsys):
 def test_stylus_stem_is_a_keep_out_body_too():
     """A tip segment passing 48 mm under ball B1 (tip clear of ball and rod) while the 50 mm
     stem above it sweeps through the ball: refused only because of the stem."""
-    from programs.safety import keepout_slack
+    from programs.clearance import keepout_slack
     from tests.regen_golden import golden_program
 
     prog = golden_program()
@@ -191,7 +191,7 @@ def test_stylus_stem_is_a_keep_out_body_too():
 
 
 def test_parallelogram_distances_match_brute_force():
-    from programs.safety import _point_par, _seg_par
+    from programs.clearance import point_par, seg_par
 
     rng = np.random.default_rng(7)
     n = 100
@@ -203,13 +203,13 @@ def test_parallelogram_distances_match_brute_force():
     s, t = (x.ravel()[None, :, None] for x in np.meshgrid(g, g))
     face = p0[:, None] + s * e1[:, None] + t * e2[:, None]
     brute = np.linalg.norm(face - c[:, None], axis=2).min(axis=1)
-    exact = _point_par(c, p0, e1, e2)
+    exact = point_par(c, p0, e1, e2)
     assert np.all(exact <= brute + 1e-9)
     assert np.all(brute - exact < 0.5)  # the brute-force grid is 1 % of the edge lengths
     seg = r0[:, None] + np.linspace(0, 1, 51)[None, :, None] * (r1 - r0)[:, None]
     brute_seg = np.array([np.min(np.linalg.norm(face[i][:, None] - seg[i][None], axis=2))
                           for i in range(0, n, 10)])
-    exact_seg = _seg_par(r0, r1, p0, e1, e2)[::10]
+    exact_seg = seg_par(r0, r1, p0, e1, e2)[::10]
     assert np.all(exact_seg <= brute_seg + 1e-9)
     assert np.all(brute_seg - exact_seg < 1.0)
-    assert np.any(_seg_par(r0, r1, p0, e1, e2) == 0.0)  # some segments pierce their face
+    assert np.any(seg_par(r0, r1, p0, e1, e2) == 0.0)  # some segments pierce their face

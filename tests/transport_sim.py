@@ -1,4 +1,4 @@
-"""Real VirtualController + a real program from the daemon's generator (daemon/program.py) for
+"""Real VirtualController + a real program from the program generator (programs.generate) for
 the transport tests: generator → link → front-end → controller → dialect parser, no test double."""
 
 from __future__ import annotations
@@ -8,8 +8,7 @@ import pytest
 from contracts.jobs import ProgramJob
 from contracts.setup_files import plan_from_dict
 from drivers.base import ControllerAlarm
-from programs.dialects import get_dialect
-from programs.toolpath import generate
+from programs.generate import generate
 from simulators.controller import VirtualController
 from simulators.truth import TruthModel
 from tests.test_sim_probe import TABLE_B2, truth_with
@@ -25,9 +24,9 @@ def make_job(truth: TruthModel, dialect: str, poses=((0.0, 0.0),)) -> ProgramJob
     plan = plan_from_dict({"name": "transport-test", "poses": [list(p) for p in poses],
                            "stylus_diameter_mm": truth.errors.probe.stylus_diameter_mm})
     g = generate(truth.machine, truth.machine_file, truth.artefact, plan, dialect)
-    ids = tuple(sorted((t.id for t in g.touches), key=lambda i: i.seq))
-    return ProgramJob(run_id="t", text=g.text, dialect=dialect, touch_count=len(ids),
-                      touches=ids, files=dict(g.aux_files), codec=get_dialect(dialect))
+    table = g.touch_table()
+    return ProgramJob(run_id="t", text=g.text, dialect=dialect, touch_count=len(table),
+                      touches=table, files=dict(g.aux_files), codec=g.dialect)
 
 
 def real_setup(dialect: str, poses=((0.0, 0.0),), errors: dict | None = None,
@@ -43,7 +42,7 @@ def latched_equal(hits, vc: VirtualController, job: ProgramJob, tol_mm: float) -
     """Every hit is the controller's latch (within the transport's resolution), in order."""
     assert [h.seq for h in hits] == list(range(1, job.touch_count + 1))
     r1, r2 = vc.axes[3], vc.axes[4]
-    for h, t, tid in zip(hits, vc.touches, job.touches, strict=True):
+    for h, t, tid in zip(hits, vc.touches, job.touches.ids(), strict=True):
         assert (h.pose, h.ball, h.touch) == (tid.pose, tid.ball, tid.touch)
         assert h.triggered == t.triggered
         for k in "XYZ":
@@ -53,7 +52,7 @@ def latched_equal(hits, vc: VirtualController, job: ProgramJob, tol_mm: float) -
 
 
 def first_touch_of(job: ProgramJob, ball: str) -> int:
-    return min(t.seq for t in job.touches if t.ball == ball)
+    return min(t.seq for t in job.touches.ids() if t.ball == ball)
 
 
 async def hits_until_miss(link, job: ProgramJob, miss: int) -> list:

@@ -45,7 +45,8 @@ def fuzz(rng: random.Random, n: int, limit_s: float = 10.0) -> Tally:
     from contracts.setup_files import artefact_from_dict, machine_from_dict, plan_from_dict
     from contracts.yaml_files import ConfigError
     from programs.dialects import get_dialect
-    from programs.toolpath import ProgramError, build_program
+    from programs.geometry import ProgramError
+    from programs.toolpath import build_program
 
     tally = Tally("G-code names")
     docs = {k: yaml.safe_load((CONFIG / p).read_text(encoding="utf-8")) for k, p in

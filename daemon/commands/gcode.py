@@ -33,10 +33,10 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from programs.cycletime import estimate
-    from programs.dialects import get_dialect
-    from programs.safety import SafetyError, check_program
-    from programs.toolpath import ProgramError, build_program, load_targets
+    from programs.generate import generate
+    from programs.geometry import ProgramError
+    from programs.model import load_targets
+    from programs.safety import SafetyError
 
     machine, mfile = load_machine(args.machine)
     artefact = load_artefact(args.artefact)
@@ -45,31 +45,28 @@ def run(args: argparse.Namespace) -> int:
     targets = load_targets(args.targets, artefact) if args.targets else None
     t0 = time.perf_counter()
     try:
-        dialect = get_dialect(args.dialect)
-        prog = build_program(machine, mfile, artefact, plan, targets)
-        report = check_program(prog)
-        text = dialect.render(prog)
+        g = generate(machine, mfile, artefact, plan, args.dialect, targets)
     except SafetyError as e:
         raise UserError(f"unsafe program refused: {e}") from None
     except ProgramError as e:
         raise UserError(f"cannot generate the program: {e}") from None
     gen_s = time.perf_counter() - t0
-    ct = estimate(prog)
     if args.output:
         try:
-            args.output.write_text(text, encoding="ascii")
-            for name, body in dialect.aux_files(prog).items():
+            args.output.write_text(g.text, encoding="ascii")
+            for name, body in g.aux_files.items():
                 contained_path(args.output.parent, name).write_text(body, encoding="ascii")
         except OSError as e:
             raise UserError(f"{args.output}: cannot write: {e.strerror}") from None
     else:
-        sys.stdout.write(text)
+        sys.stdout.write(g.text)
     out = sys.stderr if not args.output else sys.stdout
-    print(f"{dialect.name}: {len(prog.touches)} touches, {len(plan.poses)} poses × "
+    report = g.safety
+    print(f"{g.dialect.name}: {len(g.touches)} touches, {len(plan.poses)} poses × "
           f"{len(artefact.balls)} balls × {plan.repeats} repeat(s)"
           f"{' + first pose again (drift check)' if plan.drift_check else ''}, targets "
-          f"{prog.targets.source}"
-          f"; {ct.summary()}; safety: {report.moves} blocks checked, smallest margin beyond "
-          f"the required standoff/clearance "
+          f"{g.program.targets.source}"
+          f"; {g.cycle_time.summary()}; safety: {report.moves} blocks checked, smallest margin "
+          f"beyond the required standoff/clearance "
           f"{report.min_slack_mm:.3f} mm; generated in {gen_s:.2f} s", file=out)
     return 0

@@ -1,0 +1,247 @@
+"""What every controller dialect shares: template rendering, result slots, result parsing."""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import jinja2
+
+from contracts.jobs import VERDICT_CODES
+from contracts.messages import ProbeHit
+from contracts.result_lines import RESULT_FIELDS, RING_SLOTS, SLOT_FIELDS, parse_result_line
+from contracts.setup_files import SAFE_NAME
+from programs.cycletime import CycleTime, estimate
+from programs.geometry import ProgramError
+from programs.model import Program, Touch
+
+TEMPLATES = Path(__file__).resolve().parents[2] / "gcode_templates"
+MISS_TOL_MM = 0.001  # a latch this close to the commanded end point counts as "not triggered"
+_SAFE_TEXT = re.compile(r"\A[A-Za-z0-9 _.,:=+\-]*\Z")  # fullmatch: "$" lets a final "\n" by
+_VERDICTS = tuple(VERDICT_CODES.values())  # the codes a verdict program may write (not 0)
+
+
+def safe_text(s: str) -> str:
+    """Refuse any string that could break out of a comment or a message (only ``[A-Za-z0-9
+    _.,:=+-]`` reach a program)."""
+    if not isinstance(s, str) or not _SAFE_TEXT.fullmatch(s):
+        bad = sorted({ch for ch in str(s) if not _SAFE_TEXT.fullmatch(ch)})
+        raise ProgramError(f"text {s!r} contains {bad}: not allowed in a program")
+    return s
+
+
+class Code(str):
+    """A program fragment built by a dialect class from constants, axis letters and formatted
+    numbers (never from a configuration string): printed as is."""
+
+
+def _finalize(v: object) -> object:
+    """Every ``{{ … }}`` output: plain strings are sanitised (they may come from configuration),
+    ``Code`` passes, floats must have been formatted."""
+    if isinstance(v, bool | float):
+        raise ProgramError(f"template printed a raw {type(v).__name__} {v!r}: format it")
+    if isinstance(v, Code):
+        return v
+    if isinstance(v, str):
+        return safe_text(v)
+    return v
+
+
+def _env() -> jinja2.Environment:
+    return jinja2.Environment(
+        loader=jinja2.FileSystemLoader(str(TEMPLATES)), undefined=jinja2.StrictUndefined,
+        autoescape=False, trim_blocks=True, lstrip_blocks=True, keep_trailing_newline=True,
+        finalize=_finalize)
+
+
+def fmt(v: float) -> str:
+    """A coordinate as the programs print it (4 decimals, never ``-0.0000``)."""
+    s = f"{v:.4f}"
+    return "0.0000" if s == "-0.0000" else s
+
+
+def sfmt(v: float) -> str:
+    """A coordinate with its sign always printed (Heidenhain)."""
+    s = f"{v:+.4f}"
+    return "+0.0000" if s == "-0.0000" else s
+
+
+@dataclass(frozen=True)
+class Block:
+    """What a template sees for one move (strings already formatted and sanitised)."""
+
+    n: int
+    kind: str  # rapid | linear | probe | dwell
+    words: str
+    feed: str
+    dwell: str
+    comment: str
+    touch: dict | None
+
+
+class Dialect:
+    """Base class: subclasses set the constants and the latched-value sources.
+
+    Result slots (variable capture, contracts.result_lines): per touch the program writes slot
+    ``(seq-1) % RING_SLOTS`` with the ``RESULT_FIELDS`` (ball as its 1-based number), then the
+    counter = seq; addresses: ``counter`` and ``slot_address(seq, field)``. Verdict write-back
+    by program (serial DNC): ``verdict_program(code)`` sets ``verdict_variable`` to the code;
+    the CNC's start-of-shift macro clears it before printing ``RUMBA REQUEST <machine>`` and
+    waits for it to become non-zero. Every construct each dialect emits is listed in
+    gcode_templates/<dialect>/README.md."""
+
+    name = ""
+    extension = ""
+    counter = ""
+    slot_prefix = ""
+    slot_base = 0
+    result_line = "RUMBA <seq> <rep> <pose> <ball> <touch> <trig> <x> <y> <z> <r1> <r2>"
+    result_channel = ""  # where the controller writes the result lines
+    verdict_variable = ""  # where the verdict program writes the verdict code (1-4)
+
+    def __init__(self) -> None:
+        self._template = _env().get_template(f"{self.name}/program.j2")
+
+    # ---------------------------------------------------------------- capture
+    def slot_address(self, seq: int, field: int | str) -> str:
+        """Variable holding ``field`` (index or name in RESULT_FIELDS) of touch ``seq``'s slot."""
+        f = RESULT_FIELDS.index(field) if isinstance(field, str) else int(field)
+        return Code(f"{self.slot_prefix}"
+                    f"{self.slot_base + SLOT_FIELDS * ((seq - 1) % RING_SLOTS) + f}")
+
+    def parse_result(self, line: str) -> ProbeHit | None:
+        """Decode one result line; None for other output; ValueError for a broken RUMBA line."""
+        return parse_result_line(line)
+
+    def bind(self, program: Program) -> BoundDialect:
+        """A parser that knows the program: rotary letters, commanded values, identity check."""
+        return BoundDialect(self, program)
+
+    # ---------------------------------------------------------------- verdict
+    def verdict_program(self, code: int) -> str:
+        """A tiny program setting ``verdict_variable`` to ``code`` (1-4; nothing else reaches
+        it, so nothing can be injected), LF line ends, for DNC drip-feeding."""
+        if type(code) is not int or code not in _VERDICTS:  # a bool is not a code
+            raise ProgramError(f"verdict code {code!r}: expected one of {_VERDICTS}")
+        return "\n".join(self._verdict_lines(code)) + "\n"
+
+    def _verdict_lines(self, code: int) -> list[str]:
+        raise NotImplementedError
+
+    # ---------------------------------------------------------------- rendering
+    def sources(self, program: Program) -> list[str]:
+        """Expressions of fields 5..10 (trig, X, Y, Z, r1, r2) right after a probing move."""
+        raise NotImplementedError
+
+    def words(self, letters: Sequence[str], values: Sequence[float]) -> str:
+        """The axis words of one block."""
+        return Code(" ".join(f"{a}{fmt(v)}" for a, v in zip(letters, values, strict=True)))
+
+    def check_ball_id(self, ball: str) -> None:
+        """Refuse a ball id the dialect cannot print."""
+        # a ball id is a word of the result line and part of file names: a safe name, not text
+        if not isinstance(ball, str) or not SAFE_NAME.fullmatch(ball):
+            raise ProgramError(f"ball id {ball!r} is not a safe name (letters, digits, '_', "
+                               "'.', '-', 1-32 characters)")
+
+    def touch_context(self, program: Program, t: Touch) -> dict:
+        """What a template sees of one touch's probing block."""
+        letters = program.axis_letters
+        seq = t.id.seq
+        self.check_ball_id(t.id.ball)  # printed in result lines, messages and file names
+        consts = [t.id.seq, t.id.repeat, t.id.pose, t.ball_number, t.id.touch]
+        return {
+            "seq": seq, "rep": t.id.repeat, "pose": t.id.pose, "ball": t.id.ball,
+            "ball_no": t.ball_number, "touch": t.id.touch,
+            "slot": [(self.slot_address(seq, f), str(v)) for f, v in enumerate(consts)],
+            "latched": [(self.slot_address(seq, 5 + i), Code(src))
+                        for i, src in enumerate(self.sources(program))],
+            "trig_var": self.slot_address(seq, 5),
+            "value_vars": [self.slot_address(seq, 6 + i) for i in range(5)],
+            "end": [fmt(v) for v in t.end], "send": [sfmt(v) for v in t.end],
+            # A TNC probing cycle rapids (FMAX) to the point it is given, then probes along its
+            # direction for DIST of the touch-probe table: it must get the start point.
+            "sstart": [sfmt(v) for v in t.start],
+            "r1": letters[3], "r2": letters[4],
+        }
+
+    def blocks(self, program: Program) -> list[Block]:
+        """Every move of the program as a template block."""
+        out = []
+        letters = program.axis_letters
+        for b in program.artefact.balls:
+            self.check_ball_id(b.id)
+        last_pose = -2
+        for mv in program.moves:
+            comment = ""
+            if mv.kind == "rapid" and set(mv.words) & set(letters[3:]) and mv.pose != last_pose:
+                p = program.plan.poses[mv.pose]
+                comment = f"POSE {mv.pose} {letters[3]} {p.b_deg:g} {letters[4]} {p.c_deg:g}"
+                last_pose = mv.pose
+            touch = None
+            if mv.kind == "probe" and mv.touch is not None:
+                t = mv.touch
+                touch = self.touch_context(program, t)
+                comment = (f"SEQ {t.id.seq} REP {t.id.repeat} POSE {t.id.pose} BALL {t.id.ball}"
+                           f" TOUCH {t.id.touch}")
+            idx = [letters.index(w) for w in mv.words]
+            kind = {"retract": "linear" if mv.feed_mm_min else "rapid",
+                    "feed": "linear"}.get(mv.kind, mv.kind)
+            out.append(Block(mv.block, kind, self.words(mv.words, [mv.target[i] for i in idx]),
+                             fmt(mv.feed_mm_min), f"{mv.dwell_s:.3f}", safe_text(comment),
+                             touch))
+        return out
+
+    def context(self, program: Program, cycle_time: CycleTime) -> dict:
+        """Everything the program template sees."""
+        plan = program.plan
+        for what, name in (("plan", plan.name), ("machine", program.machine.name),
+                           ("artefact", program.artefact.name)):
+            if not isinstance(name, str) or not SAFE_NAME.fullmatch(name):  # a bypass
+                raise ProgramError(f"{what} name {name!r} is not a safe name: not allowed in a "
+                                   "program")
+        info = [f"PLAN {plan.name}", f"MACHINE {program.machine.name}",
+                f"ARTEFACT {program.artefact.name}", f"TOUCHES {len(program.touches)}",
+                f"TARGETS {program.targets.source}",
+                f"STANDOFF {program.standoff_mm:g} OVERTRAVEL {program.overtravel_mm:g}",
+                f"STYLUS DIAMETER {plan.stylus_diameter_mm:g}",
+                f"CYCLE TIME {cycle_time.summary().replace('(', '').replace(')', '')}"]
+        return {"title": "RUMBA PROBING PROGRAM", "info": [safe_text(x) for x in info],
+                "blocks": self.blocks(program), "counter": Code(self.counter),
+                "miss_tol": fmt(MISS_TOL_MM), "r1": program.rotary[0], "r2": program.rotary[1]}
+
+    def render(self, program: Program, cycle_time: CycleTime | None = None) -> str:
+        """The program text (LF line ends; transports convert); ``cycle_time``: the program's
+        estimate when the caller has it (``programs.generate``), else computed here."""
+        ct = cycle_time if cycle_time is not None else estimate(program)
+        return self._template.render(**self.context(program, ct))
+
+    def aux_files(self, program: Program) -> dict[str, str]:
+        """Extra files a controller needs next to the program (Heidenhain format files)."""
+        return {}
+
+
+class BoundDialect:
+    """``parse_result`` for one program: real rotary letters, and identity check and commanded
+    pose, direction and feed from the program's touch table (no guessing)."""
+
+    def __init__(self, dialect: Dialect, program: Program) -> None:
+        self.dialect = dialect
+        self.rotary = program.rotary
+        self.table = program.touch_table()
+        self.name = dialect.name
+
+    def parse_result(self, line: str) -> ProbeHit | None:
+        """Decode one result line and complete it from the program; ValueError when broken or
+        not this program's touch."""
+        hit = self.dialect.parse_result(line)
+        if hit is None:
+            return None
+        why = self.table.mismatch(hit)
+        if why:
+            raise ValueError(why)
+        axes = {"X": hit.axes["X"], "Y": hit.axes["Y"], "Z": hit.axes["Z"],
+                self.rotary[0]: hit.axes["b"], self.rotary[1]: hit.axes["c"]}
+        return self.table.complete(hit, axes=axes)

@@ -1,0 +1,46 @@
+"""The Fanuc macro B dialect (also Haas)."""
+
+from __future__ import annotations
+
+import re
+
+from programs.cycletime import CycleTime
+from programs.dialects.base import Dialect
+from programs.geometry import ProgramError
+from programs.model import Program
+
+
+class Fanuc(Dialect):
+    """Fanuc 0i/30i macro B (also Haas): G31, #5061-#5065, DPRNT, #3000 alarm."""
+
+    name, extension, counter, slot_prefix, slot_base = "fanuc", "nc", "#599", "#", 600
+    result_channel = "DPRNT on the DNC serial port (POPEN/PCLOS)"
+    verdict_variable = "#598"  # common variable, retained (#500-#999), next to the ring
+    verdict_program_number = 9101
+
+    def _verdict_lines(self, code: int) -> list[str]:
+        return ["%", f"O{self.verdict_program_number} (RUMBA VERDICT)",
+                f"{self.verdict_variable}={code}.", "M30", "%"]
+
+    def __init__(self, haas: bool = False) -> None:
+        super().__init__()
+        self.haas = haas
+
+    def check_ball_id(self, ball: str) -> None:
+        if not re.fullmatch(r"[A-Z0-9]{1,12}", ball):
+            raise ProgramError(f"ball id {ball!r}: the fanuc dialect needs [A-Z0-9]{{1,12}} "
+                               "(Fanuc program text and DPRNT have no lower case or '_')")
+
+    def sources(self, program: Program) -> list[str]:
+        if self.haas:
+            rot = [f"#{5061 + 'XYZABC'.index(a)}" for a in program.rotary]
+        else:
+            rot = ["#5064", "#5065"]  # 4th and 5th axis = first and second rotary letter
+        return ["1.", "#5061", "#5062", "#5063", *rot]
+
+    program_number = 9100
+
+    def context(self, program: Program, cycle_time: CycleTime) -> dict:
+        ctx = super().context(program, cycle_time)
+        ctx["info"] = [x.upper() for x in ctx["info"]]
+        return {**ctx, "program_number": self.program_number}

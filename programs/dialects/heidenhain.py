@@ -1,0 +1,65 @@
+"""The Heidenhain TNC conversational dialect."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+from contracts.result_lines import SLOT_FIELDS
+from programs.cycletime import CycleTime
+from programs.dialects.base import Code, Dialect, sfmt
+from programs.geometry import ProgramError
+from programs.model import Program, Touch
+
+
+class Heidenhain(Dialect):
+    """Heidenhain TNC conversational: TCH PROBE 0/1, Q115-Q119, FN 16 F-PRINT, FN 14 ERROR."""
+
+    name, extension, counter, slot_prefix, slot_base = "heidenhain", "h", "Q1599", "Q", 1600
+    result_channel = "FN 16 F-PRINT to RUMBA_RES.TXT next to the program"
+    print_base = 1580
+    verdict_variable = "Q1598"  # next to the ring counter Q1599
+
+    def _verdict_lines(self, code: int) -> list[str]:
+        return ["0 BEGIN PGM RUMBAV MM", f"1 {self.verdict_variable} = +{code}",
+                "2 END PGM RUMBAV MM"]
+
+    def sources(self, program: Program) -> list[str]:
+        return ["TRIG", "Q115", "Q116", "Q117", "Q118", "Q119"]
+
+    def words(self, letters: Sequence[str], values: Sequence[float]) -> str:
+        return Code(" ".join(f"{a}{sfmt(v)}" for a, v in zip(letters, values, strict=True)))
+
+    def touch_context(self, program: Program, t: Touch) -> dict:
+        ctx = super().touch_context(program, t)
+        d = [e - s for e, s in zip(t.end, t.start, strict=True)]
+        n = math.sqrt(sum(x * x for x in d))
+        u = [x / n for x in d]
+        if abs(u[2]) < 1e-9:
+            ctx["cycle"] = 1
+            ctx["angle"] = sfmt(math.degrees(math.atan2(u[1], u[0])) % 360.0)
+        else:
+            k = max(range(3), key=lambda i: abs(u[i]))
+            if abs(abs(u[k]) - 1.0) > 1e-9:
+                raise ProgramError(f"touch seq {t.id.seq}: heidenhain cycles probe in the X-Y "
+                                   "plane or along one axis only")
+            ctx["cycle"] = 0
+            ctx["axis"] = "XYZ"[k] + ("+" if u[k] > 0 else "-")
+        ctx["print"] = [Code(f"Q{self.print_base + f}") for f in range(SLOT_FIELDS)]
+        ctx["format_file"] = Code(f"RUMBA_{t.id.ball}.A")  # checked by touch_context
+        return ctx
+
+    def render(self, program: Program, cycle_time: CycleTime | None = None) -> str:
+        text = super().render(program, cycle_time)
+        lines = text.rstrip("\n").split("\n")
+        return "\n".join(f"{i} {line}" for i, line in enumerate(lines)) + "\n"
+
+    def aux_files(self, program: Program) -> dict[str, str]:
+        out = {}
+        q = [f"Q{self.print_base + f}" for f in range(SLOT_FIELDS) if f != 3]
+        for b in program.artefact.balls:
+            self.check_ball_id(b.id)  # inside a quoted format string and a file name
+            fmt_ = ("RUMBA %.0LF %.0LF %.0LF " + b.id
+                    + " %.0LF %.0LF %.4LF %.4LF %.4LF %.4LF %.4LF\\n")
+            out[f"RUMBA_{b.id}.A"] = f'"{fmt_}", ' + ", ".join(q) + ";\n"
+        return out

@@ -1,0 +1,26 @@
+"""The LinuxCNC 2.9 dialect."""
+
+from __future__ import annotations
+
+from programs.cycletime import CycleTime
+from programs.dialects.base import Dialect
+from programs.model import Program
+
+
+class LinuxCNC(Dialect):
+    """LinuxCNC 2.9: G38.2, #5061-#5070, (LOG,…), O-word miss check guarded by #<_task>."""
+
+    name, extension, counter, slot_prefix, slot_base = "linuxcnc", "ngc", "#3999", "#", 4000
+    log_file = "rumba_results.log"
+    result_channel = f"(LOG,…) lines in {log_file} (LinuxCNC's working directory)"
+    verdict_variable = "#3998"  # user numbered parameter (#31-#5000), next to the ring
+
+    def _verdict_lines(self, code: int) -> list[str]:
+        return ["%", "(RUMBA VERDICT)", f"{self.verdict_variable} = {code}", "M2", "%"]
+
+    def sources(self, program: Program) -> list[str]:
+        rot = [f"#{5061 + 'XYZABC'.index(a)}" for a in program.rotary]
+        return ["#5070", "#5061", "#5062", "#5063", *rot]
+
+    def context(self, program: Program, cycle_time: CycleTime) -> dict:
+        return {**super().context(program, cycle_time), "log_file": self.log_file}
