@@ -2,8 +2,8 @@
 triggers (CNC start-of-shift request, HMI button, CAN panel button, ``rumba verify``) and the HMI.
 
 Startup is strict (a bad config, an unreachable controller or a busy port is a one-line
-``ServiceError``); afterwards a lost link is reconnected with backoff and the service keeps
-serving. Runs that a crash left half-done are marked INTERRUPTED, hits kept.
+``ServiceError``); afterwards a lost link is reconnected with backoff by its session and the
+service keeps serving. Runs that a crash left half-done are marked INTERRUPTED, hits kept.
 """
 
 from __future__ import annotations
@@ -24,8 +24,6 @@ from daemon.store import Store
 from drivers.base import CncLink, LinkError
 
 log = logging.getLogger("rumba.service")
-
-RECONNECT_TIMEOUT_S = 3600.0 * 24  # keep trying; the HMI shows the link as down meanwhile
 
 
 class ServiceError(Exception):
@@ -81,9 +79,8 @@ class Service:
                                        f"{e or type(e).__name__}") from None
                 if any(self.store.run(r).machine == name for r in self.interrupted):
                     await self._stop_leftover(name, link)
-                session = Session(setup, link, self.store, cfg.reports_dir, **self.session_kw)
-                session.reconnect = self._reconnector(name)
-                self.sessions[name] = session
+                self.sessions[name] = Session(setup, link, self.store, cfg.reports_dir,
+                                              **self.session_kw)
             if cfg.hmi.enabled:
                 await self._start_hmi()
             await self._start_panel()
@@ -170,6 +167,7 @@ class Service:
         return bool(session and await session.abort(source))
 
     async def _cnc_trigger(self, name: str) -> None:
+        """The CNC's start-of-shift request (``link.wait_start_request``) → ``session.start``."""
         session, link = self.sessions[name], self.links[name]
         while True:
             try:
@@ -178,9 +176,8 @@ class Service:
                 raise
             except Exception as e:
                 log.warning("%s: waiting for the start request failed: %s", name, e)
-                session.link_ok = False
-                session._publish()
-                await self._reconnector(name)()
+                session.set_link_ok(False)
+                await session.reconnect()
                 continue
             try:
                 run_id = session.start("cnc")
@@ -188,20 +185,6 @@ class Service:
             except Refused as e:
                 log.warning("%s", e)
             await session.wait()
-
-    def _reconnector(self, name: str) -> Callable[[], Any]:
-        async def reconnect() -> None:
-            from drivers.retry import with_backoff
-
-            link, session = self.links[name], self.sessions.get(name)
-            with contextlib.suppress(Exception):
-                await link.close()
-            await with_backoff(link.connect, what=f"{name} controller",
-                               timeout_s=RECONNECT_TIMEOUT_S)
-            if session is not None:
-                session.link_ok = True
-                session._publish()
-        return reconnect
 
     # ----------------------------------------------------------------------------- shutdown
     async def stop(self) -> None:

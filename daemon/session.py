@@ -1,16 +1,16 @@
 """One verification session per machine: the run state machine of DESIGN.md.
 
 IDLE → PREPARE → STREAM → CAPTURE → IDENTIFY → JUDGE → REPORT → WRITE-BACK → IDLE, or ABORTED /
-FAILED with a reason. Raw hits are journaled before anything else looks at them; a probe that
-does not trigger, a hit that does not match the program, a silent controller or a lost link stop
-the run; a second trigger during a run is refused with a reason; abort works from any source.
+FAILED with a reason. Each step is handed the previous step's result and the journal records it
+(raw hits before anything else looks at them); a probe that does not trigger, a hit that does not
+match the program, a silent controller or a lost link stop the run, and the next run reconnects
+first; a second trigger during a run is refused with a reason; abort works from any source.
 """
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
-import dataclasses
 import logging
 import secrets
 import time
@@ -26,11 +26,13 @@ from daemon.daemon_yaml import MachineSetup
 from daemon.judge import judge
 from daemon.store import Store, validate_run_id
 from drivers.base import CncLink, ControllerAlarm, LinkError
+from drivers.retry import with_backoff
 
 log = logging.getLogger("rumba.session")
 
 ABORT_TIMEOUT_S = 10.0
 WRITE_BACK_TIMEOUT_S = 30.0
+RECONNECT_TIMEOUT_S = 3600.0 * 24  # keep trying; the HMI shows the link as down meanwhile
 
 
 class State(StrEnum):
@@ -91,8 +93,7 @@ class Session:
         self._abort_reason: str | None = None
         self._queues: set[asyncio.Queue] = set()
         self.listeners: list[Callable[[dict[str, Any]], None]] = []
-        self.link_ok = True  # the service reconnects before the next run when False
-        self.reconnect: Callable[[], Any] | None = None
+        self.link_ok = True  # False after a lost link: the next run reconnects first
 
     # ------------------------------------------------------------------------------- status
     @property
@@ -129,6 +130,20 @@ class Session:
 
     def unsubscribe(self, q: asyncio.Queue) -> None:
         self._queues.discard(q)
+
+    def set_link_ok(self, ok: bool) -> None:
+        """Record whether the link is up (the service's start-request watcher loses it too)
+        and show it on every status subscriber."""
+        self.link_ok = ok
+        self._publish()
+
+    async def reconnect(self) -> None:
+        """Close the link and connect it again with backoff; the status shows it up again."""
+        with contextlib.suppress(Exception):
+            await self.link.close()
+        await with_backoff(self.link.connect, what=f"{self.setup.name} controller",
+                           timeout_s=RECONNECT_TIMEOUT_S)
+        self.set_link_ok(True)
 
     def _publish(self) -> None:
         st = self.status()
@@ -192,34 +207,18 @@ class Session:
 
     # ---------------------------------------------------------------------------------- run
     async def _run(self, run_id: str) -> None:
-        s = self.setup
+        """The steps in order, each handed the previous one's result."""
         try:
-            if not self.link_ok and self.reconnect is not None:
+            if not self.link_ok:
                 await self.reconnect()
-            ref = self.store.last_good(s.name, before=run_id)
-            prepared = await asyncio.to_thread(self._prepare, s, run_id, ref[1] if ref else None)
-            self.total, self.estimated_s = prepared.job.touch_count, prepared.estimated_s
-            self.store.set_state(run_id, "PREPARE", touch_total=self.total)
-            self._enter(State.STREAM)
+            reference = self.store.last_good(self.setup.name, before=run_id)
+            prepared = await self._prepare_program(run_id, reference)
             hits = await self._capture(prepared)
-            self._enter(State.IDENTIFY)
-            analysis = await asyncio.to_thread(self._analyse, s, hits, run_id)
-            analysis.data["reference_run"] = ref[0] if ref else None
-            self.store.save_centres(run_id, analysis.centre_rows)
-            self.store.save_analysis(run_id, analysis.data)
-            self._enter(State.JUDGE)
-            j = judge(analysis.data, s.tolerances, ref[1] if ref else None)
-            self.store.save_verdict(run_id, j.status, list(j.reasons),
-                                    [c.as_dict() for c in j.checks], j.summary)
-            self.verdict = {"status": j.status, "summary": j.summary, "reasons": list(j.reasons)}
-            self._enter(State.REPORT)
-            from daemon import report  # matplotlib import is slow: only when a run gets here
-            paths = await asyncio.to_thread(report.write_report, self.store, run_id,
-                                            self.reports_dir, s)
-            self.store.save_report(run_id, *paths)
-            self.verdict["report"] = str(paths[0])
+            analysis = await self._identify(run_id, hits, reference)
+            verdict = self._judge(run_id, analysis, reference)
+            await self._report(run_id)
             self._enter(State.WRITE_BACK)
-            await self._write_back(Verdict(j.status, run_id, j.summary, j.reasons), strict=True)
+            await self._write_back(verdict, strict=True)
             self.store.mark_written_back(run_id)
             self._enter(State.IDLE, "")
         except asyncio.CancelledError:
@@ -241,6 +240,46 @@ class Session:
             log.exception("run %s crashed", run_id)
             self._enter(State.FAILED, f"internal error: {type(e).__name__}: {e}")
             await self._write_back(Verdict("ERROR", run_id, str(e)), strict=False)
+
+    async def _prepare_program(self, run_id: str, reference: tuple[str, dict] | None
+                               ) -> pipeline.Prepared:
+        """PREPARE: the checked program and its touch table (targets from the last good run)."""
+        prepared = await asyncio.to_thread(self._prepare, self.setup, run_id,
+                                           reference[1] if reference else None)
+        self.total, self.estimated_s = prepared.job.touch_count, prepared.estimated_s
+        self.store.set_state(run_id, "PREPARE", touch_total=self.total)
+        self._enter(State.STREAM)
+        return prepared
+
+    async def _identify(self, run_id: str, hits: list[ProbeHit],
+                        reference: tuple[str, dict] | None) -> pipeline.Analysis:
+        """IDENTIFY: hits → centres → estimate → analyses, recorded with the reference run."""
+        self._enter(State.IDENTIFY)
+        analysis = await asyncio.to_thread(self._analyse, self.setup, hits, run_id)
+        analysis.data["reference_run"] = reference[0] if reference else None
+        self.store.save_centres(run_id, analysis.centre_rows)
+        self.store.save_analysis(run_id, analysis.data)
+        return analysis
+
+    def _judge(self, run_id: str, analysis: pipeline.Analysis,
+               reference: tuple[str, dict] | None) -> Verdict:
+        """JUDGE: the verdict against the tolerances and the drift from the reference run."""
+        self._enter(State.JUDGE)
+        j = judge(analysis.data, self.setup.tolerances, reference[1] if reference else None)
+        self.store.save_verdict(run_id, j.status, list(j.reasons),
+                                [c.as_dict() for c in j.checks], j.summary)
+        self.verdict = {"status": j.status, "summary": j.summary, "reasons": list(j.reasons)}
+        return Verdict(j.status, run_id, j.summary, j.reasons)
+
+    async def _report(self, run_id: str) -> None:
+        """REPORT: the HTML and JSON report of the run, rendered from the journal."""
+        self._enter(State.REPORT)
+        from daemon import report  # matplotlib import is slow: only when a run gets here
+        paths = await asyncio.to_thread(report.write_report, self.store, run_id,
+                                        self.reports_dir, self.setup)
+        self.store.save_report(run_id, *paths)
+        if self.verdict is not None:
+            self.verdict["report"] = str(paths[0])
 
     async def _capture(self, prepared: pipeline.Prepared) -> list[ProbeHit]:
         run_id = prepared.job.run_id
@@ -298,10 +337,6 @@ class Session:
                                 f"to the controller: {e}") from None
             log.warning("%s: could not write %s to the controller: %s", self.setup.name,
                         verdict.status, e)
-
-
-def replace_hit(hit: ProbeHit, **changes: Any) -> ProbeHit:
-    return dataclasses.replace(hit, **changes)
 
 
 async def _await_run(task: asyncio.Task) -> None:

@@ -110,20 +110,17 @@ async def test_probe_miss_fails_run_journals_the_miss_and_next_run_succeeds(env)
 
 async def test_lost_link_fails_and_reconnects_before_next_run(env):
     s, link = make(env, faults=Faults(link_error_at=40))
-    reconnects = []
-
-    async def reconnect():
-        reconnects.append(1)
-        await link.connect()
-
-    s.reconnect = reconnect
+    link_shown = []
+    s.listeners.append(lambda st: link_shown.append(st["link_ok"]))
     s.start("hmi")
     await s.wait()
     assert s.state == State.FAILED and "connection reset" in s.reason and not s.link_ok
+    assert (link.closed, link.connects) == (0, 0)
     link.faults = Faults()
     s.start("hmi")
     await s.wait()
-    assert reconnects == [1] and s.state == State.IDLE
+    assert (link.closed, link.connects) == (1, 1) and s.state == State.IDLE and s.link_ok
+    assert link_shown[link_shown.index(False):].count(True) > 0  # shown down, then up again
 
 
 async def test_silent_controller_times_out(env):
