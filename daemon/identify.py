@@ -1,5 +1,5 @@
-"""One analysis of measured ball centres → the JSON shared by `rumba analyze`, daemon runs and
-their reports: estimate (setup + links), volumetric distortion, clusters, distances, validation.
+"""One analysis of measured ball centres → the ``Analysis`` shared by `rumba analyze`, daemon
+runs and their reports: estimate (setup + links), volumetric distortion, clusters, validation.
 """
 
 from __future__ import annotations
@@ -11,6 +11,7 @@ from typing import Any
 import numpy as np
 
 from contracts.yaml_files import ConfigError
+from daemon.analysis_result import Analysis
 from daemon.touch_centres import CentreData
 from identification.analyses import (
     clusters,
@@ -52,8 +53,8 @@ def _v(a: Any) -> list[float]:
 def analyse_centres(machine: Machine, artefact: Artefact, data: CentreData, *,
                     validate_poses: Sequence[int] = (), links: Sequence[str] | None = None,
                     repeatability_um: Sequence[float] | None = None,
-                    fixed_radius: bool = False, source: str = "") -> dict[str, Any]:
-    """The whole analysis as a JSON-ready dict (keys of issue 2, plus a few more).
+                    fixed_radius: bool = False, source: str = "") -> Analysis:
+    """The whole analysis (its ``to_json()``: the keys of issue 2, plus a few more).
 
     ``links`` None: the identifiable set; () setup only. Poses in ``validate_poses`` are held
     out of the estimate and predicted (thesis annex B)."""
@@ -93,8 +94,8 @@ def analyse_centres(machine: Machine, artefact: Artefact, data: CentreData, *,
 
 
 def _analyses(machine: Machine, artefact: Artefact, data: CentreData, est: Any, est_c: Any,
-              held: np.ndarray, fixed_radius: bool) -> dict[str, Any]:
-    """Volumetric, clusters, distances, stability, validation → the JSON dict."""
+              held: np.ndarray, fixed_radius: bool) -> Analysis:
+    """Volumetric, clusters, distances, stability, validation → the typed result."""
     c = data.centres
     ids = artefact.ids
     vol = volumetric(machine, artefact, est, c)
@@ -178,7 +179,8 @@ def _analyses(machine: Machine, artefact: Artefact, data: CentreData, est: Any, 
             "max_after_um": round(val.max_after_um, 4),
             "explained_fraction": round(val.explained_fraction, 4),
             "explained_fraction_rms": round(val.explained_fraction_rms, 4)}
-    return finite(out)
+    # built as the JSON, then typed: rounding and NaN → None stay exactly those of the file
+    return Analysis.from_json(finite(out))
 
 
 def finite(obj: Any) -> Any:

@@ -3,7 +3,7 @@ relative to the last good run → PASS / WARN / FAIL with one reason per violate
 
 Decision rule (ISO 14253-1 spirit, stated in every reason): a value whose magnitude exceeds a
 ``fail`` limit fails; one that exceeds ``warn`` — or whose magnitude plus ``k`` standard
-uncertainties reaches ``fail`` (conformance not proven) — warns. Units follow the analysis JSON:
+uncertainties reaches ``fail`` (conformance not proven) — warns. Units follow the ``Analysis``:
 µm for translations and distortions, µrad for rotations.
 """
 
@@ -13,6 +13,7 @@ import math
 from dataclasses import dataclass, field
 from typing import Any
 
+from daemon.analysis_result import Analysis
 from identification.estimate import coverage_factor
 
 STATUS_ORDER = {"PASS": 0, "WARN": 1, "FAIL": 2, "ERROR": 3}
@@ -65,10 +66,10 @@ class Judgement:
     summary: str
 
 
-def volumetric_max_um(analysis: dict[str, Any], key: str = "error_um") -> float | None:
+def volumetric_max_um(analysis: Analysis, after_links: bool = False) -> float | None:
     """Largest distortion vector norm over all poses and balls (µm), or None if absent."""
-    vol = analysis.get("volumetric") or []
-    norms = [math.hypot(*v[key]) for v in vol if v.get(key) is not None]
+    vecs = [v.error_after_links_um if after_links else v.error_um for v in analysis.volumetric]
+    norms = [math.hypot(*v) for v in vecs if v is not None]  # type: ignore[arg-type]
     return max(norms) if norms else None
 
 
@@ -112,28 +113,25 @@ def _reason(c: Check) -> str:
     return f"{c.quantity} = {c.value:+.2f}{std} {c.unit}: {c.limit}"
 
 
-def judge(analysis: dict[str, Any], tol: Tolerances,
-          last_good: dict[str, Any] | None = None) -> Judgement:
-    """Grade one run's analysis (the ``rumba analyze`` JSON) against ``tol``.
+def judge(analysis: Analysis, tol: Tolerances, last_good: Analysis | None = None) -> Judgement:
+    """Grade one run's analysis against ``tol``.
 
     ``last_good`` is the analysis of the last PASS run of the same machine (drift reference)."""
     checks: list[Check] = []
-    ref_links = (last_good or {}).get("links", {})
+    ref_links = last_good.links if last_good is not None else {}
     # The guard band k·u at coverage_k's normal coverage (k = 2: 95.45 %), widened when u
     # rests on a σ estimated from few residual degrees of freedom (Student t, GUM G.3).
-    dof = (analysis.get("estimation") or {}).get("sigma_dof")
+    dof = analysis.estimation.sigma_dof if analysis.estimation is not None else None
     k = tol.coverage_k
     if dof and k > 0:
         k = coverage_factor(float(dof), math.erf(k / math.sqrt(2.0)))
-    for name, est in sorted((analysis.get("links") or {}).items()):
-        unit = est.get("unit", "")
+    for name, est in sorted(analysis.links.items()):
         lim = tol.links.get(name) or (
-            tol.default_rotation_urad if unit == "urad" else tol.default_translation_um)
+            tol.default_rotation_urad if est.unit == "urad" else tol.default_translation_um)
         if lim is None:
             continue
-        ref = ref_links.get(name, {}).get("value")
-        checks += _grade(name, float(est["value"]), est.get("std"), _unit(unit), lim,
-                         k, ref)
+        ref = ref_links[name].value if name in ref_links else None
+        checks += _grade(name, float(est.value), est.std, _unit(est.unit), lim, k, ref)
     if tol.volumetric_max_um is not None:
         vmax = volumetric_max_um(analysis)
         if vmax is None:
@@ -144,7 +142,7 @@ def judge(analysis: dict[str, Any], tol: Tolerances,
             checks += _grade("volumetric distortion max", vmax, None, "µm",
                              tol.volumetric_max_um, k, ref)
     checks += _health(analysis, tol)
-    missing = sorted(set(tol.links) - set(analysis.get("links") or {}))
+    missing = sorted(set(tol.links) - set(analysis.links))
     status = max((c.status for c in checks), key=STATUS_ORDER.__getitem__, default="PASS")
     if status == "ERROR":  # health first: the other numbers come from a suspect measurement
         checks.sort(key=lambda c: c.status != "ERROR")
@@ -158,42 +156,42 @@ def judge(analysis: dict[str, Any], tol: Tolerances,
     return Judgement(status, tuple(reasons), tuple(checks), summary)
 
 
-def _health(analysis: dict[str, Any], tol: Tolerances) -> list[Check]:
+def _health(analysis: Analysis, tol: Tolerances) -> list[Check]:
     """Is the measurement trustworthy? A ball-pose whose sphere radius departs from the run's
     median (thesis §3.4: dirt, a chip, a damaged ball, an early trigger) or a large estimation
     residual makes every identified number suspect: ERROR, naming where."""
     out = []
-    health = analysis.get("health") or []
-    devs = [h["radius_dev_um"] for h in health if h.get("radius_dev_um") is not None]
+    health = analysis.health
+    devs = [h.radius_dev_um for h in health if h.radius_dev_um is not None]
     if tol.sphere_radius_spread_um is not None and devs:
         med = sorted(devs)[len(devs) // 2]
-        worst = max(health, key=lambda h: abs((h.get("radius_dev_um") or med) - med))
-        d = worst["radius_dev_um"] - med
+        worst = max(health, key=lambda h: abs((h.radius_dev_um or med) - med))
+        d = (med if worst.radius_dev_um is None else worst.radius_dev_um) - med
         bad = abs(d) > tol.sphere_radius_spread_um
-        out.append(Check(f"sphere radius, ball {worst['ball']} pose {worst['pose']}", d, None,
+        out.append(Check(f"sphere radius, ball {worst.ball} pose {worst.pose}", d, None,
                          "µm", "ERROR" if bad else "PASS",
                          f"spread limit {tol.sphere_radius_spread_um:g} µm around the run median"
                          + (": dirt, chip, damaged ball or early trigger" if bad else "")))
-    forms = [h for h in health if h.get("form_rms_um") is not None]
+    forms = [(h.form_rms_um, h) for h in health if h.form_rms_um is not None]
     if tol.sphere_form_um is not None and forms:
-        worst = max(forms, key=lambda h: h["form_rms_um"])
-        bad = worst["form_rms_um"] > tol.sphere_form_um
-        out.append(Check(f"sphere form, ball {worst['ball']} pose {worst['pose']}",
-                         worst["form_rms_um"], None, "µm", "ERROR" if bad else "PASS",
+        form, h = max(forms, key=lambda x: x[0])
+        bad = form > tol.sphere_form_um
+        out.append(Check(f"sphere form, ball {h.ball} pose {h.pose}",
+                         form, None, "µm", "ERROR" if bad else "PASS",
                          f"health limit {tol.sphere_form_um:g} µm"))
-    stab = analysis.get("stability")
-    if tol.run_drift_um is not None and stab:
-        w, span = stab["worst"], stab.get("span_min")
-        bad = stab["max_shift_um"] > tol.run_drift_um
+    stab = analysis.stability
+    if tol.run_drift_um is not None and stab is not None:
+        w, span = stab.worst, stab.span_min
+        bad = stab.max_shift_um > tol.run_drift_um
         over = f" over {span:.0f} min" if span is not None else ""
-        out.append(Check(f"revisit shift, ball {w['ball']} pose {w['pose']}",
-                         float(stab["max_shift_um"]), None, "µm", "ERROR" if bad else "PASS",
+        out.append(Check(f"revisit shift, ball {w.ball} pose {w.pose}",
+                         float(stab.max_shift_um), None, "µm", "ERROR" if bad else "PASS",
                          f"health limit {tol.run_drift_um:g} µm{over}"
                          + (": machine or artefact not thermally stable during the run (warm "
                             "up, check the ball is tight) — measurement not trusted"
                             if bad else "")))
     # the residual last: a bad sphere (named above) is usually what inflates it
-    rms = analysis.get("residual_rms_um")
+    rms = analysis.residual_rms_um
     if tol.residual_rms_um is not None and rms is not None:
         ok = rms <= tol.residual_rms_um
         out.append(Check("residual RMS", float(rms), None, "µm", "PASS" if ok else "ERROR",

@@ -11,6 +11,7 @@ import io
 import json
 import math
 import time
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -20,9 +21,10 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
+from daemon.analysis_result import Analysis
 from daemon.judge import Limit, Tolerances, volumetric_max_um
 from daemon.safepath import contained_path
-from daemon.store import Store, validate_run_id
+from daemon.store import Store, TrendPoint, validate_run_id
 
 VERDICT_COLOURS = {"PASS": "#1b873f", "WARN": "#c77700", "FAIL": "#c62828", "ERROR": "#6a1b9a"}
 
@@ -34,17 +36,16 @@ def _png(fig: Figure) -> str:
     return base64.b64encode(buf.getvalue()).decode("ascii")
 
 
-def plot_distortion(analysis: dict[str, Any]) -> str | None:
-    """Arrows of the volumetric distortion (setup errors removed) at every measured centre,
-    magnified; one colour per pose (thesis Fig 3.10)."""
-    vol = analysis.get("volumetric") or []
-    centres = {(c["pose"], c["ball"]): c for c in analysis.get("_centres", [])}
-    if not vol or not centres:
+def plot_distortion(analysis: Analysis,
+                    centres: dict[tuple[int, str], Sequence[float]]) -> str | None:
+    """Arrows of the volumetric distortion (setup errors removed) at every measured centre
+    (``centres``: (pose, ball) → x y z mm), magnified; one colour per pose (thesis Fig 3.10)."""
+    vol = [v for v in analysis.volumetric if (v.pose, v.ball) in centres]
+    if not analysis.volumetric or not centres:
         return None
-    pts = np.array([centres[(v["pose"], v["ball"])]["xyz_mm"] for v in vol
-                    if (v["pose"], v["ball"]) in centres])
-    err = np.array([v["error_um"] for v in vol if (v["pose"], v["ball"]) in centres])
-    poses = np.array([v["pose"] for v in vol if (v["pose"], v["ball"]) in centres])
+    pts = np.array([centres[(v.pose, v.ball)] for v in vol])
+    err = np.array([v.error_um for v in vol])
+    poses = np.array([v.pose for v in vol])
     span = float(np.ptp(pts, axis=0).max()) or 1.0
     emax = float(np.linalg.norm(err, axis=1).max()) or 1.0
     mag = 0.15 * span / (emax * 1e-3)  # the longest arrow is 15 % of the cloud
@@ -74,17 +75,18 @@ def plot_distortion(analysis: dict[str, Any]) -> str | None:
     return _png(fig)
 
 
-def plot_cluster(analysis: dict[str, Any]) -> str | None:
+def plot_cluster(analysis: Analysis) -> str | None:
     """Per pose: |linear relocalisation| (µm), |angular relocalisation| (µrad) and the largest
     local distortion (µm) — rotary errors relocate, linear-axis errors also distort."""
-    cl = [c for c in analysis.get("cluster") or [] if c.get("linear_um") is not None]
+    cl = [c for c in analysis.cluster if c.linear_um is not None]
     if not cl:
         return None
     x = np.arange(len(cl))
-    lin = [math.hypot(*c["linear_um"]) for c in cl]
-    ang = [math.hypot(*c["angular_urad"]) for c in cl]
-    loc = [max((math.hypot(*v) for v in c["local_um"].values()), default=0.0) for c in cl]
-    labels = [f"{c['pose']}\nB{c['b_deg']:g} C{c['c_deg']:g}" for c in cl]
+    lin = [math.hypot(*c.linear_um) for c in cl]  # type: ignore[misc]
+    ang = [math.hypot(*c.angular_urad) for c in cl]  # type: ignore[misc]
+    loc = [max((math.hypot(*v) for v in c.local_um.values()), default=0.0)  # type: ignore[misc]
+           for c in cl]
+    labels = [f"{c.pose}\nB{c.b_deg:g} C{c.c_deg:g}" for c in cl]
     fig = Figure(figsize=(12, 4.5), layout="constrained")
     ax = fig.add_subplot(1, 1, 1)
     w = 0.28
@@ -105,22 +107,22 @@ def _limit_for(name: str, unit: str, tol: Tolerances | None) -> Limit | None:
         tol.default_rotation_urad if unit == "urad" else tol.default_translation_um)
 
 
-def plot_links(analysis: dict[str, Any], tol: Tolerances | None) -> str | None:
-    links = analysis.get("links") or {}
+def plot_links(analysis: Analysis, tol: Tolerances | None) -> str | None:
+    links = analysis.links
     if not links:
         return None
     groups = [("urad", "Rotations / µrad"), ("um", "Translations / µm")]
     fig = Figure(figsize=(12, 4.5), layout="constrained")
-    n = sum(1 for u, _ in groups if any(v["unit"] == u for v in links.values()))
+    n = sum(1 for u, _ in groups if any(v.unit == u for v in links.values()))
     k = 0
     for unit, title in groups:
-        names = [nm for nm, v in links.items() if v["unit"] == unit]
+        names = [nm for nm, v in links.items() if v.unit == unit]
         if not names:
             continue
         k += 1
         ax = fig.add_subplot(1, n, k)
-        vals = [links[nm]["value"] for nm in names]
-        errs = [2 * (links[nm]["std"] or 0.0) for nm in names]
+        vals = [links[nm].value for nm in names]
+        errs = [2 * (links[nm].std or 0.0) for nm in names]
         x = np.arange(len(names))
         ax.errorbar(x, vals, yerr=errs, fmt="o", color="#0d47a1", capsize=5,
                     label="estimate ± 2u")
@@ -138,28 +140,27 @@ def plot_links(analysis: dict[str, Any], tol: Tolerances | None) -> str | None:
     return _png(fig)
 
 
-def plot_trend(trend: list[dict[str, Any]]) -> str | None:
+def plot_trend(trend: list[TrendPoint]) -> str | None:
     if len(trend) < 2:
         return None
     fig = Figure(figsize=(12, 6), layout="constrained")
     ax1 = fig.add_subplot(2, 1, 1)
     ax2 = fig.add_subplot(2, 1, 2, sharex=ax1)
     x = np.arange(len(trend))
-    names = sorted({n for t in trend for n in (t["analysis"].get("links") or {})})
+    names = sorted({n for t in trend for n in t.analysis.links})
     for nm in names:
-        ys = [(t["analysis"].get("links") or {}).get(nm, {}).get("value", np.nan) for t in trend]
-        unit = next(t["analysis"]["links"][nm]["unit"] for t in trend
-                    if nm in (t["analysis"].get("links") or {}))
+        ys = [t.analysis.links[nm].value if nm in t.analysis.links else np.nan for t in trend]
+        unit = next(t.analysis.links[nm].unit for t in trend if nm in t.analysis.links)
         ax1.plot(x, ys, marker="o", ms=3, label=f"{nm} / {'µrad' if unit == 'urad' else 'µm'}")
     ax1.set_title("Link errors over past runs")
     ax1.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     ax1.grid(alpha=0.3)
-    vmax = [volumetric_max_um(t["analysis"]) or np.nan for t in trend]
+    vmax = [volumetric_max_um(t.analysis) or np.nan for t in trend]
     ax2.plot(x, vmax, color="grey", lw=1)
-    ax2.scatter(x, vmax, c=[VERDICT_COLOURS.get(t["verdict"], "grey") for t in trend], zorder=3)
+    ax2.scatter(x, vmax, c=[VERDICT_COLOURS.get(t.verdict, "grey") for t in trend], zorder=3)
     ax2.set_ylabel("max distortion / µm")
     ax2.set_title("Volumetric distortion max norm (dot colour = verdict)")
-    ax2.set_xticks(x, [time.strftime("%m-%d\n%H:%M", time.localtime(t["started_at"]))
+    ax2.set_xticks(x, [time.strftime("%m-%d\n%H:%M", time.localtime(t.started_at))
                        for t in trend], fontsize=7)
     ax2.grid(alpha=0.3)
     return _png(fig)
@@ -233,27 +234,23 @@ def build(store: Store, run_id: str, tol: Tolerances | None) -> tuple[str, dict[
     if analysis is None:
         raise ValueError(f"run {run_id} has no analysis (state {run.state}: {run.reason})")
     verdict = store.verdict(run_id)
-    analysis = dict(analysis)
-    analysis["_centres"] = [{"pose": c[0], "ball": c[1], "xyz_mm": c[4:7]}
-                            for c in store.centres(run_id)]
+    centres = {(c[0], c[1]): c[4:7] for c in store.centres(run_id)}
     trend = store.trend(run.machine)
     plots = [
-        ("Volumetric distortion (thesis Fig 3.10)", plot_distortion(analysis)),
+        ("Volumetric distortion (thesis Fig 3.10)", plot_distortion(analysis, centres)),
         ("Relocalisation vs local distortion", plot_cluster(analysis)),
         ("Link errors", plot_links(analysis, tol)),
         ("Trend over past runs", plot_trend(trend)),
     ]
-    del analysis["_centres"]
-    health = analysis.get("health") or [{}]
+    health = analysis.health
     doc = {
         "run": {k: getattr(run, k) for k in ("id", "machine", "trigger", "state", "reason",
                                                "plan", "artefact", "dialect", "touch_total",
                                                "started_at", "ended_at", "summary")},
-        "verdict": verdict, "analysis": analysis,
-        "trend": [{"run_id": t["run_id"], "started_at": t["started_at"],
-                   "verdict": t["verdict"],
-                   "volumetric_max_um": volumetric_max_um(t["analysis"]),
-                   "links": {k: v["value"] for k, v in (t["analysis"].get("links") or {}).items()}}
+        "verdict": verdict, "analysis": analysis.to_json(),
+        "trend": [{"run_id": t.run_id, "started_at": t.started_at, "verdict": t.verdict,
+                   "volumetric_max_um": volumetric_max_um(t.analysis),
+                   "links": {k: v.value for k, v in t.analysis.links.items()}}
                   for t in trend],
     }
     html = _TEMPLATE.render(
@@ -261,8 +258,8 @@ def build(store: Store, run_id: str, tol: Tolerances | None) -> tuple[str, dict[
         colour=VERDICT_COLOURS.get(verdict["status"] if verdict else "ERROR", "#555"),
         started=time.strftime("%Y-%m-%d %H:%M:%S", time.localtime(run.started_at)),
         generated=time.strftime("%Y-%m-%d %H:%M:%S"), json_name=f"{run_id}.json",
-        health_rad=max((abs(h.get("radius_dev_um") or 0.0) for h in health), default=0.0),
-        health_form=max((h.get("form_rms_um") or 0.0 for h in health), default=0.0))
+        health_rad=max((abs(h.radius_dev_um or 0.0) for h in health), default=0.0),
+        health_form=max((h.form_rms_um or 0.0 for h in health), default=0.0))
     return html, doc
 
 

@@ -20,6 +20,7 @@ from typing import Any, Literal
 
 from contracts.messages import ProbeHit
 from contracts.yaml_files import ConfigError
+from daemon.analysis_result import Analysis
 
 FINAL_STATES = ("DONE", "ABORTED", "FAILED", "INTERRUPTED", "IMPORTED")
 """A run in any other state was cut short by a crash (marked INTERRUPTED on the next start)."""
@@ -128,6 +129,16 @@ class RunRow:
     @property
     def final(self) -> bool:
         return self.state in FINAL_STATES
+
+
+@dataclass(frozen=True)
+class TrendPoint:
+    """One completed run of a machine in its trend: when, its verdict, its analysis."""
+
+    run_id: str
+    started_at: float
+    verdict: str
+    analysis: Analysis
 
 
 class Store:
@@ -303,15 +314,16 @@ class Store:
             "SELECT pose, ball, b_deg, c_deg, x_mm, y_mm, z_mm, radius_dev_um, form_um"
             " FROM centres WHERE run_id=? ORDER BY pose, ball", (run_id,)).fetchall()
 
-    def save_analysis(self, run_id: str, analysis: dict[str, Any]) -> None:
+    def save_analysis(self, run_id: str, analysis: Analysis) -> None:
+        """Stored as its JSON (``Analysis.to_json``): the journal's format stays text."""
         validate_run_id(run_id)
         self.db.execute("INSERT OR REPLACE INTO estimates VALUES (?, ?)",
-                        (run_id, json.dumps(analysis)))
+                        (run_id, json.dumps(analysis.to_json())))
 
-    def analysis(self, run_id: str) -> dict[str, Any] | None:
+    def analysis(self, run_id: str) -> Analysis | None:
         row = self.db.execute("SELECT analysis FROM estimates WHERE run_id=?",
                               (run_id,)).fetchone()
-        return json.loads(row[0]) if row else None
+        return Analysis.from_json(json.loads(row[0])) if row else None
 
     def save_verdict(self, run_id: str, status: str, reasons: list[str],
                      checks: list[dict[str, Any]], summary: str) -> None:
@@ -345,7 +357,8 @@ class Store:
                               (run_id,)).fetchone()
         return (Path(row[0]), Path(row[1])) if row else None
 
-    def last_good(self, machine: str, before: str | None = None) -> tuple[str, dict] | None:
+    def last_good(self, machine: str, before: str | None = None
+                  ) -> tuple[str, Analysis] | None:
         """The most recent PASS run of ``machine`` with its analysis (the drift reference)."""
         q = ("SELECT r.id, e.analysis FROM runs r JOIN estimates e ON e.run_id = r.id"
              " WHERE r.machine=? AND r.verdict='PASS' AND r.state='DONE'")
@@ -354,16 +367,16 @@ class Store:
             q += " AND r.id != ?"
             args += (before,)
         row = self.db.execute(q + " ORDER BY r.started_at DESC LIMIT 1", args).fetchone()
-        return (row[0], json.loads(row[1])) if row else None
+        return (row[0], Analysis.from_json(json.loads(row[1]))) if row else None
 
-    def trend(self, machine: str, limit: int = 30) -> list[dict[str, Any]]:
-        """Completed runs with an analysis, oldest first: run id, time, verdict, analysis."""
+    def trend(self, machine: str, limit: int = 30) -> list[TrendPoint]:
+        """Completed runs with an analysis, oldest first."""
         rows = self.db.execute(
             "SELECT r.id, r.started_at, r.verdict, e.analysis FROM runs r"
             " JOIN estimates e ON e.run_id = r.id WHERE r.machine=? AND r.verdict IS NOT NULL"
             " ORDER BY r.started_at DESC LIMIT ?", (machine, limit)).fetchall()
-        return [{"run_id": r[0], "started_at": r[1], "verdict": r[2],
-                 "analysis": json.loads(r[3])} for r in reversed(rows)]
+        return [TrendPoint(r[0], r[1], r[2], Analysis.from_json(json.loads(r[3])))
+                for r in reversed(rows)]
 
     # ------------------------------------------------------------------------- HMI sessions
     def revoke_hmi_session(self, session_id: str, expires_at: float) -> None:

@@ -67,18 +67,19 @@ def test_json_contract_and_summary(log: Path, tmp_path: Path, capsys) -> None:
 
 def test_links_none_and_list(log: Path, tmp_path: Path) -> None:
     r = run_analysis(log, MACHINE, ARTEFACT, links="none")
-    assert r["links"] == {} and r["residual_rms_um"] > 5.0  # links left in the residual
+    assert r.links == {} and r.residual_rms_um > 5.0  # links left in the residual
     r = run_analysis(log, MACHINE, ARTEFACT, links="ex0c,EB0Z", fixed_radius=True,
                      repeatability_um=[0.66, 0.98, 0.44])
-    assert set(r["links"]) == {"EX0C", "EB0Z"} and r["estimation"]["fixed_radius"]
-    assert r["estimation"]["sigma_um"] == [0.66, 0.98, 0.44]
-    assert r["estimation"]["sigma_from"] == "given"
+    assert r.estimation is not None
+    assert set(r.links) == {"EX0C", "EB0Z"} and r.estimation.fixed_radius
+    assert r.estimation.sigma_um == (0.66, 0.98, 0.44)
+    assert r.estimation.sigma_from == "given"
 
 
 def test_scale_reported_with_calibrated_artefact(log: Path) -> None:
     r = run_analysis(log, MACHINE, CFG / "artefacts/thesis_4ball_scaled.yaml")
-    assert "isotropic_scale" not in r["unobservable"]
-    assert set(r["scale_um_per_m"]) == {"value", "std"}
+    assert "isotropic_scale" not in r.unobservable
+    assert set(r.to_json()["scale_um_per_m"]) == {"value", "std"}
 
 
 @pytest.mark.parametrize(("extra", "match"), [
@@ -117,8 +118,8 @@ def test_shipped_example_log_is_reproducible_and_analysed(tmp_path: Path) -> Non
     regen(tmp_path / "again.csv")
     assert (tmp_path / "again.csv").read_text() == OUT.read_text()
     r = run_analysis(OUT, MACHINE, ARTEFACT, validate_poses=PLAN.indices("validate"))
-    assert r["links"]["EX0C"]["value"] == pytest.approx(-106, abs=2)
-    assert r["validation"]["explained_fraction"] > 0.9
+    assert r.links["EX0C"].value == pytest.approx(-106, abs=2)
+    assert r.validation is not None and r.validation.explained_fraction > 0.9
 
 
 def test_repeats_give_one_centre_and_cluster_per_repeat(tmp_path: Path) -> None:
@@ -129,10 +130,10 @@ def test_repeats_give_one_centre_and_cluster_per_repeat(tmp_path: Path) -> None:
                      repeats=2)
     write_log(tmp_path / "rep.csv", rows)
     r = run_analysis(tmp_path / "rep.csv", MACHINE, ARTEFACT)
-    assert r["estimation"]["centres"] == 56 and len(r["health"]) == 56
-    assert sorted((x["pose"], x["repeat"]) for x in r["cluster"]) == [
+    assert r.estimation is not None and r.estimation.centres == 56 and len(r.health) == 56
+    assert sorted((x.pose, x.repeat) for x in r.cluster) == [
         (p, k) for p in range(7) for k in (0, 1)]
-    assert r["links"]["EX0C"]["value"] == pytest.approx(-50.0, abs=1.0)
+    assert r.links["EX0C"].value == pytest.approx(-50.0, abs=1.0)
 
 
 def _edit(log: Path, out: Path, fn) -> Path:
@@ -207,8 +208,8 @@ def test_seq_gaps_and_duplicates(log, tmp_path, capsys) -> None:
     gap = _edit(log, tmp_path / "gap.csv", drop)
     gap.write_text("\n".join(x for x in gap.read_text().splitlines() if x) + "\n")
     r = run_analysis(gap, MACHINE, ARTEFACT)
-    assert any("seq 41–42 missing" in w for w in r["warnings"])
-    assert any("ball B1 pose 2 repeat 0: only touches [3, 4, 5]" in w for w in r["warnings"])
+    assert any("seq 41–42 missing" in w for w in r.warnings)
+    assert any("ball B1 pose 2 repeat 0: only touches [3, 4, 5]" in w for w in r.warnings)
 
     def dup(i, cells):
         if i == 30:

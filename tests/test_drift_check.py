@@ -72,15 +72,16 @@ def test_a_thermal_drift_during_the_run_makes_the_measurement_untrusted(setup):
                              "params": {"drift_Z_rate": 240}}])
     stable = _run(setup, [])
     tol = Tolerances(run_drift_um=8.0)
-    s = drifting["stability"]
-    assert s["worst"]["pose"] == 0 and 3.0 < s["span_min"] < 6.0
-    assert all(r["repeats"] == [0, 1] for r in s["revisits"]) and len(s["revisits"]) == 4
-    for r in s["revisits"]:  # the drift is along Z, as injected: 240 µm/h × Δt
-        assert r["shift_um"][2] == pytest.approx(240 * r["dt_min"] / 60, abs=2.5)
+    s = drifting.stability
+    assert s is not None and stable.stability is not None
+    assert s.worst.pose == 0 and 3.0 < s.span_min < 6.0
+    assert all(r.repeats == (0, 1) for r in s.revisits) and len(s.revisits) == 4
+    for r in s.revisits:  # the drift is along Z, as injected: 240 µm/h × Δt
+        assert r.shift_um[2] == pytest.approx(240 * r.dt_min / 60, abs=2.5)
     j = judge(drifting, tol)
     assert j.status == "ERROR"
     assert any("revisit shift" in r and "not thermally stable" in r for r in j.reasons)
-    assert stable["stability"]["max_shift_um"] < 5.0  # centre repeatability only (§3.4)
+    assert stable.stability.max_shift_um < 5.0  # centre repeatability only (§3.4)
     j0 = judge(stable, tol)
     assert j0.status == "PASS"
     assert any(c.quantity.startswith("revisit shift") for c in j0.checks)
@@ -96,7 +97,7 @@ def test_without_drift_check_there_is_no_stability_block(setup):
                    "fanuc", seed=1)
     out = analyse_centres(m, a, rows_to_centres(res.rows, a, plan.stylus_radius_mm),
                           validate_poses=plan.indices("validate"))
-    assert "stability" not in out
+    assert out.stability is None and "stability" not in out.to_json()
     assert judge(out, Tolerances(run_drift_um=8.0)).status == "PASS"
 
 

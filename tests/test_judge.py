@@ -3,18 +3,18 @@
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
+from daemon.analysis_result import Analysis, Estimation, Health, LinkError, VolumetricPoint
 from daemon.judge import Limit, Tolerances, judge, volumetric_max_um
 
 
-def analysis(eb0c=10.0, std=1.0, ex0c=-20.0, vol=(30.0, 40.0, 0.0), rms=0.8):
-    return {
-        "links": {"EB0C": {"value": eb0c, "std": std, "unit": "urad"},
-                  "EX0C": {"value": ex0c, "std": 0.2, "unit": "um"}},
-        "volumetric": [{"pose": 0, "ball": "B1", "error_um": [1.0, 2.0, 2.0]},
-                       {"pose": 1, "ball": "B2", "error_um": list(vol)}],
-        "residual_rms_um": rms,
-    }
+def analysis(eb0c=10.0, std=1.0, ex0c=-20.0, vol=(30.0, 40.0, 0.0), rms=0.8) -> Analysis:
+    return Analysis(
+        links={"EB0C": LinkError(eb0c, std, "urad"), "EX0C": LinkError(ex0c, 0.2, "um")},
+        volumetric=(VolumetricPoint(0, ball="B1", error_um=(1.0, 2.0, 2.0)),
+                    VolumetricPoint(1, ball="B2", error_um=tuple(vol))),
+        residual_rms_um=rms)
 
 
 TOL = Tolerances(links={"EB0C": Limit(warn=20, fail=40, drift_warn=5, drift_fail=10)},
@@ -24,7 +24,7 @@ TOL = Tolerances(links={"EB0C": Limit(warn=20, fail=40, drift_warn=5, drift_fail
 
 def test_volumetric_max_is_the_largest_vector_norm():
     assert math.isclose(volumetric_max_um(analysis()), 50.0)
-    assert volumetric_max_um({}) is None
+    assert volumetric_max_um(Analysis()) is None
 
 
 def test_pass_within_every_limit():
@@ -55,11 +55,9 @@ def test_guard_band_widens_when_the_uncertainty_rests_on_few_residuals():
     # factor is t(5) = 2.65 and 15 + 2.65 × 11.5 > 40 (GUM G.3)
     a = analysis(eb0c=15.0, std=11.5)
     assert judge(a, TOL).status == "PASS"
-    a["estimation"] = {"sigma_dof": 5.0}
-    j = judge(a, TOL)
+    j = judge(replace(a, estimation=Estimation(sigma_dof=5.0)), TOL)
     assert j.status == "WARN" and "|value| + 2.65u" in j.reasons[0]
-    a["estimation"] = {"sigma_dof": 500.0}
-    assert judge(a, TOL).status == "PASS"
+    assert judge(replace(a, estimation=Estimation(sigma_dof=500.0)), TOL).status == "PASS"
 
 
 def test_drift_against_last_good_run():
@@ -79,7 +77,7 @@ def test_volumetric_and_health_limits():
     j = judge(analysis(rms=4.0), TOL)
     assert j.status == "ERROR" and "residual RMS" in j.reasons[0]
     assert "measurement not trusted" in j.reasons[0]
-    j = judge({"links": {}}, Tolerances(volumetric_max_um=Limit(fail=10)))
+    j = judge(Analysis(), Tolerances(volumetric_max_um=Limit(fail=10)))
     assert j.status == "FAIL"  # a limit on something missing never passes silently
 
 
@@ -91,11 +89,11 @@ def test_tolerance_on_unidentified_link_is_reported():
 
 
 def test_one_bad_sphere_makes_the_measurement_untrusted():
-    a = analysis()
-    a["health"] = [{"pose": p, "ball": b, "radius_dev_um": 1.0 + 0.1 * p, "form_rms_um": 0.3}
-                   for p in range(5) for b in ("B1", "B2")]
+    health = [Health(p, ball=b, radius_dev_um=1.0 + 0.1 * p, form_rms_um=0.3)
+              for p in range(5) for b in ("B1", "B2")]
+    a = replace(analysis(), health=tuple(health))
     assert judge(a, TOL).status == "PASS"  # a common radius offset (pre-travel) is fine
-    a["health"][7]["radius_dev_um"] = 9.0  # pose 3, ball B2: a chip or an early trigger
-    j = judge(a, TOL)
+    health[7] = replace(health[7], radius_dev_um=9.0)  # pose 3, ball B2: a chip or early trigger
+    j = judge(replace(a, health=tuple(health)), TOL)
     assert j.status == "ERROR" and j.checks[0].status == "ERROR"
     assert j.reasons[0].startswith("sphere radius, ball B2 pose 3 = +7.80 µm")

@@ -62,11 +62,11 @@ def test_json_has_the_numbers_of_the_journal(store_with_runs):
     s, _setup, (html_path, json_path) = store_with_runs
     doc = json.loads(json_path.read_text())
     assert doc["run"]["id"] == "R2" and doc["verdict"] == s.verdict("R2")
-    assert doc["analysis"] == s.analysis("R2")
+    assert doc["analysis"] == s.analysis("R2").to_json()
     ex0c = doc["analysis"]["links"]["EX0C"]
     assert f"{ex0c['value']:+.2f}" in html_path.read_text()
     assert [t["run_id"] for t in doc["trend"]] == ["R1", "R2"]
-    assert doc["trend"][0]["links"]["EX0C"] == s.analysis("R1")["links"]["EX0C"]["value"]
+    assert doc["trend"][0]["links"]["EX0C"] == s.analysis("R1").links["EX0C"].value
 
 
 def test_single_run_has_no_trend_plot_and_run_without_analysis_is_refused(tmp_path):

@@ -6,6 +6,7 @@ import argparse
 import json
 import warnings
 from collections.abc import Sequence
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -15,6 +16,7 @@ from rich.table import Table
 
 from contracts.probing_log import ProbeLogError, read_log
 from contracts.setup_files import load_artefact, load_machine
+from daemon.analysis_result import Analysis
 from daemon.identify import AnalysisError, analyse_centres
 from daemon.touch_centres import rows_to_centres
 
@@ -68,8 +70,8 @@ def run_analysis(log: Path | str, machine_path: Path | str, artefact_path: Path 
                  validate_poses: Sequence[int] = (), links: str = "all",
                  fixed_radius: bool = False,
                  stylus_diameter_mm: float = DEFAULT_STYLUS_DIAMETER_MM,
-                 repeatability_um: Sequence[float] | None = None) -> dict[str, Any]:
-    """Read ``log`` and analyse it (``daemon.analysis.analyse_centres``) → JSON-ready dict."""
+                 repeatability_um: Sequence[float] | None = None) -> Analysis:
+    """Read ``log`` and analyse it (``daemon.identify.analyse_centres``)."""
     machine, _ = load_machine(machine_path)
     artefact = load_artefact(artefact_path)
     chosen = parse_links(links, machine.location_error_names())
@@ -87,87 +89,88 @@ def run_analysis(log: Path | str, machine_path: Path | str, artefact_path: Path 
                               fixed_radius=fixed_radius, source=str(log))
     except (ProbeLogError, AnalysisError) as e:
         raise _user_error(str(e)) from None
-    out["warnings"] = read_warnings + out["warnings"]
-    return {"log": str(log), **out}
+    return replace(out, log=str(log), warnings=(*read_warnings, *out.warnings))
 
 
-def _norm(v: list[float] | None) -> str:
-    return "—" if v is None else f"{np.linalg.norm(v):.2f}"
+def _norm(v: Sequence[float | None] | None) -> str:
+    return "—" if v is None else f"{np.linalg.norm(v):.2f}"  # type: ignore[arg-type]
 
 
-def render(r: dict[str, Any], console: Console) -> None:
+def render(r: Analysis, console: Console) -> None:
     """The readable summary (rich tables, units everywhere)."""
-    e = r["estimation"]
-    console.print(f"[bold]RUMBA analysis[/] of {r['log']} — machine {r['machine']}, artefact "
-                  f"{r['artefact']}: {e['centres']} centres, {e['status']} in "
-                  f"{e['iterations']} iterations")
+    e = r.estimation
+    assert e is not None and r.setup is not None and r.volumetric_max_um is not None
+    console.print(f"[bold]RUMBA analysis[/] of {r.log} — machine {r.machine}, artefact "
+                  f"{r.artefact}: {e.centres} centres, {e.status} in "
+                  f"{e.iterations} iterations")
     t = Table(title="Link errors (ISO 230-1)")
     for h in ("ISO", "thesis", "value", "± std", "unit"):
         t.add_column(h, justify="right" if h in ("value", "± std") else "left")
-    for k, v in r["links"].items():
-        t.add_row(k, v["thesis_name"], f"{v['value']:.2f}", f"{v['std']:.2f}",
-                  "µrad" if v["unit"] == "urad" else "µm")
-    if r["links"]:
+    for k, v in r.links.items():
+        t.add_row(k, v.thesis_name, f"{v.value:.2f}", f"{v.std:.2f}",
+                  "µrad" if v.unit == "urad" else "µm")
+    if r.links:
         console.print(t)
     else:
         console.print("Link errors: none estimated (setup errors only, thesis ch. 3)")
     t = Table(title="Setup errors (µm)")
     for h in ("", "dx", "dy", "dz", "± std x", "± std y", "± std z"):
         t.add_column(h, justify="right")
-    rows = [("probe", r["setup"]["probe"]), *r["setup"]["balls"].items()]
+    rows = [("probe", r.setup.probe), *r.setup.balls.items()]
     for name, s in rows:
-        t.add_row(name, *(f"{x:.2f}" for x in s["value"]), *(f"{x:.2f}" for x in s["std"]))
+        t.add_row(name, *(f"{x:.2f}" for x in s.value), *(f"{x:.2f}" for x in s.std))
     console.print(t)
     t = Table(title="Fit")
     t.add_column("figure")
     t.add_column("value", justify="right")
-    t.add_row("residual RMS", f"{r['residual_rms_um']:.3f} µm")
-    t.add_row("centre std used", " / ".join(f"{x:.3f}" for x in e["sigma_um"])
-              + f" µm ({e['sigma_from']})")
-    t.add_row("condition number (normalised)", f"{r['condition_number']:.1f}")
-    if "scale_um_per_m" in r:
-        s = r["scale_um_per_m"]
-        t.add_row("isotropic scale", f"{s['value']:.2f} ± {s['std']:.2f} µm/m")
-    vm = r["volumetric_max_um"]
-    t.add_row("max volumetric distortion, setup only", f"{vm['before_links']:.2f} µm")
-    t.add_row("max volumetric distortion, with links", f"{vm['after_links']:.2f} µm")
-    h = r["health"]
-    t.add_row("max |radius deviation|", f"{max(abs(x['radius_dev_um']) for x in h):.2f} µm")
-    t.add_row("max form residual RMS", f"{max(x['form_rms_um'] for x in h):.2f} µm")
+    t.add_row("residual RMS", f"{r.residual_rms_um:.3f} µm")
+    t.add_row("centre std used", " / ".join(f"{x:.3f}" for x in e.sigma_um)
+              + f" µm ({e.sigma_from})")
+    t.add_row("condition number (normalised)", f"{r.condition_number:.1f}")
+    if r.scale_um_per_m is not None:
+        sc = r.scale_um_per_m
+        t.add_row("isotropic scale", f"{sc.value:.2f} ± {sc.std:.2f} µm/m")
+    vm = r.volumetric_max_um
+    t.add_row("max volumetric distortion, setup only", f"{vm.before_links:.2f} µm")
+    t.add_row("max volumetric distortion, with links", f"{vm.after_links:.2f} µm")
+    h = r.health
+    t.add_row("max |radius deviation|",
+              f"{max(abs(x.radius_dev_um) for x in h):.2f} µm")  # type: ignore[arg-type]
+    t.add_row("max form residual RMS",
+              f"{max(x.form_rms_um for x in h):.2f} µm")  # type: ignore[type-var]
     console.print(t)
     t = Table(title="Not observable")
     t.add_column("direction")
     t.add_column("absorbed by")
-    for u in r["unobservable"]:
-        t.add_row(u, r["unobservable_absorbed_by"].get(u, ""))
+    for u in r.unobservable:
+        t.add_row(u, r.unobservable_absorbed_by.get(u, ""))
     console.print(t)
     t = Table(title="Cluster analysis per pose (setup-only prediction)")
     for hd in ("pose", "b°", "c°", "|relocalisation| µm", "|rotation| µrad", "max local µm"):
         t.add_column(hd, justify="right")
-    bc = {(v["pose"], v["repeat"]): (v["b_deg"], v["c_deg"]) for v in r["volumetric"]}
-    for x in r["cluster"]:
-        b, c = bc[(x["pose"], x["repeat"])]
-        loc = max(np.linalg.norm(v) for v in x["local_um"].values())
-        pose = str(x["pose"]) + (f" r{x['repeat']}" if x["repeat"] else "")
-        t.add_row(pose, f"{b:g}", f"{c:g}", _norm(x["linear_um"]), _norm(x["angular_urad"]),
+    bc = {(v.pose, v.repeat): (v.b_deg, v.c_deg) for v in r.volumetric}
+    for x in r.cluster:
+        b, c = bc[(x.pose, x.repeat)]
+        loc = max(np.linalg.norm(v) for v in x.local_um.values())  # type: ignore[arg-type]
+        pose = str(x.pose) + (f" r{x.repeat}" if x.repeat else "")
+        t.add_row(pose, f"{b:g}", f"{c:g}", _norm(x.linear_um), _norm(x.angular_urad),
                   f"{loc:.2f}")
     console.print(t)
-    if "validation" in r:
-        v = r["validation"]
+    v = r.validation
+    if v is not None:
+        ef, efr = v.explained_fraction or 0.0, v.explained_fraction_rms or 0.0
         console.print(
-            f"[bold]Validation[/] on poses {v['poses']}: max |ε| {v['max_before_um']:.2f} → "
-            f"{v['max_after_um']:.2f} µm, RMS {v['rms_before_um']:.2f} → "
-            f"{v['rms_after_um']:.2f} µm; link errors explain "
-            f"{100 * v['explained_fraction']:.1f} % (max) / "
-            f"{100 * v['explained_fraction_rms']:.1f} % (RMS)")
-    if "stability" in r:
-        s = r["stability"]
-        span = f" over {s['span_min']:.1f} min" if s.get("span_min") is not None else ""
+            f"[bold]Validation[/] on poses {list(v.poses)}: max |ε| {v.max_before_um:.2f} → "
+            f"{v.max_after_um:.2f} µm, RMS {v.rms_before_um:.2f} → "
+            f"{v.rms_after_um:.2f} µm; link errors explain "
+            f"{100 * ef:.1f} % (max) / {100 * efr:.1f} % (RMS)")
+    st = r.stability
+    if st is not None:
+        span = f" over {st.span_min:.1f} min" if st.span_min is not None else ""
         console.print(
             f"[bold]Stability[/] (poses probed again): largest ball-centre shift "
-            f"{s['max_shift_um']:.2f} µm{span} (ball {s['worst']['ball']}, pose "
-            f"{s['worst']['pose']})")
-    for w in r["warnings"]:
+            f"{st.max_shift_um:.2f} µm{span} (ball {st.worst.ball}, pose {st.worst.pose})")
+    for w in r.warnings:
         console.print(f"[yellow]warning:[/] {w}")
 
 
@@ -178,8 +181,9 @@ def _cmd(args: argparse.Namespace) -> int:
     render(result, Console())
     if args.json:
         try:
-            Path(args.json).write_text(json.dumps(result, indent=1, ensure_ascii=False) + "\n",
-                                       encoding="utf-8")
+            Path(args.json).write_text(
+                json.dumps(result.to_json(), indent=1, ensure_ascii=False) + "\n",
+                encoding="utf-8")
         except OSError as e:
             raise _user_error(f"--json {args.json}: cannot write: {e.strerror}") from None
     return 0

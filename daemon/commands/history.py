@@ -7,6 +7,7 @@ from __future__ import annotations
 import argparse
 import sqlite3
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -137,6 +138,8 @@ def _analyse(setup: MachineSetup, store: Store, hits: list[ProbeHit], run_id: st
         raise UserError(f"{path}: run {run_id}: analysis failed: {e}; nothing imported (use "
                         "--no-analyse to journal the touches anyway)") from None
     ref = store.last_good(setup.name, before=run_id)
+    # recorded like a live run's: the report names the drift reference the verdict used
+    a.data = replace(a.data, reference_run=ref[0] if ref else None)
     return a, judge(a.data, setup.tolerances, ref[1] if ref else None)
 
 
@@ -162,7 +165,7 @@ def _list(store: Store, machine: str | None, limit: int) -> None:
         trend = store.trend(m, limit)
         if len(trend) < 2:
             continue
-        names = sorted({n for x in trend for n in (x["analysis"].get("links") or {})})
+        names = sorted({n for x in trend for n in x.analysis.links})
         tt = Table(title=f"Trend of {m} (oldest first; µrad / µm)")
         tt.add_column("run")
         tt.add_column("verdict")
@@ -170,9 +173,9 @@ def _list(store: Store, machine: str | None, limit: int) -> None:
             tt.add_column(n, justify="right")
         tt.add_column("max dist.", justify="right")
         for x in trend:
-            links = x["analysis"].get("links") or {}
-            v = volumetric_max_um(x["analysis"])
-            tt.add_row(x["run_id"], x["verdict"],
-                       *(f"{links[n]['value']:+.1f}" if n in links else "—" for n in names),
+            links = x.analysis.links
+            v = volumetric_max_um(x.analysis)
+            tt.add_row(x.run_id, x.verdict,
+                       *(f"{links[n].value:+.1f}" if n in links else "—" for n in names),
                        "—" if v is None else f"{v:.1f}")
         console.print(tt)
