@@ -54,7 +54,7 @@ def main() -> None:
     print(f"analyze 4 balls × {len(poses)} poses ({len(rows)} touches, read + fit + estimate + "
           f"analyses): best {t * 1e3:.0f} ms, median {med * 1e3:.0f} ms (target ≤ 300 ms), "
           f"peak {mem:.1f} MiB; "
-          f"residual RMS {r['residual_rms_um']:.2f} µm")
+          f"residual RMS {r.residual_rms_um:.2f} µm")
 
     def monte_carlo() -> tuple[mc.MonteCarlo, mc.MonteCarlo]:
         jac, _ = mc.jacobian(machine, artefact, poses, EIGHT)

@@ -81,7 +81,7 @@ async def _run(setup: MachineSetup, link_cfg: dict) -> dict:
         return {"touches": len(hits), "blocks": link.blocks_sent, "prepare_s": t_prep,
                 "run_s": t_run, "analyse_s": t_an, "cpu_run_s": c_run, "io_wait_s": w_run,
                 "total_s": time.perf_counter() - t0, "cpu_total_s": time.process_time() - c0,
-                "links": analysis.data.get("links", {})}
+                "links": analysis.data.to_json()["links"]}
     finally:
         lcnc_link._Rsh.ask = ask  # type: ignore[method-assign]
         asyncio.sleep = sleep  # type: ignore[assignment]

@@ -15,6 +15,7 @@ import logging
 import secrets
 import time
 from collections.abc import Callable
+from dataclasses import replace
 from enum import StrEnum
 from pathlib import Path
 from typing import Any
@@ -22,6 +23,7 @@ from typing import Any
 from contracts.jobs import Verdict
 from contracts.messages import ProbeHit
 from daemon import pipeline
+from daemon.analysis_result import Analysis
 from daemon.daemon_yaml import MachineSetup
 from daemon.judge import judge
 from daemon.store import Store, validate_run_id
@@ -241,7 +243,7 @@ class Session:
             self._enter(State.FAILED, f"internal error: {type(e).__name__}: {e}")
             await self._write_back(Verdict("ERROR", run_id, str(e)), strict=False)
 
-    async def _prepare_program(self, run_id: str, reference: tuple[str, dict] | None
+    async def _prepare_program(self, run_id: str, reference: tuple[str, Analysis] | None
                                ) -> pipeline.Prepared:
         """PREPARE: the checked program and its touch table (targets from the last good run)."""
         prepared = await asyncio.to_thread(self._prepare, self.setup, run_id,
@@ -252,17 +254,18 @@ class Session:
         return prepared
 
     async def _identify(self, run_id: str, hits: list[ProbeHit],
-                        reference: tuple[str, dict] | None) -> pipeline.Analysis:
+                        reference: tuple[str, Analysis] | None) -> pipeline.Analysis:
         """IDENTIFY: hits → centres → estimate → analyses, recorded with the reference run."""
         self._enter(State.IDENTIFY)
         analysis = await asyncio.to_thread(self._analyse, self.setup, hits, run_id)
-        analysis.data["reference_run"] = reference[0] if reference else None
+        analysis.data = replace(analysis.data,
+                                reference_run=reference[0] if reference else None)
         self.store.save_centres(run_id, analysis.centre_rows)
         self.store.save_analysis(run_id, analysis.data)
         return analysis
 
     def _judge(self, run_id: str, analysis: pipeline.Analysis,
-               reference: tuple[str, dict] | None) -> Verdict:
+               reference: tuple[str, Analysis] | None) -> Verdict:
         """JUDGE: the verdict against the tolerances and the drift from the reference run."""
         self._enter(State.JUDGE)
         j = judge(analysis.data, self.setup.tolerances, reference[1] if reference else None)

@@ -237,9 +237,9 @@ async def test_start_of_shift_verdict_on_cnc_and_links_match_truth(rigs, tmp_pat
     assert r["cnc_variable"] == float(VERDICT_CODES[status])  # where the macro reads it
     assert get_dialect(dialect).verdict_variable == VERDICT_VARIABLE[dialect]
     truth = yaml.safe_load(ERRORS.read_text())["links"]
-    links = r["analysis"]["links"]
+    links = r["analysis"].to_json()["links"]
     assert set(links) == set(truth)  # all 8 link errors identified
-    k = coverage_factor(r["analysis"]["estimation"]["sigma_dof"] or math.inf)  # "3 u"
+    k = coverage_factor(r["analysis"].estimation.sigma_dof or math.inf)  # "3 u"
     for name, v in links.items():
         assert abs(v["value"] - truth[name]) < k * v["std"], (name, v, truth[name], k)
 

@@ -243,13 +243,13 @@ async def test_verification_run_identifies_injected_links(lcnc, tmp_path: Path,
         assert len(hits) == setup.plan.poses.__len__() * 4 * 5
         analysis = store.analysis(run_id)
         assert analysis is not None
-        links = analysis["links"]
+        links = analysis.to_json()["links"]
         injected = truth.errors.links
         assert set(links) == set(injected)
         # "within 3 standard uncertainties" at its 99.73 % coverage: u rests on a σ estimated
         # from the run's own residuals (4 poses: ν ≈ 8.3), so k = t(ν) ≈ 4.2, not 3 (GUM G.3);
         # with k = 3 a clean suite of 16 comparisons failed about one run in four (CI did).
-        k = coverage_factor(analysis["estimation"]["sigma_dof"] or math.inf)
+        k = coverage_factor(analysis.estimation.sigma_dof or math.inf)
         for name, true_v in injected.items():
             v, u = links[name]["value"], links[name]["std"]
             assert abs(v - true_v) <= k * u, f"{name}: {v:.2f} vs {true_v} (u {u:.2f}, k {k:.2f})"

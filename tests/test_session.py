@@ -62,8 +62,8 @@ async def test_full_run_walks_every_state_journals_and_writes_back(env):
     html, js = store.report(run_id)
     assert html.is_file() and js.is_file()
     # the identified link errors are the injected ones (Table B.2) within 3 u
-    links = store.analysis(run_id)["links"]
-    assert abs(links["EX0C"]["value"] + 106.0) < 3 * links["EX0C"]["std"] + 0.5
+    links = store.analysis(run_id).links
+    assert abs(links["EX0C"].value + 106.0) < 3 * links["EX0C"].std + 0.5
 
 
 async def test_second_trigger_during_run_is_refused_with_reason(env):
@@ -162,7 +162,7 @@ async def test_fail_verdict_and_drift_against_last_good(env):
     v = store.verdict(second)
     assert v["status"] == "FAIL" and link.verdicts[-1].status == "FAIL"
     assert any(r.startswith("EB0C drift") for r in v["reasons"])
-    assert store.analysis(second)["reference_run"] == first
+    assert store.analysis(second).reference_run == first
 
 
 async def test_disabled_trigger_is_refused(env):

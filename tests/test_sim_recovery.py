@@ -31,7 +31,7 @@ def test_table_b2_recovered_within_3_sigma(tmp_path, capsys):
     assert "280 touches logged" in capsys.readouterr().out
     # Covariance from the known probing repeatability (thesis §3.4), as `--repeatability-um`:
     # over 20 seeds the worst of the 8 |error|/std exceeded 3 once (expected for 8 normals).
-    res = run_analysis(log, MACHINE, ARTEFACT, repeatability_um=[0.66, 0.98, 0.44])
+    res = run_analysis(log, MACHINE, ARTEFACT, repeatability_um=[0.66, 0.98, 0.44]).to_json()
     truth = load_errors(ERRORS)
     assert set(res["links"]) == set(truth.links)
     for name, est in res["links"].items():
