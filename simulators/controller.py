@@ -12,66 +12,32 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-from dataclasses import dataclass, field
 
 import numpy as np
 
-from contracts.messages import TOUCH_DIRECTIONS
-from simulators.faults import FRONT_END_KINDS, Fault, FaultPlan
-from simulators.gcode import Alarm, ProbeOutcome, make_interpreter, run
-from simulators.probe import collision, first_contact
+from contracts.result_lines import RING_SLOTS
+from simulators.controller_events import (
+    Block,
+    ControllerEvent,
+    EventStream,
+    FaultEvent,
+    PrintLine,
+    RequestRaised,
+    StateChange,
+    TouchResult,
+)
+from simulators.faults import FRONT_END_KINDS, FaultPlan
+from simulators.gcode import Alarm, BlockQueue, ProbeOutcome, make_interpreter, run
+from simulators.latch import ProbeLatch, TouchRecord
+from simulators.motion import check_travel, move_time_s, probing_length_mm
+from simulators.probe import collision
 from simulators.truth import TruthModel
 
-RESULT_SLOTS = 8  # ring of result slots (gcode_templates/README.md)
 VERDICT_VARIABLE = {"fanuc": "#598", "haas": "#598", "siemens": "R4", "heidenhain": "Q1598",
                     "linuxcnc": "#3998"}
 """Where the CNC's start-of-shift macro reads the verdict (gcode_templates/*/README.md): a
 program writing it (a DNC link's verdict program) delivers the verdict, and a verdict written
 by OPC UA or Modbus appears in it too, so one macro serves every transport."""
-TOOL_CHANGE_S = 5.0
-
-
-# ------------------------------------------------------------------------------ events
-
-
-@dataclass(frozen=True)
-class PrintLine:
-    text: str
-
-
-@dataclass(frozen=True)
-class TouchResult:
-    slot: int  # (seq - 1) mod RESULT_SLOTS
-    seq: int  # 1-based probing move number in the program
-    values: dict[str, float]  # X Y Z (mm) and b c (deg), latched (end point on a miss)
-    triggered: bool
-
-
-@dataclass(frozen=True)
-class StateChange:
-    state: str
-    alarm: str | None
-
-
-@dataclass(frozen=True)
-class Block:
-    number: int  # 1-based line of the program
-
-
-@dataclass(frozen=True)
-class RequestRaised:
-    """The start-of-shift macro asked for a run (a serial front-end prints its request line)."""
-
-    machine: str
-
-
-@dataclass(frozen=True)
-class FaultEvent:
-    kind: str
-    fault: Fault
-
-
-ControllerEvent = PrintLine | TouchResult | StateChange | Block | FaultEvent | RequestRaised
 
 
 class _Variables(dict):
@@ -84,59 +50,6 @@ class _Variables(dict):
     def __setitem__(self, key: str, value: float | str) -> None:
         super().__setitem__(key, value)
         self._on_write(key, value)
-
-
-@dataclass
-class TouchRecord:
-    """Everything the controller knows about one probing move (for the offline log)."""
-
-    seq: int
-    t_s: float
-    start: np.ndarray
-    end: np.ndarray
-    latched: dict[str, float]
-    triggered: bool
-    feed_mm_min: float
-    touch: int  # 1..5 recognised from the move direction, 0 otherwise
-    direction: tuple[float, float, float]
-    ball: int  # ball index the move aims at (nearest nominal centre), -1 none
-    contact_target: int | None  # what the stylus met (ball index, -1-k obstacle), None
-
-
-# ------------------------------------------------------------------------- block source
-
-
-class _Blocks:
-    def __init__(self) -> None:
-        self.lines: list[str] = []
-        self.complete = False
-        self._more = asyncio.Event()
-
-    def extend(self, lines: list[str]) -> None:
-        self.lines.extend(lines)
-        self._more.set()
-
-    def close(self) -> None:
-        self.complete = True
-        self._more.set()
-
-    async def get(self, index: int) -> str | None:
-        while index >= len(self.lines):
-            if self.complete:
-                return None
-            self._more.clear()
-            await self._more.wait()
-        return self.lines[index]
-
-
-# ------------------------------------------------------------------------- controller
-
-
-@dataclass
-class _Visit:
-    key: tuple = ()
-    noise_mm: np.ndarray = field(default_factory=lambda: np.zeros(3))
-    touches: set[int] = field(default_factory=set)
 
 
 class VirtualController:
@@ -174,32 +87,25 @@ class VirtualController:
         self.axes = ("X", "Y", "Z", *truth.rotary_letters)
         self._pos = {a: 0.0 for a in self.axes}
         self._pos["Z"] = self.reference("Z")
-        self._subs: list[asyncio.Queue] = []
-        self._blocks: _Blocks | None = None
+        self._events = EventStream()
+        self._blocks: BlockQueue | None = None
         self._task: asyncio.Task | None = None
         self._resume = asyncio.Event()
         self._resume.set()
         self._finished = asyncio.Event()
         self._pending_s = 0.0
-        self._visit = _Visit()
+        self._latch = ProbeLatch(truth, rng_seed)
         self._rotary_moves = 0
         self._drop_lines = 0
         self._seq = 0
-        self._rng = np.random.default_rng(rng_seed)
-        self._nominal_cache: dict[tuple[float, float], np.ndarray] = {}
-        self._deferring = False
-        self._deferred: list[ControllerEvent] = []
         self._line_no, self._line_text = 0, ""
 
     # ---------------------------------------------------------------- public API
     def subscribe(self) -> asyncio.Queue:
-        q: asyncio.Queue = asyncio.Queue()
-        self._subs.append(q)
-        return q
+        return self._events.subscribe()
 
     def unsubscribe(self, q: asyncio.Queue) -> None:
-        with contextlib.suppress(ValueError):
-            self._subs.remove(q)
+        self._events.unsubscribe(q)
 
     async def load_program(self, text: str, dialect: str, files: dict[str, str] | None = None
                            ) -> None:
@@ -208,7 +114,7 @@ class VirtualController:
             raise RuntimeError(f"cannot load a program while {self.state}")
         make_interpreter(dialect, self)  # validates the dialect name now
         self.files.update(files or {})
-        self._blocks = _Blocks()
+        self._blocks = BlockQueue()
         self._blocks.extend(text.replace("\r\n", "\n").replace("\r", "\n").split("\n"))
         self._blocks.close()
         self._dialect_now = dialect
@@ -237,7 +143,7 @@ class VirtualController:
                 "running", "hold"):
             if self.state in ("running", "hold"):
                 raise RuntimeError("a program is already running")
-            self._blocks = _Blocks()
+            self._blocks = BlockQueue()
             self._dialect_now = self.dialect
             self._blocks.extend([line.rstrip("\r\n")])
             self._begin()
@@ -259,7 +165,7 @@ class VirtualController:
         self._resume.set()
         if self._blocks is not None:
             self._blocks.close()
-        self._flush()
+        self._events.flush()
         self._set_state("idle", self.alarm)
         self._finished.set()
 
@@ -300,8 +206,7 @@ class VirtualController:
         """Restart the probing-noise sequence: a run's noise no longer depends on the runs
         before it on this controller (tests sharing one simulated CNC)."""
         self.rng_seed = seed
-        self._rng = np.random.default_rng(seed)
-        self._visit = _Visit()
+        self._latch.reseed(seed)
 
     def feed_hold(self) -> None:
         if self.state == "running":
@@ -320,30 +225,15 @@ class VirtualController:
     def _q(self, pos: dict[str, float]) -> np.ndarray:
         return np.array([pos[a] for a in self.axes], float)
 
-    def _check_travel(self, target: dict[str, float]) -> None:
-        for a in self.axes:
-            lo, hi = self.truth.machine.axes[a].travel
-            if not lo - 1e-9 <= target[a] <= hi + 1e-9:
-                raise Alarm(f"OVERTRAVEL {a}{target[a]:+.4f} outside [{lo:g}, {hi:g}]")
-
     def move(self, target: dict[str, float], feed_mm_min: float | None) -> None:
-        self._check_travel(target)
+        check_travel(self.truth.machine, self.axes, target)
         q0, q1 = self._q(self._pos), self._q(target)
         hit = collision(self.truth, q0, q1, self.machine_time_s + self._pending_s)
         if hit:
             raise Alarm(f"PROBE COLLISION: {hit} on the move to "
                         + " ".join(f"{a}{target[a]:.4f}" for a in self.axes))
-        dyn = self.truth.machine_file.dynamics
-        lin = float(np.linalg.norm(q1[:3] - q0[:3]))
-        rot = float(np.max(np.abs(q1[3:] - q0[3:])))
-        if feed_mm_min is None:
-            dt = max(np.max(np.abs(q1[:3] - q0[:3])) / dyn.rapid_mm_min,
-                     rot / dyn.rotary_rapid_deg_min) * 60.0
-        else:
-            dt = (lin if lin > 0 else rot) / min(feed_mm_min, dyn.max_feed_mm_min) * 60.0
-        if rot > 0:
-            dt += dyn.rotary_clamp_s  # unclamp + clamp of the indexed axes
-            self._rotary_moves += 1
+        dt, indexed = move_time_s(self.truth.machine_file.dynamics, q0, q1, feed_mm_min)
+        self._rotary_moves += int(indexed)  # the visit key of the probing noise counts these
         self._pending_s += dt
         self._pos = dict(target)
 
@@ -363,104 +253,34 @@ class VirtualController:
         self.messages.append(text)
 
     def probe(self, target: dict[str, float], feed_mm_min: float) -> ProbeOutcome:
-        truth = self.truth
-        self._check_travel(target)
+        check_travel(self.truth.machine, self.axes, target)
         self._seq += 1
         seq = self._seq
         t = self.machine_time_s + self._pending_s
-        dyn = truth.machine_file.dynamics
-        if feed_mm_min > dyn.max_probe_feed_mm_min:
-            raise Alarm(f"probing feed F{feed_mm_min:g} above the machine's limit "
-                        f"{dyn.max_probe_feed_mm_min:g}")
         p0, p1 = self._q(self._pos)[:3], self._q(target)[:3]
         b, c = self._pos[self.axes[3]], self._pos[self.axes[4]]
-        if target[self.axes[3]] != b or target[self.axes[4]] != c:
-            raise Alarm("rotary axes must not move during a probing move")
-        length = float(np.linalg.norm(p1 - p0))
-        if length <= 0:
-            raise Alarm("probing move of zero length")
-        u = (p1 - p0) / length
-        touch, direction = self._touch_number(u)
-        ball = self._aimed_ball(p1, b, c)
+        length = probing_length_mm(self.truth.machine_file.dynamics, p0, p1,
+                                   target[self.axes[3]] != b or target[self.axes[4]] != c,
+                                   feed_mm_min)
         faults = self.faults.due({"no_trigger", "early_trigger", "drop_result_line"},
                                  touch=seq, t_s=t)
-        kinds = {f.kind for f in faults}
         for f in faults:
             self._emit(FaultEvent(f.kind, f))
             if f.kind == "drop_result_line":
                 self._drop_lines += f.params.get("lines", 1)
-        contact = None if "no_trigger" in kinds else first_contact(truth, p0, p1, b, c, t)
-        s_latch = None
-        target_id = None
-        if "early_trigger" in kinds:
-            frac = next(f.fraction for f in faults if f.kind == "early_trigger")
-            if contact is None or frac < contact.s:
-                s_latch, target_id = frac, -999
-        if s_latch is None and contact is not None:
-            s_latch = contact.s + truth.errors.probe.pretravel_um * 1e-3 / length
-            target_id = contact.target
-            if s_latch > 1.0:
-                s_latch = None  # the move ended before the probe switched
-        if s_latch is None:
-            latched_xyz = p1.copy()
-            stop = p1
-            triggered = False
-        else:
-            stop = p0 + s_latch * (p1 - p0)
-            latched_xyz = stop + self._latch_errors(u, t, b, c, touch, direction, stop,
-                                                    target_id if target_id is not None
-                                                    and target_id >= 0 else ball)
-            triggered = True
-        self._pending_s += length * (s_latch if s_latch is not None else 1.0) / feed_mm_min * 60
+        hit = self._latch.latch(p0, p1, b, c, t, faults, self._rotary_moves)
+        stop, triggered = hit.stop, hit.triggered
+        self._pending_s += length * (hit.fraction if hit.fraction is not None else 1.0) \
+            / feed_mm_min * 60
         self._pos.update({"X": stop[0], "Y": stop[1], "Z": stop[2]})
-        latched = {"X": float(latched_xyz[0]), "Y": float(latched_xyz[1]),
-                   "Z": float(latched_xyz[2]), self.axes[3]: b, self.axes[4]: c}
+        latched = {"X": float(hit.xyz[0]), "Y": float(hit.xyz[1]),
+                   "Z": float(hit.xyz[2]), self.axes[3]: b, self.axes[4]: c}
         self.touches.append(TouchRecord(seq, t, p0, p1, latched, triggered, feed_mm_min,
-                                        touch, direction, ball, target_id))
-        self._emit(TouchResult((seq - 1) % RESULT_SLOTS, seq,
+                                        hit.touch, hit.direction, hit.ball, hit.target))
+        self._emit(TouchResult((seq - 1) % RING_SLOTS, seq,
                                {"X": latched["X"], "Y": latched["Y"], "Z": latched["Z"],
                                 "b": b, "c": c}, triggered))
         return ProbeOutcome(triggered, latched)
-
-    # ------------------------------------------------------------ probe helpers
-    def _touch_number(self, u: np.ndarray) -> tuple[int, tuple[float, float, float]]:
-        """Touch 1..5 from the move direction (controller X Y Z = tool relative to workpiece);
-        the pole comes against the spindle axis."""
-        dirs = dict(TOUCH_DIRECTIONS)
-        dirs[5] = tuple(-np.asarray(self.truth.machine.spindle_axis, float))
-        best, k = max((float(np.dot(u, d)), k) for k, d in dirs.items())
-        if best > 0.999:
-            return k, tuple(float(x) for x in dirs[k])
-        return 0, tuple(float(x) for x in u)
-
-    def _aimed_ball(self, end: np.ndarray, b: float, c: float) -> int:
-        key = (round(b, 6), round(c, 6))
-        if key not in self._nominal_cache:
-            n = len(self.truth.artefact.balls)
-            self._nominal_cache[key] = np.array(
-                [self.truth.centre_ctrl(i, b, c, nominal=True) for i in range(n)])
-        d = np.linalg.norm(self._nominal_cache[key] - end, axis=1)
-        return int(np.argmin(d))
-
-    def _latch_errors(self, u: np.ndarray, t: float, b: float, c: float, touch: int,
-                      direction: tuple, stop: np.ndarray, ball: int) -> np.ndarray:
-        """Effect offsets + probing noise: per touch along the approach, per ball visit common
-        to its touches (thesis §3.4 repeatability)."""
-        probe = self.truth.errors.probe
-        # A visit ends when the ball or the indexation changes, or a touch number comes back
-        # (the next repeat of the same ball). The generator orders the four equator touches by
-        # path length, so touch numbers need not increase within one visit.
-        key = (ball, round(b, 6), round(c, 6), self._rotary_moves)
-        if key != self._visit.key or touch in self._visit.touches:
-            self._visit = _Visit(key, self._rng.normal(0.0, 1.0, 3)
-                                 * np.asarray(probe.centre_noise_um) * 1e-3)
-        self._visit.touches.add(touch)
-        noise = self._visit.noise_mm + u * self._rng.normal(0.0, probe.touch_noise_um * 1e-3)
-        try:
-            eff = self.truth.touch_offset_mm(t, b, c, ball, touch, np.asarray(direction), stop)
-        except ValueError as e:
-            raise Alarm(f"simulator effect model: {e}") from None
-        return eff + noise
 
     # ---------------------------------------------------------------- running
     def _begin(self) -> None:
@@ -494,7 +314,7 @@ class VirtualController:
         except asyncio.CancelledError:
             raise
         except Exception as e:  # a simulator defect must still end the program visibly
-            self._flush()
+            self._events.flush()
             self._set_state("alarm", f"simulator error: {type(e).__name__}: {e}")
         finally:
             self._finished.set()
@@ -506,19 +326,13 @@ class VirtualController:
         self.machine_time_s += dt
         if self.time_scale > 0 and dt > 0:
             await asyncio.sleep(dt * self.time_scale)
-        self._flush()
-
-    def _flush(self) -> None:
-        self._deferring = False
-        events, self._deferred = self._deferred, []
-        for ev in events:
-            self._emit(ev)
+        self._events.flush()
 
     async def _before_block(self, index: int, block: str) -> None:
         await self._advance_time()
         number = index + 1
         self._line_no, self._line_text = number, block.strip()
-        if self._subs:
+        if self._events.has_subscribers:
             self._emit(Block(number))
         for f in self.faults.due(set(FRONT_END_KINDS) | {"alarm", "feed_hold", "restart",
                                                           "drop_result_line"},
@@ -543,7 +357,7 @@ class VirtualController:
             await self._resume.wait()
         if self.time_scale <= 0 and index % 64 == 0:
             await asyncio.sleep(0)  # let abort / front-ends in
-        self._deferring = True
+        self._events.hold()
 
     async def _program_stop(self) -> None:
         """M00 / #3006 / STOP: hold until cycle start (``start()``)."""
@@ -574,8 +388,4 @@ class VirtualController:
             self._emit(StateChange(self.state, self.alarm))
 
     def _emit(self, ev: ControllerEvent) -> None:
-        if self._deferring:
-            self._deferred.append(ev)
-            return
-        for q in self._subs:
-            q.put_nowait(ev)
+        self._events.emit(ev)

@@ -16,7 +16,8 @@ import numpy as np
 
 from contracts.setup_files import MachineFile, load_artefact, load_machine
 from contracts.yaml_files import ConfigError
-from identification.kinematics import ChainState, Machine, MotionErrorFn, frames, to_model
+from identification.effects import EffectContext, combine_motion_errors
+from identification.kinematics import ChainState, Machine, frames, to_model
 from identification.model import Artefact
 from simulators.errors_schema import ErrorsFile, errors_from_dict, link_to_model, load_errors
 
@@ -27,12 +28,6 @@ class ActiveEffect:
 
     effect: Any  # identification.effects.Effect
     params: np.ndarray
-
-
-def _sum_motion(fns: list[MotionErrorFn]) -> MotionErrorFn:
-    if len(fns) == 1:
-        return fns[0]
-    return lambda q: sum(np.asarray(f(q), float) for f in fns)
 
 
 @dataclass
@@ -56,15 +51,11 @@ class TruthModel:
     _affine: dict = field(default_factory=dict, init=False, repr=False)
 
     def __post_init__(self) -> None:
-        motion: dict[str, list[MotionErrorFn]] = {}
-        for ae in self.effects:
-            for letter, fn in ae.effect.motion_errors(ae.params).items():
-                motion.setdefault(letter, []).append(fn)
-        self.state = ChainState(
-            links=dict(self.links),
-            tip_offset_mm=np.asarray(self.tip_setup_mm, float),
-            motion_errors={k: _sum_motion(v) for k, v in motion.items()},
-        )
+        motion = combine_motion_errors(*(ae.effect.motion_errors(ae.params)
+                                         for ae in self.effects))
+        self.state = ChainState(links=dict(self.links),
+                                tip_offset_mm=np.asarray(self.tip_setup_mm, float),
+                                motion_errors=motion)
 
     # ------------------------------------------------------------------------ construction
 
@@ -165,8 +156,6 @@ class TruthModel:
 
     def context(self, **kw: Any) -> Any:
         """An ``identification.effects.EffectContext`` for N rows (missing fields zero)."""
-        from identification.effects import EffectContext
-
         n = len(np.atleast_1d(kw["t_s"]))
         ball = np.atleast_1d(kw.get("ball", np.zeros(n, int))).astype(int)
         nominal = self.artefact.nominal_mm[ball] + self.ball_setup_mm[ball]  # as EffectContext

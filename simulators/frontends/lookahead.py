@@ -5,6 +5,7 @@ receive buffer fill up and a Modbus mailbox wait."""
 from __future__ import annotations
 
 import asyncio
+from collections.abc import AsyncIterator
 from typing import Any
 
 RUNNING = ("running", "hold")
@@ -28,6 +29,14 @@ class Lookahead:
             self._progress.set()
         elif kind == "StateChange":
             self._progress.set()
+
+    async def events(self) -> AsyncIterator[Any]:
+        """The controller's events, each counted here before the front-end sees it."""
+        q = self.ctrl.subscribe()
+        while True:
+            ev = await q.get()
+            self.on_event(ev)
+            yield ev
 
     async def feed(self, line: str) -> None:
         """Wait for room in the look-ahead, then hand the block to the controller."""

@@ -176,11 +176,8 @@ class ModbusFrontend:
         self._alarm_text(text)
 
     async def _events(self) -> None:
-        q = self.ctrl.subscribe()
-        while True:
-            ev = await q.get()
+        async for ev in self._look.events():
             kind = type(ev).__name__
-            self._look.on_event(ev)
             if kind == "FaultEvent" and ev.kind == "disconnect" and self._server is not None:
                 for conn in list(self._server.active_connections.values()):
                     conn.close()  # the cable is pulled: clients must reconnect

@@ -326,11 +326,8 @@ class SerialFrontend:
         self._out.put_nowait((text + eol).encode("ascii", "replace"))
 
     async def _events(self) -> None:
-        q = self.ctrl.subscribe()
-        while True:
-            ev = await q.get()
+        async for ev in self._look.events():
             kind = type(ev).__name__
-            self._look.on_event(ev)
             was = self._last_state
             if kind == "StateChange":
                 self._last_state = ev.state

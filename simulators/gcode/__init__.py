@@ -4,13 +4,14 @@ from __future__ import annotations
 
 from typing import Any
 
-from simulators.gcode.core import Alarm, MachineIO, ProbeOutcome, run
+from contracts.result_lines import DIALECT_NAMES
+from simulators.gcode.core import Alarm, BlockQueue, MachineIO, ProbeOutcome, run
 from simulators.gcode.fanuc import FanucInterpreter
 from simulators.gcode.heidenhain import HeidenhainInterpreter
 from simulators.gcode.linuxcnc import LinuxcncInterpreter
 from simulators.gcode.siemens import SiemensInterpreter
 
-DIALECTS = ("fanuc", "haas", "siemens", "heidenhain", "linuxcnc")
+DIALECTS = DIALECT_NAMES
 
 
 class HaasInterpreter(FanucInterpreter):
@@ -47,4 +48,5 @@ def make_interpreter(dialect: str, io: MachineIO, variables: dict | None = None,
     raise ValueError(f"unknown dialect {dialect!r}; expected one of {', '.join(DIALECTS)}")
 
 
-__all__ = ["DIALECTS", "Alarm", "MachineIO", "ProbeOutcome", "make_interpreter", "run"]
+__all__ = ["DIALECTS", "Alarm", "BlockQueue", "MachineIO", "ProbeOutcome", "make_interpreter",
+           "run"]

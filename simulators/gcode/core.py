@@ -8,6 +8,7 @@ matching block, so it also works on a drip-fed program whose later blocks have n
 
 from __future__ import annotations
 
+import asyncio
 import re
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, field
@@ -204,6 +205,31 @@ class BlockSource(Protocol):
     async def get(self, index: int) -> str | None:
         """Block ``index`` (waits while drip-feeding); None after the end of the stream."""
         ...
+
+
+class BlockQueue:
+    """The ``BlockSource`` of a controller: a whole program, or blocks drip-fed until ``close``."""
+
+    def __init__(self) -> None:
+        self.lines: list[str] = []
+        self.complete = False
+        self._more = asyncio.Event()
+
+    def extend(self, lines: list[str]) -> None:
+        self.lines.extend(lines)
+        self._more.set()
+
+    def close(self) -> None:
+        self.complete = True
+        self._more.set()
+
+    async def get(self, index: int) -> str | None:
+        while index >= len(self.lines):
+            if self.complete:
+                return None
+            self._more.clear()
+            await self._more.wait()
+        return self.lines[index]
 
 
 async def _seek(interp: Interpreter, source: BlockSource, start: int, key: str,
