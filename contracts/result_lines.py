@@ -12,6 +12,13 @@ from contracts.messages import TOUCH_DIRECTIONS, ProbeHit
 DIALECT_NAMES = ("fanuc", "haas", "siemens", "heidenhain", "linuxcnc")
 """Every controller dialect, in this order wherever they are listed."""
 
+VERDICT_VARIABLES = {"fanuc": "#598", "haas": "#598", "siemens": "R4", "heidenhain": "Q1598",
+                     "linuxcnc": "#3998"}
+"""Where each dialect's verdict program writes the verdict code (1-4) and the start-of-shift
+macro reads it: Fanuc/Haas common variable #598 (retained, next to the ring), Siemens R4 (the
+OPC UA map's verdict node /Channel/Parameter/R[u1,4]), Heidenhain Q1598 (next to the ring
+counter Q1599), LinuxCNC user parameter #3998 (next to the ring)."""
+
 RING_SLOTS = 8
 """Result slots on the controller, reused in turn (touch seq k lands in slot (k-1) % 8)."""
 RESULT_FIELDS = ("seq", "rep", "pose", "ball", "touch", "trig", "x", "y", "z", "r1", "r2")

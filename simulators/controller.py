@@ -15,7 +15,7 @@ import contextlib
 
 import numpy as np
 
-from contracts.result_lines import RING_SLOTS
+from contracts.result_lines import RING_SLOTS, VERDICT_VARIABLES
 from simulators.controller_events import (
     Block,
     ControllerEvent,
@@ -33,8 +33,7 @@ from simulators.motion import check_travel, move_time_s, probing_length_mm
 from simulators.probe import collision
 from simulators.truth import TruthModel
 
-VERDICT_VARIABLE = {"fanuc": "#598", "haas": "#598", "siemens": "R4", "heidenhain": "Q1598",
-                    "linuxcnc": "#3998"}
+VERDICT_VARIABLE = VERDICT_VARIABLES
 """Where the CNC's start-of-shift macro reads the verdict (gcode_templates/*/README.md): a
 program writing it (a DNC link's verdict program) delivers the verdict, and a verdict written
 by OPC UA or Modbus appears in it too, so one macro serves every transport."""

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import re
 
+from contracts.result_lines import VERDICT_VARIABLES
 from programs.cycletime import CycleTime
 from programs.dialects.base import Dialect
 from programs.geometry import ProgramError
@@ -15,7 +16,7 @@ class Fanuc(Dialect):
 
     name, extension, counter, slot_prefix, slot_base = "fanuc", "nc", "#599", "#", 600
     result_channel = "DPRNT on the DNC serial port (POPEN/PCLOS)"
-    verdict_variable = "#598"  # common variable, retained (#500-#999), next to the ring
+    verdict_variable = VERDICT_VARIABLES["fanuc"]
     verdict_program_number = 9101
 
     def _verdict_lines(self, code: int) -> list[str]:

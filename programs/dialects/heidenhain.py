@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 
-from contracts.result_lines import SLOT_FIELDS
+from contracts.result_lines import SLOT_FIELDS, VERDICT_VARIABLES
 from programs.cycletime import CycleTime
 from programs.dialects.base import Code, Dialect, sfmt
 from programs.geometry import ProgramError
@@ -18,7 +18,7 @@ class Heidenhain(Dialect):
     name, extension, counter, slot_prefix, slot_base = "heidenhain", "h", "Q1599", "Q", 1600
     result_channel = "FN 16 F-PRINT to RUMBA_RES.TXT next to the program"
     print_base = 1580
-    verdict_variable = "Q1598"  # next to the ring counter Q1599
+    verdict_variable = VERDICT_VARIABLES["heidenhain"]
 
     def _verdict_lines(self, code: int) -> list[str]:
         return ["0 BEGIN PGM RUMBAV MM", f"1 {self.verdict_variable} = +{code}",

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from contracts.result_lines import VERDICT_VARIABLES
 from programs.cycletime import CycleTime
 from programs.dialects.base import Dialect
 from programs.model import Program
@@ -13,7 +14,7 @@ class LinuxCNC(Dialect):
     name, extension, counter, slot_prefix, slot_base = "linuxcnc", "ngc", "#3999", "#", 4000
     log_file = "rumba_results.log"
     result_channel = f"(LOG,…) lines in {log_file} (LinuxCNC's working directory)"
-    verdict_variable = "#3998"  # user numbered parameter (#31-#5000), next to the ring
+    verdict_variable = VERDICT_VARIABLES["linuxcnc"]
 
     def _verdict_lines(self, code: int) -> list[str]:
         return ["%", "(RUMBA VERDICT)", f"{self.verdict_variable} = {code}", "M2", "%"]

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from contracts.result_lines import VERDICT_VARIABLES
 from programs.dialects.base import Dialect
 from programs.model import Program
 
@@ -11,7 +12,7 @@ class Siemens(Dialect):
 
     name, extension, counter, slot_prefix, slot_base = "siemens", "mpf", "R99", "R", 100
     result_channel = "WRITE to the file RUMBA_RES (part-program memory)"
-    verdict_variable = "R4"  # the OPC UA map's verdict node /Channel/Parameter/R[u1,4]
+    verdict_variable = VERDICT_VARIABLES["siemens"]
 
     def _verdict_lines(self, code: int) -> list[str]:
         return ["; RUMBA VERDICT", f"{self.verdict_variable}={code}", "M30"]
