@@ -55,23 +55,30 @@ def columns(rows: Sequence[LogRow], names: Sequence[str] = _NEEDED) -> dict[str,
     return {h: np.array([getattr(r, h) for r in rows], dtype[COLUMN_TYPES[h]]) for h in names}
 
 
-def rows_to_centres(rows: Sequence[LogRow], artefact: Artefact, stylus_radius_mm: float,
-                    fixed_radius: bool = False, source: str = "log") -> CentreData:
-    """Fit one centre per (run, repeat, pose, ball); incomplete groups are dropped with a
-    ``ProbeLogWarning``. Several runs in one log are an error (setups differ between runs)."""
-    col = columns(rows)
+def one_run_balls(col: dict[str, np.ndarray], artefact: Artefact, source: str,
+                  verb: str) -> tuple[list[str], np.ndarray]:
+    """The log's run ids (one at most: setups differ between runs) and each row's ball index in
+    the artefact; ``ProbeLogError`` naming several runs or an unknown ball id."""
     runs = sorted(set(col["run_id"].tolist()))
     if len(runs) > 1:
-        raise ProbeLogError(f"{source}: contains runs {runs}; analyse one run at a time")
+        raise ProbeLogError(f"{source}: contains runs {runs}; {verb} one run at a time")
     order = {b: i for i, b in enumerate(artefact.ids)}
     unknown = sorted(set(col["ball"].tolist()) - set(order))
     if unknown:
         raise ProbeLogError(f"{source}: unknown ball id(s) {unknown} (artefact {artefact.name} "
                             f"has {list(artefact.ids)})")
+    return runs, np.array([order[b] for b in col["ball"]], int)
+
+
+def rows_to_centres(rows: Sequence[LogRow], artefact: Artefact, stylus_radius_mm: float,
+                    fixed_radius: bool = False, source: str = "log") -> CentreData:
+    """Fit one centre per (run, repeat, pose, ball); incomplete groups are dropped with a
+    ``ProbeLogWarning``. Several runs in one log are an error (setups differ between runs)."""
+    col = columns(rows)
+    runs, ball = one_run_balls(col, artefact, source, "analyse")
     touch = col["touch"]
     if len(touch) and not np.all((touch >= 1) & (touch <= TOUCHES_PER_BALL)):
         raise ProbeLogError(f"{source}: touch numbers outside 1..{TOUCHES_PER_BALL}")
-    ball = np.array([order[b] for b in col["ball"]], int)
     keys = np.stack([col["repeat"], col["pose"], ball], axis=1).reshape(-1, 3)
     uniq, inv = np.unique(keys, axis=0, return_inverse=True)  # sorted: repeat, pose, ball
     slot = inv.reshape(-1) * TOUCHES_PER_BALL + touch - 1

@@ -12,7 +12,7 @@ import numpy as np
 
 from contracts.probing_log import LogRow, ProbeLogError, read_log
 from contracts.setup_files import load_artefact, load_machine, load_plan
-from daemon.touch_centres import columns
+from daemon.touch_centres import columns, one_run_balls
 from identification.effects import FAMILIES, Effect, library
 from identification.gap import Options, TouchData, diagnose
 from identification.gap.split import SPLITS
@@ -33,21 +33,14 @@ def touches_from_rows(rows: Sequence[LogRow], artefact: Artefact, source: str) -
     """Probing-log rows → touch arrays (one run only: setups differ between runs)."""
     col = columns(rows, ("run_id", "repeat", "pose", "ball", "touch", "t_s", "b_deg", "c_deg",
                          "dir_x", "dir_y", "dir_z", "x_mm", "y_mm", "z_mm"))
-    runs = sorted(set(col["run_id"].tolist()))
-    if len(runs) > 1:
-        raise ProbeLogError(f"{source}: contains runs {runs}; diagnose one run at a time")
-    order = {b: i for i, b in enumerate(artefact.ids)}
-    unknown = sorted(set(col["ball"].tolist()) - set(order))
-    if unknown:
-        raise ProbeLogError(f"{source}: unknown ball id(s) {unknown} (artefact "
-                            f"{artefact.name} has {list(artefact.ids)})")
+    _, ball = one_run_balls(col, artefact, source, "diagnose")
     d = np.stack([col["dir_x"], col["dir_y"], col["dir_z"]], axis=1).reshape(-1, 3)
     n = np.linalg.norm(d, axis=1)
     if np.any(n < 1e-9):
         raise ProbeLogError(f"{source}: a touch has a zero approach direction (dir_x/y/z)")
     return TouchData(
         repeat=col["repeat"], pose=col["pose"],
-        ball=np.array([order[b] for b in col["ball"]], int), touch=col["touch"],
+        ball=ball, touch=col["touch"],
         t_s=col["t_s"], b_deg=col["b_deg"], c_deg=col["c_deg"], direction=d / n[:, None],
         xyz_mm=np.stack([col["x_mm"], col["y_mm"], col["z_mm"]], axis=1).reshape(-1, 3))
 
