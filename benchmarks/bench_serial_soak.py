@@ -66,19 +66,19 @@ async def _soak(runs: int, cases: list[tuple[str, str]], budget_s: float | None)
 
 def main() -> None:
     sys.path.insert(0, str(ROOT))
-    from tests.test_e2e_transports import DIALECTS
+    from contracts.result_lines import DIALECT_NAMES
 
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--runs", type=int, default=200, help="rounds over all serial cases")
     ap.add_argument("--transport", choices=["serial-pty", "serial-socket"], action="append",
                     help="only these transports (default both)")
-    ap.add_argument("--dialect", choices=DIALECTS, action="append",
+    ap.add_argument("--dialect", choices=DIALECT_NAMES, action="append",
                     help="only these dialects (default all)")
     ap.add_argument("--budget-s", type=float, default=None,
                     help="stop after the round that exceeds this wall time")
     a = ap.parse_args()
     cases = [(t, d) for t in (a.transport or ["serial-pty", "serial-socket"])
-             for d in (a.dialect or DIALECTS)]
+             for d in (a.dialect or DIALECT_NAMES)]
     sys.exit(asyncio.run(_soak(a.runs, cases, a.budget_s)))
 
 

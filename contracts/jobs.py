@@ -6,7 +6,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Literal, Protocol
 
-from contracts.messages import ProbeHit, TouchId
+from contracts.messages import ProbeHit
+from contracts.touch_table import TouchTable
 
 VerdictStatus = Literal["PASS", "WARN", "FAIL", "ERROR"]
 
@@ -17,7 +18,7 @@ VERDICT_CODES: dict[str, int] = {"PASS": 1, "WARN": 2, "FAIL": 3, "ERROR": 4}
 
 class DialectCodec(Protocol):
     """What a link needs of a controller dialect, handed to it by the daemon (implemented by
-    ``daemon.dialects.Dialect``): links never import the program generator."""
+    ``programs.dialects.Dialect``): links never import the program generator."""
 
     name: str
 
@@ -48,11 +49,12 @@ class ProgramJob:
 
     run_id: str
     text: str  # the whole program as the controller receives it
-    dialect: str  # fanuc | siemens | heidenhain | linuxcnc
+    dialect: str  # one of contracts.result_lines.DIALECT_NAMES
     touch_count: int
     meta: dict[str, str] = field(default_factory=dict)
-    touches: tuple[TouchId, ...] = ()  # touch table by seq (seq k at index k-1): lets a link
-    # that only receives (seq, axes) from the controller (OPC UA, Modbus) name pose/ball/touch
+    touches: TouchTable = field(default_factory=TouchTable)  # the program's touches by seq:
+    # a link that only receives (seq, axes) from the controller (OPC UA, Modbus) names the hit
+    # here, and the session completes and checks every hit against the same table
     files: dict[str, str] = field(default_factory=dict)  # auxiliary files the program needs on
     # the control (Heidenhain FN 16 format files); OPC UA transfers them with the program
     codec: DialectCodec | None = None  # decodes the program's result lines (links that read

@@ -8,7 +8,9 @@ from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, replace
 from typing import Any
 
-from contracts.messages import ProbeHit, TouchId
+from contracts.messages import TOUCH_DIRECTIONS, ProbeHit, TouchId
+
+_NONE = (0.0, 0.0, 0.0)
 
 
 @dataclass(frozen=True)
@@ -18,7 +20,7 @@ class TouchInfo:
     id: TouchId
     b_cmd_deg: float = 0.0
     c_cmd_deg: float = 0.0
-    direction: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    direction: tuple[float, float, float] = _NONE
     feed_mm_min: float = 0.0
 
 
@@ -59,6 +61,42 @@ class TouchTable:
                     f"{hit.touch} rep {hit.repeat}, the program has pose {t.pose} ball {t.ball} "
                     f"touch {t.touch} rep {t.repeat}")
         return ""
+
+    def named(self, seq: int, axes: dict[str, float], triggered: bool, **fields: Any) -> ProbeHit:
+        """The hit of touch ``seq`` as a transport reporting only (seq, axes) delivers it (OPC UA,
+        Modbus): identity from the program and the touch's nominal approach direction, as a
+        printed result line carries them; pose -1 and no ball for a seq not in the table.
+        ``fields`` (``t_s=…``, ``raw=…``) are passed to ``ProbeHit``."""
+        info = self._by_seq.get(seq)
+        if info is None:
+            return ProbeHit(seq=seq, pose=-1, ball="", touch=0, axes=axes, triggered=triggered,
+                            **fields)
+        t = info.id
+        return ProbeHit(seq=seq, pose=t.pose, ball=t.ball, touch=t.touch, repeat=t.repeat,
+                        axes=axes, triggered=triggered,
+                        direction=TOUCH_DIRECTIONS.get(t.touch, _NONE), **fields)
+
+    def fill(self, hit: ProbeHit, **changes: Any) -> ProbeHit:
+        """``hit`` with only what it lacks taken from the program: identity when it has no ball,
+        approach direction when zero, commanded pose when both rotary values are zero, feed
+        when zero (what the transport or result line reported is kept); ``changes`` are
+        applied as given. Filling twice changes nothing."""
+        info = self._by_seq.get(hit.seq)
+        if info is not None:
+            t = info.id
+            if not hit.ball:
+                changes.setdefault("pose", t.pose)
+                changes.setdefault("ball", t.ball)
+                changes.setdefault("touch", t.touch)
+                changes.setdefault("repeat", t.repeat)
+            if hit.direction == _NONE:
+                changes.setdefault("direction", info.direction)
+            if hit.b_cmd_deg == 0.0 and hit.c_cmd_deg == 0.0:
+                changes.setdefault("b_cmd_deg", info.b_cmd_deg)
+                changes.setdefault("c_cmd_deg", info.c_cmd_deg)
+            if hit.feed_mm_min == 0.0:
+                changes.setdefault("feed_mm_min", info.feed_mm_min)
+        return replace(hit, **changes) if changes else hit
 
     def complete(self, hit: ProbeHit, **changes: Any) -> ProbeHit:
         """``hit`` with what a transport cannot know filled from the program: identity (when the

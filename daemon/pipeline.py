@@ -9,12 +9,13 @@ from __future__ import annotations
 
 import warnings
 from collections.abc import Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import Any
 
 from contracts.jobs import ProgramJob
-from contracts.messages import ProbeHit, TouchId
+from contracts.messages import ProbeHit
 from contracts.probing_log import LogRow, ProbeLogError
+from contracts.touch_table import TouchTable
 from daemon.daemon_yaml import MachineSetup
 from daemon.identify import AnalysisError, analyse_centres
 from daemon.safepath import plain_name
@@ -29,60 +30,31 @@ class PipelineError(Exception):
 # ------------------------------------------------------------------------------------ PREPARE
 
 
-@dataclass(frozen=True)
-class TouchInfo:
-    """What the program says about one touch: identity, commanded pose, approach, feed."""
-
-    id: TouchId
-    b_cmd_deg: float
-    c_cmd_deg: float
-    direction: tuple[float, float, float]
-    feed_mm_min: float
-
-
 @dataclass
 class Prepared:
     job: ProgramJob
-    touches: dict[int, TouchInfo]
     estimated_s: float | None = None
     notes: list[str] = field(default_factory=list)
 
+    @property
+    def touches(self) -> TouchTable:
+        """The program's touch table, the one the link names its hits with."""
+        return self.job.touches
+
     def complete(self, hit: ProbeHit, t_s: float) -> ProbeHit:
         """Fill the fields a transport cannot know from the program's touch table."""
-        info = self.touches.get(hit.seq)
-        if info is None:
-            return hit
-        changes: dict[str, Any] = {}
-        if not hit.ball:
-            changes.update(pose=info.id.pose, ball=info.id.ball, touch=info.id.touch,
-                           repeat=info.id.repeat)
-        if hit.direction == (0.0, 0.0, 0.0):
-            changes["direction"] = info.direction
-        if hit.b_cmd_deg == 0.0 and hit.c_cmd_deg == 0.0:
-            changes.update(b_cmd_deg=info.b_cmd_deg, c_cmd_deg=info.c_cmd_deg)
-        if hit.feed_mm_min == 0.0:
-            changes["feed_mm_min"] = info.feed_mm_min
-        if hit.t_s == 0.0:
-            changes["t_s"] = t_s
-        return replace(hit, **changes) if changes else hit
+        return self.job.touches.fill(hit, **({"t_s": t_s} if hit.t_s == 0.0 else {}))
 
     def mismatch(self, hit: ProbeHit) -> str:
         """Why ``hit`` does not belong to this program ('' when it does): identities are
         carried through the program, never guessed."""
-        info = self.touches.get(hit.seq)
-        if info is None:
-            return f"controller reported touch seq {hit.seq}, not in the program"
-        t = info.id
-        if (hit.pose, hit.ball, hit.touch, hit.repeat) != (t.pose, t.ball, t.touch, t.repeat):
-            return (f"touch seq {hit.seq} reported as pose {hit.pose} ball {hit.ball} touch "
-                    f"{hit.touch}, program has pose {t.pose} ball {t.ball} touch {t.touch}")
-        return ""
+        return self.job.touches.mismatch(hit)
 
 
 def targets_from(analysis: dict[str, Any] | None) -> Any:
     """Program targets: the setup estimated by the last good run when there is one (smaller
     standoffs, faster cycles), else nominal."""
-    from programs.toolpath import Targets
+    from programs.model import Targets
 
     if not analysis or "setup" not in analysis:
         return Targets()
@@ -121,17 +93,14 @@ def prepare(setup: MachineSetup, run_id: str, last_good: dict[str, Any] | None =
 
 def prepared_from_program(prog: Any, text: str, run_id: str, dialect: str, codec: Any,
                           files: dict[str, str] | None = None) -> Prepared:
-    """The job and its touch table from a generated ``daemon.program.Program``; ``codec``:
-    the dialect object that rendered ``text`` (it decodes the result lines)."""
-    touches = {t.id.seq: TouchInfo(t.id, float(t.b_deg), float(t.c_deg),
-                                   tuple(map(float, t.direction)), float(t.feed_mm_min))
-               for t in prog.touches}
-    ids = tuple(touches[k].id for k in sorted(touches))
-    job = ProgramJob(run_id=run_id, text=text, dialect=dialect, touch_count=len(ids),
-                     touches=ids, meta={"program": "rumba"}, files=dict(files or {}),
+    """The job and its touch table (``prog.touch_table()``) from a generated program;
+    ``codec``: the dialect object that rendered ``text`` (it decodes the result lines)."""
+    touches = prog.touch_table()
+    job = ProgramJob(run_id=run_id, text=text, dialect=dialect, touch_count=len(touches),
+                     touches=touches, meta={"program": "rumba"}, files=dict(files or {}),
                      codec=codec)
     est = getattr(prog, "estimated_s", None)
-    return Prepared(job, touches, float(est) if est is not None else None)
+    return Prepared(job, float(est) if est is not None else None)
 
 
 # ----------------------------------------------------------------------------------- IDENTIFY

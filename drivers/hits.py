@@ -4,20 +4,11 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import replace
-from typing import TypeVar
 
 from contracts.jobs import ProgramJob
-from contracts.messages import TOUCH_DIRECTIONS, ProbeHit
+from contracts.messages import ProbeHit
+from contracts.result_lines import MAX_RESULT_DEG, MAX_RESULT_MM
 from drivers.base import LinkError
-
-T = TypeVar("T")
-
-MAX_LINEAR_MM = 1e5
-"""Largest plausible latched linear position: no machine tool travels 100 m, so a larger value
-is a corrupted record, not a measurement (a garbage int32 in 0.1 µm reaches 214 748 mm)."""
-MAX_ROTARY_DEG = 1e5
-"""Largest plausible latched rotary position (a multi-turn axis stays far below)."""
 
 
 class MalformedResult(LinkError):
@@ -26,9 +17,10 @@ class MalformedResult(LinkError):
 
 
 def check_axes(axes: dict[str, float], where: str) -> None:
-    """Raise ``MalformedResult`` unless every latched position is finite and plausible."""
+    """Raise ``MalformedResult`` unless every latched position is finite and plausible (the
+    limits of a printed result line: a garbage int32 in 0.1 µm reaches 214 748 mm)."""
     for key, value in axes.items():
-        limit = MAX_LINEAR_MM if key in ("X", "Y", "Z") else MAX_ROTARY_DEG
+        limit = MAX_RESULT_MM if key in ("X", "Y", "Z") else MAX_RESULT_DEG
         unit = "mm" if key in ("X", "Y", "Z") else "deg"
         if not math.isfinite(value) or abs(value) > limit:
             raise MalformedResult(f"malformed result ({where}): {key} = {value!r} {unit}, "
@@ -36,7 +28,8 @@ def check_axes(axes: dict[str, float], where: str) -> None:
 
 
 class HitFactory:
-    """Names a result by its sequence number using the job's touch table (``job.touches``).
+    """Checks what a controller reports and names it through the job's touch table
+    (``job.touches``, the one place a touch is identified).
 
     ``make`` also checks what every record-based link (OPC UA, Modbus) must deliver: results in
     program order (the n-th result is touch seq n), within the program, with plausible
@@ -45,7 +38,6 @@ class HitFactory:
     def __init__(self, job: ProgramJob) -> None:
         self.job = job
         self.t0 = time.monotonic()
-        self._by_seq = {t.seq: t for t in job.touches}
         self.made = 0
 
     def t_s(self) -> float:
@@ -58,27 +50,17 @@ class HitFactory:
         if seq != expected:
             raise MalformedResult(f"malformed result ({where}): touch seq {seq}, expected "
                                   f"{expected} (results arrive in program order)")
-        tid = self._by_seq.get(seq)
-        total = len(self._by_seq) or self.job.touch_count
-        if (self._by_seq and tid is None) or (total and seq > total):
+        table = self.job.touches
+        total = len(table) or self.job.touch_count
+        if (table and seq not in table) or (total and seq > total):
             raise MalformedResult(f"controller reported touch seq {seq}, not in the program "
                                   f"(1..{total})")
         check_axes(axes, where)
         self.made = expected
-        return ProbeHit(
-            seq=seq, pose=tid.pose if tid else -1, ball=tid.ball if tid else "",
-            touch=tid.touch if tid else 0, repeat=tid.repeat if tid else 0,
-            axes=axes, triggered=triggered, t_s=self.t_s(), raw=raw,
-            direction=TOUCH_DIRECTIONS.get(tid.touch, (0.0, 0.0, 0.0)) if tid else (0.0, 0.0, 0.0),
-        )
+        return table.named(seq, axes, triggered, t_s=self.t_s(), raw=raw)
 
     def complete(self, hit: ProbeHit, raw: str) -> ProbeHit:
-        """Fill what a dialect's line parser could not know (time, raw line, pose/ball/touch)."""
+        """A hit decoded by the dialect's line parser, checked, with time and raw line set and
+        what the line could not say filled from the touch table."""
         check_axes(hit.axes, f"result line {raw.strip()[:80]!r}")  # 400 digits parse as inf
-        tid = self._by_seq.get(hit.seq)
-        changes: dict = {"t_s": self.t_s(), "raw": hit.raw or raw}
-        if tid is not None and not hit.ball:
-            changes.update(pose=tid.pose, ball=tid.ball, touch=tid.touch, repeat=tid.repeat)
-        return replace(hit, **changes)
-
-
+        return self.job.touches.fill(hit, t_s=self.t_s(), raw=hit.raw or raw)

@@ -38,7 +38,7 @@ _CONFIGS: dict[str, type[BaseModel]] = {
 def link_config(data: Any, where: str = "link") -> Any:
     """Validate a ``link:`` section (unknown keys are errors) → the transport's config model.
 
-    Raises ``daemon.config.ConfigError`` with one line per problem, naming ``where``."""
+    Raises ``contracts.yaml_files.ConfigError`` with one line per problem, naming ``where``."""
     from contracts.yaml_files import ConfigError, format_validation
 
     if not isinstance(data, dict) or data.get("transport") not in TRANSPORTS:

@@ -13,7 +13,8 @@ from dataclasses import dataclass, field, replace
 from contracts.jobs import ProgramJob, Verdict
 from contracts.messages import ProbeHit, TouchId
 from contracts.probing_log import LogRow
-from daemon.pipeline import Prepared, TouchInfo, row_to_hit
+from contracts.touch_table import TouchInfo, TouchTable
+from daemon.pipeline import Prepared, row_to_hit
 from drivers.base import Capabilities, CncLink, ControllerAlarm, LinkError, StartRequest
 from identification.kinematics import Machine
 
@@ -86,11 +87,10 @@ def prepare_from_rows(rows: Sequence[LogRow]):
     """A ``Session(prepare=…)`` building the job's touch table from the log rows."""
 
     def prepare(setup, run_id: str, last_good=None) -> Prepared:
-        touches = {r.seq: TouchInfo(TouchId(r.seq, r.pose, r.ball, r.touch, r.repeat),
-                                    r.b_cmd_deg, r.c_cmd_deg, (r.dir_x, r.dir_y, r.dir_z),
-                                    r.feed_mm_min) for r in rows}
-        ids = tuple(t.id for t in touches.values())
-        job = ProgramJob(run_id, "(replayed log)", setup.dialect, len(ids), touches=ids)
-        return Prepared(job, touches, estimated_s=4.0 * len(ids))
+        touches = TouchTable(TouchInfo(TouchId(r.seq, r.pose, r.ball, r.touch, r.repeat),
+                                       r.b_cmd_deg, r.c_cmd_deg, (r.dir_x, r.dir_y, r.dir_z),
+                                       r.feed_mm_min) for r in rows)
+        job = ProgramJob(run_id, "(replayed log)", setup.dialect, len(touches), touches=touches)
+        return Prepared(job, estimated_s=4.0 * len(touches))
 
     return prepare

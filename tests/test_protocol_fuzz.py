@@ -25,8 +25,10 @@ from contracts.modbus_map import (
     encode_slot,
 )
 from contracts.opcua_space import RESULT_ROLES, STATES
-from contracts.opcua_space import RING_SLOTS as UA_SLOTS
-from drivers.hits import MAX_LINEAR_MM, MAX_ROTARY_DEG, HitFactory, MalformedResult
+from contracts.opcua_space import RING_SLOTS as UA_RING_SLOTS
+from contracts.result_lines import MAX_RESULT_DEG, MAX_RESULT_MM
+from contracts.touch_table import TouchTable
+from drivers.hits import HitFactory, MalformedResult
 from drivers.modbus.link import check_mailbox, check_status, slot_hit
 from drivers.opcua.link import check_counter, ring_hit
 from programs.dialects import DIALECTS
@@ -35,8 +37,9 @@ FUZZ = settings(max_examples=150, deadline=None,
                 suppress_health_check=[HealthCheck.too_slow])
 TOUCHES = 20
 JOB = ProgramJob(run_id="fuzz", text="", dialect="fanuc", touch_count=TOUCHES,
-                 touches=tuple(TouchId(seq=k, pose=(k - 1) // 5, ball="B1",
-                                       touch=(k - 1) % 5 + 1) for k in range(1, TOUCHES + 1)))
+                 touches=TouchTable(TouchId(seq=k, pose=(k - 1) // 5, ball="B1",
+                                            touch=(k - 1) % 5 + 1)
+                                    for k in range(1, TOUCHES + 1)))
 
 
 def valid_hit(hit: ProbeHit, seq: int) -> None:
@@ -44,7 +47,7 @@ def valid_hit(hit: ProbeHit, seq: int) -> None:
     assert hit.seq == seq and (hit.pose, hit.touch) == ((seq - 1) // 5, (seq - 1) % 5 + 1)
     assert isinstance(hit.triggered, bool)
     for key, v in hit.axes.items():
-        limit = MAX_LINEAR_MM if key in "XYZ" else MAX_ROTARY_DEG
+        limit = MAX_RESULT_MM if key in "XYZ" else MAX_RESULT_DEG
         assert math.isfinite(v) and abs(v) <= limit, (key, v)
 
 
@@ -129,17 +132,17 @@ ua_value = st.one_of(
 def ua_rows(draw: st.DrawFn) -> list:
     """The seven result arrays: plausible ones with garbage elements, or garbage structure."""
     if draw(st.integers(0, 4)) == 0:
-        return draw(st.lists(st.one_of(st.none(), st.lists(ua_value, max_size=UA_SLOTS + 1)),
+        return draw(st.lists(st.one_of(st.none(), st.lists(ua_value, max_size=UA_RING_SLOTS + 1)),
                              min_size=6, max_size=8))
-    rows = [[1] * UA_SLOTS, *([0.0] * UA_SLOTS for _ in range(5)), [1] * UA_SLOTS]
+    rows = [[1] * UA_RING_SLOTS, *([0.0] * UA_RING_SLOTS for _ in range(5)), [1] * UA_RING_SLOTS]
     for _ in range(draw(st.integers(0, 3))):
-        r, i = draw(st.integers(0, len(RESULT_ROLES) - 1)), draw(st.integers(0, UA_SLOTS - 1))
+        r, i = draw(st.integers(0, len(RESULT_ROLES) - 1)), draw(st.integers(0, UA_RING_SLOTS - 1))
         rows[r][i] = draw(ua_value)
     return rows
 
 
 @FUZZ
-@given(ua_rows(), st.integers(1, UA_SLOTS))
+@given(ua_rows(), st.integers(1, UA_RING_SLOTS))
 def test_opcua_ring_garbage_is_a_hit_or_a_clear_error(rows, n):
     try:
         hit = ring_hit(HitFactory(JOB), rows, n)
@@ -192,4 +195,4 @@ def test_serial_result_line_garbage_is_a_hit_or_a_clear_error(line, dialect):
     except (ValueError, MalformedResult):
         return
     for v in hit.axes.values():
-        assert math.isfinite(v) and abs(v) <= MAX_LINEAR_MM
+        assert math.isfinite(v) and abs(v) <= MAX_RESULT_MM

@@ -12,17 +12,15 @@ import time
 import pytest
 
 from contracts.jobs import Verdict
+from contracts.result_lines import DIALECT_NAMES
 from drivers.base import LinkError
 from drivers.serial.link import SerialDncLink, parse_request
 from drivers.serial.schema import SerialLinkConfig
 from programs.dialects import get_dialect
-from programs.toolpath import ProgramError
+from programs.geometry import ProgramError
 from simulators.controller import VERDICT_VARIABLE, VirtualController
 from simulators.frontends.serial import SerialFrontend, SerialSettings
 from tests.transport_sim import first_touch_of, make_truth, real_setup
-
-DIALECTS = ("fanuc", "haas", "siemens", "heidenhain", "linuxcnc")
-
 
 # ------------------------------------------------------------------------ request grammar
 
@@ -53,7 +51,7 @@ def test_broken_request_line_is_refused_not_guessed(line):
 # ------------------------------------------------------------------------ verdict programs
 
 
-@pytest.mark.parametrize("dialect", DIALECTS)
+@pytest.mark.parametrize("dialect", DIALECT_NAMES)
 def test_verdict_program_is_tiny_and_takes_only_a_code(dialect):
     d = get_dialect(dialect)
     assert d.verdict_variable == VERDICT_VARIABLE[dialect]  # the simulator reads the same one
@@ -64,7 +62,7 @@ def test_verdict_program_is_tiny_and_takes_only_a_code(dialect):
             d.verdict_program(bad)  # type: ignore[arg-type]
 
 
-@pytest.mark.parametrize("dialect", DIALECTS)
+@pytest.mark.parametrize("dialect", DIALECT_NAMES)
 async def test_executor_running_the_verdict_program_delivers_the_verdict(dialect):
     vc = VirtualController(make_truth(), dialect=dialect)
     vc.raise_start_request()

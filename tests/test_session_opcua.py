@@ -66,7 +66,7 @@ async def test_start_of_shift_verdict_on_cnc_and_links_match_truth(cnc, tmp_path
     assert ctrl.verdict == 1 and s.verdict["status"] == "PASS"  # PASS arrived on the CNC side
     assert s.store.run(run_id).hits == 140
     truth = yaml.safe_load(ERRORS.read_text())["links"]
-    analysis = s.store.analysis(run_id)
+    analysis = s.store.analysis(run_id).to_json()
     k = coverage_factor(analysis["estimation"]["sigma_dof"] or math.inf)  # "3 u", GUM G.3
     for name, v in analysis["links"].items():
         assert abs(v["value"] - truth[name]) < k * v["std"], (name, v, truth[name], k)

@@ -25,6 +25,7 @@ from contracts.modbus_map import (
     words_i32,
     words_text,
 )
+from contracts.result_lines import DIALECT_NAMES
 from drivers.base import LinkError
 from drivers.hits import MalformedResult
 from drivers.modbus.link import ModbusLink, program_blocks
@@ -223,7 +224,7 @@ async def test_disconnect_mid_stream_is_a_link_error_and_the_next_run_succeeds(s
     latched_equal(hits, ctrl, job, tol_mm=0.5 / LINEAR_COUNTS_PER_MM + 1e-9)
 
 
-@pytest.mark.parametrize("dialect", ["fanuc", "haas", "siemens", "heidenhain", "linuxcnc"])
+@pytest.mark.parametrize("dialect", DIALECT_NAMES)
 async def test_every_dialect_streams_through_the_mailbox(dialect):
     ctrl, job = real_setup(dialect)
     fe = ModbusFrontend(ctrl)

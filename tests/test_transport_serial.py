@@ -15,6 +15,7 @@ import time
 import pytest
 import serial
 
+from contracts.result_lines import DIALECT_NAMES
 from drivers.base import ControllerAlarm, LinkError
 from drivers.serial.link import SerialDncLink, frame_program
 from drivers.serial.schema import SerialLinkConfig
@@ -242,7 +243,7 @@ async def test_socat_pty_pair_carries_the_protocol(tmp_path):
         proc.wait(5)
 
 
-@pytest.mark.parametrize("dialect", ["fanuc", "haas", "siemens", "heidenhain", "linuxcnc"])
+@pytest.mark.parametrize("dialect", DIALECT_NAMES)
 async def test_every_dialect_result_lines_over_dnc(dialect):
     """DPRNT (Fanuc/Haas), WRITE (Siemens), FN 16 F-PRINT (Heidenhain), LOG (LinuxCNC): the
     program's own result lines come back on the port and decode to the latched values."""

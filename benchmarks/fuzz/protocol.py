@@ -9,9 +9,9 @@ import time
 from typing import Any
 
 from benchmarks.fuzz.common import CONFIG, NASTY, Tally, rand_text, run_case, short
+from contracts.result_lines import DIALECT_NAMES, MAX_RESULT_MM
 
 ASCII_NAME = re.compile(r"[A-Za-z0-9_.-]{1,32}", re.ASCII)
-LIMIT = 1e5
 
 
 def _job() -> Any:
@@ -23,8 +23,8 @@ def _job() -> Any:
     m, mf = load_machine(CONFIG / "machines/thesis_wcbxfzyt.yaml")
     prog = build_program(m, mf, load_artefact(CONFIG / "artefacts/thesis_4ball.yaml"),
                          load_plan(CONFIG / "plans/thesis_ch3_7poses.yaml"))
-    job = ProgramJob("fuzz", "", "fanuc", len(prog.touches),
-                     touches=tuple(t.id for t in prog.touches))
+    table = prog.touch_table()
+    job = ProgramJob("fuzz", "", "fanuc", len(table), touches=table)
     return job, prog, get_dialect
 
 
@@ -33,7 +33,7 @@ def _hit_problem(hit: Any, expected_seq: int | None) -> str:
     if expected_seq is not None and hit.seq != expected_seq:
         return f"accepted seq {hit.seq}, expected {expected_seq}"
     for k, v in hit.axes.items():
-        if not isinstance(v, float) or not math.isfinite(v) or abs(v) > LIMIT:
+        if not isinstance(v, float) or not math.isfinite(v) or abs(v) > MAX_RESULT_MM:
             return f"accepted axis {k} = {v!r}"
     if not isinstance(hit.triggered, bool):
         return f"triggered = {hit.triggered!r}"
@@ -144,7 +144,7 @@ def _serial(rng: random.Random, n: int, job: Any, prog: Any, get_dialect: Any) -
     tally = Tally("serial lines")
     t1 = prog.touches[0]
     base_result = RESULT.replace("B1", t1.id.ball)
-    bound = {d: get_dialect(d).bind(prog) for d in ("fanuc", "siemens", "heidenhain", "linuxcnc")}
+    bound = {d: get_dialect(d).bind(prog) for d in DIALECT_NAMES}
     for i in range(n):
         kind = rng.choice(("request", "result", "result", "bytes"))
         words = ["RUMBA", "REQUEST", "mill1"] if kind == "request" else base_result.split(" ")

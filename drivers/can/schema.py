@@ -10,7 +10,8 @@ from contracts.yaml_files import StrictModel
 
 
 class CanPanelConfig(StrictModel):
-    """Operator panel on a CAN bus (python-can interface + channel; frame map in can_panel.py)."""
+    """Operator panel on a CAN bus (python-can interface + channel; frame map in
+    contracts/can_frames.py)."""
 
     transport: Literal["can"] = "can"
     machine: str | None = None  # the machine its buttons act on (required with several)

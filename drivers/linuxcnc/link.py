@@ -1,12 +1,12 @@
 """LinuxCNC link: runs the linuxcnc-dialect program remotely through linuxcncrsh (TCP, MDI
-streaming) or locally through the ``linuxcnc`` Python module (drivers/linuxcnc_local.py), there
+streaming) or locally through the ``linuxcnc`` Python module (drivers/linuxcnc/local.py), there
 streaming too (``run: mdi``, the default) or, opt-in, as one AUTO run of a file (``run: auto``).
 
 Remote, why MDI streaming: linuxcncrsh's ``set open FILE`` opens a path *on the LinuxCNC host*
 and it has no upload command, and the dialect's ``(LOG,…)`` writes a file there too; neither
 needs a shared file system when the daemon sends each block with ``set mdi`` (``set set_wait
 received``: LinuxCNC takes a block once the previous one has finished) and reads each touch
-result back through LinuxCNC's own message channel. Per program line (daemon/dialects.py,
+result back through LinuxCNC's own message channel. Per program line (programs/dialects,
 gcode_templates/linuxcnc/README.md):
 
 * ``%``, empty lines, plain comments, ``(LOGOPEN,…)``, ``(LOGCLOSE)``, ``M2``: not sent.
@@ -55,12 +55,10 @@ config/linuxcnc/rumba_xyzbc.hal nets analog-out-00 to ``rumba-verdict``) and
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import logging
 import os
 import re
 import shutil
-import sys
 import tempfile
 from collections.abc import AsyncIterator
 from pathlib import Path
@@ -68,127 +66,14 @@ from pathlib import Path
 from contracts.jobs import ProgramJob, Verdict
 from contracts.messages import ProbeHit
 from drivers.base import Capabilities, CncLink, ControllerAlarm, LinkError, StartRequest
+from drivers.linuxcnc.channel import LocalChannel, RshChannel
 from drivers.linuxcnc.program import Step, auto_program, name_error, plan_steps, where
 from drivers.linuxcnc.schema import LinuxCncLinkConfig
 
 __all__ = ["LinuxCncLink", "Step", "auto_program", "plan_steps"]
 
 log = logging.getLogger("rumba.linuxcnc")
-HELPER = Path(__file__).resolve().parent / "linuxcnc_local.py"
 _WAIT_S = 0.5  # local AUTO: longest helper wait per `wait event` (abort and kill stay prompt)
-
-
-class _Rsh:
-    """linuxcncrsh line protocol over TCP (replies end in \\r\\n or \\n\\r; echo turned off)."""
-
-    name = "linuxcncrsh"
-
-    def __init__(self, cfg: LinuxCncLinkConfig) -> None:
-        self.cfg = cfg
-        self.reader: asyncio.StreamReader | None = None
-        self.writer: asyncio.StreamWriter | None = None
-        self._buf = b""
-
-    async def open(self) -> None:
-        c = self.cfg
-        try:
-            self.reader, self.writer = await asyncio.wait_for(
-                asyncio.open_connection(c.host, c.port), c.connect_timeout_s)
-        except (OSError, TimeoutError) as e:
-            raise LinkError(f"linuxcncrsh at {c.host}:{c.port} unreachable: "
-                            f"{e.strerror if isinstance(e, OSError) else 'timeout'}") from None
-        rep = await self.ask(f"hello {c.hello_password} {c.client_name} 1.0")
-        if not rep.startswith("HELLO ACK"):
-            raise LinkError(f"linuxcncrsh refused hello: {rep!r} (check hello_password)")
-        self.send("set echo off")  # echoed itself (or not): synchronise on the next reply
-        self.send("get echo")
-        while await self.line(self.cfg.connect_timeout_s) != "ECHO OFF":
-            pass
-        # set_wait received: a `set mdi` answers once LinuxCNC has taken the block (after the
-        # previous one finished). `done` would poll completion in 100 ms steps (linuxcncrsh).
-        for cmd in ("set verbose on", f"set enable {c.enable_password}",
-                    "set set_wait received"):
-            rep = await self.ask(cmd)
-            if not rep.endswith("ACK"):
-                raise LinkError(f"linuxcncrsh: {cmd.split()[1]} refused: {rep!r}")
-
-    def send(self, cmd: str) -> None:
-        if self.writer is None:
-            raise LinkError("linuxcncrsh: not connected")
-        self.writer.write(cmd.encode("ascii") + b"\r\n")
-
-    async def line(self, timeout_s: float) -> str:
-        assert self.reader is not None
-        while True:
-            m = re.search(rb"[^\r\n]+[\r\n]", self._buf)
-            if m:
-                self._buf = self._buf[m.end():]
-                return m.group()[:-1].decode("ascii", "replace")
-            try:
-                data = await asyncio.wait_for(self.reader.read(4096), timeout_s)
-            except TimeoutError:
-                raise LinkError(f"{self.name} silent for {timeout_s:g} s") from None
-            except OSError as e:
-                raise LinkError(f"{self.name} connection lost: {e}") from None
-            if not data:
-                raise LinkError(f"{self.name} closed the connection (LinuxCNC stopped?)")
-            self._buf += data
-
-    async def ask(self, cmd: str, timeout_s: float | None = None) -> str:
-        self.send(cmd)
-        return await self.line(timeout_s or self.cfg.command_timeout_s)
-
-    async def close(self) -> None:
-        if self.writer is not None:
-            self.writer.close()
-            with contextlib.suppress(Exception):
-                await self.writer.wait_closed()
-        self.reader = self.writer = None
-        self._buf = b""
-
-
-class _Local(_Rsh):
-    """The same command subset answered by drivers/linuxcnc_local.py through the ``linuxcnc``
-    module, in a child process of Debian's /usr/bin/python3 (the only one that has it)."""
-
-    name = "local LinuxCNC helper"
-
-    def __init__(self, cfg: LinuxCncLinkConfig) -> None:
-        super().__init__(cfg)
-        self.proc: asyncio.subprocess.Process | None = None
-
-    async def open(self) -> None:
-        try:
-            env = dict(os.environ)
-            if self.cfg.local_home:  # linuxcnc.stat() maps $HOME/.tool.mmap of the instance
-                env["HOME"] = self.cfg.local_home
-            self.proc = await asyncio.create_subprocess_exec(
-                self.cfg.helper_python, "-I", str(HELPER), stdin=asyncio.subprocess.PIPE,
-                stdout=asyncio.subprocess.PIPE, stderr=sys.stderr, env=env)
-        except OSError as e:
-            raise LinkError(f"cannot start {self.cfg.helper_python} {HELPER}: {e}") from None
-        self.reader, self.writer = self.proc.stdout, self.proc.stdin  # type: ignore[assignment]
-        rep = await self.line(self.cfg.connect_timeout_s)
-        if not rep.startswith("HELLO ACK"):
-            raise LinkError(f"local LinuxCNC helper: {rep}")
-
-    async def line(self, timeout_s: float) -> str:
-        rep = await super().line(timeout_s)
-        if rep.startswith("LOST "):  # the helper saw LinuxCNC's task process die, and ended
-            raise LinkError(rep.removeprefix("LOST "))
-        return rep
-
-    async def close(self) -> None:
-        if self.proc is not None and self.proc.returncode is None:
-            with contextlib.suppress(Exception):
-                self.proc.stdin.close()  # type: ignore[union-attr]
-            try:
-                await asyncio.wait_for(self.proc.wait(), 3)
-            except TimeoutError:
-                self.proc.kill()
-                await self.proc.wait()
-        self.proc = None
-        self.reader = self.writer = None
 
 
 class LinuxCncLink(CncLink):
@@ -203,14 +88,14 @@ class LinuxCncLink(CncLink):
             self.capabilities = Capabilities(start_request=False, streams_blocks=False,
                                              loads_program=True, writes_verdict=True,
                                              can_abort=True)
-        self._ch: _Rsh | None = None
+        self._ch: RshChannel | None = None
         self._verdicts = 0
         self.blocks_sent = 0
         self._prev: Step | None = None  # the block sent before the current one
         self._probe: Step | None = None  # the last probing block sent
 
-    def _channel(self) -> _Rsh:
-        return _Local(self.cfg) if self.cfg.mode == "local" else _Rsh(self.cfg)
+    def _channel(self) -> RshChannel:
+        return LocalChannel(self.cfg) if self.cfg.mode == "local" else RshChannel(self.cfg)
 
     async def connect(self) -> None:
         if self._ch is not None:
@@ -223,7 +108,7 @@ class LinuxCncLink(CncLink):
             raise
         self._ch = ch
 
-    async def _ready(self) -> _Rsh:
+    async def _ready(self) -> RshChannel:
         """Connected, estop off, machine on, homed, MDI mode, no stale error."""
         await self.connect()
         ch = self._ch
@@ -367,7 +252,7 @@ class LinuxCncLink(CncLink):
     async def _run_auto(self, job: ProgramJob, program: str,
                         steps: list[Step]) -> AsyncIterator[ProbeHit]:
         """Local AUTO run: the program in a per-run file, opened and run by LinuxCNC; results
-        and errors read in channel order through ``wait event`` (drivers/linuxcnc_local.py)."""
+        and errors read in channel order through ``wait event`` (drivers/linuxcnc/local.py)."""
         assert self._ch is not None and job.codec is not None
         ch, parse = self._ch, job.codec.parse_result
         probes = [st for st in steps if st.touch]  # the probing blocks, in program order

@@ -1,4 +1,4 @@
-"""Local LinuxCNC helper: answers the linuxcncrsh command subset drivers/linuxcnc.py uses, on
+"""Local LinuxCNC helper: answers the linuxcncrsh command subset drivers/linuxcnc/link.py uses, on
 stdin/stdout, through LinuxCNC's own ``linuxcnc`` Python module (daemon on the LinuxCNC PC).
 
 Run by the link with Debian's ``/usr/bin/python3`` — the ``linuxcnc`` module is built for it
@@ -70,7 +70,8 @@ def _task_pids(ini: str) -> tuple[str, list[int]]:
 
 
 def main() -> int:
-    # this file sits next to drivers/linuxcnc.py, which would shadow the `linuxcnc` module
+    # the script's own folder (the link's modules) comes first in sys.path: drop it, so that
+    # nothing there can ever shadow LinuxCNC's `linuxcnc` module
     here = os.path.dirname(os.path.abspath(__file__))
     sys.path[:] = [p for p in sys.path if os.path.abspath(p or ".") != here]
     try:

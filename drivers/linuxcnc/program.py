@@ -1,4 +1,4 @@
-"""LinuxCNC program text for the link (drivers/linuxcnc.py): MDI steps, the AUTO program file,
+"""LinuxCNC program text for the link (drivers/linuxcnc/link.py): MDI steps, the AUTO program file,
 and naming the block and touch an error belongs to."""
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ class Step:
 
 
 def plan_steps(text: str) -> list[Step]:
-    """Turn the linuxcnc-dialect program into MDI steps (rules: drivers/linuxcnc.py docstring)."""
+    """Turn the linuxcnc-dialect program into MDI steps (rules: the docstring of link.py)."""
     lines = text.replace("\r\n", "\n").split("\n")
     steps: list[Step] = []
     pending: list[tuple[int, str]] = []

@@ -11,7 +11,7 @@ from contracts.yaml_files import StrictModel
 
 class LinuxCncLinkConfig(StrictModel):
     """LinuxCNC: ``remote`` through linuxcncrsh (TCP) or ``local`` through the ``linuxcnc``
-    Python module (daemon on the LinuxCNC PC); protocol in drivers/linuxcnc.py."""
+    Python module (daemon on the LinuxCNC PC); protocol in drivers/linuxcnc/link.py."""
 
     transport: Literal["linuxcnc"]
     mode: Literal["remote", "local"] = "remote"

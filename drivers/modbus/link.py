@@ -1,4 +1,4 @@
-"""Modbus TCP link (pymodbus client) for the rumba register map (drivers/modbus_map.py):
+"""Modbus TCP link (pymodbus client) for the rumba register map (contracts/modbus_map.py):
 request/busy/done/verdict handshake, block streaming through the mailbox, results from the ring.
 
 Modbus has no notifications, so the link polls one 17-register status block (state, handshake,

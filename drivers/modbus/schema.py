@@ -10,7 +10,7 @@ from contracts.yaml_files import StrictModel
 
 
 class ModbusLinkConfig(StrictModel):
-    """Modbus TCP client for the rumba register map (drivers/modbus_map.py)."""
+    """Modbus TCP client for the rumba register map (contracts/modbus_map.py)."""
 
     transport: Literal["modbus"]
     host: str = "127.0.0.1"

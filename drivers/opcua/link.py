@@ -2,7 +2,7 @@
 start request, the touch counter and the controller state, result ring reads, verdict write-back
 with the request/busy/done handshake, certificate + user authentication, reconnect with backoff.
 
-Address space: drivers/opcua_space.py (table in drivers/README.md). No touch is lost when
+Address space: contracts/opcua_space.py (table in drivers/README.md). No touch is lost when
 notifications coalesce or the connection drops: on every wake-up the counter is read and every
 slot between the last seen and the current counter is read (ring of 32).
 """

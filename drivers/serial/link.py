@@ -324,7 +324,7 @@ class SerialDncLink(CncLink):
                 self._tape_open = False
 
     async def write_verdict(self, verdict: Verdict) -> None:
-        """Drip-feed the dialect's verdict program (daemon/dialects.py ``verdict_program``):
+        """Drip-feed the dialect's verdict program (programs/dialects ``verdict_program``):
         it sets the verdict variable the start-of-shift macro waits for (#598, R4, Q1598,
         #3998). Only the integer code reaches the program text."""
         if self._proto is None or self._transport is None:
