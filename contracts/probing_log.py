@@ -36,6 +36,7 @@ from typing import overload
 
 import numpy as np
 
+from contracts.result_lines import MAX_RESULT_DEG, MAX_RESULT_MM
 from contracts.yaml_files import ConfigError
 from identification.model import Artefact
 
@@ -48,8 +49,8 @@ MAX_LOG_BYTES = 64 * 2**20
 MAX_LOG_ROWS = 250_000
 MAX_LINE_BYTES = 4096
 MAX_ID_CHARS = 200
-MAX_ABS_MM = 1e5
-MAX_ABS_DEG = 1e5
+MAX_ABS_MM = MAX_RESULT_MM  # the plausibility ceilings of a latched value, one definition
+MAX_ABS_DEG = MAX_RESULT_DEG
 # (low, high) per float column; NaN fails every comparison, so it is refused as well
 _RANGES = {"t_s": (0.0, 1e8), "b_cmd_deg": (-MAX_ABS_DEG, MAX_ABS_DEG),
            "c_cmd_deg": (-MAX_ABS_DEG, MAX_ABS_DEG), "b_deg": (-MAX_ABS_DEG, MAX_ABS_DEG),

@@ -17,6 +17,7 @@ from typing import Any, Literal
 
 from pydantic import Field, field_validator, model_validator
 
+from contracts.result_lines import DialectName
 from contracts.setup_files import (
     MachineFile,
     Plan,
@@ -83,7 +84,7 @@ class MachineEntry(StrictModel):
     machine: str  # path to the machine YAML
     artefact: str
     plan: str
-    dialect: Literal["fanuc", "haas", "siemens", "heidenhain", "linuxcnc"]
+    dialect: DialectName
     link: dict[str, Any]  # transport section, validated by drivers.registry
     triggers: TriggersFile = TriggersFile()
     tolerances: TolerancesFile = TolerancesFile()

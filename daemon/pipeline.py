@@ -9,13 +9,14 @@ from __future__ import annotations
 
 import warnings
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 from contracts.jobs import ProgramJob
 from contracts.messages import ProbeHit
 from contracts.probing_log import LogRow, ProbeLogError
 from contracts.touch_table import TouchTable
+from daemon import analysis_result
 from daemon.daemon_yaml import MachineSetup
 from daemon.identify import AnalysisError, analyse_centres
 from daemon.safepath import plain_name
@@ -51,56 +52,42 @@ class Prepared:
         return self.job.touches.mismatch(hit)
 
 
-def targets_from(analysis: dict[str, Any] | None) -> Any:
+def targets_from(analysis: analysis_result.Analysis | None) -> Any:
     """Program targets: the setup estimated by the last good run when there is one (smaller
     standoffs, faster cycles), else nominal."""
     from programs.model import Targets
 
-    if not analysis or "setup" not in analysis:
+    if analysis is None or analysis.setup is None:
         return Targets()
-    balls = {b: tuple(v * 1e-3 for v in d["value"])
-             for b, d in analysis["setup"]["balls"].items()}
-    tip = tuple(v * 1e-3 for v in analysis["setup"]["probe"]["value"])
+    balls = {b: tuple(v * 1e-3 for v in d.value) for b, d in analysis.setup.balls.items()}
+    tip = tuple(v * 1e-3 for v in analysis.setup.probe.value)
     return Targets("estimate", balls, tip)
 
 
-def prepare(setup: MachineSetup, run_id: str, last_good: dict[str, Any] | None = None
-            ) -> Prepared:
+def prepare(setup: MachineSetup, run_id: str,
+            last_good: analysis_result.Analysis | None = None) -> Prepared:
     """Generate the program for ``setup``, check it against travel limits and keep-outs, and
     render it in the machine's dialect. Nothing leaves the daemon without passing here."""
-    from programs import dialects, safety
-    from programs import toolpath as gen
+    from programs.generate import generate
+    from programs.geometry import ProgramError
+    from programs.safety import SafetyError
 
     try:
         targets = targets_from(last_good if setup.program_targets == "last_good" else None)
-        prog = gen.build_program(setup.machine, setup.machine_file, setup.artefact, setup.plan,
-                                 targets)
-        report = safety.check_program(prog)
-        dialect = dialects.get_dialect(setup.dialect)
-        text = dialect.render(prog)
-        files = dialect.aux_files(prog)
-        for name in files:  # they become files on the controller (and next to `gcode -o`)
+        g = generate(setup.machine, setup.machine_file, setup.artefact, setup.plan,
+                     setup.dialect, targets)
+        for name in g.aux_files:  # they become files on the controller (and next to `gcode -o`)
             plain_name(name, f"{setup.dialect} auxiliary file")
-    except safety.SafetyError as e:
+    except SafetyError as e:
         raise PipelineError(f"program refused by the safety check: {e}") from None
-    except (gen.ProgramError, ValueError) as e:  # UnsafePathError is a ValueError too
+    except (ProgramError, ValueError) as e:  # UnsafePathError is a ValueError too
         raise PipelineError(f"program not generated: {e}") from None
-    prepared = prepared_from_program(prog, text, run_id, setup.dialect, dialect, files)
-    prepared.notes.append(f"safety: {report.moves} moves checked, min slack "
-                          f"{report.min_slack_mm:.2f} mm")
-    return prepared
-
-
-def prepared_from_program(prog: Any, text: str, run_id: str, dialect: str, codec: Any,
-                          files: dict[str, str] | None = None) -> Prepared:
-    """The job and its touch table (``prog.touch_table()``) from a generated program;
-    ``codec``: the dialect object that rendered ``text`` (it decodes the result lines)."""
-    touches = prog.touch_table()
-    job = ProgramJob(run_id=run_id, text=text, dialect=dialect, touch_count=len(touches),
-                     touches=touches, meta={"program": "rumba"}, files=dict(files or {}),
-                     codec=codec)
-    est = getattr(prog, "estimated_s", None)
-    return Prepared(job, float(est) if est is not None else None)
+    touches = g.touch_table()
+    job = ProgramJob(run_id=run_id, text=g.text, dialect=setup.dialect,
+                     touch_count=len(touches), touches=touches, meta={"program": "rumba"},
+                     files=dict(g.aux_files), codec=g.dialect)
+    return Prepared(job, g.estimated_s, [f"safety: {g.safety.moves} moves checked, min slack "
+                                         f"{g.safety.min_slack_mm:.2f} mm"])
 
 
 # ----------------------------------------------------------------------------------- IDENTIFY
@@ -140,14 +127,15 @@ def row_to_hit(row: LogRow, machine: Machine) -> ProbeHit:
 
 
 @dataclass
-class Analysis:
-    data: dict[str, Any]  # the analyze-JSON shape (links, setup, volumetric, cluster, …)
+class RunAnalysis:
+    data: analysis_result.Analysis  # with the run's identity (run id, plan, touches)
     centre_rows: list[tuple]  # for the store: pose, ball, b, c, x, y, z, radius dev, form
 
 
-def analyse(setup: MachineSetup, hits: Sequence[ProbeHit], run_id: str = "run") -> Analysis:
+def analyse(setup: MachineSetup, hits: Sequence[ProbeHit],
+            run_id: str = "run") -> RunAnalysis:
     """Centres (sphere fit) → estimate (setup + identifiable links) → analyses, as the shared
-    ``daemon.analysis`` JSON plus the run's identity."""
+    ``daemon.analysis_result.Analysis`` plus the run's identity."""
     rows = [hit_to_row(run_id, h, setup.machine) for h in hits if h.triggered]
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
@@ -161,10 +149,10 @@ def analyse(setup: MachineSetup, hits: Sequence[ProbeHit], run_id: str = "run") 
                                validate_poses=setup.validate_poses, source=f"run {run_id}")
     except (AnalysisError, ValueError) as e:
         raise PipelineError(f"identification impossible: {e}") from None
-    data = {"run_id": run_id, "machine": setup.name, "plan": setup.plan.name,
-            **{k: v for k, v in data.items() if k != "machine"}, "touches": len(rows)}
-    data["warnings"] = data["warnings"] + [str(w.message) for w in caught
-                                           if str(w.message) not in data["warnings"]]
+    data = replace(data, run_id=run_id, machine=setup.name, plan=setup.plan.name,
+                   touches=len(rows),
+                   warnings=(*data.warnings, *(str(w.message) for w in caught
+                                               if str(w.message) not in data.warnings)))
     centres, ids = cd.centres, setup.artefact.ids
     health = {(h.pose, h.ball, h.repeat): h for h in cd.health}
     centre_rows = []
@@ -175,5 +163,5 @@ def analyse(setup: MachineSetup, hits: Sequence[ProbeHit], run_id: str = "run") 
         centre_rows.append((int(centres.pose[k]), ids[int(centres.ball[k])],
                             float(centres.b_deg[k]), float(centres.c_deg[k]),
                             *map(float, centres.xyz_mm[k]), h.radius_dev_um, h.form_rms_um))
-    return Analysis(data, centre_rows)
+    return RunAnalysis(data, centre_rows)
 

@@ -73,7 +73,7 @@ class Session:
     """Runs verification programs on one machine through one link, one at a time."""
 
     def __init__(self, setup: MachineSetup, link: CncLink, store: Store, reports_dir: Path,
-                 *, analyse: Callable[..., pipeline.Analysis] = pipeline.analyse,
+                 *, analyse: Callable[..., pipeline.RunAnalysis] = pipeline.analyse,
                  prepare: Callable[..., pipeline.Prepared] = pipeline.prepare) -> None:
         self.setup = setup
         self.link = link
@@ -254,7 +254,7 @@ class Session:
         return prepared
 
     async def _identify(self, run_id: str, hits: list[ProbeHit],
-                        reference: tuple[str, Analysis] | None) -> pipeline.Analysis:
+                        reference: tuple[str, Analysis] | None) -> pipeline.RunAnalysis:
         """IDENTIFY: hits → centres → estimate → analyses, recorded with the reference run."""
         self._enter(State.IDENTIFY)
         analysis = await asyncio.to_thread(self._analyse, self.setup, hits, run_id)
@@ -264,7 +264,7 @@ class Session:
         self.store.save_analysis(run_id, analysis.data)
         return analysis
 
-    def _judge(self, run_id: str, analysis: pipeline.Analysis,
+    def _judge(self, run_id: str, analysis: pipeline.RunAnalysis,
                reference: tuple[str, Analysis] | None) -> Verdict:
         """JUDGE: the verdict against the tolerances and the drift from the reference run."""
         self._enter(State.JUDGE)

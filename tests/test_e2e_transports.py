@@ -35,6 +35,7 @@ import pytest_asyncio
 import yaml
 
 from contracts.jobs import VERDICT_CODES
+from contracts.result_lines import DIALECT_NAMES
 from daemon.daemon_yaml import MachineSetup, load_daemon_config
 from daemon.service import Service
 from daemon.session import State
@@ -47,7 +48,7 @@ from tests.daemon_helpers import CONFIG
 ERRORS = CONFIG / "errors/thesis_tableB2.yaml"
 PLAN = "thesis_ch3_7poses"  # 7 B/C poses × 4 balls × 5 touches: all 8 links identifiable
 TRANSPORTS = ("serial-pty", "serial-socket", "opcua", "modbus")
-DIALECTS = ("fanuc", "haas", "siemens", "heidenhain", "linuxcnc")
+DIALECTS = DIALECT_NAMES
 BAUD = 921_600  # the highest rate a DNC link accepts (drivers/link_config.py)
 RUN_TIMEOUT_S = 60.0
 NOISE_SEED = 0

@@ -16,6 +16,7 @@ import yaml
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from contracts.result_lines import DIALECT_NAMES
 from contracts.setup_files import (
     artefact_from_dict,
     load_machine,
@@ -33,7 +34,7 @@ from tests.regen_golden import golden_program
 
 ROOT = Path(__file__).resolve().parent.parent
 CONFIG = ROOT / "config"
-DIALECTS = ["fanuc", "haas", "siemens", "heidenhain", "linuxcnc"]
+DIALECTS = list(DIALECT_NAMES)
 BAD = ["abc\n", "abc\r", "abc\r\n", "\nabc", "ab\x00c", "ab\u2028c", "ab\x85c", "ab(c", "ab)c",
        "ab;c", "ab%c", "ab'c", 'ab"c', "ab c", "ab\tc", "ab,c", "abc)\nM30\n(", "B1\x0b"]
 PLACEHOLDER = "ZQ9"  # a name fanuc can print too (upper case, no '_')

@@ -12,6 +12,7 @@ from pathlib import Path
 from benchmarks.fuzz.common import CONFIG, EXC_NAME, Tally, run_case
 from benchmarks.fuzz.probelog import EXAMPLE, mutate_log, violations
 from benchmarks.fuzz.yamls import mutate
+from contracts.result_lines import DIALECT_NAMES
 
 MACHINE = CONFIG / "machines/thesis_wcbxfzyt.yaml"
 ARTEFACT = CONFIG / "artefacts/thesis_4ball.yaml"
@@ -41,7 +42,7 @@ def fuzz(rng: random.Random, n: int, limit_s: float = 20.0) -> Tally:
                 files = {"machine": MACHINE, "artefact": ARTEFACT, "plan": PLAN, which: fuzzed}
                 argv = ["gcode", "--machine", str(files["machine"]), "--artefact",
                         str(files["artefact"]), "--plan", str(files["plan"]), "--dialect",
-                        rng.choice(("fanuc", "haas", "siemens", "heidenhain", "linuxcnc")),
+                        rng.choice(DIALECT_NAMES),
                         "-o", str(tmp / f"prog{i}.nc")]
                 ops.insert(0, f"{which} file")
             else:

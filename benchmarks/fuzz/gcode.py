@@ -9,8 +9,8 @@ from typing import Any
 import yaml
 
 from benchmarks.fuzz.common import CONFIG, Tally, rand_text, run_case
+from contracts.result_lines import DIALECT_NAMES
 
-DIALECT_NAMES = ("fanuc", "haas", "siemens", "heidenhain", "linuxcnc")
 PAREN = {"fanuc", "haas", "linuxcnc"}  # ( … ) comments; the others use ;
 INJECT = ["\n", "\r", "\x00", "\u2028", "\u0085", "(", ")", ";", "%", "'", '"', "\n%\nM30",
           ")M30(", "; M30", "\r\nG0 X0", "\t", "\x0b", "é", "٣", "B1\n", "$", "#1=2", "[", "*"]

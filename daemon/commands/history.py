@@ -20,7 +20,7 @@ from daemon.cli import UserError
 from daemon.daemon_yaml import DaemonConfig, MachineSetup, load_daemon_config
 from daemon.journal_csv import export_csv, journal_import, read_import
 from daemon.judge import Judgement, judge, volumetric_max_um
-from daemon.pipeline import Analysis, PipelineError, analyse, row_to_hit
+from daemon.pipeline import PipelineError, RunAnalysis, analyse, row_to_hit
 from daemon.store import Store, StoreError
 from identification.spherefit import SphereFitError
 
@@ -131,7 +131,7 @@ def _import(cfg: DaemonConfig, store: Store, args: argparse.Namespace) -> int:
 
 
 def _analyse(setup: MachineSetup, store: Store, hits: list[ProbeHit], run_id: str,
-             path: str | Path) -> tuple[Analysis, Judgement]:
+             path: str | Path) -> tuple[RunAnalysis, Judgement]:
     try:
         a = analyse(setup, hits, run_id)
     except ANALYSIS_ERRORS as e:

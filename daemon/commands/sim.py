@@ -7,6 +7,7 @@ import argparse
 import importlib.util
 from pathlib import Path
 
+from contracts.result_lines import DIALECT_NAMES
 from daemon.cli import UserError
 
 
@@ -31,7 +32,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="0 = as fast as possible (default), 1 = real time")
     p.add_argument("--faults", type=Path, help="faults YAML (simulators/faults.py)")
     p.add_argument("--run", type=Path, metavar="PROGRAM", help="execute this program offline")
-    p.add_argument("--dialect", choices=["fanuc", "haas", "siemens", "heidenhain", "linuxcnc"],
+    p.add_argument("--dialect", choices=DIALECT_NAMES,
                    help="dialect of --run PROGRAM")
     p.add_argument("--log", type=Path, metavar="OUT.csv", help="probing log to write (--run)")
     p.add_argument("--run-id", help="run_id column of the log (default: program file stem)")
