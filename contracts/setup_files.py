@@ -12,16 +12,13 @@ from pathlib import Path
 from typing import Annotated, Any, Literal
 
 import numpy as np
-from pydantic import BaseModel, Field, ValidationError, field_validator, model_validator
+from pydantic import Field, field_validator, model_validator
 
-from contracts.yaml_files import (  # noqa: F401 - re-exported: the schemas' error and reader
-    MAX_YAML_BYTES,
-    MAX_YAML_DEPTH,
-    MAX_YAML_NODES,
+from contracts.yaml_files import (
     ConfigError,
     StrictModel,
-    format_validation,
     read_yaml,
+    validate_file,
 )
 from identification.kinematics import Axis, Machine, TopologyError
 from identification.model import Artefact, Ball, CalibratedDistance
@@ -319,17 +316,8 @@ def _grid(g: GridAxis) -> list[float]:
     return [round(g.start_deg + k * g.step_deg, 9) for k in range(n)]
 
 
-def _validate(model: type[BaseModel], path: Path | str, data: Any) -> Any:
-    if not isinstance(data, dict):
-        raise ConfigError(f"{path}: expected a mapping of keys at top level")
-    try:
-        return model.model_validate(data)
-    except ValidationError as e:
-        raise ConfigError(format_validation(path, e)) from None
-
-
 def machine_from_dict(data: Any, path: Path | str = "<machine>") -> tuple[Machine, MachineFile]:
-    mf: MachineFile = _validate(MachineFile, path, data)
+    mf: MachineFile = validate_file(MachineFile, path, data)
     axes = {}
     for letter, a in mf.axes.items():
         travel = a.travel_mm if a.type == "linear" else a.travel_deg
@@ -352,7 +340,7 @@ def load_machine(path: Path | str) -> tuple[Machine, MachineFile]:
 
 
 def artefact_from_dict(data: Any, path: Path | str = "<artefact>") -> Artefact:
-    af: ArtefactFile = _validate(ArtefactFile, path, data)
+    af: ArtefactFile = validate_file(ArtefactFile, path, data)
     balls = tuple(
         Ball(b.id, tuple(b.position_mm), b.ball_diameter_mm or af.ball_diameter_mm,
              b.rod_length_mm, b.rod_diameter_mm or af.rod_diameter_mm)
@@ -368,7 +356,7 @@ def load_artefact(path: Path | str) -> Artefact:
 
 
 def plan_from_dict(data: Any, path: Path | str = "<plan>") -> Plan:
-    pf: PlanFile = _validate(PlanFile, path, data)
+    pf: PlanFile = validate_file(PlanFile, path, data)
     if pf.grid is not None:
         poses = [PoseFile(b_deg=b, c_deg=c) for b in _grid(pf.grid.b) for c in _grid(pf.grid.c)]
     else:

@@ -124,3 +124,14 @@ class StrictModel(BaseModel):
     ``allow_inf_nan=False`` refuses .nan / .inf / 1e400 in every float."""
 
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+
+
+def validate_file(model: type[BaseModel], path: Path | str, data: Any) -> Any:
+    """``data`` (read from ``path``) validated by ``model``; one ``ConfigError`` line per
+    problem, naming the file and the key."""
+    if not isinstance(data, dict):
+        raise ConfigError(f"{path}: expected a mapping of keys at top level")
+    try:
+        return model.model_validate(data)
+    except ValidationError as e:
+        raise ConfigError(format_validation(path, e)) from None

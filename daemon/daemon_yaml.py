@@ -22,13 +22,18 @@ from contracts.setup_files import (
     MachineFile,
     Plan,
     _safe_name,
-    _validate,
     check_touch_count,
     load_artefact,
     load_machine,
     load_plan,
 )
-from contracts.yaml_files import ConfigError, StrictModel, format_validation, read_yaml
+from contracts.yaml_files import (
+    ConfigError,
+    StrictModel,
+    format_validation,
+    read_yaml,
+    validate_file,
+)
 from daemon.judge import Limit, Tolerances
 from identification.kinematics import Machine
 from identification.model import Artefact
@@ -268,7 +273,7 @@ def _check_identifiable(machine: Machine, artefact: Artefact, plan: Plan, names:
 
 def load_daemon_config(path: Path | str) -> DaemonConfig:
     path = Path(path)
-    df: DaemonFile = _validate(DaemonFile, path, read_yaml(path))
+    df: DaemonFile = validate_file(DaemonFile, path, read_yaml(path))
     base = path.parent
     machines: dict[str, MachineSetup] = {}
     for i, m in enumerate(df.machines):
@@ -321,4 +326,4 @@ def load_daemon_config(path: Path | str) -> DaemonConfig:
 
 def config_from_dict(data: Any, path: Path) -> DaemonFile:
     """Validate only (used by tests and `rumba run --check`)."""
-    return _validate(DaemonFile, path, data)
+    return validate_file(DaemonFile, path, data)

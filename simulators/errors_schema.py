@@ -13,8 +13,7 @@ from typing import Annotated, Any
 
 from pydantic import Field, field_validator
 
-from contracts.setup_files import _validate
-from contracts.yaml_files import ConfigError, StrictModel, read_yaml
+from contracts.yaml_files import ConfigError, StrictModel, read_yaml, validate_file
 
 Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]
 ISO_LINK = re.compile(r"\AE[XYZABC]0[XYZABC]\Z")  # fullmatch: "$" lets a final "\n" by
@@ -92,7 +91,7 @@ def link_to_model(name: str, value: float) -> float:
 def errors_from_dict(data: Any, path: Path | str = "<errors>") -> ErrorsFile:
     if data is None:
         data = {}
-    return _validate(ErrorsFile, path, data)
+    return validate_file(ErrorsFile, path, data)
 
 
 def load_errors(path: Path | str) -> ErrorsFile:

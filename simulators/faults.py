@@ -13,8 +13,7 @@ from typing import Any, Literal
 
 from pydantic import Field, model_validator
 
-from contracts.setup_files import _validate
-from contracts.yaml_files import StrictModel, read_yaml
+from contracts.yaml_files import StrictModel, read_yaml, validate_file
 
 FaultKind = Literal[
     "disconnect", "late_xon", "missing_xon", "garbled",  # front-end (transport) faults
@@ -62,7 +61,7 @@ class FaultPlan:
     @classmethod
     def load(cls, path: Path | str) -> FaultPlan:
         data = read_yaml(path)  # the schemas' one reader: size, UTF-8, depth ceilings
-        return cls(list(_validate(FaultsFile, path, data).faults))
+        return cls(list(validate_file(FaultsFile, path, data).faults))
 
     def reset(self) -> None:
         self.fired.clear()
