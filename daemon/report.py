@@ -11,7 +11,7 @@ import io
 import json
 import math
 import time
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -22,9 +22,9 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 from daemon.analysis_result import Analysis
-from daemon.judge import Limit, Tolerances, volumetric_max_um
+from daemon.judge import Judgement, Limit, Tolerances, volumetric_max_um
 from daemon.safepath import contained_path
-from daemon.store import Store, TrendPoint, validate_run_id
+from daemon.store import RunRow, TrendPoint, validate_run_id
 
 VERDICT_COLOURS = {"PASS": "#1b873f", "WARN": "#c77700", "FAIL": "#c62828", "ERROR": "#6a1b9a"}
 
@@ -227,15 +227,22 @@ pose {{ analysis.stability.worst.pose }}{% if analysis.stability.span_min is not
 """)
 
 
-def build(store: Store, run_id: str, tol: Tolerances | None) -> tuple[str, dict[str, Any]]:
-    """(HTML text, JSON document) for one run of the store."""
-    run = store.run(run_id)
-    analysis = store.analysis(run_id)
-    if analysis is None:
-        raise ValueError(f"run {run_id} has no analysis (state {run.state}: {run.reason})")
-    verdict = store.verdict(run_id)
-    centres = {(c[0], c[1]): c[4:7] for c in store.centres(run_id)}
-    trend = store.trend(run.machine)
+def verdict_doc(judgement: Judgement | None) -> dict[str, Any] | None:
+    """The verdict as the report shows it and writes it to its JSON (the journal's verdict
+    record at report time: written back later, after the report)."""
+    if judgement is None:
+        return None
+    return {"status": judgement.status, "reasons": list(judgement.reasons),
+            "checks": [c.as_dict() for c in judgement.checks], "written_back": False}
+
+
+def build(run: RunRow, analysis: Analysis, judgement: Judgement | None,
+          centre_rows: Iterable[Sequence[Any]], trend: list[TrendPoint],
+          tol: Tolerances | None) -> tuple[str, dict[str, Any]]:
+    """(HTML text, JSON document) for one run: its record, analysis, judgement, centre rows
+    (pose, ball, b, c, x, y, z, …) and the trend of its machine (oldest first)."""
+    verdict = verdict_doc(judgement)
+    centres = {(c[0], c[1]): c[4:7] for c in centre_rows}
     plots = [
         ("Volumetric distortion (thesis Fig 3.10)", plot_distortion(analysis, centres)),
         ("Relocalisation vs local distortion", plot_cluster(analysis)),
@@ -257,18 +264,20 @@ def build(store: Store, run_id: str, tol: Tolerances | None) -> tuple[str, dict[
         run=run, verdict=verdict, analysis=analysis, plots=plots,
         colour=VERDICT_COLOURS.get(verdict["status"] if verdict else "ERROR", "#555"),
         started=time.strftime("%Y-%m-%d %H:%M:%S", time.localtime(run.started_at)),
-        generated=time.strftime("%Y-%m-%d %H:%M:%S"), json_name=f"{run_id}.json",
+        generated=time.strftime("%Y-%m-%d %H:%M:%S"), json_name=f"{run.id}.json",
         health_rad=max((abs(h.radius_dev_um or 0.0) for h in health), default=0.0),
         health_form=max((h.form_rms_um or 0.0 for h in health), default=0.0))
     return html, doc
 
 
-def write_report(store: Store, run_id: str, reports_dir: Path,
-                 setup: Any | None = None) -> tuple[Path, Path]:
-    """Write ``<reports_dir>/<run_id>.html`` and ``.json``; returns both paths. The run id
-    names the files: it is checked, and both paths are proven to stay in ``reports_dir``."""
-    validate_run_id(run_id)
-    html, doc = build(store, run_id, getattr(setup, "tolerances", None))
+def write_report(reports_dir: Path, run: RunRow, analysis: Analysis,
+                 judgement: Judgement | None, centre_rows: Iterable[Sequence[Any]],
+                 trend: list[TrendPoint], tol: Tolerances | None = None) -> tuple[Path, Path]:
+    """Write ``<reports_dir>/<run id>.html`` and ``.json`` from what the caller holds (no
+    journal access); returns both paths. The run id names the files: it is checked, and both
+    paths are proven to stay in ``reports_dir``."""
+    run_id = validate_run_id(run.id)
+    html, doc = build(run, analysis, judgement, centre_rows, trend, tol)
     reports_dir = Path(reports_dir)
     reports_dir.mkdir(parents=True, exist_ok=True)
     # after mkdir, so that the containment check sees the real directory and its symlinks

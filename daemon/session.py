@@ -25,7 +25,7 @@ from contracts.messages import ProbeHit
 from daemon import pipeline
 from daemon.analysis_result import Analysis
 from daemon.daemon_yaml import MachineSetup
-from daemon.judge import judge
+from daemon.judge import Judgement, judge
 from daemon.store import Store, validate_run_id
 from drivers.base import CncLink, ControllerAlarm, LinkError
 from drivers.retry import with_backoff
@@ -217,10 +217,11 @@ class Session:
             prepared = await self._prepare_program(run_id, reference)
             hits = await self._capture(prepared)
             analysis = await self._identify(run_id, hits, reference)
-            verdict = self._judge(run_id, analysis, reference)
-            await self._report(run_id)
+            judgement = self._judge(run_id, analysis, reference)
+            await self._report(run_id, analysis, judgement)
             self._enter(State.WRITE_BACK)
-            await self._write_back(verdict, strict=True)
+            await self._write_back(Verdict(judgement.status, run_id, judgement.summary,
+                                           judgement.reasons), strict=True)
             self.store.mark_written_back(run_id)
             self._enter(State.IDLE, "")
         except asyncio.CancelledError:
@@ -265,21 +266,26 @@ class Session:
         return analysis
 
     def _judge(self, run_id: str, analysis: pipeline.RunAnalysis,
-               reference: tuple[str, Analysis] | None) -> Verdict:
+               reference: tuple[str, Analysis] | None) -> Judgement:
         """JUDGE: the verdict against the tolerances and the drift from the reference run."""
         self._enter(State.JUDGE)
         j = judge(analysis.data, self.setup.tolerances, reference[1] if reference else None)
         self.store.save_verdict(run_id, j.status, list(j.reasons),
                                 [c.as_dict() for c in j.checks], j.summary)
         self.verdict = {"status": j.status, "summary": j.summary, "reasons": list(j.reasons)}
-        return Verdict(j.status, run_id, j.summary, j.reasons)
+        return j
 
-    async def _report(self, run_id: str) -> None:
-        """REPORT: the HTML and JSON report of the run, rendered from the journal."""
+    async def _report(self, run_id: str, analysis: pipeline.RunAnalysis,
+                      judgement: Judgement) -> None:
+        """REPORT: the HTML and JSON report of the run, rendered from what the steps before
+        produced; the run record and the machine's trend are read here, the report itself
+        does not touch the journal."""
         self._enter(State.REPORT)
         from daemon import report  # matplotlib import is slow: only when a run gets here
-        paths = await asyncio.to_thread(report.write_report, self.store, run_id,
-                                        self.reports_dir, self.setup)
+        run, trend = self.store.run(run_id), self.store.trend(self.setup.name)
+        paths = await asyncio.to_thread(report.write_report, self.reports_dir, run,
+                                        analysis.data, judgement, analysis.centre_rows, trend,
+                                        self.setup.tolerances)
         self.store.save_report(run_id, *paths)
         if self.verdict is not None:
             self.verdict["report"] = str(paths[0])

@@ -1,22 +1,28 @@
 """The report: self-contained HTML (embedded PNG plots, no external resource), JSON with the
-same numbers as the journal, trend over past runs, escaping of untrusted text."""
+same numbers as the journal, trend over past runs, escaping of untrusted text. The report
+renders what it is given (run record, analysis, judgement, centres, trend): it never reads
+the journal, so these tests journal the runs the way the session does and hand the report
+what the session holds."""
 
 from __future__ import annotations
 
 import base64
+import dataclasses
 import json
 import re
+from pathlib import Path
 
 import pytest
 
 from daemon import pipeline, report
-from daemon.judge import judge
+from daemon.judge import Judgement, judge
 from daemon.store import Store
 from tests.daemon_helpers import thesis_rows, thesis_setup
 
 
 def journal_run(store: Store, setup, run_id: str, seed: int, started: float,
-                reason: str = "") -> None:
+                reason: str = "") -> tuple[pipeline.RunAnalysis, Judgement]:
+    """Journal one run like the session does; returns its analysis and judgement."""
     rows = thesis_rows(setup, seed=seed)
     hits = [pipeline.row_to_hit(r, setup.machine) for r in rows]
     store.new_run(run_id, setup.name, "cnc", plan=setup.plan.name, started_at=started)
@@ -25,9 +31,19 @@ def journal_run(store: Store, setup, run_id: str, seed: int, started: float,
     store.save_centres(run_id, a.centre_rows)
     store.save_analysis(run_id, a.data)
     j = judge(a.data, setup.tolerances)
-    store.save_verdict(run_id, j.status, [*j.reasons, reason] if reason else list(j.reasons),
-                       [c.as_dict() for c in j.checks], j.summary)
+    if reason:
+        j = dataclasses.replace(j, reasons=(*j.reasons, reason))
+    store.save_verdict(run_id, j.status, list(j.reasons), [c.as_dict() for c in j.checks],
+                       j.summary)
     store.set_state(run_id, "DONE")
+    return a, j
+
+
+def render(store: Store, setup, run_id: str, a: pipeline.RunAnalysis, j: Judgement,
+           reports: Path) -> tuple[Path, Path]:
+    """The session's report step: run record and trend read by the caller, not the report."""
+    return report.write_report(reports, store.run(run_id), a.data, j, a.centre_rows,
+                               store.trend(setup.name), setup.tolerances)
 
 
 @pytest.fixture(scope="module")
@@ -37,14 +53,14 @@ def store_with_runs(tmp_path_factory):
     setup = thesis_setup()
     s = Store(tmp / "j.sqlite")
     journal_run(s, setup, "R1", 1, 1000.0)
-    journal_run(s, setup, "R2", 2, 2000.0, reason="<script>alert(1)</script>")
-    paths = report.write_report(s, "R2", tmp / "rep", setup)
-    yield s, setup, paths
+    a, j = journal_run(s, setup, "R2", 2, 2000.0, reason="<script>alert(1)</script>")
+    paths = render(s, setup, "R2", a, j, tmp / "rep")
+    yield s, setup, paths, (a, j)
     s.close()
 
 
 def test_html_is_self_contained_with_plots_and_escaped(store_with_runs):
-    _s, _setup, (html_path, _json_path) = store_with_runs
+    _s, _setup, (html_path, _json_path), _ = store_with_runs
     html = html_path.read_text()
     # no external resource: every src is a data: URI, no link/script tags
     assert not re.search(r"<(script|link)\b", html)
@@ -59,7 +75,7 @@ def test_html_is_self_contained_with_plots_and_escaped(store_with_runs):
 
 
 def test_json_has_the_numbers_of_the_journal(store_with_runs):
-    s, _setup, (html_path, json_path) = store_with_runs
+    s, _setup, (html_path, json_path), _ = store_with_runs
     doc = json.loads(json_path.read_text())
     assert doc["run"]["id"] == "R2" and doc["verdict"] == s.verdict("R2")
     assert doc["analysis"] == s.analysis("R2").to_json()
@@ -69,34 +85,28 @@ def test_json_has_the_numbers_of_the_journal(store_with_runs):
     assert doc["trend"][0]["links"]["EX0C"] == s.analysis("R1").links["EX0C"].value
 
 
-def test_single_run_has_no_trend_plot_and_run_without_analysis_is_refused(tmp_path):
+def test_single_run_has_no_trend_plot_and_no_judgement_shows_the_run_state(tmp_path):
     setup = thesis_setup()
     s = Store(tmp_path / "j.sqlite")
-    journal_run(s, setup, "R1", 1, 1000.0)
-    html, _ = report.build(s, "R1", setup.tolerances)
+    a, j = journal_run(s, setup, "R1", 1, 1000.0)
+    run, trend = s.run("R1"), s.trend(setup.name)
+    html, doc = report.build(run, a.data, j, a.centre_rows, trend, setup.tolerances)
     assert "Trend over past runs" not in html and "Link errors" in html
-    s.new_run("R0", setup.name, "cnc")
-    with pytest.raises(ValueError, match="R0 has no analysis"):
-        report.build(s, "R0", None)
+    html, doc = report.build(run, a.data, None, a.centre_rows, [], None)
+    assert doc["verdict"] is None and '<span class="badge">DONE</span>' in html
     s.close()
 
 
 @pytest.mark.parametrize("run_id", ["../evil", "../../x/PWNED", "a.b"])
 def test_report_of_a_bad_run_id_is_refused_and_writes_nothing(store_with_runs, tmp_path,
                                                                run_id):
-    """A run id journaled before ids were checked (copied here into the journal by SQL) must
-    not name a file outside the reports directory."""
-    s, setup, _ = store_with_runs
-    copy = Store(tmp_path / "copy.sqlite")
-    s.db.backup(copy.db)  # a copy: the module's journal stays as it is
-    copy.db.execute("INSERT INTO runs SELECT ?, machine, trigger, state, reason, plan, artefact,"
-                    " dialect, touch_total, started_at, ended_at, verdict, summary, imported"
-                    " FROM runs WHERE id='R2'", (run_id,))
-    copy.db.execute("INSERT INTO estimates SELECT ?, analysis FROM estimates WHERE run_id='R2'",
-                    (run_id,))
+    """A run id journaled before ids were checked must not name a file outside the reports
+    directory."""
+    s, setup, _, (a, j) = store_with_runs
+    run = dataclasses.replace(s.run("R2"), id=run_id)
     reports = tmp_path / "a" / "b" / "reports"
     with pytest.raises(ValueError, match="invalid run id"):  # RunIdError
-        report.write_report(copy, run_id, reports, setup)
-    copy.close()
+        report.write_report(reports, run, a.data, j, a.centre_rows, s.trend(setup.name),
+                            setup.tolerances)
     written = [p for p in tmp_path.rglob("*") if p.suffix in (".html", ".json")]
     assert written == [], written

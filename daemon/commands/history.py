@@ -120,13 +120,16 @@ def _import(cfg: DaemonConfig, store: Store, args: argparse.Namespace) -> int:
         return 0
     from daemon import report
 
+    a, j = result
+    run, trend = store.run(run_id), store.trend(setup.name)  # as committed: state DONE
     try:  # after the commit: rendering takes seconds, the daemon must not wait on the journal
-        html, json_path = report.write_report(store, run_id, cfg.reports_dir, setup)
+        html, json_path = report.write_report(cfg.reports_dir, run, a.data, j, a.centre_rows,
+                                              trend, setup.tolerances)
         store.save_report(run_id, html, json_path)
     except OSError as e:
-        raise UserError(f"run {run_id} imported ({result[1].summary}), but its report cannot be "
+        raise UserError(f"run {run_id} imported ({j.summary}), but its report cannot be "
                         f"written in {cfg.reports_dir}: {e.strerror or e}") from None
-    print(f"{result[1].summary}\nreport: {html}")
+    print(f"{j.summary}\nreport: {html}")
     return 0
 
 
