@@ -148,7 +148,7 @@ def bench_demo() -> None:
     p = subprocess.run([sys.executable, "-m", "demos.e2e"], cwd=ROOT,
                        capture_output=True, text=True, timeout=600)
     verdict = next((ln for ln in p.stdout.splitlines() if ln.startswith("verdict")), p.stderr)
-    print(f"demo (python -m daemon.demo_e2e): {time.perf_counter() - t:.1f} s wall, exit "
+    print(f"demo (python -m demos.e2e): {time.perf_counter() - t:.1f} s wall, exit "
           f"{p.returncode}; {verdict.strip()}")
 
 

@@ -6,8 +6,9 @@
 Each measurement runs ``read_log`` in a fresh interpreter on a generated log of N touch rows
 (4 balls × 5 touches per pose, poses and repeats counted up, ~190 bytes a row) and reports the
 wall time and the peak RSS above the interpreter's RSS after the imports. ``--module`` reads
-with another copy of ``daemon/probelog.py`` (e.g. ``git show HEAD~1:daemon/probelog.py``) for a
-before/after comparison. A log over the reader's ceilings is expected to be refused quickly.
+with another copy of ``contracts/probing_log.py`` (e.g. ``git show
+HEAD~1:contracts/probing_log.py``) for a before/after comparison. A log over the reader's
+ceilings is expected to be refused quickly.
 """
 
 from __future__ import annotations
@@ -25,10 +26,10 @@ _CHILD = r"""
 import importlib.util, json, resource, sys, time, warnings
 sys.path.insert(0, sys.argv[3])
 from identification.model import Artefact  # noqa: F401  (imports before the RSS baseline)
-from daemon.config import load_artefact
+from contracts.setup_files import load_artefact
 import os
-if os.path.samefile(sys.argv[2], os.path.join(sys.argv[3], "daemon", "probelog.py")):
-    import daemon.probelog as mod
+if os.path.samefile(sys.argv[2], os.path.join(sys.argv[3], "contracts", "probing_log.py")):
+    import contracts.probing_log as mod
     from daemon.touch_centres import rows_to_centres
 else:  # an older probelog.py (before the touch-centres split it held rows_to_centres)
     spec = importlib.util.spec_from_file_location("probelog_under_test", sys.argv[2])
@@ -87,7 +88,7 @@ def measure(log: Path, module: Path) -> dict:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--lines", type=int, nargs="+", default=[100_000, 1_000_000])
-    ap.add_argument("--module", type=Path, default=ROOT / "daemon/probelog.py")
+    ap.add_argument("--module", type=Path, default=ROOT / "contracts/probing_log.py")
     args = ap.parse_args([] if argv is None else argv)
     with tempfile.TemporaryDirectory(prefix="bench_probelog_") as tmp:
         for n in args.lines:

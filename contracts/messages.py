@@ -14,7 +14,7 @@ TOUCH_DIRECTIONS: dict[int, tuple[float, float, float]] = {
     5: (0.0, 0.0, -1.0),
 }
 """Touch 5 is the pole, approached against the spindle axis (here +Z, so along -Z); a machine
-with another spindle axis gets its own pole direction from ``daemon.program``."""
+with another spindle axis gets its own pole direction from ``programs.toolpath``."""
 
 
 @dataclass(frozen=True)

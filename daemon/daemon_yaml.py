@@ -164,7 +164,7 @@ class DaemonFile(StrictModel):
     store: StoreFile = StoreFile()
     reports_dir: str = "reports"
     hmi: HmiFile = HmiFile(token_file="hmi.token")
-    can_panel: dict[str, Any] | None = None  # validated by drivers.can_panel
+    can_panel: dict[str, Any] | None = None  # validated by drivers.can.panel
     machines: list[MachineEntry] = Field(min_length=1)
 
     @model_validator(mode="after")
@@ -189,7 +189,7 @@ class MachineSetup:
     artefact: Artefact
     plan: Plan
     dialect: str
-    link: Any  # drivers.link_config.LinkConfig (one of the transport schemas)
+    link: Any  # drivers.registry.LinkConfig (one of the transport schemas)
     triggers: TriggersFile
     tolerances: Tolerances
     touch_timeout_s: float
@@ -240,7 +240,7 @@ def read_token_file(path: Path, where: str) -> str:
 
 
 def _validate_link(link: dict[str, Any], where: str, base: Path) -> Any:
-    """The transport section, validated by the drivers' own schema (drivers/link_config.py);
+    """The transport section, validated by the drivers' own schema (drivers/<transport>/schema.py);
     relative certificate paths are resolved against daemon.yaml's directory."""
     from drivers.registry import link_config
 

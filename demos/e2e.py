@@ -2,7 +2,7 @@
 and the daemon (`rumba run`, a separate process) on free loopback ports; the CNC raises its
 start-of-shift request, the daemon runs the thesis annex-B plan, and the verdict comes back.
 
-``python -m daemon.demo_e2e [--time-scale S] [--out DIR]`` prints the verdict and report path.
+``python -m demos.e2e [--time-scale S] [--out DIR]`` prints the verdict and report path.
 """
 
 from __future__ import annotations
@@ -28,7 +28,7 @@ PLAN, ERRORS = "plans/shift_start_14poses.yaml", "errors/thesis_tableB2.yaml"
 
 
 def _daemon_yaml(work: Path, url: str, pki: Path, server_cert: Path, token_file: Path) -> str:
-    return f"""# written by daemon/demo_e2e.py
+    return f"""# written by demos/e2e.py
 store: {{path: {work / 'journal.sqlite'}}}
 reports_dir: {work / 'reports'}
 hmi: {{host: 127.0.0.1, port: 0, token_file: {token_file}}}
@@ -147,7 +147,7 @@ async def stop_process(proc: asyncio.subprocess.Process, grace_s: float = 20.0) 
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m daemon.demo_e2e", description=__doc__)
+    ap = argparse.ArgumentParser(prog="python -m demos.e2e", description=__doc__)
     ap.add_argument("--time-scale", type=float, default=0.02,
                     help="simulated machine time scale (1 = real time; default 0.02)")
     ap.add_argument("--out", type=Path,

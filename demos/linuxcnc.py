@@ -2,7 +2,7 @@
 our truth model) and the daemon (`rumba run`, a separate process) talking linuxcncrsh; the run is
 started from the HMI's API, the verdict is written back to LinuxCNC (motion.analog-out-00).
 
-``python -m daemon.demo_linuxcnc [--plan F] [--out DIR]`` (needs `bash .ci/install-peers.sh
+``python -m demos.linuxcnc [--plan F] [--out DIR]`` (needs `bash .ci/install-peers.sh
 linuxcnc`; ~1.5 min with the default 7-pose plan, ~5 min with thesis_annexB_14poses).
 """
 
@@ -30,7 +30,7 @@ ERRORS = "errors/linuxcnc_xyzbc.yaml"
 
 
 def _daemon_yaml(work: Path, port: int, plan: Path, token_file: Path) -> str:
-    return f"""# written by daemon/demo_linuxcnc.py
+    return f"""# written by demos/linuxcnc.py
 store: {{path: {work / 'journal.sqlite'}}}
 reports_dir: {work / 'reports'}
 hmi: {{host: 127.0.0.1, port: 0, token_file: {token_file}}}
@@ -111,7 +111,7 @@ async def demo(plan: Path, work: Path) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m daemon.demo_linuxcnc", description=__doc__)
+    ap = argparse.ArgumentParser(prog="python -m demos.linuxcnc", description=__doc__)
     ap.add_argument("--plan", type=Path, default=CONFIG / "plans/linuxcnc_7poses.yaml")
     ap.add_argument("--out", type=Path, help="folder for journal, reports and config "
                                              "(default: a new temp folder, kept)")
@@ -123,7 +123,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return asyncio.run(demo(args.plan.resolve(), out.resolve()))
     except PeerError as e:
-        print(f"demo_linuxcnc: {e}", file=sys.stderr)
+        print(f"demos.linuxcnc: {e}", file=sys.stderr)
         return 2
 
 

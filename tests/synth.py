@@ -3,7 +3,8 @@
 For every pose and ball the true centre is the controller X, Y, Z that puts the true stylus tip
 on the true ball centre (``kinematics.solve_centre`` with the true links, setup and scale); the
 five stylus-centre points lie on the sphere of radius ball + stylus radius around it, along the
-nominal touch directions (touch point = centre − d·(R + r), ``daemon.messages.TOUCH_DIRECTIONS``).
+nominal touch directions (touch point = centre − d·(R + r),
+``contracts.messages.TOUCH_DIRECTIONS``).
 Noise: ``touch_noise_um`` along each touch direction (trigger scatter) plus ``centre_noise_um``
 (x, y, z) common to the five touches of a group (repositioning); see ``thesis_noise``.
 """

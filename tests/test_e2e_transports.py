@@ -49,7 +49,7 @@ ERRORS = CONFIG / "errors/thesis_tableB2.yaml"
 PLAN = "thesis_ch3_7poses"  # 7 B/C poses × 4 balls × 5 touches: all 8 links identifiable
 TRANSPORTS = ("serial-pty", "serial-socket", "opcua", "modbus")
 DIALECTS = DIALECT_NAMES
-BAUD = 921_600  # the highest rate a DNC link accepts (drivers/link_config.py)
+BAUD = 921_600  # the highest rate a DNC link accepts (drivers/serial/schema.py)
 RUN_TIMEOUT_S = 60.0
 NOISE_SEED = 0
 

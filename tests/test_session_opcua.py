@@ -1,5 +1,5 @@
 """The session over a real link: the simulated CNC (simulators/) behind its asyncua server and
-drivers/opcua.py, in this process on a free loopback port. Start-of-shift path, verdict on the
+drivers/opcua/link.py, in this process on a free loopback port. Start-of-shift path, verdict on the
 CNC side, identified link errors vs the simulator's truth, and simulator faults."""
 
 from __future__ import annotations

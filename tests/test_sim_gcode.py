@@ -169,7 +169,7 @@ def generated():
 
 @pytest.mark.parametrize("dialect", GENERATED)
 async def test_generated_programs_latch_exactly(dialect, generated):
-    """What daemon/program.py + daemon/dialects.py emit runs to the end on the simulator, and
+    """What programs/ (tool path + dialects) emits runs to the end on the simulator, and
     every latch is the analytic contact (link and setup errors on, no noise, no effects)."""
     from programs.dialects import get_dialect
 

@@ -1,4 +1,4 @@
-"""Target 1: the probing-log CSV reader (``daemon.probelog.read_log``) on mutated shipped logs."""
+"""Target 1: the probing-log reader (``contracts.probing_log.read_log``) on mutated shipped logs."""
 
 from __future__ import annotations
 

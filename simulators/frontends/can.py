@@ -1,5 +1,5 @@
 """The operator panel's side of the CAN bus: buttons pressed by a test or an operator at the
-terminal, lamps shown from the daemon's LAMP frames (frame map in drivers/can_panel.py)."""
+terminal, lamps shown from the daemon's LAMP frames (frame map in contracts/can_frames.py)."""
 
 from __future__ import annotations
 

@@ -1,5 +1,5 @@
 """Controller side of Modbus TCP: a pymodbus server holding the rumba register map
-(drivers/modbus_map.py) for one VirtualController: handshake, command register, block mailbox
+(contracts/modbus_map.py) for one VirtualController: handshake, command register, block mailbox
 (payload, then sequence, then ready; acknowledged by the controller) and the result ring.
 
 The map lives in ``self.regs``; pymodbus's access hook copies it into every read and checks every

@@ -1,5 +1,5 @@
 """Controller side of OPC UA: an asyncua server exposing one VirtualController through the rumba
-address space (drivers/opcua_space.py): program transfer, start, abort, state, touch counter +
+address space (contracts/opcua_space.py): program transfer, start, abort, state, touch counter +
 result ring, request/busy/done/verdict handshake.
 
 Security is explicit: one policy per server (Basic256Sha256 SignAndEncrypt by default, with a
