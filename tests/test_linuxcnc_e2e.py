@@ -13,122 +13,43 @@ import asyncio
 import contextlib
 import math
 import os
-import re
 import shutil
 import signal
-import socket
-import subprocess
 import time
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from contracts.jobs import VERDICT_CODES
-from contracts.setup_files import load_artefact, load_machine, load_plan
-from daemon.daemon_yaml import MachineSetup, TriggersFile
-from daemon.judge import Limit, Tolerances
-from daemon.session import Session, State
-from daemon.store import Store
+from contracts.setup_files import load_artefact, load_machine
+from daemon.daemon_yaml import MachineSetup
+from daemon.session import State
 from drivers.registry import make_link
 from identification.estimate import coverage_factor
 from identification.kinematics import ChainState, frames, to_model
 from simulators import linuxcnc_peer
 from simulators.hal_probe import write_spec
 from simulators.truth import TruthModel
+from tests.linuxcnc_helpers import (
+    ARTEFACT,
+    ERRORS,
+    MACHINE,
+    VARIANTS,
+    Lcnc,
+    Rsh,
+    _link,
+    _overshoot_um,
+    _session,
+    _setup,
+    _xfail_on_race,
+    halcmd,
+)
 
 pytestmark = [pytest.mark.linuxcnc,
               pytest.mark.skipif(shutil.which("linuxcnc", path="/usr/bin") is None,
                                  reason="LinuxCNC not installed (bash .ci/install-peers.sh "
                                         "linuxcnc)")]
-
-ROOT = Path(__file__).resolve().parents[1]
-MACHINE = ROOT / "config/machines/linuxcnc_xyzbc.yaml"
-ARTEFACT = ROOT / "config/artefacts/thesis_4ball.yaml"
-ERRORS = ROOT / "config/errors/linuxcnc_xyzbc.yaml"
-PLAN = ROOT / "config/plans/linuxcnc_4poses.yaml"
-VARIANTS = ("remote", "local-auto")  # linuxcncrsh + MDI streaming; linuxcnc module + AUTO run
-RACE = "Queue is not empty after probing"
-
-
-def _xfail_on_race(variant: str, reason: str) -> None:
-    """LinuxCNC 2.9's own AUTO-mode race after G38.2 (config/linuxcnc/README.md, "Why AUTO is
-    not the default"): reported as such, never as a pass, and never hidden in MDI runs."""
-    if variant == "local-auto" and RACE in reason:
-        pytest.xfail(f"LinuxCNC AUTO race (issues #263/#662/#3650, fix PR #3971): {reason}")
-
-
-class Rsh:
-    """A minimal synchronous linuxcncrsh client for the checks (not the link under test)."""
-
-    def __init__(self, port: int) -> None:
-        self.sock = socket.create_connection(("127.0.0.1", port), timeout=60)
-        self.buf = b""
-        assert self.ask("hello EMC test 1.0").startswith("HELLO ACK")
-        self.sock.sendall(b"set echo off\r\nget echo\r\n")
-        while self.line() != "ECHO OFF":
-            pass
-        for cmd in ("set verbose on", "set enable EMCTOO", "set set_wait done",
-                    "set estop off", "set machine on"):
-            assert self.ask(cmd).endswith("ACK"), cmd
-
-    def line(self) -> str:
-        while True:
-            m = re.search(rb"[^\r\n]+[\r\n]", self.buf)
-            if m:
-                self.buf = self.buf[m.end():]
-                return m.group()[:-1].decode()
-            data = self.sock.recv(4096)
-            assert data, "linuxcncrsh closed"
-            self.buf += data
-
-    def ask(self, cmd: str) -> str:
-        self.sock.sendall(cmd.encode() + b"\r\n")
-        return self.line()
-
-    def mdi(self, block: str) -> None:
-        assert self.ask(f"set mdi {block}") == "SET MDI ACK", block
-        err = self.ask("get error")
-        assert err == "ERROR OK", f"{block}: {err}"
-
-    def home_mdi(self) -> None:
-        """Home the joints when needed, then MDI mode."""
-        if "NO" in self.ask("get joint_homed").split()[1:6]:
-            self.ask("set mode manual")
-            self.ask("set home -1")
-            for _ in range(100):
-                time.sleep(0.1)
-                if "NO" not in self.ask("get joint_homed").split()[1:6]:
-                    break
-        assert self.ask("set mode mdi") == "SET MODE ACK"
-
-    def floats(self, cmd: str) -> list[float]:
-        return [float(v) for v in self.ask(cmd).split()[1:]]
-
-    def close(self) -> None:
-        self.sock.close()
-
-
-def halcmd(peer: linuxcnc_peer.Peer, *args: str) -> str:
-    fifo = (peer.dir / "fifo.path").read_text().strip()
-    env = dict(os.environ, RTAPI_FIFO_PATH=f"{fifo}/rtapi_fifo")
-    out = subprocess.run(["/usr/bin/halcmd", *args], env=env, capture_output=True, text=True,
-                         timeout=20, check=True)
-    return out.stdout.strip()
-
-
-@dataclass
-class Lcnc:
-    """The module's LinuxCNC (restarted after a test killed it)."""
-
-    peer: linuxcnc_peer.Peer
-    truth: TruthModel
-    spec: Path
-
-    def restart(self) -> None:
-        linuxcnc_peer.down(self.peer.dir)
-        self.peer = linuxcnc_peer.up(self.spec, workdir=self.peer.dir)
 
 
 @pytest.fixture(scope="module")
@@ -143,31 +64,6 @@ def lcnc(tmp_path_factory: pytest.TempPathFactory):
     finally:
         linuxcnc_peer.down(state.peer.dir)
         assert not linuxcnc_peer.lcnc_running(), "LinuxCNC processes left behind"
-
-
-def _link(peer: linuxcnc_peer.Peer, variant: str, **extra: object) -> dict:
-    if variant == "remote":
-        return {"transport": "linuxcnc", "port": peer.port, "prelude_mdi": ["M429"], **extra}
-    run = variant.removeprefix("local-")
-    return {"transport": "linuxcnc", "mode": "local", "run": run, "prelude_mdi": ["M429"],
-            "local_home": str(peer.dir / "home"), **extra}
-
-
-def _setup(link: dict) -> MachineSetup:
-    m, mf = load_machine(MACHINE)
-    plan = load_plan(PLAN)
-    link_cfg = make_link(link).cfg
-    tol = Tolerances(default_rotation_urad=Limit(warn=100, fail=200),
-                     default_translation_um=Limit(warn=300, fail=500))
-    return MachineSetup("lcnc", m, mf, load_artefact(ARTEFACT), plan, "linuxcnc", link_cfg,
-                        TriggersFile(), tol, 60.0, (), False)
-
-
-async def _session(setup: MachineSetup, tmp: Path) -> tuple[Session, Store]:
-    link = make_link(setup.link)
-    await link.connect()
-    store = Store(tmp / "journal.sqlite")
-    return Session(setup, link, store, tmp / "reports"), store
 
 
 def test_forward_kinematics_match_xyzbc_trt_kins(lcnc) -> None:
@@ -304,18 +200,6 @@ async def test_missing_ball_stops_with_linuxcnc_probe_error(lcnc, tmp_path: Path
             rsh.close()
             halcmd(peer, "setp", "rumba-probe.ball-0-present", "1")
         store.close()
-
-
-def _overshoot_um(truth: TruthModel, hits: list, ids: tuple[str, ...]) -> np.ndarray:
-    """How far each latched tip centre is inside its true contact sphere (µm)."""
-    over = []
-    for h in hits:
-        a, t = truth.affine_map(h.axes["b"], h.axes["c"])
-        tip = a @ np.array([h.axes[k] for k in "XYZ"]) + t
-        i = ids.index(h.ball)
-        d = np.linalg.norm(tip - truth.ball_centres_mm(0, 0, 0)[i])
-        over.append((truth.ball_radii_mm[i] + truth.stylus_radius_mm - d) * 1e3)
-    return np.array(over)
 
 
 async def test_local_mode_through_the_linuxcnc_module(lcnc) -> None:
