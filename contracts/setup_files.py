@@ -14,6 +14,7 @@ from typing import Annotated, Any, Literal
 import numpy as np
 from pydantic import Field, field_validator, model_validator
 
+from contracts.result_lines import MAX_RESULT_MM
 from contracts.yaml_files import (
     ConfigError,
     StrictModel,
@@ -41,8 +42,12 @@ MAX_BALLS = 32
 
 
 
-Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]
-Range2 = Annotated[list[float], Field(min_length=2, max_length=2)]
+# Every length and angle of a setup file is bounded like a latched value (±1e5 mm or °): a finite
+# but absurd number (1e308) would otherwise reach the kinematics and fail deep inside as a
+# singular matrix instead of naming the key.
+Bounded = Annotated[float, Field(ge=-MAX_RESULT_MM, le=MAX_RESULT_MM)]
+Vec3 = Annotated[list[Bounded], Field(min_length=3, max_length=3)]
+Range2 = Annotated[list[Bounded], Field(min_length=2, max_length=2)]
 
 
 def _finite(v: list[float]) -> list[float]:
@@ -110,9 +115,9 @@ class TableFile(StrictModel):
     """The table (pallet) as a keep-out: a disc of ``radius_mm`` whose top is ``surface_z_mm``
     in the last workpiece frame; nothing of the tool may come below it plus ``clearance_mm``."""
 
-    surface_z_mm: float = 0.0
-    radius_mm: float = Field(250.0, gt=0)
-    clearance_mm: float = Field(5.0, ge=0)
+    surface_z_mm: Bounded = 0.0
+    radius_mm: float = Field(250.0, gt=0, le=MAX_RESULT_MM)
+    clearance_mm: float = Field(5.0, ge=0, le=MAX_RESULT_MM)
 
 
 class KeepOutBox(StrictModel):
@@ -164,7 +169,7 @@ class BallFile(StrictModel):
 
 class DistanceFile(StrictModel):
     balls: Annotated[list[str], Field(min_length=2, max_length=2)]
-    distance_mm: float = Field(gt=0)
+    distance_mm: float = Field(gt=0, le=MAX_RESULT_MM)
     std_um: float = Field(0.5, gt=0, le=100)
 
 
@@ -195,9 +200,9 @@ class ArtefactFile(StrictModel):
 
 
 class GridAxis(StrictModel):
-    start_deg: float
-    stop_deg: float
-    step_deg: float = Field(gt=0)
+    start_deg: Bounded
+    stop_deg: Bounded
+    step_deg: float = Field(gt=0, le=MAX_RESULT_MM)
 
 
 class Grid(StrictModel):
@@ -217,8 +222,8 @@ class Grid(StrictModel):
 
 
 class PoseFile(StrictModel):
-    b_deg: float
-    c_deg: float
+    b_deg: Bounded
+    c_deg: Bounded
     role: Literal["estimate", "validate"] = "estimate"
 
 
