@@ -20,7 +20,7 @@ from contracts.setup_files import load_artefact, load_machine, load_plan
 from daemon import pipeline
 from daemon.daemon_yaml import MachineSetup, TriggersFile
 from daemon.judge import Tolerances
-from drivers.linuxcnc import link as lcnc_link
+from drivers.linuxcnc.channel import RshChannel
 from drivers.registry import make_link
 from simulators import linuxcnc_peer
 from simulators.hal_probe import write_spec
@@ -44,9 +44,9 @@ def _link(variant: str, peer: linuxcnc_peer.Peer) -> dict:
 
 async def _run(setup: MachineSetup, link_cfg: dict) -> dict:
     waited = [0.0]
-    ask = lcnc_link._Rsh.ask
+    ask = RshChannel.ask
 
-    async def timed_ask(self: lcnc_link._Rsh, cmd: str, timeout_s: float | None = None) -> str:
+    async def timed_ask(self: RshChannel, cmd: str, timeout_s: float | None = None) -> str:
         t = time.perf_counter()
         try:
             return await ask(self, cmd, timeout_s)
@@ -62,7 +62,7 @@ async def _run(setup: MachineSetup, link_cfg: dict) -> dict:
         finally:
             waited[0] += time.perf_counter() - t
 
-    lcnc_link._Rsh.ask = timed_ask  # type: ignore[method-assign]
+    RshChannel.ask = timed_ask  # type: ignore[method-assign]
     asyncio.sleep = timed_sleep  # type: ignore[assignment]
     link = make_link(link_cfg)
     try:
@@ -83,7 +83,7 @@ async def _run(setup: MachineSetup, link_cfg: dict) -> dict:
                 "total_s": time.perf_counter() - t0, "cpu_total_s": time.process_time() - c0,
                 "links": analysis.data.to_json()["links"]}
     finally:
-        lcnc_link._Rsh.ask = ask  # type: ignore[method-assign]
+        RshChannel.ask = ask  # type: ignore[method-assign]
         asyncio.sleep = sleep  # type: ignore[assignment]
         await link.close()
 

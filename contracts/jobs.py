@@ -58,3 +58,4 @@ class ProgramJob:
     files: dict[str, str] = field(default_factory=dict)  # auxiliary files the program needs on
     # the control (Heidenhain FN 16 format files); OPC UA transfers them with the program
     codec: DialectCodec | None = None  # decodes the program's result lines (links that read
+    # the controller's printed output: serial DNC, LinuxCNC)

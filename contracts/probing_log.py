@@ -49,8 +49,7 @@ MAX_LOG_BYTES = 64 * 2**20
 MAX_LOG_ROWS = 250_000
 MAX_LINE_BYTES = 4096
 MAX_ID_CHARS = 200
-MAX_ABS_MM = MAX_RESULT_MM  # the plausibility ceilings of a latched value, one definition
-MAX_ABS_DEG = MAX_RESULT_DEG
+MAX_ABS_MM, MAX_ABS_DEG = MAX_RESULT_MM, MAX_RESULT_DEG  # one definition: contracts.result_lines
 # (low, high) per float column; NaN fails every comparison, so it is refused as well
 _RANGES = {"t_s": (0.0, 1e8), "b_cmd_deg": (-MAX_ABS_DEG, MAX_ABS_DEG),
            "c_cmd_deg": (-MAX_ABS_DEG, MAX_ABS_DEG), "b_deg": (-MAX_ABS_DEG, MAX_ABS_DEG),

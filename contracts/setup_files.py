@@ -50,12 +50,6 @@ Vec3 = Annotated[list[Bounded], Field(min_length=3, max_length=3)]
 Range2 = Annotated[list[Bounded], Field(min_length=2, max_length=2)]
 
 
-def _finite(v: list[float]) -> list[float]:
-    if not all(math.isfinite(x) for x in v):
-        raise ValueError("values must be finite numbers")
-    return v
-
-
 def _safe_name(v: str) -> str:
     if not SAFE_NAME.fullmatch(v):
         raise ValueError(
@@ -74,10 +68,6 @@ class AxisFile(StrictModel):
     travel_mm: Range2 | None = None
     travel_deg: Range2 | None = None
     sign: Literal[1, -1] = 1
-
-    _fin = field_validator("direction", "point_mm", "travel_mm", "travel_deg")(
-        lambda v: v if v is None else _finite(v)
-    )
 
     @model_validator(mode="after")
     def _units(self) -> AxisFile:
@@ -147,7 +137,6 @@ class MachineFile(StrictModel):
     def _unit_gravity(cls, v: list[float] | None) -> list[float] | None:
         if v is None:
             return v
-        _finite(v)
         n = math.sqrt(sum(x * x for x in v))
         if n < 1e-9:
             raise ValueError("must be a non-zero direction, e.g. [0, 0, -1]")
@@ -164,7 +153,6 @@ class BallFile(StrictModel):
     ball_diameter_mm: float | None = Field(None, gt=0, le=200)
     rod_diameter_mm: float | None = Field(None, gt=0, le=100)
     _n = field_validator("id")(_safe_name)
-    _f = field_validator("position_mm")(_finite)
 
 
 class DistanceFile(StrictModel):

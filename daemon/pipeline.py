@@ -1,5 +1,6 @@
 """The computing steps of a run, kept out of the state machine: the checked program (PREPARE)
-and hits → centres → estimate → analyses (IDENTIFY), giving the ``rumba analyze`` JSON shape.
+and hits → centres → estimate → analyses (IDENTIFY), giving the typed analysis of
+``daemon.analysis_result`` (the ``rumba analyze`` JSON once serialised).
 
 Both are plain functions run in a worker thread; they raise ``PipelineError`` with a reason the
 operator can act on (unsafe program, rank-deficient data, incomplete ball-poses).
@@ -14,8 +15,7 @@ from typing import Any
 
 from contracts.jobs import ProgramJob
 from contracts.messages import ProbeHit
-from contracts.probing_log import LogRow, ProbeLogError
-from contracts.touch_table import TouchTable
+from contracts.probing_log import LogRow
 from daemon import analysis_result
 from daemon.daemon_yaml import MachineSetup
 from daemon.identify import AnalysisError, analyse_centres
@@ -36,11 +36,6 @@ class Prepared:
     job: ProgramJob
     estimated_s: float | None = None
     notes: list[str] = field(default_factory=list)
-
-    @property
-    def touches(self) -> TouchTable:
-        """The program's touch table, the one the link names its hits with."""
-        return self.job.touches
 
     def complete(self, hit: ProbeHit, t_s: float) -> ProbeHit:
         """Fill the fields a transport cannot know from the program's touch table."""
@@ -132,17 +127,18 @@ class RunAnalysis:
     centre_rows: list[tuple]  # for the store: pose, ball, b, c, x, y, z, radius dev, form
 
 
-def analyse(setup: MachineSetup, hits: Sequence[ProbeHit],
-            run_id: str = "run") -> RunAnalysis:
+def analyse(setup: MachineSetup, hits: Sequence[ProbeHit], run_id: str = "run",
+            reference: tuple[str, analysis_result.Analysis] | None = None) -> RunAnalysis:
     """Centres (sphere fit) → estimate (setup + identifiable links) → analyses, as the shared
-    ``daemon.analysis_result.Analysis`` plus the run's identity."""
+    ``daemon.analysis_result.Analysis`` plus the run's identity and the reference run (the
+    last good run the verdict's drift is judged against, None when there is none)."""
     rows = [hit_to_row(run_id, h, setup.machine) for h in hits if h.triggered]
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         try:
             cd = rows_to_centres(rows, setup.artefact, setup.plan.stylus_radius_mm,
                                  source=f"run {run_id}")
-        except ProbeLogError as e:
+        except ValueError as e:  # ProbeLogError, and any numerical failure of the fit
             raise PipelineError(str(e)) from None
     try:
         data = analyse_centres(setup.machine, setup.artefact, cd,
@@ -150,7 +146,7 @@ def analyse(setup: MachineSetup, hits: Sequence[ProbeHit],
     except (AnalysisError, ValueError) as e:
         raise PipelineError(f"identification impossible: {e}") from None
     data = replace(data, run_id=run_id, machine=setup.name, plan=setup.plan.name,
-                   touches=len(rows),
+                   touches=len(rows), reference_run=reference[0] if reference else None,
                    warnings=(*data.warnings, *(str(w.message) for w in caught
                                                if str(w.message) not in data.warnings)))
     centres, ids = cd.centres, setup.artefact.ids

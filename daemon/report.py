@@ -41,7 +41,7 @@ def plot_distortion(analysis: Analysis,
     """Arrows of the volumetric distortion (setup errors removed) at every measured centre
     (``centres``: (pose, ball) → x y z mm), magnified; one colour per pose (thesis Fig 3.10)."""
     vol = [v for v in analysis.volumetric if (v.pose, v.ball) in centres]
-    if not analysis.volumetric or not centres:
+    if not vol:
         return None
     pts = np.array([centres[(v.pose, v.ball)] for v in vol])
     err = np.array([v.error_um for v in vol])

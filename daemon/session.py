@@ -15,7 +15,6 @@ import logging
 import secrets
 import time
 from collections.abc import Callable
-from dataclasses import replace
 from enum import StrEnum
 from pathlib import Path
 from typing import Any
@@ -258,9 +257,7 @@ class Session:
                         reference: tuple[str, Analysis] | None) -> pipeline.RunAnalysis:
         """IDENTIFY: hits → centres → estimate → analyses, recorded with the reference run."""
         self._enter(State.IDENTIFY)
-        analysis = await asyncio.to_thread(self._analyse, self.setup, hits, run_id)
-        analysis.data = replace(analysis.data,
-                                reference_run=reference[0] if reference else None)
+        analysis = await asyncio.to_thread(self._analyse, self.setup, hits, run_id, reference)
         self.store.save_centres(run_id, analysis.centre_rows)
         self.store.save_analysis(run_id, analysis.data)
         return analysis
@@ -270,8 +267,7 @@ class Session:
         """JUDGE: the verdict against the tolerances and the drift from the reference run."""
         self._enter(State.JUDGE)
         j = judge(analysis.data, self.setup.tolerances, reference[1] if reference else None)
-        self.store.save_verdict(run_id, j.status, list(j.reasons),
-                                [c.as_dict() for c in j.checks], j.summary)
+        self.store.save_judgement(run_id, j)
         self.verdict = {"status": j.status, "summary": j.summary, "reasons": list(j.reasons)}
         return j
 
@@ -287,8 +283,7 @@ class Session:
                                         analysis.data, judgement, analysis.centre_rows, trend,
                                         self.setup.tolerances)
         self.store.save_report(run_id, *paths)
-        if self.verdict is not None:
-            self.verdict["report"] = str(paths[0])
+        self.verdict["report"] = str(paths[0])  # type: ignore[index]  # set by _judge
 
     async def _capture(self, prepared: pipeline.Prepared) -> list[ProbeHit]:
         run_id = prepared.job.run_id

@@ -21,6 +21,7 @@ from typing import Any, Literal
 from contracts.messages import ProbeHit
 from contracts.yaml_files import ConfigError
 from daemon.analysis_result import Analysis
+from daemon.judge import Judgement
 
 FINAL_STATES = ("DONE", "ABORTED", "FAILED", "INTERRUPTED", "IMPORTED")
 """A run in any other state was cut short by a crash (marked INTERRUPTED on the next start)."""
@@ -324,6 +325,11 @@ class Store:
         row = self.db.execute("SELECT analysis FROM estimates WHERE run_id=?",
                               (run_id,)).fetchone()
         return Analysis.from_json(json.loads(row[0])) if row else None
+
+    def save_judgement(self, run_id: str, j: Judgement) -> None:
+        """The verdict of a run as the judge gave it (status, reasons, checks, summary)."""
+        self.save_verdict(run_id, j.status, list(j.reasons), [c.as_dict() for c in j.checks],
+                          j.summary)
 
     def save_verdict(self, run_id: str, status: str, reasons: list[str],
                      checks: list[dict[str, Any]], summary: str) -> None:

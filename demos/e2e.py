@@ -20,9 +20,11 @@ from pathlib import Path
 
 import aiohttp
 
+from contracts.jobs import VERDICT_CODES
+
 ROOT = Path(__file__).resolve().parents[1]
 CONFIG = ROOT / "config"
-VERDICT_NAMES = {1: "PASS", 2: "WARN", 3: "FAIL", 4: "ERROR"}
+VERDICT_NAMES = {code: name for name, code in VERDICT_CODES.items()}
 MACHINE, ARTEFACT = "machines/thesis_wcbxfzyt.yaml", "artefacts/thesis_4ball.yaml"
 PLAN, ERRORS = "plans/shift_start_14poses.yaml", "errors/thesis_tableB2.yaml"
 

@@ -33,8 +33,6 @@ class StartRequest:
     detail: str = ""
 
 
-    # the controller's printed output: serial DNC, LinuxCNC)
-
 
 class LinkError(Exception):
     """The link failed (connection lost, protocol violation, timeout); message says which."""

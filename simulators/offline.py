@@ -62,7 +62,7 @@ def touches_to_rows(vc: VirtualController, run_id: str) -> list[LogRow]:
         direction = t.direction
         if t.seq in ids:
             rep, pose, ball, touch = ids[t.seq]
-            # As the daemon logs it (drivers/hits.py): the nominal direction of that touch.
+            # As the daemon logs it (contracts/touch_table.py): the nominal direction of that touch.
             direction = TOUCH_DIRECTIONS.get(touch, t.direction)
         else:
             pose, ball, touch = poses[key], truth.artefact.ids[t.ball], t.touch

@@ -44,6 +44,7 @@ from programs.dialects import get_dialect
 from simulators.controller import VERDICT_VARIABLE, VirtualController
 from simulators.truth import TruthModel
 from tests.daemon_helpers import CONFIG
+from tests.transport_sim import MACRO_VERDICT_VARIABLE
 
 ERRORS = CONFIG / "errors/thesis_tableB2.yaml"
 PLAN = "thesis_ch3_7poses"  # 7 B/C poses × 4 balls × 5 touches: all 8 links identifiable
@@ -236,7 +237,9 @@ async def test_start_of_shift_verdict_on_cnc_and_links_match_truth(rigs, tmp_pat
     assert status == "PASS", r["verdict"]
     assert r["cnc_verdict"] == VERDICT_CODES[status]  # arrived on the CNC side
     assert r["cnc_variable"] == float(VERDICT_CODES[status])  # where the macro reads it
-    assert get_dialect(dialect).verdict_variable == VERDICT_VARIABLE[dialect]
+    # the variables the start-of-shift macros read (gcode_templates/*/README.md)
+    d_var = get_dialect(dialect).verdict_variable
+    assert d_var == VERDICT_VARIABLE[dialect] == MACRO_VERDICT_VARIABLE[dialect]
     truth = yaml.safe_load(ERRORS.read_text())["links"]
     links = r["analysis"].to_json()["links"]
     assert set(links) == set(truth)  # all 8 link errors identified

@@ -66,13 +66,15 @@ def test_import_refuses_a_run_id_that_leaves_the_reports_dir(tmp_path, capsys, r
 def test_any_analysis_failure_is_one_line_and_journals_nothing(tmp_path, capsys, rows,
                                                                monkeypatch, error):
     """Whatever the analysis raises on bad data (the log reader may not catch every absurd
-    value), the import ends as one line and the journal stays as it was."""
-    import daemon.commands.history as history
+    value), the import ends as one line and the journal stays as it was: the sphere fit's
+    failures are turned into a PipelineError by the pipeline itself."""
+    import daemon.pipeline as pipeline
 
     def failing(*_a: object, **_k: object) -> None:
         raise error
 
-    monkeypatch.setattr(history, "analyse", failing)
+    step = "analyse_centres" if isinstance(error, PipelineError) else "rows_to_centres"
+    monkeypatch.setattr(pipeline, step, failing)
     cfg = write_daemon_yaml(tmp_path)
     log = tmp_path / "in.csv"
     write_log(log, rows)

@@ -132,7 +132,9 @@ def test_every_dialect_refuses_a_name_that_bypassed_validation(dialect, field, b
     d = _DIALECT[dialect]
     with pytest.raises(ProgramError):
         d.render(prog)
-        d.aux_files(prog)
+    if dialect == "heidenhain" and field == "ball":  # its format files are named after balls
+        with pytest.raises(ProgramError):
+            d.aux_files(prog)
 
 
 @pytest.mark.parametrize("bad", BAD, ids=repr)

@@ -20,7 +20,7 @@ from programs.dialects import get_dialect
 from programs.geometry import ProgramError
 from simulators.controller import VERDICT_VARIABLE, VirtualController
 from simulators.frontends.serial import SerialFrontend, SerialSettings
-from tests.transport_sim import first_touch_of, make_truth, real_setup
+from tests.transport_sim import MACRO_VERDICT_VARIABLE, first_touch_of, make_truth, real_setup
 
 # ------------------------------------------------------------------------ request grammar
 
@@ -54,7 +54,8 @@ def test_broken_request_line_is_refused_not_guessed(line):
 @pytest.mark.parametrize("dialect", DIALECT_NAMES)
 def test_verdict_program_is_tiny_and_takes_only_a_code(dialect):
     d = get_dialect(dialect)
-    assert d.verdict_variable == VERDICT_VARIABLE[dialect]  # the simulator reads the same one
+    # the simulator reads the one the macros read (gcode_templates/*/README.md)
+    assert d.verdict_variable == VERDICT_VARIABLE[dialect] == MACRO_VERDICT_VARIABLE[dialect]
     text = d.verdict_program(3)
     assert len(text.splitlines()) <= 5 and d.verdict_variable in text
     for bad in (0, 5, True, 2.0, "1", "1\nM30"):

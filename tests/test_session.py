@@ -186,7 +186,8 @@ async def test_waiting_on_a_stalled_run_can_itself_be_cancelled(env):
     await stalled.wait()
     assert s.status()["state"] == "CAPTURE", s.status()
     waiter = asyncio.ensure_future(s.wait())
-    await asyncio.sleep(0)
+    started, _ = await asyncio.wait({waiter}, timeout=0.05)  # the waiter is now inside wait()
+    assert not started
     waiter.cancel()
     done, _ = await asyncio.wait({waiter}, timeout=5)
     assert done, "s.wait() swallowed its caller's cancellation"

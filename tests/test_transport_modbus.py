@@ -326,9 +326,12 @@ async def test_mailbox_garbage_fails_the_service_run_with_the_reason(tmp_path):
     try:
         ctrl.raise_start_request()
         await until(lambda: session.run_id is not None)
-        # Session.wait() swallows a cancellation, so the guard is asyncio.wait's timeout.
-        done, _ = await asyncio.wait({asyncio.ensure_future(session.wait())}, timeout=60)
-        assert done, f"run still {session.state} after 60 s with mailbox garbage"
+        try:
+            async with asyncio.timeout(60):
+                await session.wait()
+        except TimeoutError:
+            raise AssertionError(f"run still {session.state} after 60 s with mailbox "
+                                 "garbage") from None
         assert session.state == State.FAILED
         assert "MBX_ACK (register 16) = 48879, expected" in session.reason, session.reason
         await until(lambda: ctrl.verdict == 4 and ctrl.state == "idle")  # ERROR, stopped

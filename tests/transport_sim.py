@@ -13,6 +13,10 @@ from simulators.controller import VirtualController
 from simulators.truth import TruthModel
 from tests.test_sim_probe import TABLE_B2, truth_with
 
+# Where the start-of-shift macros read the verdict (gcode_templates/*/README.md), written out
+# here as the tests' own oracle for the table the dialects and the simulator share.
+MACRO_VERDICT_VARIABLE = {"fanuc": "#598", "haas": "#598", "siemens": "R4",
+                          "heidenhain": "Q1598", "linuxcnc": "#3998"}
 
 def make_truth(errors: dict | None = None) -> TruthModel:
     """The thesis machine and 4-ball artefact, Table B.2 link errors by default."""

@@ -41,19 +41,17 @@ def _hit_problem(hit: Any, expected_seq: int | None) -> str:
 
 
 def _modbus(rng: random.Random, n: int, job: Any) -> Tally:
-    from contracts.modbus_map import SLOT_WORDS, STATUS_WORDS, decode_slot, encode_slot
+    from contracts.modbus_map import STATUS_WORDS, encode_slot
     from drivers.base import LinkError
     from drivers.hits import HitFactory
-    from drivers.modbus import link as modbus
+    from drivers.modbus.link import check_status, slot_hit
 
     tally = Tally("modbus slots/status")
-    slot_hit = getattr(modbus, "slot_hit", None)
-    check_status = getattr(modbus, "check_status", None)
     for i in range(n):
         regs = encode_slot(1, {"X": rng.uniform(-500, 500), "Y": rng.uniform(-500, 500),
                                "Z": rng.uniform(-500, 500), "b": rng.uniform(-90, 90),
                                "c": rng.uniform(0, 360)})
-        status = i % 5 == 4 and check_status is not None
+        status = i % 5 == 4
         if status:
             regs = [rng.choice((0, 1, 2, rng.randrange(65536))) for _ in range(STATUS_WORDS)]
         for _ in range(rng.randint(1, 4)):
@@ -65,17 +63,10 @@ def _modbus(rng: random.Random, n: int, job: Any) -> Tally:
         def case(regs: list[int] = regs, status: bool = status) -> tuple[str, str]:
             try:
                 if status:
-                    st = check_status(regs)  # type: ignore[misc]
+                    st = check_status(regs)
                     return ("wrong", f"status accepted {st}") if any(
                         not 0 <= v <= 0xFFFF for v in st.values()) else ("accepted", "")
-                hits = HitFactory(job)
-                if slot_hit is not None:
-                    hit = slot_hit(hits, regs, 0)
-                else:
-                    if len(regs) != SLOT_WORDS:
-                        raise LinkError("short read")  # pymodbus returns exactly count
-                    seq, axes, trig = decode_slot(regs)
-                    hit = hits.make(seq, axes, trig, "fuzz")
+                hit = slot_hit(HitFactory(job), regs, 0)
             except LinkError as e:
                 return "clean", str(e)[:100]
             why = _hit_problem(hit, 1)
@@ -94,23 +85,20 @@ def _opcua(rng: random.Random, n: int, job: Any) -> Tally:
     from contracts.opcua_space import RESULT_ROLES, RING_SLOTS
     from drivers.base import LinkError
     from drivers.hits import HitFactory
-    from drivers.opcua import link as opcua
+    from drivers.opcua.link import check_counter, ring_hit
 
     tally = Tally("opcua ring/counter")
-    ring_hit = getattr(opcua, "ring_hit", None)
-    check_counter = getattr(opcua, "check_counter", None)
-    if ring_hit is None:
-        tally.note("drivers.opcua has no pure ring decoder (ring_hit): not fuzzed")
-        return tally
     for i in range(n):
         rows: list[Any] = [[1.0] + [float(rng.uniform(-300, 300)) for _ in range(RING_SLOTS - 1)]
                            for _ in RESULT_ROLES]
         rows[0][0], rows[-1][0] = 1, 1  # seq 1, triggered
         for _ in range(rng.randint(1, 3)):
             r = rng.randrange(len(rows))
+            if not isinstance(rows[r], list):
+                continue  # already replaced by a non-array this case
             if rng.random() < 0.1:
                 rows[r] = rng.choice((rows[r][:3], None, "x", rows[r] * 2))
-            elif isinstance(rows[r], list):
+            else:
                 rows[r][0] = rng.choice(OPC_VALUES)
         counter = rng.choice((1, 1, 1, 0, -1, 1.5, float("nan"), None, "1", 10**9))
         state = rng.choice(("running", "running", "done", "bogus", None, 3))
@@ -118,7 +106,7 @@ def _opcua(rng: random.Random, n: int, job: Any) -> Tally:
         def case(rows: list[Any] = rows, counter: Any = counter, state: Any = state,
                  use_counter: bool = i % 4 == 3) -> tuple[str, str]:
             try:
-                if use_counter and check_counter is not None:
+                if use_counter:
                     got = check_counter(counter, state, 0, job.touch_count)
                     ok = isinstance(got, int) and 0 <= got <= job.touch_count
                     return ("accepted", "") if ok else ("wrong", f"counter accepted {got!r}")

@@ -7,10 +7,8 @@ from __future__ import annotations
 import argparse
 import sqlite3
 import time
-from dataclasses import replace
 from pathlib import Path
 
-import numpy as np
 from rich.console import Console
 from rich.table import Table
 
@@ -22,11 +20,9 @@ from daemon.journal_csv import export_csv, journal_import, read_import
 from daemon.judge import Judgement, judge, volumetric_max_um
 from daemon.pipeline import PipelineError, RunAnalysis, analyse, row_to_hit
 from daemon.store import Store, StoreError
-from identification.spherefit import SphereFitError
 
 # What bad data (absurd coordinates, degenerate ball-poses …) makes the analysis raise; the
 # import then stops with one line and journals nothing.
-ANALYSIS_ERRORS = (PipelineError, ProbeLogError, SphereFitError, np.linalg.LinAlgError)
 
 STYLE = {"PASS": "green", "WARN": "yellow", "FAIL": "red"}
 
@@ -107,8 +103,7 @@ def _import(cfg: DaemonConfig, store: Store, args: argparse.Namespace) -> int:
                 a, j = result
                 store.save_centres(run_id, a.centre_rows)
                 store.save_analysis(run_id, a.data)
-                store.save_verdict(run_id, j.status, list(j.reasons),
-                                   [c.as_dict() for c in j.checks], j.summary)
+                store.save_judgement(run_id, j)
                 store.set_state(run_id, "DONE")
     except sqlite3.IntegrityError as e:
         raise UserError(f"{path}: run {run_id} refused by the journal ({e}: two rows with "
@@ -135,14 +130,13 @@ def _import(cfg: DaemonConfig, store: Store, args: argparse.Namespace) -> int:
 
 def _analyse(setup: MachineSetup, store: Store, hits: list[ProbeHit], run_id: str,
              path: str | Path) -> tuple[RunAnalysis, Judgement]:
+    # judged and recorded like a live run: against the last good run before it
+    ref = store.last_good(setup.name, before=run_id)
     try:
-        a = analyse(setup, hits, run_id)
-    except ANALYSIS_ERRORS as e:
+        a = analyse(setup, hits, run_id, ref)
+    except PipelineError as e:
         raise UserError(f"{path}: run {run_id}: analysis failed: {e}; nothing imported (use "
                         "--no-analyse to journal the touches anyway)") from None
-    ref = store.last_good(setup.name, before=run_id)
-    # recorded like a live run's: the report names the drift reference the verdict used
-    a.data = replace(a.data, reference_run=ref[0] if ref else None)
     return a, judge(a.data, setup.tolerances, ref[1] if ref else None)
 
 

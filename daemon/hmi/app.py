@@ -27,7 +27,7 @@ from aiohttp import web
 from daemon.hmi.auth import SESSION_TTL_S, Auth
 from daemon.hmi.limits import AuthLimiter, HmiLimits, Origins
 from daemon.session import Refused, Session
-from daemon.store import Store, StoreError
+from daemon.store import Store, StoreError, validate_run_id
 
 COOKIE = "rumba_session"
 SSE_KEEPALIVE_S = 15.0
@@ -257,13 +257,6 @@ async def abort(request: web.Request) -> web.Response:
 
 # Query values are bounded here, before any use: a value outside gets 400 with the reason.
 _INT = re.compile(r"[0-9]{1,9}")
-# The run-id charset of ``session.new_run_id`` (letters, digits, '-'): the store's pattern
-# where it has one (it validates every id it journals), else the same one here.
-try:
-    from daemon.store import RUN_ID_PATTERN
-except ImportError:  # a store without run-id validation
-    RUN_ID_PATTERN = r"[A-Za-z0-9][A-Za-z0-9-]{0,63}"
-_RUN_ID = re.compile(RUN_ID_PATTERN)
 MAX_RUNS = 500
 
 
@@ -278,8 +271,12 @@ def int_param(request: web.Request, name: str, default: int, lo: int, hi: int) -
 
 
 def run_id_ok(run_id: str) -> bool:
-    """Whether ``run_id`` has the run-id form (checked before it reaches the store)."""
-    return _RUN_ID.fullmatch(run_id) is not None
+    """Whether ``run_id`` has the run-id form (the store's own check, before it is asked)."""
+    try:
+        validate_run_id(run_id)
+    except StoreError:
+        return False
+    return True
 
 
 async def runs(request: web.Request) -> web.Response:

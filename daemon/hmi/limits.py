@@ -121,7 +121,6 @@ class AuthLimiter:
         self._clients: dict[str, _Client] = {}
         self._tokens = float(limits.global_burst)
         self._refilled = clock()
-        self.refused = 0  # answered 429 (for tests and figures)
 
     def _refill(self, now: float) -> None:
         lim = self.limits
@@ -139,8 +138,6 @@ class AuthLimiter:
             self._refill(now)
             if self._tokens < 1.0:
                 wait = max(wait, (1.0 - self._tokens) * self.limits.global_refill_s)
-        if wait > 0:
-            self.refused += 1
         return wait
 
     def failed(self, remote: str | None, what: str) -> None:

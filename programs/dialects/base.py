@@ -97,7 +97,6 @@ class Dialect:
     counter = ""
     slot_prefix = ""
     slot_base = 0
-    result_line = "RUMBA <seq> <rep> <pose> <ball> <touch> <trig> <x> <y> <z> <r1> <r2>"
     result_channel = ""  # where the controller writes the result lines
     verdict_variable = ""  # where the verdict program writes the verdict code (1-4)
 

@@ -1,6 +1,7 @@
 """Soak of the serial DNC end-to-end cases (tests/test_e2e_transports.py): every serial
 transport × dialect, N consecutive rounds in one process, failures counted (target 0). Not part
-of ``make test``: ``.venv/bin/python benchmarks/bench_serial_soak.py --runs 200``."""
+of ``make test`` nor of ``make bench`` (the name keeps it out of the benchmark runner):
+``.venv/bin/python benchmarks/soak_serial.py --runs 200``."""
 
 from __future__ import annotations
 
