@@ -164,6 +164,54 @@ class Validation(_Json):
 
 
 @dataclass(frozen=True)
+class InstrumentFrame(_Json):
+    """Centres given in an instrument's frame: instrument ← machine rigid motion, m = R·q + t,
+    estimated with the setup; ``std`` per direction (µm, µrad), None where held (``held``:
+    the direction the setup absorbs)."""
+
+    rotation: tuple[Vec, ...] = ()
+    rotation_vector_deg: Vec = ()
+    translation_mm: Vec = ()
+    std: dict[str, float | None] = field(default_factory=dict)
+    held: dict[str, str] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class Outlier(_Json):
+    """A ball visit whose touches depart from the run's own statistics (a chip, dirt, a
+    coolant drop, a bad trigger; ``identification.outliers``): the touch at fault, by how much
+    (µm, + outside the ball: an early switch) and what became of it — ``repaired`` (a re-probe
+    of the ball, logged as repeat ``replaced_by_repeat``, is used instead), ``unrepaired``
+    (left out of the estimate; the measurement is not trusted) or ``not used`` (a faulty
+    re-probe of a clean visit)."""
+
+    pose: int
+    ball: str = ""
+    repeat: int = 0
+    touch: int = 0
+    size_um: float | None = None
+    score: float | None = None
+    stage: str = ""  # "sphere" (radius/form of its own fit) | "centre" (vs model and pose)
+    status: str = ""
+    replaced_by_repeat: int | None = None
+
+
+@dataclass(frozen=True)
+class OutlierTest(_Json):
+    """How the visits were screened: robust scales of the run (µm), thresholds, visits."""
+
+    method: str = ""
+    visits: int = 0
+    sphere_z: float | None = None
+    centre_z: float | None = None
+    min_size_um: float | None = None
+    radius_scale_um: float | None = None
+    form_scale_um: float | None = None
+    centre_scale_um: float | None = None
+    note: str = ""
+
+
+@dataclass(frozen=True)
 class Analysis(_Json):
     """One analysis (``rumba analyze``, a daemon run, a report): the field order is the JSON
     key order. ``log`` is set by ``rumba analyze``; ``run_id``, ``plan``, ``touches`` and
@@ -192,6 +240,12 @@ class Analysis(_Json):
     stability: Stability | None = field(default=None, metadata=_OMIT)
     scale_um_per_m: Scale | None = field(default=None, metadata=_OMIT)
     validation: Validation | None = field(default=None, metadata=_OMIT)
+    # centres input (``rumba analyze --centres``): the file's frame, instrument and source
+    measured_by: str | None = field(default=None, metadata=_OMIT)
+    instrument_frame: InstrumentFrame | None = field(default=None, metadata=_OMIT)
+    # the outlier test of the ball visits (absent from analyses stored before it existed)
+    outlier_test: OutlierTest | None = field(default=None, metadata=_OMIT)
+    outliers: tuple[Outlier, ...] | None = field(default=None, metadata=_OMIT)
     touches: int | None = field(default=None, metadata=_OMIT)
     # a journaled run states its reference, null when it had none: emitted with run_id
     reference_run: str | None = field(default=None, metadata={"with": "run_id"})

@@ -12,6 +12,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
+from identification.gap.locate import shown_locations
+
 _TEMPLATE = jinja2.Environment(autoescape=True).from_string("""<!doctype html>
 <html lang="en"><head><meta charset="utf-8"><title>{{ title }}</title>
 <style>
@@ -28,14 +30,15 @@ th{background:#f3f3f3}td.n{text-align:right;font-variant-numeric:tabular-nums}
 {{ "%.3f"|format(v.holdout_rms_after_um) }} µm; noise floor
 {{ "%.3f"|format(r.noise_floor_um) }} µm
 (per coordinate), held-out floor {{ "%.3f"|format(r.noise.holdout_floor_um) }} µm.</p>
-<p>Noise: {{ r.noise.source }}; trigger repeatability
-{{ "%.3f"|format(r.noise.sigma_touch_um) }} µm.
+{% set touches = r.noise.source.startswith("sphere-fit") %}
+<p>Noise: {{ r.noise.source }}{% if touches %}; trigger repeatability
+{{ "%.3f"|format(r.noise.sigma_touch_um) }} µm{% endif %}.
 {% if r.dropped_groups %}{{ r.dropped_groups }} incomplete ball-pose(s) left out.{% endif %}</p>
 {% for a in r.absorbed %}<p>Absorbed: {{ a.effect }} — {{ a.what }}
 ({{ "%.2f"|format(a.value_um) }} ± {{ "%.2f"|format(a.std_um) }} µm).</p>{% endfor %}
 <p>Judged on: {{ r.split }}. Twin: {{ r.twin.n_params }} parameters (setup + links
-{{ r.twin.links|join(", ") }}). Observations per ball-pose: centre x, y, z and the
-sphere-fit form residual (µm).</p>
+{{ r.twin.links|join(", ") }}). Observations per ball-pose: centre x, y, z{% if touches %} and the
+sphere-fit form residual{% endif %} (µm).</p>
 {% if r.time_check %}<p>Drift checked on {{ r.time_check.split }}: explains
 {{ "%.0f"|format(100 * r.time_check.explained_fraction) }} % of the held-out excess there
 (leaving poses out: {{ "%.0f"|format(100 * r.time_check.explained_fraction_pose) }} %) —
@@ -50,12 +53,28 @@ extrapolate{% endif %}.
 {%- if p.std is not none %} ± {{ "%.2g"|format(p.std) }}{% endif %} {{ p.unit }}<br>
 {%- endfor %}</td></tr>{% endfor %}
 </table><p>The gap below is what remains once these effects are in the twin.</p>{% endif %}
+{% if r.outliers %}<h2>Measurement outliers (left out)</h2>
+<table><tr><th>log</th><th>pose</th><th>b°</th><th>c°</th><th>ball</th><th>repeat</th>
+<th>touch</th><th>size µm</th><th>robust z</th><th>stage</th></tr>
+{% for o in r.outliers %}<tr><td>{{ o.log }}</td><td class="n">{{ o.pose }}</td>
+<td class="n">{{ o.b_deg }}</td><td class="n">{{ o.c_deg }}</td><td>{{ o.ball }}</td>
+<td class="n">{{ o.repeat }}</td><td class="n">{{ o.touch }}</td>
+<td class="n">{{ "%+.1f"|format(o.size_um) }}</td><td class="n">{{ "%.0f"|format(o.score) }}</td>
+<td>{{ o.stage }}</td></tr>{% endfor %}</table>
+<p>One touch of each visit lies off the sphere the rest of the run predicts (a chip, dirt,
+coolant, a bad trigger): {{ r.outlier_test.visits }} visits screened against the run's median
+and MAD (sphere radius and form, centre against the twin and the pose's other balls); the
+diagnosis below is that of the other visits.</p>{% endif %}
 <h2>Where the gap lies</h2>
-{% if r.location %}<table><tr><th>by</th><th>where</th><th>RMS µm</th><th>× floor</th>
-<th>p</th></tr>{% for l in r.location %}<tr><td>{{ l.by }}</td><td>{{ l.key }}</td>
+{% if shown %}<table><tr><th>by</th><th>where</th><th>RMS µm</th><th>× floor</th>
+<th>p</th></tr>{% for l in shown %}<tr><td>{{ l.by }}</td><td>{{ l.key }}</td>
 <td class="n">{{ "%.3f"|format(l.rms_um) }}</td>
 <td class="n">{{ "%.2f"|format(l.ratio_to_floor) }}</td>
-<td class="n">{{ l.p_value }}</td></tr>{% endfor %}</table>
+<td class="n">{{ l.p_value }}{% if not l.significant %} (not significant alone){% endif %}
+</td></tr>{% endfor %}</table>
+{% if more or below %}<p>… {% if more %}{{ more }} more above the floor{% endif %}
+{% if more and below %} and {% endif %}{% if below %}{{ below }} below it{% endif %}
+(every cell in the JSON and in the plots below).</p>{% endif %}
 {% else %}<p>No breakdown stands significantly above the floor.</p>{% endif %}
 {% for name, img in where %}<h3>By {{ name }}</h3>
 <img alt="gap by {{ name }}" src="data:image/png;base64,{{ img }}">{% endfor %}
@@ -138,5 +157,7 @@ def _before_after(rep: dict) -> str:
 
 def render(rep: dict, title: str = "Gap diagnosis") -> str:
     """The whole report as one self-contained HTML page (plots embedded as PNG)."""
+    shown, more, below = shown_locations(rep["location"], rep["breakdowns"])
     return _TEMPLATE.render(title=title, r=rep, v=rep["verdict"], where=_where_plots(rep),
+                            shown=shown, more=more, below=below,
                             ranked=_ranked_plot(rep), before_after=_before_after(rep))

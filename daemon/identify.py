@@ -5,14 +5,15 @@ runs and their reports: estimate (setup + links), volumetric distortion, cluster
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
 
 from contracts.yaml_files import ConfigError
 from daemon.analysis_result import Analysis
-from daemon.touch_centres import CentreData
+from daemon.touch_centres import CentreData, screen_centres, with_outliers
 from identification.analyses import (
     clusters,
     distance_analysis,
@@ -22,7 +23,7 @@ from identification.analyses import (
 )
 from identification.estimate import RankDeficientError, estimate
 from identification.kinematics import Machine
-from identification.model import Artefact
+from identification.model import Artefact, Centres
 
 _THESIS = {  # thesis Table B.2 / Fig B.2 names of the WCBXFZYT link errors
     "EB0Z": "βZ squareness ZX", "EA0Y": "αY squareness YZ", "EC0Y": "γY squareness YX",
@@ -53,11 +54,17 @@ def _v(a: Any) -> list[float]:
 def analyse_centres(machine: Machine, artefact: Artefact, data: CentreData, *,
                     validate_poses: Sequence[int] = (), links: Sequence[str] | None = None,
                     repeatability_um: Sequence[float] | None = None,
-                    fixed_radius: bool = False, source: str = "") -> Analysis:
+                    fixed_radius: bool = False, source: str = "",
+                    estimator: Callable[[Centres], tuple[Any, Callable | None]] | None = None
+                    ) -> Analysis:
     """The whole analysis (its ``to_json()``: the keys of issue 2, plus a few more).
 
     ``links`` None: the identifiable set; () setup only. Poses in ``validate_poses`` are held
-    out of the estimate and predicted (thesis annex B)."""
+    out of the estimate and predicted (thesis annex B). ``estimator`` (centres input,
+    ``daemon.centres_input``) replaces ``estimate`` on the estimation centres: it returns the
+    estimate and, for centres in an instrument frame, the map to controller X Y Z the analyses
+    then run in. Visits are screened for gross faults first (``screen_centres``)."""
+    data, screened = screen_centres(machine, artefact, data)
     c = data.centres
     poses = sorted(int(x) for x in np.unique(c.pose))
     missing = sorted(set(validate_poses) - set(poses))
@@ -76,7 +83,11 @@ def analyse_centres(machine: Machine, artefact: Artefact, data: CentreData, *,
     est_c = c.subset(~held)
     try:
         with np.errstate(all="ignore"):
-            est = estimate(machine, artefact, est_c, links, sigma_um=repeatability_um)
+            if estimator is None:
+                est, to_machine = estimate(machine, artefact, est_c, links,
+                                           sigma_um=repeatability_um), None
+            else:
+                est, to_machine = estimator(est_c)
     except RankDeficientError as e:
         raise AnalysisError(f"{where}{e}") from None
     except (np.linalg.LinAlgError, ValueError, FloatingPointError) as e:
@@ -86,9 +97,13 @@ def analyse_centres(machine: Machine, artefact: Artefact, data: CentreData, *,
             and all(np.isfinite(v) for v, _, _ in est.links_si().values())):
         raise AnalysisError(f"{where}estimate (setup + links) did not converge to finite "
                             "numbers (centres far outside the machine's range?)")
+    if to_machine is not None:
+        data = replace(data, centres=replace(c, xyz_mm=to_machine(c.xyz_mm)))
+        est_c = data.centres.subset(~held)
     try:
         with np.errstate(all="ignore"):
-            return _analyses(machine, artefact, data, est, est_c, held, fixed_radius)
+            return with_outliers(_analyses(machine, artefact, data, est, est_c, held,
+                                           fixed_radius), screened)
     except (np.linalg.LinAlgError, FloatingPointError) as e:
         raise AnalysisError(f"{where}analysis of the estimate failed: {e}") from None
 

@@ -1,4 +1,5 @@
-"""`rumba analyze`: identify setup + link errors from a probing log, print a summary, write JSON."""
+"""`rumba analyze`: identify setup + link errors from a probing log or measured centres, print a
+summary, write JSON."""
 
 from __future__ import annotations
 
@@ -14,9 +15,14 @@ import numpy as np
 from rich.console import Console
 from rich.table import Table
 
+from contracts.centres_file import FRAMES
+from contracts.importers import FORMATS
 from contracts.probing_log import ProbeLogError, read_log
-from contracts.setup_files import load_artefact, load_machine
+from contracts.setup_files import load_artefact, load_machine, load_plan
+from daemon import centres_input
 from daemon.analysis_result import Analysis
+from daemon.centres_shape import OneIndexation
+from daemon.centres_shape import render as render_one_indexation
 from daemon.identify import AnalysisError, analyse_centres
 from daemon.touch_centres import rows_to_centres
 
@@ -92,6 +98,22 @@ def run_analysis(log: Path | str, machine_path: Path | str, artefact_path: Path 
     return replace(out, log=str(log), warnings=(*read_warnings, *out.warnings))
 
 
+def _centres(args: argparse.Namespace) -> Analysis | OneIndexation:
+    """``--centres``: read or import the file, then ``daemon.centres_input.run``."""
+    if args.fixed_radius:
+        raise _user_error("--fixed-radius: centres carry no touches to fit")
+    machine, _ = load_machine(args.machine)
+    artefact = load_artefact(args.artefact)
+    poses = None
+    if args.plan:
+        poses = [(p.b_deg, p.c_deg) for p in load_plan(args.plan).poses]
+    return centres_input.run(
+        args.centres, machine, artefact, fmt=args.format, frame=args.frame, ball=args.ball,
+        plan_poses=poses, validate_poses=parse_poses(args.validate_poses),
+        links=parse_links(args.links, machine.location_error_names()),
+        repeatability_um=parse_repeatability(args.repeatability_um))
+
+
 def _norm(v: Sequence[float | None] | None) -> str:
     return "—" if v is None else f"{np.linalg.norm(v):.2f}"  # type: ignore[arg-type]
 
@@ -134,11 +156,21 @@ def render(r: Analysis, console: Console) -> None:
     t.add_row("max volumetric distortion, setup only", f"{vm.before_links:.2f} µm")
     t.add_row("max volumetric distortion, with links", f"{vm.after_links:.2f} µm")
     h = r.health
-    t.add_row("max |radius deviation|",
-              f"{max(abs(x.radius_dev_um) for x in h):.2f} µm")  # type: ignore[arg-type]
-    t.add_row("max form residual RMS",
-              f"{max(x.form_rms_um for x in h):.2f} µm")  # type: ignore[type-var]
+    if h:  # no sphere fits when the input is centres (``--centres``)
+        t.add_row("max |radius deviation|",
+                  f"{max(abs(x.radius_dev_um) for x in h):.2f} µm")  # type: ignore[arg-type]
+        t.add_row("max form residual RMS",
+                  f"{max(x.form_rms_um for x in h):.2f} µm")  # type: ignore[type-var]
     console.print(t)
+    if r.measured_by:
+        console.print(f"Centres measured by: {r.measured_by}")
+    fr = r.instrument_frame
+    if fr is not None:
+        console.print("Instrument frame (instrument ← machine): rotation vector "
+                      f"{', '.join(f'{x:.6f}' for x in fr.rotation_vector_deg)} °, translation "
+                      f"{', '.join(f'{x:.4f}' for x in fr.translation_mm)} mm; ± "
+                      + ", ".join(f"{k} {'held' if v is None else f'{v:.2f}'}"
+                                  for k, v in fr.std.items()) + " (µm, µrad)")
     t = Table(title="Not observable")
     t.add_column("direction")
     t.add_column("absorbed by")
@@ -170,15 +202,29 @@ def render(r: Analysis, console: Console) -> None:
         console.print(
             f"[bold]Stability[/] (poses probed again): largest ball-centre shift "
             f"{st.max_shift_um:.2f} µm{span} (ball {st.worst.ball}, pose {st.worst.pose})")
-    for w in r.warnings:
-        console.print(f"[yellow]warning:[/] {w}")
+    for w in r.warnings:  # a faulty ball visit (daemon.touch_centres.screen_centres) in red
+        bad = w.startswith("measurement outlier")
+        console.print(f"{'[bold red]' if bad else '[yellow]'}warning:[/] {w}")
 
 
 def _cmd(args: argparse.Namespace) -> int:
-    result = run_analysis(args.log, args.machine, args.artefact,
-                          parse_poses(args.validate_poses), args.links, args.fixed_radius,
-                          args.stylus_diameter, parse_repeatability(args.repeatability_um))
-    render(result, Console())
+    if args.centres:
+        result = _centres(args)
+    else:
+        result = run_analysis(args.log, args.machine, args.artefact,
+                              parse_poses(args.validate_poses), args.links, args.fixed_radius,
+                              args.stylus_diameter, parse_repeatability(args.repeatability_um))
+    if isinstance(result, Analysis):
+        render(result, Console())
+    else:
+        render_one_indexation(result, Console())
+    if args.write_centres:
+        if not args.log:
+            raise _user_error("--write-centres: needs --log (the centres of its touches)")
+        n = centres_input.export_log_centres(args.log, load_artefact(args.artefact),
+                                             args.stylus_diameter / 2, args.fixed_radius,
+                                             args.write_centres)
+        print(f"wrote {n} centres to {args.write_centres}")
     if args.json:
         try:
             Path(args.json).write_text(
@@ -192,7 +238,18 @@ def _cmd(args: argparse.Namespace) -> int:
 def register(subparsers: Any) -> None:
     p = subparsers.add_parser("analyze", help="identify setup and link errors from a probing log",
                               description=__doc__)
-    p.add_argument("--log", required=True, help="probing-log CSV (rumba-probing-log v1)")
+    src = p.add_mutually_exclusive_group(required=True)
+    src.add_argument("--log", help="probing-log CSV (rumba-probing-log v1)")
+    src.add_argument("--centres", metavar="FILE", help="measured ball centres: a centres CSV "
+                     "(rumba-centres v1) or an instrument's file (--format)")
+    p.add_argument("--format", default="auto", choices=FORMATS,
+                   help="--centres file format (default: told from the file)")
+    p.add_argument("--frame", default=None, choices=FRAMES,
+                   help="--centres: frame of the centres (default: the file's; instrument = "
+                        "a rigid motion of the machine axes, estimated with the setup)")
+    p.add_argument("--ball", default=None, help="--centres kinopt: the ball the program measured")
+    p.add_argument("--plan", default=None, metavar="PLAN.yaml",
+                   help="--centres dmis: the plan whose pose numbers the feature labels use")
     p.add_argument("--machine", required=True, help="machine YAML")
     p.add_argument("--artefact", required=True, help="artefact YAML")
     p.add_argument("--validate-poses", default=None, metavar="LIST",
@@ -209,4 +266,6 @@ def register(subparsers: Any) -> None:
                    help="probing repeatability of a centre (µm) for the uncertainties, e.g. "
                         "0.66,0.98,0.44 (thesis §3.4); default: from the residuals")
     p.add_argument("--json", default=None, metavar="OUT.json", help="write the results as JSON")
+    p.add_argument("--write-centres", default=None, metavar="OUT.csv",
+                   help="--log: also write its centres (sphere fits) as a centres CSV")
     p.set_defaults(func=_cmd)

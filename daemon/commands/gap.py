@@ -10,11 +10,16 @@ from pathlib import Path
 
 import numpy as np
 
+from contracts.importers import FORMATS
 from contracts.probing_log import LogRow, ProbeLogError, read_log
 from contracts.setup_files import load_artefact, load_machine, load_plan
+from daemon import centres_input
+from daemon.commands.analyze import parse_repeatability
 from daemon.touch_centres import columns, one_run_balls
 from identification.effects import FAMILIES, Effect, library
 from identification.gap import Options, TouchData, diagnose
+from identification.gap.locate import shown_locations
+from identification.gap.outlier_visits import name as outlier_name
 from identification.gap.split import SPLITS
 from identification.kinematics import Machine
 from identification.model import Artefact
@@ -88,8 +93,10 @@ def _fmt_params(params: dict) -> str:
 
 def _print_report(rep: dict) -> None:
     b, v = rep["baseline"], rep["verdict"]
-    print(f"noise floor {rep['noise_floor_um']:.3f} µm (per coordinate; "
-          f"touch repeatability {rep['noise']['sigma_touch_um']:.3f} µm); split: {rep['split']}")
+    touch = (f"touch repeatability {rep['noise']['sigma_touch_um']:.3f} µm"
+             if rep["noise"]["source"].startswith("sphere-fit") else rep["noise"]["source"])
+    print(f"noise floor {rep['noise_floor_um']:.3f} µm (per coordinate; {touch}); "
+          f"split: {rep['split']}")
     print(f"twin gap: train RMS {b['train_rms_um']:.3f} µm, held-out RMS "
           f"{b['holdout_rms_um']:.3f} µm, max {b['holdout_max_um']:.3f} µm "
           f"({b['gap_ratio']:.2f}× the held-out floor, p = {b['p_value']:.2g})")
@@ -102,9 +109,17 @@ def _print_report(rep: dict) -> None:
         print(f"drift checked on {tc['split']}: explains {100 * tc['explained_fraction']:.0f} % "
               f"of the held-out excess (leaving poses out {100 * tc['explained_fraction_pose']:.0f}"
               f" %) — {'confirmed' if tc['confirmed'] else 'NOT confirmed'}")
-    for loc in rep["location"]:
+    for o in rep.get("outliers", ()):
+        print(f"measurement outlier: {outlier_name(o)}, robust z {o['score']:.0f} ({o['stage']}"
+              " stage): left out of the diagnosis")
+    shown, more, below = shown_locations(rep["location"], rep["breakdowns"])
+    for loc in shown:
         print(f"  gap at {loc['by']} {loc['key']}: {loc['rms_um']:.3f} µm "
-              f"({loc['ratio_to_floor']:.1f}× floor)")
+              f"({loc['ratio_to_floor']:.1f}× floor)"
+              + ("" if loc["significant"] else ", not significant alone"))
+    rest = [f"{more} more above the floor"] * bool(more) + [f"{below} below it"] * bool(below)
+    if rest:
+        print(f"  … {' and '.join(rest)} (every cell: --json, --html)")
     print(f"{'candidate':34s} {'held-out µm':>11s} {'explained':>9s}  sig  p-value")
     for c in rep["candidates"][:8]:
         label = c["effect"] + (f":{c['axis']}" if c["axis"] else "")
@@ -144,14 +159,37 @@ def _selfcheck(args: argparse.Namespace) -> int:
     seeds = args.seeds or (10 if args.full else 2)
     stylus_r = (args.stylus_diameter_mm or plan.stylus_diameter_mm) / 2
 
-    def show(c: selfcheck.Case) -> None:
-        top = f"{c.top}:{c.top_axis}" if c.top_axis else str(c.top)
-        print(f"{c.plan:10s} {c.scenario}{':' + c.axis if c.axis else '':24s} → "
-              f"{c.verdict:20s} top {top:26s} after/floor {c.after_ratio:4.2f} "
-              f"{'ok' if c.ok else 'MISS'}", flush=True)
+    from rich.console import Console
+    from rich.progress import (
+        BarColumn,
+        MofNCompleteColumn,
+        Progress,
+        TextColumn,
+        TimeElapsedColumn,
+        TimeRemainingColumn,
+    )
 
-    summary = selfcheck.run(machine, artefact, plans, stylus_r, seeds, progress=show,
-                            split=args.split, gravity_dir=mfile.gravity)
+    total = len(plans) * len(selfcheck.SCENARIOS) * seeds
+    done = 0
+
+    def show(c: selfcheck.Case) -> None:
+        nonlocal done
+        done += 1
+        scenario = f"{c.scenario}:{c.axis}" if c.axis else c.scenario
+        top = f"{c.top}:{c.top_axis}" if c.top_axis else str(c.top)
+        print(f"{done:{len(str(total))}d}/{total} {c.plan:10s} {scenario:28s} → "
+              f"{c.verdict:22s} top {top:28s} after/floor {c.after_ratio:4.2f} "
+              f"{'ok' if c.ok else 'MISS'}", flush=True)
+        bar.update(task, completed=done)
+
+    # the bar on stderr (the terminal), the case lines and the table on stdout (a log)
+    with Progress(TextColumn("self-check"), BarColumn(), MofNCompleteColumn(),
+                  TextColumn("cases,"), TimeElapsedColumn(), TextColumn("elapsed,"),
+                  TimeRemainingColumn(), TextColumn("left"),
+                  console=Console(stderr=True)) as bar:
+        task = bar.add_task("self-check", total=total)
+        summary = selfcheck.run(machine, artefact, plans, stylus_r, seeds, progress=show,
+                                split=args.split, gravity_dir=mfile.gravity)
     print()
     print(summary.table())
     rates = summary.rates()
@@ -164,23 +202,41 @@ def _selfcheck(args: argparse.Namespace) -> int:
 def _run(args: argparse.Namespace) -> int:
     if args.selfcheck:
         return _selfcheck(args)
-    if not (args.log and args.machine and args.artefact):
-        raise _user_error("gap: --log, --machine and --artefact are required "
+    if not ((args.log or args.centres) and args.machine and args.artefact):
+        raise _user_error("gap: --log (or --centres), --machine and --artefact are required "
                           "(or --selfcheck)")
+    if args.log and args.centres:
+        raise _user_error("gap: --log or --centres, not both")
     machine, mfile = load_machine(args.machine)
     artefact = load_artefact(args.artefact)
     stylus_r = (args.stylus_diameter_mm or DEFAULT_STYLUS_DIAMETER_MM) / 2
     known = _known(args.known, machine, artefact, mfile.gravity)
+    stated = parse_repeatability(args.repeatability_um)
+    opts = Options(families=_families(args.families), split=args.split,
+                   known=[(e, None) for e in known], gravity_dir=mfile.gravity,
+                   repeatability_um=stated)
     try:
-        train = _load(args.log, artefact)
-        hold = _load(args.holdout, artefact) if args.holdout else None
-        rep = diagnose(machine, artefact, train, stylus_r, hold,
-                       Options(families=_families(args.families), split=args.split,
-                               known=[(e, None) for e in known], gravity_dir=mfile.gravity))
+        if args.centres:
+            poses = [(p.b_deg, p.c_deg) for p in load_plan(args.plan).poses] \
+                if args.plan else None
+
+            def read(path: str) -> centres_input.CentresInput:
+                return centres_input.load(path, args.format, machine, artefact, ball=args.ball,
+                                          plan_poses=poses, repeatability_um=stated)
+
+            train_c = read(args.centres)
+            for w in train_c.warnings:
+                print(f"warning: {w}")
+            rep = centres_input.diagnose_gap(
+                machine, train_c, read(args.holdout) if args.holdout else None, opts)
+        else:
+            train = _load(args.log, artefact)
+            hold = _load(args.holdout, artefact) if args.holdout else None
+            rep = diagnose(machine, artefact, train, stylus_r, hold, opts)
     except ProbeLogError as e:
         raise _user_error(str(e)) from None
     except ValueError as e:  # data that cannot support a diagnosis (e.g. too few poses)
-        raise _user_error(f"{args.log}: {e}") from None
+        raise _user_error(f"{args.log or args.centres}: {e}") from None
     _print_report(rep)
     if args.json:
         Path(args.json).write_text(json.dumps(rep, indent=1), encoding="utf-8")
@@ -198,8 +254,18 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("gap", help="sim-to-real gap diagnosis: locate, attribute, quantify",
                        description=__doc__)
     p.add_argument("--log", help="probing log (CSV) the twin is fitted on")
-    p.add_argument("--holdout", help="separate probing log to judge on (default: "
-                                     "leave-poses-out cross-validation of --log)")
+    p.add_argument("--centres", metavar="FILE", help="measured ball centres instead of --log: "
+                   "a centres CSV or an instrument's file (--format)")
+    p.add_argument("--format", default="auto", choices=FORMATS,
+                   help="--centres (and its --holdout) file format (default: told from the file)")
+    p.add_argument("--ball", default=None, help="--centres kinopt: the ball the program measured")
+    p.add_argument("--plan", default=None, metavar="PLAN.yaml",
+                   help="--centres dmis: the plan whose pose numbers the feature labels use")
+    p.add_argument("--repeatability-um", default=None, metavar="S|SX,SY,SZ",
+                   help="stated centre repeatability (µm): the noise floor of centres, and of "
+                        "touches whose form residual is zero (exact, simulated)")
+    p.add_argument("--holdout", help="separate probing log (or centres file, with --centres) to "
+                                     "judge on (default: leave-poses-out cross-validation)")
     p.add_argument("--machine", help="machine YAML")
     p.add_argument("--artefact", help="artefact YAML")
     p.add_argument("--stylus-diameter-mm", type=float, default=None,

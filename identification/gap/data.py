@@ -19,6 +19,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from identification.model import Artefact, Centres
+from identification.outliers import robust_scale
 from identification.spherefit import SphereFitError, fit_spheres
 
 TOUCHES = 5
@@ -60,6 +61,9 @@ class Groups:
     sigma_dof: int
     centre_cov_um2: np.ndarray  # (G, 3, 3) centre covariance from the touch noise
     dropped: int = 0  # incomplete (fewer than five touches) groups left out
+    # observations per group: 4 (centre x y z + form residual) or 3 when there is no usable
+    # form residual — centres without touches, exact touches (``gap.centres_input``)
+    channels: int = 4
 
     def __len__(self) -> int:
         return len(self.centres)
@@ -127,12 +131,7 @@ def group_touches(data: TouchData, artefact: Artefact, stylus_radius_mm: float) 
     ref = form_dir[0]
     form_dir *= np.sign(np.einsum("gt,t->g", form_dir, ref))[:, None]
     form_um = np.einsum("gt,gt->g", form_dir, radial_um)
-    # Trigger repeatability from the form residuals after removing the pattern common to all
-    # groups (a repeatable lobing is an effect, not noise): one dof per group, minus one.
-    g = len(uniq)
-    dev = form_um - form_um.mean() if g > 1 else form_um
-    dof = max(g - 1, 1)
-    sigma = float(np.sqrt(np.sum(dev**2) / dof))
+    sigma, dof = form_floor_um(form_um)
     sigma = max(sigma, 1e-3)  # a noise-free simulation still needs a finite weight
     mtm_inv = np.linalg.inv(np.einsum("gti,gtj->gij", m, m))
     cov = sigma**2 * mtm_inv[:, :3, :3]
@@ -143,6 +142,26 @@ def group_touches(data: TouchData, artefact: Artefact, stylus_radius_mm: float) 
                   np.asarray(fit.radius_dev_um, float), np.asarray(fit.radius_mm, float),
                   pinv[:, :3, :], form_dir, form_um,
                   sigma, dof, cov, int((~complete).sum()))
+
+
+REJECT_Z = 3.5  # Hampel's x84 rule: beyond 3.5 σ (5.2 MADs) of the median a value is gross
+
+
+def form_floor_um(form_um: np.ndarray) -> tuple[float, int]:
+    """Trigger repeatability (µm) and its dof from the groups' form residuals, once the
+    pattern common to all groups is removed (a repeatable lobing is an effect, not noise).
+    Robust, yet as efficient as the RMS on clean data: the values beyond ``REJECT_Z`` robust
+    σ (median, MAD × 1.4826) of the median are left out, the rest give the RMS about their
+    mean — one bad visit (a chip) no longer inflates the floor by its square."""
+    if len(form_um) < 2:
+        return float(np.sqrt(np.sum(form_um**2))), 1
+    med, s = robust_scale(form_um, floor=0.0)
+    kept = form_um[np.abs(form_um - med) <= REJECT_Z * s]
+    if s < 1e-6 or len(kept) < 2:  # exact (simulated) touches: nothing to call gross
+        kept = form_um
+    dev = kept - kept.mean()
+    dof = len(kept) - 1
+    return float(np.sqrt(np.sum(dev**2) / dof)), dof
 
 
 def repeat_scatter_um(groups: Groups) -> tuple[np.ndarray, int] | None:

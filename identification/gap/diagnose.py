@@ -33,6 +33,7 @@ from identification.gap.attribute import (
     gap_p_value,
     score,
 )
+from identification.gap.centres_input import exact_floor
 from identification.gap.data import (
     Groups,
     TouchData,
@@ -42,6 +43,7 @@ from identification.gap.data import (
 )
 from identification.gap.linear import FullFit, Problem, columns, fit, held_out, projected
 from identification.gap.locate import breakdowns
+from identification.gap.outlier_visits import exclude_outliers, outlier_verdict
 from identification.gap.split import TIME_BLOCKS, TIME_FAMILIES, folds
 from identification.gap.twin import Twin, effect_columns, fit_twin, touch_context
 from identification.kinematics import Machine
@@ -74,6 +76,8 @@ class Options:
     known: Sequence[tuple[Effect, np.ndarray | None]] = ()
     split: str = "auto"  # internal split without a hold-out log: auto | pose | time (split.py)
     gravity_dir: Sequence[float] | None = None  # machine file ``gravity``; None: heuristic
+    # stated centre repeatability (x, y, z µm): the floor where touches are exact (or absent)
+    repeatability_um: Sequence[float] | None = None
 
 
 def _merge(train: TouchData, holdout: TouchData | None) -> tuple[TouchData, np.ndarray]:
@@ -91,26 +95,44 @@ def _whiteners(groups: Groups) -> np.ndarray:
     cov = np.zeros((len(groups), 4, 4))
     cov[:, :3, :3] = groups.centre_cov_um2
     cov[:, 3, 3] = groups.sigma_touch_um**2
-    return np.linalg.inv(np.linalg.cholesky(cov))
+    w = np.linalg.inv(np.linalg.cholesky(cov))
+    if groups.channels < 4:  # no usable form residual: a zero row, not an observation
+        w[:, 3, :] = 0.0
+    return w
 
 
 def diagnose(machine: Machine, artefact: Artefact, touches: TouchData, stylus_radius_mm: float,
              holdout: TouchData | None = None, options: Options | None = None) -> dict:
     """Run the whole diagnosis; returns the JSON-ready report (units µm, µrad, as labelled)."""
     opt = options or Options()
+    data, hold_rows = _merge(touches, holdout)
+    groups = group_touches(data, artefact, stylus_radius_mm)
+    data, hold_rows, groups, faulty = exclude_outliers(  # a chip …: out of floor and twin
+        machine, artefact, data, hold_rows, groups, stylus_radius_mm, holdout and touches)
+    groups, note = exact_floor(groups, opt.repeatability_um)  # never a zero form residual
+    return outlier_verdict(diagnose_groups(machine, artefact, data, groups,
+                                           hold_rows[groups.touch_index[:, 0]], opt, note),
+                           faulty)
+
+
+def diagnose_groups(machine: Machine, artefact: Artefact, data: TouchData, groups: Groups,
+                    is_ho: np.ndarray, options: Options | None = None, note: str = "") -> dict:
+    """The diagnosis of ready groups (touches: ``diagnose``; centres: ``gap.centres_input``);
+    ``note`` says where a floor not from the form residuals came from."""
+    opt = options or Options()
     unknown = sorted(set(opt.families) - set(FAMILIES))
     if unknown:
         raise ValueError(f"unknown effect families {unknown}; expected some of {FAMILIES}")
-    data, hold_rows = _merge(touches, holdout)
-    groups = group_touches(data, artefact, stylus_radius_mm)
-    is_ho = hold_rows[groups.touch_index[:, 0]]
     n_train_poses = len(np.unique(groups.centres.pose[~is_ho]))
     if n_train_poses < MIN_POSES:
         raise ValueError(f"{n_train_poses} complete poses to fit the twin on; the diagnosis "
                          f"needs at least {MIN_POSES}")
-    floored, note = _repeat_floor(groups)
+    floored, rnote = _repeat_floor(groups)
     rep, refined = _analyse(machine, artefact, data, floored, is_ho, opt)
-    rep["noise"]["source"] += note
+    if groups.channels < 4:
+        rep["noise"]["source"] = note
+        refined = None  # the refinement re-estimates a form-residual floor: there is none
+    rep["noise"]["source"] += rnote
     if refined is not None and refined[0] < SIGMA_REFINE * groups.sigma_touch_um:
         # The form residuals that gave the floor also carried the selected effects' sphere
         # distortion (e.g. the local slope of a straightness): estimate it again without them
@@ -220,8 +242,9 @@ def _analyse(machine: Machine, artefact: Artefact, data: TouchData, groups: Grou
     known = {e.label for e, _ in opt.known}
 
     rep_floor = repeat_floor_um(groups)
+    form_var = groups.sigma_touch_um**2 if groups.channels == 4 else 0.0
     noise_floor = float(np.sqrt(np.mean(
-        (np.trace(groups.centre_cov_um2, axis1=1, axis2=2) + groups.sigma_touch_um**2) / 4)))
+        (np.trace(groups.centre_cov_um2, axis1=1, axis2=2) + form_var) / groups.channels)))
     base_full = fit(problem, base)
     base_ho = held_out(problem, base)
     cells = breakdowns(groups, base_ho, artefact.ids)
@@ -344,7 +367,8 @@ def _analyse(machine: Machine, artefact: Artefact, data: TouchData, groups: Grou
                  "n_params": twin_cols.shape[2], "n_known_params": n_base - twin_cols.shape[2],
                  "groups_train": int(train.sum()),
                  "groups_holdout": int(is_ho.sum()) if is_ho.any() else len(groups)},
-        "baseline": {"train_rms_um": round(float(np.sqrt(np.mean(base_full.e_um**2))), 4),
+        "baseline": {"train_rms_um": round(float(np.sqrt(np.mean(
+                         base_full.e_um[:, :groups.channels] ** 2))), 4),
                      "holdout_rms_um": round(base_ho.rms_um, 4),
                      "holdout_max_um": round(base_ho.max_um, 4),
                      "gap_ratio": round(base_ho.ratio, 3), "p_value": float(f"{p_gap:.3g}")},

@@ -50,7 +50,7 @@ class HeldOut:
 
     @property
     def rms_um(self) -> float:
-        return float(np.sqrt(np.mean(self.e_um**2)))
+        return float(np.sqrt(np.mean(self.e_um[self.expected > 0] ** 2)))  # live observations
 
     @property
     def max_um(self) -> float:
@@ -118,10 +118,17 @@ def fit(p: Problem, cols: np.ndarray, rows: np.ndarray | None = None) -> FullFit
     beta, pinv, r = _gram_solve(x.T @ x, x.T @ y, norms)
     res = y - x @ beta
     rss = float(res @ res)
-    dof = max(len(y) - r, 1)
+    n_obs = int(live(p)[rows].sum())
+    dof = max(n_obs - r, 1)
     factor = max(1.0, rss / dof)  # never claim better than the probing repeatability
     e_um = p.y_um[rows] - np.einsum("gjk,k->gj", cols[rows], beta)
-    return FullFit(beta, pinv * factor, rss, r, len(y), e_um)
+    return FullFit(beta, pinv * factor, rss, r, n_obs, e_um)
+
+
+def live(p: Problem) -> np.ndarray:
+    """(G, 4) the observations that are observations: a zero whitener row (no form residual,
+    ``data.Groups.channels`` 3) is none and counts neither in expectations nor in dof."""
+    return np.any(p.whiten != 0.0, axis=2)
 
 
 def held_out(p: Problem, cols: np.ndarray) -> HeldOut:
@@ -133,6 +140,7 @@ def held_out(p: Problem, cols: np.ndarray) -> HeldOut:
     norms = np.linalg.norm(x, axis=0)
     norms[norms == 0] = 1.0
     row_group = np.repeat(everything, 4)
+    obs = live(p)
     idx, e_um, e_w, expd = [], [], [], []
     for f in p.folds:
         te = np.flatnonzero(p.fold == f)
@@ -140,13 +148,13 @@ def held_out(p: Problem, cols: np.ndarray) -> HeldOut:
         xf, yf = x[rows], y[rows]
         beta, pinv, _ = _gram_solve(gram_all - xf.T @ xf, xty_all - xf.T @ yf, norms)
         e = p.y_um[te] - np.einsum("gjk,k->gj", cols[te], beta)
-        expd.append(1.0 + np.einsum("ij,jk,ik->i", xf, pinv, xf).reshape(-1, 4))
+        expd.append(obs[te] * (1.0 + np.einsum("ij,jk,ik->i", xf, pinv, xf).reshape(-1, 4)))
         idx.append(te)
         e_um.append(e)
         e_w.append(np.einsum("gij,gj->gi", p.whiten[te], e))
     ix = np.concatenate(idx)
     return HeldOut(ix, np.concatenate(e_um), np.concatenate(e_w), np.concatenate(expd),
-                   4 * len(ix))
+                   int(obs[ix].sum()))
 
 
 def projected(p: Problem, base_cols: np.ndarray, extra: np.ndarray,

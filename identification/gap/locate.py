@@ -53,7 +53,8 @@ def breakdowns(groups: Groups, ho: HeldOut, ball_ids: list[str],
     def chi_cell(by: str, key: str, mask: np.ndarray, cols: slice | int = slice(None)) -> None:
         eu = e_um[mask][:, cols]
         ew = e_w[mask][:, cols]
-        n = int(eu.size)
+        obs = ho.expected[mask][:, cols] > 0  # live observations only (data.Groups.channels)
+        n = int(np.count_nonzero(obs))
         if n == 0:
             return
         # Expected square per observation = 1 + its leverage (centre coordinates lean on the
@@ -61,7 +62,7 @@ def breakdowns(groups: Groups, ho: HeldOut, ball_ids: list[str],
         ratio = float(np.sum(ew**2) / np.sum(ho.expected[mask][:, cols]))
         # F(n, dof_σ), not χ²(n): the floor itself is estimated from the form residuals.
         p = float(stats.f.sf(ratio, n, groups.sigma_dof))
-        cells.append(Cell(by, key, n, float(np.sqrt(np.mean(eu**2))), ratio, p))
+        cells.append(Cell(by, key, n, float(np.sqrt(np.mean(eu[obs] ** 2))), ratio, p))
 
     poses = sorted(set(zip(c.b_deg[g].round(3), c.c_deg[g].round(3), strict=True)))
     for b, cc in poses:
@@ -88,7 +89,8 @@ def breakdowns(groups: Groups, ho: HeldOut, ball_ids: list[str],
         m = np.all(octant == code, axis=1)
         key = "".join(f"{a}{'+' if s else '-'}" for a, s in zip("XYZ", code, strict=True))
         chi_cell("region", key, m)
-    cells += _direction_cells(groups, ho)
+    if groups.channels == 4:  # the touch directions live in the form residual
+        cells += _direction_cells(groups, ho)
     m_tests = max(len(cells), 1)
     return [Cell(x.by, x.key, x.n, x.rms_um, x.ratio, x.p_value, x.p_value < ALPHA / m_tests)
             for x in cells]
@@ -113,3 +115,19 @@ def _direction_cells(groups: Groups, ho: HeldOut) -> list[Cell]:
         ratio = float(np.mean(r**2) / max(groups.sigma_touch_um**2, 1e-12))
         out.append(Cell("direction", f"touch {k + 1}", n, float(np.sqrt(np.mean(r**2))), ratio, p))
     return out
+
+
+MAX_SHOWN = 10  # "gap at …" lines in a report; the others are counted
+
+
+def shown_locations(location: list[dict], breakdowns: list[dict], limit: int = MAX_SHOWN
+                    ) -> tuple[list[dict], int, int]:
+    """The report's ``location`` cells worth a line — above the floor (RMS ratio > 1),
+    significant first, largest first, at most ``limit`` — and the counts of the others: more
+    above the floor, and at or below it (e.g. an approach direction whose mean residual is
+    significant while its RMS stays under the floor). Each shown cell gets ``significant``."""
+    sig = {(c["by"], c["key"]) for c in breakdowns if c.get("significant")}
+    above = [dict(c, significant=(c["by"], c["key"]) in sig) for c in location
+             if c["ratio_to_floor"] > 1.0]
+    above.sort(key=lambda c: (not c["significant"], -c["ratio_to_floor"]))
+    return above[:limit], max(len(above) - limit, 0), len(location) - len(above)
