@@ -2,6 +2,7 @@
 # Install the independent peers the tests talk to (see tests/peers/PEERS_FINDINGS.md).
 #
 #   bash .ci/install-peers.sh [PEER...]       PEER: socat mbpoll node-opcua chromium linuxcnc
+#                                             postgresql mosquitto
 #                                             (default: all of them)
 #
 # Idempotent: what is installed already is skipped (a second run with everything present takes
@@ -17,11 +18,13 @@ cd "$(dirname "${BASH_SOURCE[0]}")/.."
 NODE_OPCUA_VERSION=2.182.2
 NODE_PREFIX=${RUMBA_PEERS_DIR:-.peers}/node
 
-ALL_PEERS=(socat mbpoll node-opcua chromium linuxcnc)
+ALL_PEERS=(socat mbpoll node-opcua chromium linuxcnc postgresql mosquitto)
 declare -A APT_PKGS=(
   [socat]="socat"
   [mbpoll]="mbpoll libmodbus-dev pkg-config"
-  [chromium]="chromium chromium-driver"
+  [chromium]="chromium chromium-driver poppler-utils"  # poppler: pdftoppm renders report PDFs
+  [postgresql]="postgresql"  # the tests start their own server (initdb + pg_ctl) in a temp dir
+  [mosquitto]="mosquitto"  # the tests start their own broker on a free loopback port
   [linuxcnc]="linuxcnc-uspace"
 )
 
@@ -107,8 +110,10 @@ for p in "${peers[@]}"; do
     socat) v=$(socat -V | awk '/socat version/ {print $3; exit}') ;;
     mbpoll) v="mbpoll $(dpkg-query -W -f='${Version}' mbpoll), libmodbus $(pkg-config --modversion libmodbus)" ;;
     node-opcua) v="node-opcua $(node_opcua_version) on node $(node --version)" ;;
-    chromium) v="$(chromium --version 2>/dev/null | head -n1); $(chromedriver --version | cut -d' ' -f1-2)" ;;
+    chromium) v="$(chromium --version 2>/dev/null | head -n1); $(chromedriver --version | cut -d' ' -f1-2); $(pdftoppm -v 2>&1 | head -n1)" ;;
     linuxcnc) v="linuxcnc-uspace $(dpkg-query -W -f='${Version}' linuxcnc-uspace)" ;;
+    postgresql) v="postgresql $(dpkg-query -W -f='${Version}' postgresql)" ;;
+    mosquitto) v="mosquitto $(dpkg-query -W -f='${Version}' mosquitto)" ;;
   esac
   log "version $p: $v"
 done

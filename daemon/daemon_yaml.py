@@ -21,9 +21,10 @@ from contracts.result_lines import DialectName
 from contracts.setup_files import (
     MachineFile,
     Plan,
+    Record,
     _safe_name,
     check_touch_count,
-    load_artefact,
+    load_artefact_file,
     load_machine,
     load_plan,
 )
@@ -35,6 +36,7 @@ from contracts.yaml_files import (
     validate_file,
 )
 from daemon.judge import Limit, Tolerances
+from daemon.mqtt_config import MqttFile
 from identification.kinematics import Machine
 from identification.model import Artefact
 
@@ -100,6 +102,10 @@ class MachineEntry(StrictModel):
     # Touch targets: nominal artefact, or the setup estimated by the last PASS run (smaller
     # standoff, faster cycle; a re-mounted artefact then needs one nominal run).
     program_targets: Literal["nominal", "last_good"] = "nominal"
+    # A ball visit the outlier test flags (a chip, dirt, a bad trigger) is probed again after
+    # the program, its whole pose, up to this many rounds; 0: never (the verdict is ERROR).
+    reprobe_max: int = Field(2, ge=0, le=5)
+    operator: Record | None = None  # who answers for this machine's checks (on every report)
     _n = field_validator("name")(_safe_name)
 
     @field_validator("link")
@@ -134,6 +140,8 @@ class HmiFile(StrictModel):
     # scheme://name[:port] operators type when it differs from host (a DNS name, a proxy):
     # the Host and Origin checks (DNS-rebinding defence) accept these besides host itself
     public_origins: list[str] = []
+    # a verdict older than this is shown as stale (the page says so, in the operator's colours)
+    stale_after_h: float = Field(24.0, gt=0, le=8760)
 
     @field_validator("public_origins")
     @classmethod
@@ -156,8 +164,9 @@ class HmiFile(StrictModel):
 
 
 class StoreFile(StrictModel):
-    path: str = "rumba.sqlite"
+    path: str = "rumba.sqlite"  # the local journal (in fleet mode: the buffer drained to url)
     synchronous: Literal["FULL", "NORMAL"] = "FULL"
+    url: str | None = None  # sqlite:///path, or postgresql://… (fleet store, daemon/store_pg.py)
 
 
 class DaemonFile(StrictModel):
@@ -165,6 +174,7 @@ class DaemonFile(StrictModel):
     reports_dir: str = "reports"
     hmi: HmiFile = HmiFile(token_file="hmi.token")
     can_panel: dict[str, Any] | None = None  # validated by drivers.can.panel
+    mqtt: MqttFile | None = None  # live results out (daemon/mqtt.py)
     machines: list[MachineEntry] = Field(min_length=1)
 
     @model_validator(mode="after")
@@ -196,6 +206,9 @@ class MachineSetup:
     validate_poses: tuple[int, ...]
     rerun_interrupted: bool
     program_targets: str = "nominal"
+    reprobe_max: int = 2  # re-probe rounds of faulty ball visits (daemon/reprobe.py)
+    operator: str | None = None  # for the report's audit fields
+    artefact_file: Any = None  # contracts.setup_files.ArtefactFile (its calibration record)
 
 
 @dataclass(frozen=True)
@@ -209,6 +222,8 @@ class DaemonConfig:
     hmi_tls: tuple[Path, Path] | None
     can_panel: dict[str, Any] | None
     machines: dict[str, MachineSetup]
+    store_dsn: str | None = None  # postgresql://… : the fleet store the journal drains to
+    mqtt: Any = None  # daemon.mqtt_config.MqttConfig
 
 
 def _resolve(base: Path, p: str) -> Path:
@@ -279,7 +294,7 @@ def load_daemon_config(path: Path | str) -> DaemonConfig:
     for i, m in enumerate(df.machines):
         key = f"{path}: machines.{i}"
         machine, mfile = load_machine(_named_file(base, m.machine, f"{key}.machine"))
-        artefact = load_artefact(_named_file(base, m.artefact, f"{key}.artefact"))
+        artefact, afile = load_artefact_file(_named_file(base, m.artefact, f"{key}.artefact"))
         plan = load_plan(_named_file(base, m.plan, f"{key}.plan"))
         check_touch_count(plan, artefact, f"{key}.plan")
         known = set(machine.location_error_names())
@@ -298,7 +313,8 @@ def load_daemon_config(path: Path | str) -> DaemonConfig:
             m.name, machine, mfile, artefact, plan, m.dialect,
             _validate_link(m.link, f"{key}.link", base), m.triggers,
             m.tolerances.to_tolerances(), m.touch_timeout_s, tuple(held),
-            m.rerun_interrupted, m.program_targets)
+            m.rerun_interrupted, m.program_targets, m.reprobe_max, operator=m.operator,
+            artefact_file=afile)
     if df.can_panel is not None:
         from pydantic import ValidationError
 
@@ -320,8 +336,22 @@ def load_daemon_config(path: Path | str) -> DaemonConfig:
 
             tls = (_resolve(base, df.hmi.tls.cert), _resolve(base, df.hmi.tls.key))
             server_context(*tls, f"{path}: hmi.tls")  # missing, mismatched, encrypted … keys
-    return DaemonConfig(path, _resolve(base, df.store.path), df.store.synchronous,
-                        _resolve(base, df.reports_dir), df.hmi, token, tls, df.can_panel, machines)
+    store_path, dsn = _resolve(base, df.store.path), None
+    if df.store.url is not None:
+        from daemon.store_url import parse_store_url
+
+        url = parse_store_url(df.store.url, f"{path}: store.url")
+        if url.kind == "sqlite" and "path" in df.store.model_fields_set:
+            raise ConfigError(f"{path}: store: give 'path' or a sqlite:/// 'url', not both")
+        store_path = _resolve(base, str(url.path)) if url.kind == "sqlite" else store_path
+        dsn = url.dsn
+    mqtt = None
+    if df.mqtt is not None:
+        from daemon.mqtt_config import load_mqtt
+
+        mqtt = load_mqtt(df.mqtt, base, f"{path}: mqtt", read_token_file)
+    return DaemonConfig(path, store_path, df.store.synchronous, _resolve(base, df.reports_dir),
+                        df.hmi, token, tls, df.can_panel, machines, dsn, mqtt)
 
 
 def config_from_dict(data: Any, path: Path) -> DaemonFile:

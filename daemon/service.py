@@ -19,6 +19,7 @@ from typing import Any
 from aiohttp import web
 
 from daemon.daemon_yaml import DaemonConfig, MachineSetup
+from daemon.fleet_link import FleetLink
 from daemon.session import Refused, Session
 from daemon.store import Store
 from drivers.base import CncLink, LinkError
@@ -59,12 +60,14 @@ class Service:
         self._runner: web.AppRunner | None = None
         self._tasks: list[asyncio.Task] = []
         self.panel: Any = None
+        self.fleet: FleetLink | None = None
 
     # ------------------------------------------------------------------------------ startup
     async def start(self) -> None:
         cfg = self.config
         self.store = Store(cfg.store_path, cfg.synchronous,  # type: ignore[arg-type]
                            source=f"{cfg.path}: store.path")
+        self.fleet = FleetLink(cfg, self.store)  # fleet store drainer, MQTT (both optional)
         self.interrupted = self.store.mark_interrupted()
         for rid in self.interrupted:
             log.warning("run %s was interrupted (daemon stopped mid-run); hits kept", rid)
@@ -81,6 +84,7 @@ class Service:
                     await self._stop_leftover(name, link)
                 self.sessions[name] = Session(setup, link, self.store, cfg.reports_dir,
                                               **self.session_kw)
+            self.fleet.attach(self.sessions)
             if cfg.hmi.enabled:
                 await self._start_hmi()
             await self._start_panel()
@@ -130,7 +134,8 @@ class Service:
             raise ServiceError(str(e)) from None
         app = create_app(self.sessions, self.store, cfg.hmi_token or "",  # type: ignore[arg-type]
                          secure_cookie=ctx is not None, secret=secret,
-                         bind_host=cfg.hmi.host, public_origins=cfg.hmi.public_origins)
+                         bind_host=cfg.hmi.host, public_origins=cfg.hmi.public_origins,
+                         stale_after_h=cfg.hmi.stale_after_h)
         self._runner = web.AppRunner(app, access_log=None, handle_signals=False)
         await self._runner.setup()
         site = web.TCPSite(self._runner, cfg.hmi.host, cfg.hmi.port, ssl_context=ctx)
@@ -204,5 +209,7 @@ class Service:
         for link in self.links.values():
             with contextlib.suppress(Exception):
                 await link.close()
+        if self.fleet is not None:
+            await self.fleet.close()
         if self.store is not None:
             self.store.close()

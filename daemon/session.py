@@ -21,7 +21,7 @@ from typing import Any
 
 from contracts.jobs import Verdict
 from contracts.messages import ProbeHit
-from daemon import pipeline
+from daemon import pipeline, reprobe
 from daemon.analysis_result import Analysis
 from daemon.daemon_yaml import MachineSetup
 from daemon.judge import Judgement, judge
@@ -62,10 +62,12 @@ class RunFailed(Exception):
 
 
 def new_run_id() -> str:
-    """Sortable, unique and G-code safe (letters, digits, '-'), 21 characters: within
-    ``daemon.store.RUN_ID_PATTERN``, which every run id entering the journal must match."""
+    """Sortable, unique and G-code safe (letters, digits, '-'), 29 characters: within
+    ``daemon.store.RUN_ID_PATTERN``, which every run id entering the journal must match.
+    48 random bits: 100 daemons of a fleet starting in the same second collide with
+    probability ~2e-11 (16 bits gave ~7 % every morning, and a fleet store refuses the loser)."""
     return validate_run_id(time.strftime("%Y%m%dT%H%M%SZ", time.gmtime()) + "-"
-                           + secrets.token_hex(2))
+                           + secrets.token_hex(6))
 
 
 class Session:
@@ -215,6 +217,7 @@ class Session:
             reference = self.store.last_good(self.setup.name, before=run_id)
             prepared = await self._prepare_program(run_id, reference)
             hits = await self._capture(prepared)
+            hits = await self._reprobe(run_id, hits, reference)
             analysis = await self._identify(run_id, hits, reference)
             judgement = self._judge(run_id, analysis, reference)
             await self._report(run_id, analysis, judgement)
@@ -253,6 +256,27 @@ class Session:
         self._enter(State.STREAM)
         return prepared
 
+    async def _reprobe(self, run_id: str, hits: list[ProbeHit],
+                       reference: tuple[str, Analysis] | None) -> list[ProbeHit]:
+        """Ball visits the outlier test names (a chip, dirt, a bad trigger) are probed again
+        after the program, their poses in one more checked program, up to ``reprobe_max``
+        rounds (daemon/reprobe.py); every hit is journaled, the analysis uses the clean visit."""
+        for rnd in range(1, self.setup.reprobe_max + 1):
+            try:
+                rp = await asyncio.to_thread(reprobe.plan_reprobe, self.setup, hits, run_id,
+                                             rnd, reference[1] if reference else None)
+            except pipeline.PipelineError as e:  # the faulty visits stay unrepaired: ERROR
+                log.warning("%s %s: no re-probe: %s", self.setup.name, run_id, e)
+                break
+            if rp is None:
+                break
+            log.info("%s %s: re-probe %d of %s", self.setup.name, run_id, rnd,
+                     "; ".join(rp.faults))
+            self.total += rp.prepared.job.touch_count
+            self.store.set_state(run_id, str(self.state), touch_total=self.total)
+            hits = hits + await self._capture(rp.prepared, rp.remap)
+        return hits
+
     async def _identify(self, run_id: str, hits: list[ProbeHit],
                         reference: tuple[str, Analysis] | None) -> pipeline.RunAnalysis:
         """IDENTIFY: hits → centres → estimate → analyses, recorded with the reference run."""
@@ -268,12 +292,13 @@ class Session:
         self._enter(State.JUDGE)
         j = judge(analysis.data, self.setup.tolerances, reference[1] if reference else None)
         self.store.save_judgement(run_id, j)
-        self.verdict = {"status": j.status, "summary": j.summary, "reasons": list(j.reasons)}
+        self.verdict = {"status": j.status, "summary": j.summary, "reasons": list(j.reasons),
+                        "at": time.time()}  # when judged: the HMI shows its date and age
         return j
 
     async def _report(self, run_id: str, analysis: pipeline.RunAnalysis,
                       judgement: Judgement) -> None:
-        """REPORT: the HTML and JSON report of the run, rendered from what the steps before
+        """REPORT: the HTML, JSON and PDF report of the run, rendered from what the steps before
         produced; the run record and the machine's trend are read here, the report itself
         does not touch the journal."""
         self._enter(State.REPORT)
@@ -281,13 +306,17 @@ class Session:
         run, trend = self.store.run(run_id), self.store.trend(self.setup.name)
         paths = await asyncio.to_thread(report.write_report, self.reports_dir, run,
                                         analysis.data, judgement, analysis.centre_rows, trend,
-                                        self.setup.tolerances)
-        self.store.save_report(run_id, *paths)
+                                        self.setup.tolerances, report.audit_of(self.setup))
+        self.store.save_report(run_id, *paths)  # the PDF beside the HTML (report.pdf_path)
         self.verdict["report"] = str(paths[0])  # type: ignore[index]  # set by _judge
+        self.verdict["pdf"] = str(report.pdf_path(paths[0]))  # type: ignore[index]
 
-    async def _capture(self, prepared: pipeline.Prepared) -> list[ProbeHit]:
-        run_id = prepared.job.run_id
+    async def _capture(self, prepared: pipeline.Prepared,
+                       remap: Callable[[ProbeHit], ProbeHit] | None = None) -> list[ProbeHit]:
+        """Stream one program and journal its hits (``remap``: a re-probe's identities)."""
+        run_id = self.run_id or prepared.job.run_id
         hits: list[ProbeHit] = []
+        done0 = self.done
         agen = self.link.run(prepared.job)
         try:
             while True:
@@ -297,18 +326,19 @@ class Session:
                     break
                 except TimeoutError:
                     raise RunFailed(f"no probe result for {self.setup.touch_timeout_s:g} s after "
-                                    f"touch {len(hits)} of {self.total}: controller silent "
+                                    f"touch {self.done} of {self.total}: controller silent "
                                     "(feed hold, alarm or lost results)") from None
-                hit = prepared.complete(hit, time.time() - self.started_at)
+                own = prepared.complete(hit, time.time() - self.started_at)
+                hit = own if remap is None else remap(own)
                 self.store.journal_hit(run_id, hit)  # raw data first, always
                 hits.append(hit)
-                self.done = len(hits)
+                self.done = done0 + len(hits)
                 if self.first_hit_at is None:
                     self.first_hit_at = time.time()
                     self._enter(State.CAPTURE)
                 else:
                     self._publish()
-                mismatch = prepared.mismatch(hit)
+                mismatch = prepared.mismatch(own)
                 if mismatch:
                     raise RunFailed(mismatch)
                 if not hit.triggered:
@@ -318,8 +348,9 @@ class Session:
         finally:
             with contextlib.suppress(Exception):
                 await agen.aclose()
-        if len(hits) != self.total:
-            raise RunFailed(f"program ended after {len(hits)} of {self.total} touches")
+        if len(hits) != prepared.job.touch_count:
+            raise RunFailed(f"program ended after {len(hits)} of {prepared.job.touch_count} "
+                            "touches")
         return hits
 
     async def _stop_controller(self) -> None:

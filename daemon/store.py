@@ -22,6 +22,7 @@ from contracts.messages import ProbeHit
 from contracts.yaml_files import ConfigError
 from daemon.analysis_result import Analysis
 from daemon.judge import Judgement
+from daemon.store_schema import MIGRATIONS, SCHEMA_VERSION
 
 FINAL_STATES = ("DONE", "ABORTED", "FAILED", "INTERRUPTED", "IMPORTED")
 """A run in any other state was cut short by a crash (marked INTERRUPTED on the next start)."""
@@ -58,47 +59,7 @@ def validate_run_id(run_id: str, where: str = "run id") -> str:
     return run_id
 
 
-# Each migration is applied once, in order, inside one transaction, and recorded in
-# schema_version. Never edit a released step: add a new one.
-MIGRATIONS: list[list[str]] = [
-    [  # 1: initial schema
-        """CREATE TABLE runs (
-            id TEXT PRIMARY KEY, machine TEXT NOT NULL, trigger TEXT NOT NULL,
-            state TEXT NOT NULL, reason TEXT NOT NULL DEFAULT '',
-            plan TEXT NOT NULL DEFAULT '', artefact TEXT NOT NULL DEFAULT '',
-            dialect TEXT NOT NULL DEFAULT '', touch_total INTEGER NOT NULL DEFAULT 0,
-            started_at REAL NOT NULL, ended_at REAL,
-            verdict TEXT, summary TEXT NOT NULL DEFAULT '', imported INTEGER NOT NULL DEFAULT 0)""",
-        "CREATE INDEX runs_machine ON runs(machine, started_at)",
-        """CREATE TABLE hits (
-            run_id TEXT NOT NULL REFERENCES runs(id), seq INTEGER NOT NULL,
-            t_s REAL NOT NULL, repeat INTEGER NOT NULL, pose INTEGER NOT NULL,
-            b_cmd_deg REAL NOT NULL, c_cmd_deg REAL NOT NULL, ball TEXT NOT NULL,
-            touch INTEGER NOT NULL, dir_x REAL NOT NULL, dir_y REAL NOT NULL, dir_z REAL NOT NULL,
-            axes TEXT NOT NULL, triggered INTEGER NOT NULL, feed_mm_min REAL NOT NULL,
-            raw TEXT NOT NULL, extra TEXT NOT NULL, received_at REAL NOT NULL,
-            PRIMARY KEY (run_id, seq))""",
-        """CREATE TABLE centres (
-            run_id TEXT NOT NULL REFERENCES runs(id), pose INTEGER NOT NULL, ball TEXT NOT NULL,
-            b_deg REAL NOT NULL, c_deg REAL NOT NULL, x_mm REAL NOT NULL, y_mm REAL NOT NULL,
-            z_mm REAL NOT NULL, radius_dev_um REAL, form_um REAL,
-            PRIMARY KEY (run_id, pose, ball))""",
-        """CREATE TABLE estimates (
-            run_id TEXT PRIMARY KEY REFERENCES runs(id), analysis TEXT NOT NULL)""",
-        """CREATE TABLE verdicts (
-            run_id TEXT PRIMARY KEY REFERENCES runs(id), status TEXT NOT NULL,
-            reasons TEXT NOT NULL, checks TEXT NOT NULL,
-            written_back INTEGER NOT NULL DEFAULT 0)""",
-        """CREATE TABLE reports (
-            run_id TEXT PRIMARY KEY REFERENCES runs(id), html_path TEXT NOT NULL,
-            json_path TEXT NOT NULL)""",
-    ],
-    [  # 2: HMI sessions signed out before their expiry (cookies are signed, not stored)
-        """CREATE TABLE hmi_revoked (
-            session_id TEXT PRIMARY KEY, expires_at REAL NOT NULL)""",
-    ],
-]
-SCHEMA_VERSION = len(MIGRATIONS)
+# The migrations live in daemon/store_schema.py (shared with the PostgreSQL fleet store).
 
 
 def _why(e: OSError, directory: Path) -> str:

@@ -36,7 +36,7 @@ def test_bad_run_ids_are_refused_with_one_line(run_id):
 
 def test_new_run_id_is_in_the_charset():
     rid = new_run_id()
-    assert validate_run_id(rid) == rid and len(rid) == 21
+    assert validate_run_id(rid) == rid and len(rid) == 29
 
 
 @pytest.mark.parametrize("run_id", ["../../x/PWNED", "a.b", "r\n"])
