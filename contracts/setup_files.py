@@ -6,6 +6,7 @@ expected, e.g. ``config/machines/x.yaml: axes.B.travel_deg: expected 2 items, go
 
 from __future__ import annotations
 
+import datetime
 import math
 import re
 from pathlib import Path
@@ -46,6 +47,8 @@ MAX_BALLS = 32
 # but absurd number (1e308) would otherwise reach the kinematics and fail deep inside as a
 # singular matrix instead of naming the key.
 Bounded = Annotated[float, Field(ge=-MAX_RESULT_MM, le=MAX_RESULT_MM)]
+# Free text kept for the audit trail (a serial number, a certificate): one printable line.
+Record = Annotated[str, Field(min_length=1, max_length=64, pattern=r"^[^\x00-\x1f\x7f]+$")]
 Vec3 = Annotated[list[Bounded], Field(min_length=3, max_length=3)]
 Range2 = Annotated[list[Bounded], Field(min_length=2, max_length=2)]
 
@@ -130,6 +133,7 @@ class MachineFile(StrictModel):
     # Direction of gravity in the foundation frame (any length, normalised on load), e.g.
     # [0, -1, 0] on a horizontal machine; None: identification.effects.default_gravity guesses.
     gravity: Vec3 | None = None
+    serial: Record | None = None  # the machine's serial number, printed on every report (audit)
     _n = field_validator("name")(_safe_name)
 
     @field_validator("gravity")
@@ -161,12 +165,22 @@ class DistanceFile(StrictModel):
     std_um: float = Field(0.5, gt=0, le=100)
 
 
+class CalibrationFile(StrictModel):
+    """The artefact's calibration certificate (balls, calibrated distances), for the audit
+    trail printed on every report; the method itself needs none unless ``distances`` are used."""
+
+    certificate: Record
+    date: datetime.date
+    laboratory: Record | None = None
+
+
 class ArtefactFile(StrictModel):
     name: str
     ball_diameter_mm: float = Field(25.4, gt=0, le=200)
     rod_diameter_mm: float = Field(8.0, gt=0, le=100)
     balls: list[BallFile] = Field(min_length=1, max_length=MAX_BALLS)
     distances: list[DistanceFile] = []
+    calibration: CalibrationFile | None = None
     _n = field_validator("name")(_safe_name)
 
     @model_validator(mode="after")
@@ -218,6 +232,16 @@ class PoseFile(StrictModel):
 class FeedsFile(StrictModel):
     probe_mm_min: float = Field(300.0, gt=0, le=5000)
     approach_mm_min: float = Field(2000.0, gt=0, le=50000)
+    # Two-speed touch (dialects that can repeat a probing move, programs/dialects): locate the
+    # surface at this feed, back off, re-touch at probe_mm_min (the latched value). None: one.
+    fast_probe_mm_min: float | None = Field(None, gt=0, le=5000)
+
+    @model_validator(mode="after")
+    def _fast_above_slow(self) -> FeedsFile:
+        if self.fast_probe_mm_min is not None and self.fast_probe_mm_min <= self.probe_mm_min:
+            raise ValueError(f"fast_probe_mm_min {self.fast_probe_mm_min:g} must be above "
+                             f"probe_mm_min {self.probe_mm_min:g} (or left out: one speed)")
+        return self
 
 
 class PlanFile(StrictModel):
@@ -346,6 +370,12 @@ def artefact_from_dict(data: Any, path: Path | str = "<artefact>") -> Artefact:
 
 def load_artefact(path: Path | str) -> Artefact:
     return artefact_from_dict(read_yaml(path), path)
+
+
+def load_artefact_file(path: Path | str) -> tuple[Artefact, ArtefactFile]:
+    """The artefact and its validated file (with the calibration record for reports)."""
+    data = read_yaml(path)
+    return artefact_from_dict(data, path), validate_file(ArtefactFile, path, data)
 
 
 def plan_from_dict(data: Any, path: Path | str = "<plan>") -> Plan:

@@ -37,6 +37,7 @@ from contracts.yaml_files import (
 )
 from daemon.judge import Limit, Tolerances
 from daemon.mqtt_config import MqttFile
+from daemon.notify_config import NotifyFile
 from identification.kinematics import Machine
 from identification.model import Artefact
 
@@ -175,6 +176,7 @@ class DaemonFile(StrictModel):
     hmi: HmiFile = HmiFile(token_file="hmi.token")
     can_panel: dict[str, Any] | None = None  # validated by drivers.can.panel
     mqtt: MqttFile | None = None  # live results out (daemon/mqtt.py)
+    notify: NotifyFile | None = None  # webhook / e-mail notifications (daemon/notify.py)
     machines: list[MachineEntry] = Field(min_length=1)
 
     @model_validator(mode="after")
@@ -224,6 +226,7 @@ class DaemonConfig:
     machines: dict[str, MachineSetup]
     store_dsn: str | None = None  # postgresql://… : the fleet store the journal drains to
     mqtt: Any = None  # daemon.mqtt_config.MqttConfig
+    notify: Any = None  # daemon.notify_config.NotifyConfig
 
 
 def _resolve(base: Path, p: str) -> Path:
@@ -350,8 +353,14 @@ def load_daemon_config(path: Path | str) -> DaemonConfig:
         from daemon.mqtt_config import load_mqtt
 
         mqtt = load_mqtt(df.mqtt, base, f"{path}: mqtt", read_token_file)
+    notify = None
+    if df.notify is not None:
+        from daemon.notify_config import load_notify
+
+        notify = load_notify(df.notify, base, f"{path}: notify", list(machines),
+                             read_token_file)
     return DaemonConfig(path, store_path, df.store.synchronous, _resolve(base, df.reports_dir),
-                        df.hmi, token, tls, df.can_panel, machines, dsn, mqtt)
+                        df.hmi, token, tls, df.can_panel, machines, dsn, mqtt, notify)
 
 
 def config_from_dict(data: Any, path: Path) -> DaemonFile:

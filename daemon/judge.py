@@ -14,7 +14,9 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from daemon.analysis_result import Analysis
+from daemon.verdict_text import duration_text
 from identification.estimate import coverage_factor
+from identification.outliers import REPROBE_REPEAT_BASE
 
 STATUS_ORDER = {"PASS": 0, "WARN": 1, "FAIL": 2, "ERROR": 3}
 """ERROR: the measurement itself is not trusted (health limits), so no statement on the machine."""
@@ -147,6 +149,9 @@ def judge(analysis: Analysis, tol: Tolerances, last_good: Analysis | None = None
     if status == "ERROR":  # health first: the other numbers come from a suspect measurement
         checks.sort(key=lambda c: c.status != "ERROR")
     reasons = [_reason(c) for c in checks if c.status != "PASS"]
+    # a repaired fault does not change the verdict, but the operator is told (and where)
+    reasons += [_reason(c) for c in checks
+                if c.status == "PASS" and c.quantity.startswith("measurement outlier")]
     reasons += [f"{n}: tolerance given but not identified in this run" for n in missing]
     n_bad = sum(c.status != "PASS" for c in checks)
     vmax = volumetric_max_um(analysis)
@@ -160,8 +165,10 @@ def _health(analysis: Analysis, tol: Tolerances) -> list[Check]:
     """Is the measurement trustworthy? A ball-pose whose sphere radius departs from the run's
     median (thesis §3.4: dirt, a chip, a damaged ball, an early trigger) or a large estimation
     residual makes every identified number suspect: ERROR, naming where."""
-    out = []
-    health = analysis.health
+    out = _outliers(analysis)
+    # visits the outlier test named are judged there (and a repaired one is not used)
+    named = {(o.pose, o.ball, o.repeat) for o in analysis.outliers or ()}
+    health = tuple(h for h in analysis.health if (h.pose, h.ball, h.repeat) not in named)
     devs = [h.radius_dev_um for h in health if h.radius_dev_um is not None]
     if tol.sphere_radius_spread_um is not None and devs:
         med = sorted(devs)[len(devs) // 2]
@@ -183,7 +190,7 @@ def _health(analysis: Analysis, tol: Tolerances) -> list[Check]:
     if tol.run_drift_um is not None and stab is not None:
         w, span = stab.worst, stab.span_min
         bad = stab.max_shift_um > tol.run_drift_um
-        over = f" over {span:.0f} min" if span is not None else ""
+        over = f" over {duration_text(span * 60)}" if span is not None else ""
         out.append(Check(f"revisit shift, ball {w.ball} pose {w.pose}",
                          float(stab.max_shift_um), None, "µm", "ERROR" if bad else "PASS",
                          f"health limit {tol.run_drift_um:g} µm{over}"
@@ -197,6 +204,41 @@ def _health(analysis: Analysis, tol: Tolerances) -> list[Check]:
         out.append(Check("residual RMS", float(rms), None, "µm", "PASS" if ok else "ERROR",
                          f"health limit {tol.residual_rms_um:g} µm: measurement not trusted"
                          if not ok else f"health limit {tol.residual_rms_um:g} µm"))
+    return out
+
+
+def _outliers(analysis: Analysis) -> list[Check]:
+    """A ball visit with one touch off the sphere the rest of the run predicts (a chip, dirt, a
+    coolant drop, a bad trigger; ``identification.outliers``) biases its centre by several µm:
+    ERROR naming the visit and the size, unless a clean re-probe replaced it. One check per
+    ball visit of the plan, its re-probes folded in."""
+    slots: dict[tuple[int, str, int], list] = {}
+    for o in analysis.outliers or ():
+        slots.setdefault((o.pose, o.ball, o.repeat % REPROBE_REPEAT_BASE), []).append(o)
+    out = []
+    for (pose, ball, repeat), found in sorted(slots.items()):
+        found.sort(key=lambda o: o.repeat)
+        o = found[0]
+        rep = f" repeat {repeat}" if repeat else ""
+        what = f"measurement outlier, ball {ball} pose {pose}{rep} touch {o.touch}"
+        size = float(o.size_um) if o.size_um is not None else float("nan")
+        if o.status == "unrepaired":
+            again = [x for x in found[1:] if x.repeat >= REPROBE_REPEAT_BASE]
+            why = (f"re-probed {len(again)}×, the fault came back ("
+                   + ", ".join(f"touch {x.touch} {x.size_um or 0:+.1f} µm" for x in again)
+                   + "): a chip stuck on the ball, a burr or a dent" if again else
+                   "not re-probed")
+            out.append(Check(what, size, None, "µm", "ERROR",
+                             f"one touch off the sphere the rest of the run predicts (robust "
+                             f"z {o.score or 0:.0f}; chip, dirt, coolant or a bad trigger), "
+                             f"{why} — measurement not trusted; clean the ball and run again"))
+        elif o.status == "repaired":
+            out.append(Check(what, size, None, "µm", "PASS",
+                             f"repaired: re-probed, the clean visit (repeat "
+                             f"{o.replaced_by_repeat}) is used"))
+        else:
+            out.append(Check(what, size, None, "µm", "PASS",
+                             "a re-probe that met a fault; the clean first visit is used"))
     return out
 
 

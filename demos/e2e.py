@@ -121,20 +121,28 @@ async def demo(time_scale: float, work: Path) -> int:
         report = v.get("report")
         if report:
             analysis = json.loads(Path(report).with_suffix(".json").read_text())["analysis"]
-            print("identified (µrad / µm): " + ", ".join(
-                f"{k} {d['value']:+.1f}±{d['std']:.1f}"
-                for k, d in sorted(analysis["links"].items())))
+            print(links_line(analysis["links"]))
             stab = analysis.get("stability")
             if stab:
                 print(f"stability: pose {stab['worst']['pose']} probed again at the end, "
                       f"largest ball-centre shift {stab['max_shift_um']:.1f} µm between its "
                       f"two visits (health limit 8 µm)")
         print(f"report: {report}")
+        if report and Path(report).with_suffix(".pdf").is_file():
+            print(f"report for filing (PDF, A4): {Path(report).with_suffix('.pdf')}")
         print(f"demo wall time {time.monotonic() - t0:.1f} s")
         return 0 if verdict in ("PASS", "WARN", "FAIL") else 1
     finally:
         await stop_process(daemon)
         await sim.stop()
+
+
+def links_line(links: dict[str, dict]) -> str:
+    """The identified link errors of a report's JSON, each with its uncertainty and unit."""
+    units = {"urad": "µrad", "um": "µm"}
+    return "identified link errors (ISO 230-1, ± standard uncertainty): " + ", ".join(
+        f"{k} {d['value']:+.1f} ± {d['std']:.1f} {units.get(d['unit'], d['unit'])}"
+        for k, d in sorted(links.items()))
 
 
 async def stop_process(proc: asyncio.subprocess.Process, grace_s: float = 20.0) -> None:

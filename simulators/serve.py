@@ -11,7 +11,9 @@ import asyncio
 import os
 import secrets
 import signal
+import stat
 import sys
+from collections.abc import Awaitable, Callable
 from pathlib import Path
 from typing import Any
 
@@ -146,16 +148,34 @@ async def _start(args: argparse.Namespace, ctrl: Any) -> tuple[Any, Any]:
     return panel.close, panel
 
 
-async def _stdin(ctrl: Any, stop: asyncio.Event, panel: Any = None) -> None:
-    if sys.stdin is None or sys.stdin.closed:
-        return
-    loop = asyncio.get_running_loop()
+async def _line_reader(f: Any) -> Callable[[], Awaitable[bytes]] | None:
+    """Lines of ``f`` without blocking the loop: a pipe, socket or terminal through the loop; a
+    regular file or ``/dev/null`` (``< /dev/null``, a service manager), which epoll cannot
+    watch, in a thread; None when there is nothing to read."""
+    try:
+        fd = f.fileno()
+        mode = os.fstat(fd).st_mode
+    except (OSError, ValueError):
+        return None  # closed
+    if not (stat.S_ISFIFO(mode) or stat.S_ISSOCK(mode) or os.isatty(fd)):
+        return lambda: asyncio.to_thread(f.buffer.readline)
     reader = asyncio.StreamReader()
     try:
-        await loop.connect_read_pipe(lambda: asyncio.StreamReaderProtocol(reader), sys.stdin)
+        await asyncio.get_running_loop().connect_read_pipe(
+            lambda: asyncio.StreamReaderProtocol(reader), f)
     except (ValueError, OSError):
-        return  # stdin is a file or closed: no interactive commands
-    while line := await reader.readline():
+        return None
+    return reader.readline
+
+
+async def _stdin(ctrl: Any, stop: asyncio.Event, panel: Any = None) -> None:
+    """Operator commands from stdin until it ends; the simulator keeps serving after that."""
+    if sys.stdin is None or sys.stdin.closed:
+        return
+    readline = await _line_reader(sys.stdin)
+    if readline is None:
+        return
+    while line := await readline():
         cmd = line.decode(errors="replace").strip().lower()
         if cmd == "request":
             ctrl.raise_start_request()

@@ -14,6 +14,7 @@ import pytest
 from contracts.yaml_files import ConfigError
 from daemon.daemon_yaml import load_daemon_config
 from daemon.service import Service
+from tests.browser import Cdp
 from tests.daemon_helpers import thesis_rows, thesis_setup, write_daemon_yaml
 from tests.replay_link import ReplayLink, prepare_from_rows
 
@@ -141,54 +142,6 @@ async def test_sse_progress_verdict_and_report(service):
 
 
 # ------------------------------------------------------------------------ headless browser
-
-
-class CdpError(RuntimeError):
-    """A DevTools protocol call answered with an error."""
-
-
-# Errors a page answers while it is between two documents (a form submit or a redirect is in
-# flight): polling must try again, not fail — CI once hit this right after the login submit.
-_NAVIGATING = ("navigated or closed", "Execution context was destroyed",
-               "Cannot find default execution context")
-
-
-class Cdp:
-    """A tiny Chrome DevTools Protocol client over aiohttp websockets."""
-
-    def __init__(self, ws: aiohttp.ClientWebSocketResponse) -> None:
-        self.ws, self.n = ws, 0
-
-    async def call(self, method: str, session: str | None = None, **params) -> dict:
-        self.n += 1
-        msg = {"id": self.n, "method": method, "params": params}
-        if session:
-            msg["sessionId"] = session
-        await self.ws.send_json(msg)
-        while True:
-            reply = await self.ws.receive_json()
-            if reply.get("id") == self.n:
-                if "error" in reply:
-                    raise CdpError(f"{method}: {reply['error']}")
-                return reply["result"]
-
-    async def eval(self, session: str, expr: str):
-        r = await self.call("Runtime.evaluate", session, expression=expr, awaitPromise=True,
-                            returnByValue=True)
-        return r["result"].get("value")
-
-    async def wait_for(self, session: str, expr: str, timeout_s: float = 60.0):
-        async with asyncio.timeout(timeout_s):
-            while True:
-                try:
-                    v = await self.eval(session, expr)
-                except CdpError as exc:
-                    if not any(m in str(exc) for m in _NAVIGATING):
-                        raise
-                    v = None
-                if v:
-                    return v
-                await asyncio.sleep(0.05)
 
 
 @pytest.mark.peer

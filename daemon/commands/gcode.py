@@ -66,7 +66,8 @@ def run(args: argparse.Namespace) -> int:
           f"{len(artefact.balls)} balls × {plan.repeats} repeat(s)"
           f"{' + first pose again (drift check)' if plan.drift_check else ''}, targets "
           f"{g.program.targets.source}"
-          f"; {g.cycle_time.summary()}; safety: {report.moves} blocks checked, smallest margin "
-          f"beyond the required standoff/clearance "
-          f"{report.min_slack_mm:.3f} mm; generated in {gen_s:.2f} s", file=out)
+          f"; {g.cycle_time.summary()}; safety: {report.moves} blocks checked, the closest "
+          f"non-probing move passes {report.min_slack_mm:.3f} mm beyond the required "
+          f"standoff/clearance of a ball, rod or keep-out it does not probe; generated in "
+          f"{gen_s:.2f} s", file=out)
     return 0

@@ -119,7 +119,7 @@ def _import(cfg: DaemonConfig, store: Store, args: argparse.Namespace) -> int:
     run, trend = store.run(run_id), store.trend(setup.name)  # as committed: state DONE
     try:  # after the commit: rendering takes seconds, the daemon must not wait on the journal
         html, json_path = report.write_report(cfg.reports_dir, run, a.data, j, a.centre_rows,
-                                              trend, setup.tolerances)
+                                              trend, setup.tolerances, report.audit_of(setup))
         store.save_report(run_id, html, json_path)
     except OSError as e:
         raise UserError(f"run {run_id} imported ({j.summary}), but its report cannot be "

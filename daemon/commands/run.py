@@ -8,6 +8,7 @@ import logging
 import signal
 import sys
 
+from daemon import sdnotify
 from daemon.cli import UserError
 from daemon.daemon_yaml import load_daemon_config
 from daemon.service import Service, ServiceError
@@ -28,6 +29,7 @@ async def serve(service: Service) -> None:
     stop = asyncio.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         loop.add_signal_handler(sig, stop.set)
+    sdnotify.notify("STATUS=connecting to the controllers")
     try:
         await service.start()
     except (ServiceError, StoreError) as e:
@@ -39,9 +41,15 @@ async def serve(service: Service) -> None:
         print(f"rumba: marked interrupted: {', '.join(service.interrupted)}", flush=True)
     if service.hmi_url:
         print(f"rumba: HMI at {service.hmi_url}", flush=True)
+    # systemd (Type=notify): ready once every link is up and the HMI listens; the watchdog
+    # pings come from this event loop, so a hung loop gets the unit restarted.
+    sdnotify.notify(f"READY=1\nSTATUS=serving {names}")
+    watchdog = sdnotify.start_watchdog()
     try:
         await stop.wait()
     finally:
+        sdnotify.notify("STOPPING=1\nSTATUS=stopping: aborting runs, closing links")
+        await sdnotify.stop_watchdog(watchdog)
         await service.stop()
         print("rumba: stopped", flush=True)
 

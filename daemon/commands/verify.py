@@ -104,7 +104,9 @@ def _verdict_exit(run_id: str, st: dict[str, Any], strict: bool, console: Consol
                   f"{v['summary']}")
     for r in v["reasons"]:
         console.print(f"  - {r}")
-    print(f"report: {v.get('report')}")
+    if v.get("pdf"):
+        print(f"for filing (PDF, A4): {v['pdf']}")
+    print(f"report: {v.get('report')}")  # the last line: scripts read the path from it
     if v["status"] == "ERROR":
         return 2
     return 1 if v["status"] == "FAIL" or (strict and v["status"] == "WARN") else 0

@@ -16,8 +16,8 @@ import asyncio
 import contextlib
 import hmac
 import json
-import re
 from collections.abc import Awaitable, Callable, Iterable, Mapping
+from html import escape
 from importlib import resources
 from typing import Any
 from urllib.parse import parse_qsl
@@ -25,15 +25,19 @@ from urllib.parse import parse_qsl
 from aiohttp import web
 
 from daemon.hmi.auth import SESSION_TTL_S, Auth
-from daemon.hmi.limits import AuthLimiter, HmiLimits, Origins
+from daemon.hmi.limits import AuthLimiter, HmiLimits, Origins, int_param
+from daemon.hmi.trend_api import trend_handler
 from daemon.session import Refused, Session
 from daemon.store import Store, StoreError, validate_run_id
+from daemon.verdict_text import ADVICE
 
 COOKIE = "rumba_session"
 SSE_KEEPALIVE_S = 15.0
 CSP = ("default-src 'none'; script-src 'self'; style-src 'self'; img-src 'self' data:; "
        "connect-src 'self'; form-action 'self'; frame-ancestors 'none'; base-uri 'none'")
 REPORT_CSP = "default-src 'none'; style-src 'unsafe-inline'; img-src data:"
+REPORT_TYPES = {"html": "text/html; charset=utf-8", "json": "application/json",
+                "pdf": "application/pdf"}  # the PDF lies beside the HTML (report.pdf_path)
 PUBLIC = {"/login", "/hmi.css"}
 
 SESSIONS_KEY = web.AppKey("sessions", dict)
@@ -43,6 +47,7 @@ STREAMS_KEY = web.AppKey("streams", set)
 LIMITS_KEY = web.AppKey("limits", HmiLimits)
 LIMITER_KEY = web.AppKey("limiter", AuthLimiter)
 ORIGINS_KEY = web.AppKey("origins", Origins)
+PAGE_KEY = web.AppKey("page", str)  # the page's settings, HTML-escaped JSON for its <meta>
 VIA_KEY = web.RequestKey("via", str)
 CSRF_KEY = web.RequestKey("csrf", str)
 
@@ -199,7 +204,8 @@ async def logout(request: web.Request) -> web.Response:
 
 
 async def index(request: web.Request) -> web.Response:
-    html = _asset("index.html").replace("{{csrf}}", request.get(CSRF_KEY) or "")
+    html = _asset("index.html").replace("{{csrf}}", request.get(CSRF_KEY) or "").replace(
+        "{{config}}", request.app[PAGE_KEY])
     return web.Response(text=html, content_type="text/html")
 
 
@@ -226,10 +232,13 @@ def _session(request: web.Request) -> Session:
 
 
 def _run_dict(r: Any, store: Store) -> dict[str, Any]:
+    paths = store.report(r.id)
+    pdf = paths is not None and paths[0].with_suffix(".pdf").is_file()
     return {"id": r.id, "machine": r.machine, "trigger": r.trigger, "state": r.state,
             "reason": r.reason, "verdict": r.verdict, "summary": r.summary, "hits": r.hits,
             "touch_total": r.touch_total, "started_at": r.started_at, "ended_at": r.ended_at,
-            "report": f"/reports/{r.id}.html" if store.report(r.id) else None}
+            "report": f"/reports/{r.id}.html" if paths else None,
+            "pdf": f"/reports/{r.id}.pdf" if pdf else None}
 
 
 async def status(request: web.Request) -> web.Response:
@@ -255,19 +264,8 @@ async def abort(request: web.Request) -> web.Response:
     return web.json_response(s.status())
 
 
-# Query values are bounded here, before any use: a value outside gets 400 with the reason.
-_INT = re.compile(r"[0-9]{1,9}")
+# Query values are bounded before any use (limits.int_param): outside, 400 with the reason.
 MAX_RUNS = 500
-
-
-def int_param(request: web.Request, name: str, default: int, lo: int, hi: int) -> int:
-    """Query parameter ``name`` as an integer in [lo, hi]; 400 naming the bounds otherwise."""
-    raw = request.query.get(name)
-    if raw is None:
-        return default
-    if not _INT.fullmatch(raw) or not lo <= int(raw) <= hi:
-        raise web.HTTPBadRequest(text=f"{name} must be an integer from {lo} to {hi}")
-    return int(raw)
 
 
 def run_id_ok(run_id: str) -> bool:
@@ -299,11 +297,12 @@ async def report_file(request: web.Request) -> web.StreamResponse:
         paths = None
     if paths is None:
         raise web.HTTPNotFound(text=f"no report for run {run_id!r}")
-    path = paths[0] if kind == "html" else paths[1]
+    path = {"html": paths[0], "json": paths[1], "pdf": paths[0].with_suffix(".pdf")}[kind]
     if not path.is_file():
         raise web.HTTPNotFound(text=f"report file of run {run_id} is missing")
-    resp = web.FileResponse(path, headers={
-        "Content-Type": "text/html; charset=utf-8" if kind == "html" else "application/json"})
+    resp = web.FileResponse(path, headers={"Content-Type": REPORT_TYPES[kind]})
+    if kind == "pdf":
+        resp.headers["Content-Disposition"] = f'inline; filename="rumba-{run_id}.pdf"'
     resp.headers["Content-Security-Policy"] = REPORT_CSP
     return resp
 
@@ -348,12 +347,14 @@ async def events(request: web.Request) -> web.StreamResponse:
 def create_app(sessions: Mapping[str, Session], store: Store, token: str,
                secure_cookie: bool = False, secret: bytes | None = None, *,
                limits: HmiLimits | None = None, bind_host: str | None = None,
-               public_origins: Iterable[str] = ()) -> web.Application:
+               public_origins: Iterable[str] = (), stale_after_h: float = 24.0
+               ) -> web.Application:
     """``secret``: the session signing secret (``auth.load_or_create_secret``); without it
     sessions end with this app. ``bind_host`` (``hmi.host``) and ``public_origins``
     (``scheme://name[:port]`` the operators type) are accepted as Host / Origin besides the
     address the client connected to (and localhost names on loopback). The timeouts and
-    sizes of ``limits`` apply to any ``web.AppRunner`` of this app (``handler_args``)."""
+    sizes of ``limits`` apply to any ``web.AppRunner`` of this app (``handler_args``); a verdict
+    older than ``stale_after_h`` is flagged stale on the page."""
     limits = limits or HmiLimits()
     app = web.Application(middlewares=[security], client_max_size=limits.max_body_bytes,
                           handler_args=limits.server_args())
@@ -364,6 +365,7 @@ def create_app(sessions: Mapping[str, Session], store: Store, token: str,
     app[LIMITER_KEY] = AuthLimiter(limits)
     app[ORIGINS_KEY] = Origins(bind_host, public_origins)
     app[STREAMS_KEY] = set()
+    app[PAGE_KEY] = escape(json.dumps({"stale_after_h": stale_after_h, "advice": ADVICE}))
 
     async def end_streams(app: web.Application) -> None:
         # Open event streams never end on their own: close them so shutdown is immediate.
@@ -381,5 +383,8 @@ def create_app(sessions: Mapping[str, Session], store: Store, token: str,
     app.router.add_get("/api/runs", runs)
     app.router.add_post("/api/machines/{machine}/start", start)
     app.router.add_post("/api/machines/{machine}/abort", abort)
-    app.router.add_get("/reports/{run_id:[A-Za-z0-9_.-]{1,64}}.{kind:html|json}", report_file)
+    app.router.add_get("/api/machines/{machine}/trend",
+                       trend_handler(SESSIONS_KEY, STORE_KEY))
+    app.router.add_get("/reports/{run_id:[A-Za-z0-9_.-]{1,64}}.{kind:html|json|pdf}",
+                       report_file)
     return app

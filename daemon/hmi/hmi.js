@@ -1,8 +1,11 @@
 // rumba operator page: renders one card per machine from server-sent status events.
 "use strict";
 const csrf = document.querySelector('meta[name="csrf-token"]').content;
+const cfg = JSON.parse(document.querySelector('meta[name="rumba-config"]').content);
 const RUNNING = new Set(["PREPARE", "STREAM", "CAPTURE", "IDENTIFY", "JUDGE", "REPORT", "WRITE-BACK"]);
 const cards = {};
+const live = {};  // machine → its latest status event (the run in progress overrides the table)
+const journaled = {};  // machine → the last verdict in its history (shown while the daemon has none)
 const MEANING = {
   "IDLE": "ready", "PREPARE": "generating the program and checking it against limits",
   "STREAM": "sending the program, waiting for the first touch", "CAPTURE": "probing",
@@ -10,6 +13,8 @@ const MEANING = {
   "REPORT": "writing the report", "WRITE-BACK": "sending the verdict to the CNC",
   "ABORTED": "run aborted", "FAILED": "run failed",
 };
+const COLUMNS = ["Started", "Machine", "Trigger", "State", "Verdict", "Touches", "Details", "Report"];
+const SVG = "http://www.w3.org/2000/svg";
 
 function fmtDuration(s) {
   if (s === null || s === undefined) return "";
@@ -17,6 +22,50 @@ function fmtDuration(s) {
   const m = Math.floor(s / 60), r = s % 60;
   return m > 0 ? `${m} min ${String(r).padStart(2, "0")} s` : `${r} s`;
 }
+
+const pad = n => String(n).padStart(2, "0");
+// Local time, ISO-like (the operator's clock, no ambiguity about day and month order).
+function localIso(t) {
+  const d = new Date(t * 1000);
+  return `${d.getFullYear()}-${pad(d.getMonth() + 1)}-${pad(d.getDate())} ` +
+         `${pad(d.getHours())}:${pad(d.getMinutes())}`;
+}
+function ageText(s) {
+  if (s < 60) return "just now";
+  if (s < 3600) return `${Math.floor(s / 60)} min ago`;
+  if (s < 48 * 3600) return `${Math.floor(s / 3600)} h ago`;
+  return `${Math.floor(s / 86400)} days ago`;
+}
+
+// The verdict's date and age; a verdict older than hmi.stale_after_h is flagged stale.
+function showWhen(el, at) {
+  const when = el.querySelector(".when"), verdict = el.querySelector(".verdict");
+  when.dataset.at = at || "";
+  if (!at) {
+    when.querySelector("time").textContent = "";
+    when.querySelector(".age").textContent = "";
+    when.querySelector(".stale-note").hidden = true;
+    verdict.classList.remove("stale");
+    return;
+  }
+  const t = when.querySelector("time");
+  t.textContent = localIso(at);
+  t.dateTime = new Date(at * 1000).toISOString();
+  const age = Date.now() / 1000 - at;
+  when.querySelector(".age").textContent = `(${ageText(age)})`;
+  const stale = age > cfg.stale_after_h * 3600;
+  verdict.classList.toggle("stale", stale);
+  const note = when.querySelector(".stale-note");
+  note.hidden = !stale;
+  note.textContent = stale ? `stale: older than ${cfg.stale_after_h} h — run a check before ` +
+                             "relying on it" : "";
+}
+setInterval(() => {
+  for (const el of Object.values(cards)) {
+    const at = Number(el.querySelector(".when").dataset.at);
+    if (at) showWhen(el, at);
+  }
+}, 30000);
 
 async function post(url) {
   const r = await fetch(url, {method: "POST", headers: {"X-CSRF-Token": csrf}, credentials: "same-origin"});
@@ -42,7 +91,12 @@ function card(name) {
   });
   document.getElementById("machines").appendChild(el);
   cards[name] = el;
+  loadTrend(name);
   return el;
+}
+
+function link(a, href) {
+  if (href) { a.href = href; a.hidden = false; } else a.hidden = true;
 }
 
 function render(st) {
@@ -66,23 +120,42 @@ function render(st) {
   el.querySelector(".progress-text").textContent = text;
   el.querySelector(".start").disabled = running;
   el.querySelector(".abort").disabled = !running;
-  const v = st.verdict;
+  // The daemon's own verdict; when it has none (just started, or the last run failed) the
+  // last one of the history, with its date and age.
+  const v = st.verdict || (!running ? journaled[st.machine] : null);
   if (v) {
     const badge = el.querySelector(".badge");
     badge.textContent = v.status;
     badge.className = "badge " + v.status;
+    showWhen(el, v.at);
     el.querySelector(".summary").textContent = v.summary || "";
+    const todo = el.querySelector(".todo");
+    todo.textContent = cfg.advice[v.status] ? `What to do: ${cfg.advice[v.status]}` : "";
+    todo.hidden = !cfg.advice[v.status];
+    todo.className = "todo " + v.status;
     const ul = el.querySelector(".reasons");
     ul.replaceChildren(...(v.reasons || []).slice(0, 6).map(r => {
       const li = document.createElement("li"); li.textContent = r; return li; }));
-    const a = el.querySelector(".report");
-    if (v.report) { a.href = `/reports/${encodeURIComponent(st.run_id)}.html`; a.hidden = false; }
-    else a.hidden = true;
-  } else if (!running && !st.run_id) {
+    const run = encodeURIComponent(st.verdict ? st.run_id : v.run_id);
+    link(el.querySelector(".report"), v.report ? `/reports/${run}.html` : null);
+    link(el.querySelector(".pdf"), v.pdf ? `/reports/${run}.pdf` : null);
+  } else if (!running) {
     el.querySelector(".badge").textContent = "none yet";
     el.querySelector(".badge").className = "badge none";
-    el.querySelector(".report").hidden = true;
+    showWhen(el, null);
+    el.querySelector(".todo").hidden = true;
+    link(el.querySelector(".report"), null);
+    link(el.querySelector(".pdf"), null);
   }
+}
+
+// The row of a run in progress shows what its progress bar shows, from the same event.
+function liveRow(st) {
+  if (!st.run_id || !st.busy) return;
+  const tr = [...document.querySelectorAll("#history tbody tr")].find(r => r.dataset.run === st.run_id);
+  if (!tr) return;
+  tr.cells[3].textContent = st.state;
+  tr.cells[5].textContent = `${st.done} / ${st.total || "?"}`;
 }
 
 let historyGen = 0;
@@ -101,29 +174,111 @@ async function loadLastVerdicts() {
     const tr = document.createElement("tr");
     tr.dataset.run = run.id;
     tr.title = `run ${run.id}`;
-    const cells = [new Date(run.started_at * 1000).toLocaleString(), run.machine, run.trigger,
+    const cells = [localIso(run.started_at), run.machine, run.trigger,
                    run.state, run.verdict || "—", `${run.hits} / ${run.touch_total}`,
                    run.reason || run.summary || ""];
     cells.forEach((c, i) => {
       const td = document.createElement("td"); td.textContent = c;
+      td.dataset.label = COLUMNS[i];
       if (i === 4 && run.verdict) td.className = "v-" + run.verdict;
+      if (i === 6) td.className = "details";
       tr.appendChild(td);
     });
     const td = document.createElement("td");
-    if (run.report) { const a = document.createElement("a"); a.href = run.report; a.textContent = "report";
-                      a.target = "_blank"; a.rel = "noopener"; td.appendChild(a); }
+    td.dataset.label = COLUMNS[7];
+    for (const [href, label] of [[run.report, "report"], [run.pdf, "PDF"]]) {
+      if (!href) continue;
+      const a = document.createElement("a"); a.href = href; a.textContent = label;
+      a.target = "_blank"; a.rel = "noopener"; td.appendChild(a);
+    }
     tr.appendChild(td);
     return tr;
   }));
-  // Cards of idle machines show the last verdict of their history.
-  for (const run of runs) {
-    const el = cards[run.machine];
-    if (el && el.querySelector(".badge").textContent === "none yet" && run.verdict) {
-      render({machine: run.machine, state: "IDLE", run_id: run.id, done: run.hits, total: run.touch_total,
-              reason: "", link_ok: true, eta_s: null,
-              verdict: {status: run.verdict, summary: run.summary, reasons: [], report: run.report}});
+  // The fetch answered a moment ago: the live events since then are newer.
+  Object.values(live).forEach(liveRow);
+  // The last verdict of each machine's history, for a card whose daemon has none yet.
+  for (const run of [...runs].reverse()) {
+    if (run.verdict) {
+      journaled[run.machine] = {status: run.verdict, summary: run.summary, reasons: [],
+                                report: run.report, pdf: run.pdf, run_id: run.id,
+                                at: run.ended_at || run.started_at};
     }
   }
+  Object.values(live).forEach(st => { if (!st.verdict && !st.busy) render(st); });
+}
+
+// ------------------------------------------------------------------------------- trend chart
+
+function svgEl(tag, attrs, text) {
+  const e = document.createElementNS(SVG, tag);
+  for (const [k, v] of Object.entries(attrs || {})) e.setAttribute(k, v);
+  if (text !== undefined) e.textContent = text;
+  return e;
+}
+function niceStep(span) {
+  const raw = span / 4, p = Math.pow(10, Math.floor(Math.log10(raw)));
+  return [1, 2, 5, 10].map(m => m * p).find(s => s >= raw) || raw;
+}
+
+// One small chart per link error: its own axis in its own unit (µm or µrad), its warn and fail
+// limits (±, the judge bounds |value|), one dot per run coloured by the run's verdict.
+function chart(s, runs) {
+  const W = 240, H = 118, L = 44, R = 6, T = 18, B = 14;
+  const vals = s.values.filter(v => v !== null);
+  const lim = s.fail || s.warn || 0;
+  const top = 1.12 * Math.max(lim, ...vals.map(Math.abs), 1e-9);
+  const lo = s.two_sided ? -top : 0;
+  const y = v => T + (H - T - B) * (top - v) / (top - lo);
+  const x = i => L + (W - L - R) * (runs.length > 1 ? i / (runs.length - 1) : 0.5);
+  const svg = svgEl("svg", {viewBox: `0 0 ${W} ${H}`, class: "chart", role: "img",
+                         "aria-label": `${s.name} trend in ${s.unit}`});
+  svg.appendChild(svgEl("text", {x: L, y: 11, class: "title"}, s.name));
+  const last = vals.length ? vals[vals.length - 1] : null;
+  if (last !== null) svg.appendChild(svgEl("text", {x: W - R, y: 11, class: "last", "text-anchor": "end"},
+                                        `${last >= 0 ? "+" : ""}${last.toFixed(1)} ${s.unit}`));
+  const step = niceStep(top - lo);
+  for (let v = Math.ceil(lo / step) * step; v <= top + 1e-9; v += step) {
+    svg.appendChild(svgEl("line", {x1: L, x2: W - R, y1: y(v), y2: y(v), class: "grid"}));
+    svg.appendChild(svgEl("text", {x: L - 3, y: y(v) + 3, class: "tick", "text-anchor": "end"},
+                       String(Math.round(v * 100) / 100)));
+  }
+  svg.appendChild(svgEl("text", {x: 9, y: (T + H - B) / 2, class: "unit", "text-anchor": "middle",
+                              transform: `rotate(-90 9 ${(T + H - B) / 2})`}, s.unit));
+  svg.appendChild(svgEl("line", {x1: L, x2: L, y1: T, y2: H - B, class: "axis"}));
+  for (const [kind, v] of [["warn", s.warn], ["fail", s.fail]]) {
+    if (v === null || v === undefined) continue;
+    for (const w of s.two_sided ? [v, -v] : [v]) {
+      svg.appendChild(svgEl("line", {x1: L, x2: W - R, y1: y(w), y2: y(w), class: `limit ${kind}`}));
+    }
+  }
+  const pts = s.values.map((v, i) => [i, v]).filter(([, v]) => v !== null);
+  svg.appendChild(svgEl("polyline", {points: pts.map(([i, v]) => `${x(i)},${y(v)}`).join(" "), class: "line"}));
+  for (const [i, v] of pts) {
+    const c = svgEl("circle", {cx: x(i), cy: y(v), r: 3, class: `pt v-${runs[i].verdict}`});
+    c.appendChild(svgEl("title", {}, `${localIso(runs[i].started_at)}: ${v.toFixed(2)} ${s.unit} (${runs[i].verdict})`));
+    svg.appendChild(c);
+  }
+  if (runs.length) {
+    svg.appendChild(svgEl("text", {x: L, y: H - 2, class: "tick"}, localIso(runs[0].started_at).slice(5, 10)));
+    svg.appendChild(svgEl("text", {x: W - R, y: H - 2, class: "tick", "text-anchor": "end"},
+                       localIso(runs[runs.length - 1].started_at).slice(5, 10)));
+  }
+  return svg;
+}
+
+async function loadTrend(name) {
+  let t;
+  try {
+    const r = await fetch(`/api/machines/${encodeURIComponent(name)}/trend?limit=30`,
+                          {credentials: "same-origin"});
+    if (!r.ok) return;
+    t = await r.json();
+  } catch (e) { return; }
+  const box = cards[name].querySelector(".trend");
+  const enough = t.runs.length >= 2;
+  box.querySelector(".trend-note").textContent = enough ? `(last ${t.runs.length} runs)` :
+    "(shown from the second run with a verdict on)";
+  box.querySelector(".charts").replaceChildren(...(enough ? t.series.map(s => chart(s, t.runs)) : []));
 }
 
 document.getElementById("logout").addEventListener("click", async () => {
@@ -132,10 +287,10 @@ document.getElementById("logout").addEventListener("click", async () => {
 });
 
 // The history reloads whenever a machine's run, state or verdict changes (a run started,
-// moved on or ended — also one that ended while the event stream was reconnecting) and every
-// 2 s while a run captures (its touch count).
+// moved on or ended — also one that ended while the event stream was reconnecting); in between
+// the row of the running run follows its progress events (liveRow). A finished run with a
+// verdict also refreshes its machine's trend.
 const lastKeys = {};
-let lastHistory = 0;
 function historyKey(st) {
   return [st.run_id, st.state, st.verdict ? st.verdict.status : ""].join("|");
 }
@@ -146,18 +301,20 @@ function connect() {
   es.addEventListener("error", () => { conn.textContent = "reconnecting…"; });
   es.addEventListener("status", ev => {
     const st = JSON.parse(ev.data);
+    live[st.machine] = st;
     render(st);
-    const now = Date.now(), key = historyKey(st);
-    if (lastKeys[st.machine] !== key || (st.busy && now - lastHistory > 2000)) {
+    liveRow(st);
+    const key = historyKey(st);
+    if (lastKeys[st.machine] !== key) {
       lastKeys[st.machine] = key;
-      lastHistory = now;
       loadLastVerdicts();
+      if (!st.busy && st.verdict) loadTrend(st.machine);
     }
   });
 }
 
 fetch("/api/status", {credentials: "same-origin"}).then(r => r.json()).then(all => {
-  Object.values(all).forEach(st => { render(st); lastKeys[st.machine] = historyKey(st); });
+  Object.values(all).forEach(st => { live[st.machine] = st; render(st); lastKeys[st.machine] = historyKey(st); });
   loadLastVerdicts();
   connect();
 });

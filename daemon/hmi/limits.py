@@ -1,5 +1,5 @@
-"""HMI request limits: timeouts and sizes, the daemon-wide failed-authentication limiter and the
-allowed Host / Origin values (the DNS-rebinding defence)."""
+"""HMI request limits: timeouts and sizes, the daemon-wide failed-authentication limiter, the
+allowed Host / Origin values (the DNS-rebinding defence) and bounded query values."""
 
 from __future__ import annotations
 
@@ -12,6 +12,7 @@ from collections.abc import Callable, Iterable, MutableMapping
 from dataclasses import dataclass
 from typing import Any
 
+from aiohttp import web
 from aiohttp.http_exceptions import HttpProcessingError
 from aiohttp.web import RequestPayloadError
 
@@ -241,3 +242,16 @@ class Origins:
         n = normal_origin(origin)
         return n is not None and (n in self.origins or n in {
             f"{scheme}://{h}" for h in self.hosts(local, scheme)})
+
+
+_INT = re.compile(r"[0-9]{1,9}")
+
+
+def int_param(request: web.Request, name: str, default: int, lo: int, hi: int) -> int:
+    """Query parameter ``name`` as an integer in [lo, hi]; 400 naming the bounds otherwise."""
+    raw = request.query.get(name)
+    if raw is None:
+        return default
+    if not _INT.fullmatch(raw) or not lo <= int(raw) <= hi:
+        raise web.HTTPBadRequest(text=f"{name} must be an integer from {lo} to {hi}")
+    return int(raw)

@@ -40,7 +40,7 @@ from contracts.modbus_map import (
 from drivers.base import Capabilities, CncLink, ControllerAlarm, LinkError, StartRequest
 from drivers.hits import HitFactory, MalformedResult
 from drivers.modbus.schema import ModbusLinkConfig
-from drivers.retry import with_backoff
+from drivers.retry import Refused, with_backoff
 
 logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
 STATE_NAMES = {v: k for k, v in STATE_CODES.items()}
@@ -134,6 +134,7 @@ class ModbusLink(CncLink):
         self.cfg = cfg
         self._client: AsyncModbusTcpClient | None = None
         self.blocks_sent = 0
+        self._connected_once = False
 
     # ------------------------------------------------------------------ register I/O
 
@@ -142,15 +143,32 @@ class ModbusLink(CncLink):
                                       timeout=self.cfg.request_timeout_s, reconnect_delay=0)
         if not await client.connect():
             client.close()
-            raise LinkError("connection refused or timed out")
+            raise await self._why_not()
         return client
+
+    async def _why_not(self) -> LinkError:
+        """pymodbus only says "not connected": one plain TCP attempt tells a refused port
+        (nothing listens: fail fast at start-up) from a host that does not answer."""
+        try:
+            async with asyncio.timeout(self.cfg.request_timeout_s):
+                _, writer = await asyncio.open_connection(self.cfg.host, self.cfg.port)
+        except ConnectionRefusedError as e:
+            return Refused(str(e))
+        except (OSError, TimeoutError) as e:
+            return LinkError(f"no connection: {e or type(e).__name__}")
+        writer.close()
+        with contextlib.suppress(Exception):
+            await writer.wait_closed()
+        return LinkError("connection refused or timed out")
 
     async def connect(self) -> None:
         if self._client is not None:
             return
+        # refused fails at once only before the first success (start-up, rumba verify)
         self._client = await with_backoff(
             self._connect_once, what=f"modbus {self.cfg.host}:{self.cfg.port}",
-            timeout_s=self.cfg.connect_timeout_s)
+            timeout_s=self.cfg.connect_timeout_s, refused_is_final=not self._connected_once)
+        self._connected_once = True
         head = await self._read(addr("MAP_ID"), 2)
         if head != [MAP_ID, MAP_VERSION]:
             await self.close()

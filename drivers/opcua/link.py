@@ -27,7 +27,7 @@ from contracts.opcua_space import BY_ROLE, RESULT_ROLES, RING_SLOTS, STATES, nod
 from drivers.base import Capabilities, CncLink, ControllerAlarm, LinkError, StartRequest
 from drivers.hits import HitFactory, MalformedResult
 from drivers.opcua.schema import OpcUaLinkConfig
-from drivers.retry import wait_event, with_backoff
+from drivers.retry import Refused, wait_event, with_backoff
 
 logging.getLogger("asyncua").setLevel(logging.ERROR)
 log = logging.getLogger("rumba.opcua")
@@ -129,6 +129,7 @@ class OpcUaLink(CncLink):
         self._n: dict[str, Any] = {}
         self._wake = asyncio.Event()
         self._sub: Any = None
+        self._connected_once = False
 
     # ------------------------------------------------------------------ connection
 
@@ -161,15 +162,18 @@ class OpcUaLink(CncLink):
         except (TimeoutError, OSError, ConnectionError) as e:
             with contextlib.suppress(Exception):
                 await client.disconnect()
-            raise LinkError(str(e) or type(e).__name__) from None
+            error = Refused if isinstance(e, ConnectionRefusedError) else LinkError
+            raise error(str(e) or type(e).__name__) from None
         return client
 
     async def connect(self) -> None:
         if self._client is not None:
             return
         try:
+            # refused fails at once only before the first success (start-up, rumba verify)
             client = await with_backoff(self._connect_once, what=f"opcua {self.cfg.url}",
-                                        timeout_s=self.cfg.connect_timeout_s)
+                                        timeout_s=self.cfg.connect_timeout_s,
+                                        refused_is_final=not self._connected_once)
         except _Fatal as e:
             raise LinkError(str(e)) from None
         try:
@@ -191,6 +195,7 @@ class OpcUaLink(CncLink):
                 await client.disconnect()
             raise LinkError(f"opcua {self.cfg.url}: address space: {e}") from None
         self._client = client
+        self._connected_once = True
 
     async def _read(self, roles: tuple[str, ...]) -> list[Any]:
         if self._client is None:
