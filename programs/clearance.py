@@ -36,14 +36,18 @@ def _affine(prog: Program, rot: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.
 
 
 def keepout_slack(prog: Program, pa: np.ndarray, pb: np.ndarray, own: np.ndarray,
-                  stem: np.ndarray | None = None) -> tuple[np.ndarray, Callable[[int], str]]:
+                  stem: np.ndarray | None = None, free_sphere: np.ndarray | None = None
+                  ) -> tuple[np.ndarray, Callable[[int], str]]:
     """Slack (mm, < 0 = violation) of tip segments pa→pb (workpiece frame) against every keep-out,
     and a function giving the reason for segment j's tightest one. ``own`` is the ball index a
     probing or retract segment may touch (its sphere is exempt, its rod has no standoff margin),
     or -1. ``stem`` (N, 3): unit spindle direction in the workpiece frame; the stylus stem (a
     cylinder of ``plan.stylus_length_mm`` from the tip) then sweeps a parallelogram per segment
     that must keep the standoff from every ball and rod (own ball and rod exempt on probing
-    lines). All balls are handled in one vectorised pass (segments × balls)."""
+    lines). All balls are handled in one vectorised pass (segments × balls). ``free_sphere``
+    (N,): a ball index per segment whose sphere is left out as well (the ball a move works on:
+    its approach ends on that sphere's standoff by construction) — for a reported margin, never
+    for the check."""
     plan, art, mf = prog.plan, prog.artefact, prog.machine_file
     rs, standoff = plan.stylus_radius_mm, prog.standoff_mm
     balls_w = ball_positions(art, prog.targets)
@@ -59,11 +63,13 @@ def keepout_slack(prog: Program, pa: np.ndarray, pb: np.ndarray, own: np.ndarray
     rep = lambda x: np.repeat(x, n, axis=0)  # noqa: E731
     pa_k, pb_k, c_k, top_k, bot_k = tile(pa), tile(pb), rep(balls_w), rep(top), rep(bot)
     is_own = (np.tile(own, nb) == np.repeat(np.arange(nb), n)).reshape(nb, n)
+    free = is_own if free_sphere is None else is_own | (
+        np.tile(free_sphere, nb) == np.repeat(np.arange(nb), n)).reshape(nb, n)
     kinds: list[tuple[str, np.ndarray]] = []  # (reason template, gap (nb, n))
     slacks: list[np.ndarray] = []
 
     gap = (seg_point(pa_k, pb_k, c_k).reshape(nb, n) - (r_ball + rs)[:, None])
-    slacks.append(np.where(is_own, np.inf, gap - standoff + TOL_MM))
+    slacks.append(np.where(free, np.inf, gap - standoff + TOL_MM))
     kinds.append(("stylus comes {gap:.3f} mm from ball {ball} (keep-out: ball + stylus radius "
                   f"+ standoff {standoff:g} mm)", gap))
     gap = seg_seg(pa_k, pb_k, top_k, bot_k).reshape(nb, n) - (r_rod + rs)[:, None]
@@ -74,7 +80,7 @@ def keepout_slack(prog: Program, pa: np.ndarray, pb: np.ndarray, own: np.ndarray
         e1 = pb_k - pa_k
         r_st = plan.stem_radius_mm
         gap = point_par(c_k, pa_k, e1, e2).reshape(nb, n) - r_ball[:, None] - r_st
-        slacks.append(np.where(is_own, np.inf, gap - standoff + TOL_MM))
+        slacks.append(np.where(free, np.inf, gap - standoff + TOL_MM))
         kinds.append(("stylus stem comes {gap:.3f} mm from ball {ball}", gap))
         gap = seg_par(top_k, bot_k, pa_k, e1, e2).reshape(nb, n) - r_rod[:, None] - r_st
         slacks.append(np.where(is_own, np.inf, gap - standoff + TOL_MM))

@@ -2,12 +2,13 @@
 
 Estimate: every move at its programmed speed, no acceleration (rapids at
 ``dynamics.rapid_mm_min`` along the straight line, feeds at F, probing moves stop at the
-expected contact, each rotary index at ``rotary_rapid_deg_min`` for the larger of the two rotary
-moves plus ``rotary_clamp_s``, dwells). Lower bound for the same plan and machine: the probing
-distance (standoff) of every touch at the probing feed, plus a minimum spanning tree of each
-pose's touch start points at rapid (no tour through them can be shorter), plus the index moves
-the plan's pose order imposes and the dwells. The first move from the unknown position at
-program start is not counted in either.
+expected contact — a two-speed one after its fast approach, the back-off at the approach feed
+and the slow re-touch over the back-off —, each rotary index at ``rotary_rapid_deg_min`` for
+the larger of the two rotary moves plus ``rotary_clamp_s``, dwells). Lower bound for the same
+plan and machine: the probing of every touch as the estimate counts it, plus a minimum spanning
+tree of each pose's touch start points at rapid (no tour through them can be shorter), plus the
+index moves the plan's pose order imposes and the dwells. The first move from the unknown
+position at program start is not counted in either.
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ import numpy as np
 from scipy.sparse.csgraph import minimum_spanning_tree
 from scipy.spatial.distance import cdist
 
-from programs.model import Program, plan_visits
+from programs.model import Move, Program, plan_visits
 
 
 @dataclass(frozen=True)
@@ -63,9 +64,7 @@ def estimate(prog: Program) -> CycleTime:
             continue
         known = not np.any(np.isnan(pos))
         if mv.kind == "probe" and mv.touch is not None:
-            start = np.array(mv.touch.start)
-            parts["probe"] += float(np.linalg.norm(np.array(mv.touch.contact) - start)) \
-                / mv.feed_mm_min * 60.0
+            parts["probe"] += probe_s(mv, prog.plan.feeds.approach_mm_min)
             pos = tgt.copy()
             pos[:3] = mv.touch.contact  # the probe stops at the contact
             continue
@@ -84,8 +83,8 @@ def estimate(prog: Program) -> CycleTime:
 def lower_bound(prog: Program) -> float:
     """Probing at probe feed + MST of each pose's start points at rapid + indexes + dwells."""
     dyn, plan = prog.machine_file.dynamics, prog.plan
-    probe_s = sum(float(np.linalg.norm(np.array(t.contact) - np.array(t.start)))
-                  / t.feed_mm_min * 60.0 for t in prog.touches)
+    probing_s = sum(probe_s(mv, plan.feeds.approach_mm_min) for mv in prog.moves
+                    if mv.kind == "probe" and mv.touch is not None)
     groups: dict[tuple[int, int], list] = {}
     for t in prog.touches:
         groups.setdefault((t.id.repeat, t.id.pose), []).append(t.start)
@@ -97,4 +96,15 @@ def lower_bound(prog: Program) -> float:
     rot = [np.array([plan.poses[ip].b_deg, plan.poses[ip].c_deg]) for _, ip in plan_visits(plan)]
     index_s = sum(_index_s(prog, a, b) for a, b in itertools.pairwise(rot))
     dwell_s = plan.dwell_s * len(prog.touches)
-    return probe_s + tour_mm / dyn.rapid_mm_min * 60.0 + index_s + dwell_s
+    return probing_s + tour_mm / dyn.rapid_mm_min * 60.0 + index_s + dwell_s
+
+
+def probe_s(mv: Move, approach_mm_min: float) -> float:
+    """Seconds of one probing move up to the expected contact: at its feed, or for a two-speed
+    touch the fast approach, the back-off at the approach feed and the slow re-touch."""
+    assert mv.touch is not None
+    dist = float(np.linalg.norm(np.array(mv.touch.contact) - np.array(mv.touch.start)))
+    if mv.locate_feed_mm_min <= 0:
+        return dist / mv.feed_mm_min * 60.0
+    return (dist / mv.locate_feed_mm_min + mv.backoff_mm / approach_mm_min
+            + mv.backoff_mm / mv.feed_mm_min) * 60.0

@@ -49,7 +49,7 @@ def generate(machine: Machine, machine_file: MachineFile, artefact: Artefact, pl
     ``programs.geometry.ProgramError`` when the plan cannot become one. The cycle time is
     computed once: the program's header prints the same estimate the result carries."""
     d = get_dialect(dialect)
-    prog = build_program(machine, machine_file, artefact, plan, targets)
+    prog = build_program(machine, machine_file, artefact, plan, targets, two_speed=d.two_speed)
     report = check_program(prog)
     ct = estimate(prog)
     text = d.render(prog, ct)

@@ -1,6 +1,7 @@
 """Pose geometry of the probing program: the exact affine map controller X Y Z → stylus tip in
 the last workpiece frame at a rotary pose, the retract axis along the spindle, and the highest
-points of the keep-outs (balls, rods, table rim, boxes) as retract-axis values."""
+points of the keep-outs (balls, rods, table rim, boxes) over a rotary sweep as retract-axis
+values (transit heights at one pose: ``programs.heights``)."""
 
 from __future__ import annotations
 
@@ -95,39 +96,6 @@ def retract_axis(pf: PoseFrame) -> tuple[int, float]:
             f"spindle axis {np.round(pf.spindle, 6).tolist()} at pose {pf.rot} is not along one "
             "linear controller axis: retract planes are not supported for this machine")
     return k, 1.0 / float(v[k])
-
-
-def keepout_tops(machine_file: MachineFile, artefact: Artefact, balls_w: np.ndarray,
-                 pf: PoseFrame) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Highest points along the spindle of every keep-out: (points (N,3) in the workpiece frame,
-    horizontal extent (N,), extra height above the point (N,)). Balls, rod bottoms, the
-    table rim and box corners."""
-    u_w = pf.r_fw.T @ pf.spindle
-    pts, ext, up = [], [], []
-    for b, c in zip(artefact.balls, balls_w, strict=True):
-        r = b.diameter_mm / 2
-        pts.append(c)
-        ext.append(r)
-        up.append(r)
-        bottom = c - np.array([0.0, 0.0, b.rod_length_mm])
-        pts.append(bottom)
-        ext.append(b.rod_diameter_mm / 2)
-        up.append(b.rod_diameter_mm / 2)
-    t = machine_file.table
-    o = np.array([0.0, 0.0, t.surface_z_mm])
-    v = u_w - u_w[2] * np.array([0.0, 0.0, 1.0])
-    nv = np.linalg.norm(v)
-    rim = o + (t.radius_mm * v / nv if nv > 1e-12 else 0.0)
-    pts.append(rim)
-    ext.append(t.radius_mm)
-    up.append(t.clearance_mm)
-    for box in machine_file.keep_out:
-        lo, hi = np.array(box.min_mm), np.array(box.max_mm)
-        for corner in np.array(np.meshgrid(*zip(lo, hi, strict=True))).T.reshape(-1, 3):
-            pts.append(corner)
-            ext.append(0.0)
-            up.append(t.clearance_mm)
-    return np.array(pts), np.array(ext), np.array(up)
 
 
 def sweep_grid(x0: float, x1: float) -> np.ndarray:

@@ -78,7 +78,10 @@ class Move:
     """One block: ``target`` is the full controller state X Y Z r1 r2 after it; ``words`` are the
     programmed axes. Kinds: rapid; feed (linear at ``feed_mm_min``: to the start point, or a
     radial move whose dog-legs would not be clear); probe; retract (back out along a probing
-    line: rapid, or linear when ``feed_mm_min`` > 0); dwell."""
+    line: rapid, or linear when ``feed_mm_min`` > 0); dwell. A two-speed probe
+    (``locate_feed_mm_min`` > 0) first locates the surface at that feed, backs off
+    ``backoff_mm`` from the latched point along the line and re-touches at ``feed_mm_min``
+    (the latched value), all on its probing line."""
 
     block: int
     kind: str
@@ -89,6 +92,8 @@ class Move:
     ball: str = ""
     touch: Touch | None = None
     dwell_s: float = 0.0
+    locate_feed_mm_min: float = 0.0
+    backoff_mm: float = 0.0
 
 
 @dataclass

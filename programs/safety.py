@@ -37,7 +37,9 @@ class SafetyError(ValueError):
 class SafetyReport:
     moves: int
     segments: int
-    min_slack_mm: float  # smallest margin beyond the required clearance (non-probing moves)
+    # smallest margin beyond the required standoff/clearance of the non-probing moves to
+    # everything but the ball each works on (whose standoff they reach by construction)
+    min_slack_mm: float
     note: str = ""
 
 
@@ -87,9 +89,15 @@ def check_program(prog: Program) -> SafetyReport:
         raise SafetyError(f"overtravel {prog.overtravel_mm} mm exceeds the plan's "
                           f"{plan.overtravel_mm} mm")
     for i, mv in enumerate(moves):
-        if mv.kind == "probe" and mv.feed_mm_min > dyn.max_probe_feed_mm_min:
-            raise SafetyError(f"{_where(prog, i)}: probing feed {mv.feed_mm_min:g} mm/min exceeds "
+        if mv.kind == "probe" and max(mv.feed_mm_min, mv.locate_feed_mm_min) > \
+                dyn.max_probe_feed_mm_min:
+            f = max(mv.feed_mm_min, mv.locate_feed_mm_min)
+            raise SafetyError(f"{_where(prog, i)}: probing feed {f:g} mm/min exceeds "
                               f"dynamics.max_probe_feed_mm_min {dyn.max_probe_feed_mm_min:g}")
+        if mv.locate_feed_mm_min > 0 and not 0 < mv.backoff_mm < prog.standoff_mm:
+            raise SafetyError(f"{_where(prog, i)}: two-speed touch backs off {mv.backoff_mm:g} "
+                              f"mm: expected more than 0 and less than the standoff "
+                              f"{prog.standoff_mm:g} mm")
         if mv.kind in ("feed", "retract") and mv.feed_mm_min > dyn.max_feed_mm_min:
             raise SafetyError(f"{_where(prog, i)}: feed {mv.feed_mm_min:g} mm/min exceeds "
                               f"dynamics.max_feed_mm_min {dyn.max_feed_mm_min:g}")
@@ -124,7 +132,7 @@ def check_program(prog: Program) -> SafetyReport:
                 raise SafetyError(f"{_where(prog, i)}: rotary and linear axes in one block")
             index_moves.append((i, np.array(prev, float), np.array(cur, float)))
         elif not any(math.isnan(prev[k]) for k in range(3)):
-            segs_a.append(prev)
+            segs_a.append(_backed_off(prev, cur, mv.backoff_mm) if mv.backoff_mm > 0 else prev)
             segs_b.append(cur)
             owner.append(i)
             dog.append(False)
@@ -148,6 +156,15 @@ def check_program(prog: Program) -> SafetyReport:
     _check_index(prog, index_moves)
     return SafetyReport(len(moves), len(segs_a), min_gap,
                         "the first index starts from the unknown pose at the retract limit")
+
+
+def _backed_off(prev: tuple[float, ...], cur: tuple[float, ...], backoff_mm: float
+                ) -> tuple[float, ...]:
+    """Where a two-speed touch may back off to at most: ``backoff_mm`` behind its start (a
+    latch at the very start), on its probing line — so the checked line starts there."""
+    a, b = np.array(prev[:3], float), np.array(cur[:3], float)
+    u = (b - a) / max(float(np.linalg.norm(b - a)), 1e-12)
+    return (*map(float, a - backoff_mm * u), *prev[3:])
 
 
 def _check_segments(prog: Program, qa: np.ndarray, qb: np.ndarray, owner: np.ndarray,
@@ -212,11 +229,19 @@ def _check_segments(prog: Program, qa: np.ndarray, qb: np.ndarray, owner: np.nda
         c = balls_w[own[j]]
         if seg_point(pa[j][None], pb[j][None], c[None])[0] < np.linalg.norm(pa[j] - c) - TOL_MM:
             fail(j, "a non-linear rapid of this retract would cut into the ball")
-    slack, explain = keepout_slack(prog, pa, pb, own, stem_direction(prog, qa[:, 3:5]))
+    stem = stem_direction(prog, qa[:, 3:5])
+    slack, explain = keepout_slack(prog, pa, pb, own, stem)
     bad = np.nonzero(slack < 0)[0]
     if bad.size:
         fail(bad[0], explain(int(bad[0])))
-    return float(slack[kinds != "probe"].min(initial=math.inf))
+    # The margin reported: non-probing moves against everything but the sphere of the ball
+    # they work on — a move to a probing line's start ends on that sphere's standoff by
+    # construction (margin 0 in every program), which the check above has enforced.
+    ball_no = {b.id: k for k, b in enumerate(art.balls)}
+    worked = np.array([ball_no.get(prog.moves[i].ball, -1) for i in owner])
+    keep = kinds != "probe"
+    margin, _ = keepout_slack(prog, pa[keep], pb[keep], own[keep], stem[keep], worked[keep])
+    return float(margin.min(initial=math.inf)) - TOL_MM
 
 
 def _check_index(prog: Program, index_moves: list) -> None:

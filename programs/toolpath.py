@@ -12,9 +12,14 @@ probing line to the clearance point, feed the approach gap to the start point (s
 ball + stylus radius), probe to the expected contact + overtravel, retract along the same line.
 Heights are controller values of the retract axis (the one running along the spindle): before
 every index the tool retracts above everything the rotary sweep can raise; between balls it
-retracts to a transit height clearing every keep-out near the way; the four equator touches are
-visited in the cheapest order around the square whose moves (checked with ``programs.clearance``'s
-keep-out test, stem included) are clear, an edge blocked by a neighbour being lifted over it.
+retracts only as high as the keep-out geometry demands on the way (``programs.heights``: exact
+sphere profiles, rods along their length, the plan's clearance as the margin, never below the
+standoff), the way in checked like every move and lifted to the pose's safe height if not clear;
+after the pole touch it leaves the ball only as far as the clearance point. The four equator
+touches are visited in the cheapest order around the square whose moves (checked with
+``programs.clearance``'s keep-out test, stem included) are clear, an edge blocked by a neighbour
+being lifted over it. With a two-speed plan on a dialect that can repeat a probing move, every
+probing move locates fast, backs off ``BACKOFF_MM`` from the latch and re-touches slow.
 """
 
 from __future__ import annotations
@@ -34,12 +39,12 @@ from programs.geometry import (
     MAX_SWEEP_SAMPLES,
     PoseFrame,
     ProgramError,
-    keepout_tops,
     pose_frame,
     retract_axis,
     sweep_grid,
     sweep_required,
 )
+from programs.heights import pose_heights
 from programs.model import (
     Move,
     Program,
@@ -54,6 +59,16 @@ from programs.tour import open_tour
 APPROACH_GAP_MM = 0.5  # fed at approach feed between clearance and start point
 ESTIMATE_STANDOFF_MM = 1.0  # standoff / overtravel cap when targets come from a last estimate
 ESTIMATE_OVERTRAVEL_MM = 1.0
+# Two-speed touch: back off this far from the fast latch before the slow re-touch. Measured from
+# the latched point, not from where the axes stopped, so the deceleration past the contact does
+# not matter; below APPROACH_GAP_MM, the back-off stays on the approach line already cleared.
+BACKOFF_MM = 0.3
+
+
+def clearance_margin(plan: Plan, standoff_mm: float) -> float:
+    """What transits and index retracts keep beyond keep-out + stylus radius: the plan's
+    clearance, never less than the standoff the safety check demands."""
+    return max(plan.clearance_mm, standoff_mm)
 
 
 # ------------------------------------------------------------------------------- generator
@@ -79,8 +94,10 @@ class _Builder:
 
 
 def build_program(machine: Machine, machine_file: MachineFile, artefact: Artefact, plan: Plan,
-                  targets: Targets | None = None) -> Program:
-    """Generate the tool path of every repeat × pose × ball × touch (dialect-free)."""
+                  targets: Targets | None = None, two_speed: bool = False) -> Program:
+    """Generate the tool path of every repeat × pose × ball × touch. ``two_speed``: the
+    dialect can repeat a probing move (``Dialect.two_speed``); with the plan's
+    ``feeds.fast_probe_mm_min`` every touch then locates fast, backs off and re-touches slow."""
     targets = targets or Targets()
     n_touch = touch_count(plan, artefact)  # before anything is allocated
     if n_touch > MAX_TOUCHES:
@@ -99,19 +116,13 @@ def build_program(machine: Machine, machine_file: MachineFile, artefact: Artefac
     state = chain_state(targets)
     balls_w = ball_positions(artefact, targets)
     rs = plan.stylus_radius_mm
-    clr = plan.clearance_mm
+    clr = clearance_margin(plan, standoff)
     r1, r2 = prog.rotary
 
     frames_ = [pose_frame(machine, {r1: p.b_deg, r2: p.c_deg}, state) for p in plan.poses]
     k_ret, rate = retract_axis(frames_[0])
     prog.retract_axis = k_ret
     sgn = 1.0 if rate > 0 else -1.0
-
-    def z_required(pf: PoseFrame) -> np.ndarray:
-        """Retract-axis value above each keep-out top (+ stylus radius + clearance)."""
-        pts, _, up = keepout_tops(machine_file, artefact, balls_w, pf)
-        q = pf.solve(machine, pts, state)
-        return q[:, k_ret] + (up + rs + clr) / rate
 
     def sweep_height(a: tuple[float, float], b: tuple[float, float]) -> float:
         """Highest retract value over the rectangle of rotary values between two poses (any
@@ -151,7 +162,8 @@ def build_program(machine: Machine, machine_file: MachineFile, artefact: Artefac
         k2, rate2 = retract_axis(pf)
         if k2 != k_ret or abs(rate2 - rate) > 1e-9:
             raise ProgramError(f"pose {ip}: the retract axis changes with the rotary pose")
-        seq = _pose_touches(prog, builder, pf, ip, rep, seq, balls_w, state, z_required)
+        seq = _pose_touches(prog, builder, pf, ip, rep, seq, balls_w, state, two_speed,
+                            sweep_height(rot, rot))
     tgt = [None] * 5
     tgt[k_ret] = z_start
     builder.emit("rapid", tgt, pose=ip)
@@ -160,53 +172,22 @@ def build_program(machine: Machine, machine_file: MachineFile, artefact: Artefac
 
 
 def _pose_touches(prog: Program, bld: _Builder, pf: PoseFrame, ip: int, rep: int, seq: int,
-                  balls_w: np.ndarray, state: ChainState, z_required) -> int:
+                  balls_w: np.ndarray, state: ChainState, two_speed: bool,
+                  z_safe: float) -> int:
+    """The touches of every ball at one pose. ``z_safe``: the retract value above every
+    keep-out along the spindle at this pose (the fallback when a transit is not clear)."""
     machine, plan, artefact = prog.machine, prog.plan, prog.artefact
     k = prog.retract_axis
-    rate = 1.0 / float((pf.jinv @ pf.spindle)[k])
-    sgn = 1.0 if rate > 0 else -1.0
-    hz = [i for i in range(3) if i != k]
+    heights = pose_heights(machine, prog.machine_file, artefact, balls_w, pf, state, k,
+                           plan.stylus_radius_mm, clearance_margin(plan, prog.standoff_mm))
+    higher, transit = heights.higher, heights.transit
+    hz = heights.hz
     u_w = pf.r_fw.T @ pf.spindle  # stem direction in the workpiece frame
     centres = pf.solve(machine, balls_w, state)
-    z_top = z_required(pf)  # per keep-out top
-    pts, ext, _ = keepout_tops(prog.machine_file, artefact, balls_w, pf)
-    q_pts = pf.solve(machine, pts, state)
-    rs, clr = plan.stylus_radius_mm, plan.clearance_mm
-    table_i = len(pts) - 1 - 8 * len(prog.machine_file.keep_out)
     order = open_tour(centres[:, hz], np.array([bld.pos[i] for i in hz]))
     pose = plan.poses[ip]
     rot = (bld.pos[3], bld.pos[4])
-
-    # The table plane in controller terms: retract value = alpha + beta · (horizontal axes).
-    t = prog.machine_file.table
-    plane_w = np.array([[0.0, 0.0, t.surface_z_mm], [1.0, 0.0, t.surface_z_mm],
-                        [0.0, 1.0, t.surface_z_mm]])
-    qp = pf.solve(machine, plane_w, state)
-    coef = np.linalg.lstsq(np.column_stack([np.ones(3), qp[:, hz]]), qp[:, k], rcond=None)[0]
-    lift = (t.clearance_mm + rs + clr) / rate
-
-    def higher(*zs: float) -> float:
-        return max(zs) if sgn > 0 else min(zs)
-
-    def transit(a: np.ndarray, b: np.ndarray) -> float:
-        """Retract value clearing every keep-out whose footprint is near the rectangle a-b
-        (a two-axis rapid, even non-linear, stays in that rectangle)."""
-        need = []
-        lo, hi = np.minimum(a, b), np.maximum(a, b)
-        for i in range(len(pts)):
-            if i == table_i:
-                corners = [coef[0] + coef[1:] @ np.array([x, y]) for x in (lo[0], hi[0])
-                           for y in (lo[1], hi[1])]
-                widen = float(np.linalg.norm(coef[1:])) * (rs + clr)
-                z = (max(corners) + widen) if sgn > 0 else (min(corners) - widen)
-                rim = z_top[i]
-                need.append(min(z + lift, rim) if sgn > 0 else max(z + lift, rim))
-            else:
-                d = float(np.linalg.norm(np.maximum(np.maximum(lo - q_pts[i, hz],
-                                                               q_pts[i, hz] - hi), 0.0)))
-                if d <= ext[i] + rs + clr:
-                    need.append(z_top[i])
-        return higher(*need)
+    fast = plan.feeds.fast_probe_mm_min if two_speed else None
 
     def slack(path: list[tuple[np.ndarray, np.ndarray]],
               owns: Sequence[int] | None = None) -> np.ndarray:
@@ -238,6 +219,11 @@ def _pose_touches(prog: Program, bld: _Builder, pf: PoseFrame, ip: int, rep: int
         q = p.copy()
         q[k] = z
         return q
+
+    def way_over(here: np.ndarray, corner: np.ndarray, z: float) -> list:
+        """Up (or down) at ``here`` to z, then across to above the corner."""
+        legs = [(here, with_z(here, z)), (with_z(here, z), with_z(corner, z))]
+        return [(p0, p1) for p0, p1 in legs if np.linalg.norm(p1 - p0) > 1e-12]
 
     for j in order:
         ball = artefact.balls[j]
@@ -272,9 +258,14 @@ def _pose_touches(prog: Program, bld: _Builder, pf: PoseFrame, ip: int, rep: int
             up_pole = {tt: [(corner[tt], with_z(corner[tt], z_pole)),
                             (with_z(corner[tt], z_pole), clear5)] for tt in (1, 2, 3, 4)}
             down = {tt: [(with_z(corner[tt], z_in[tt]), corner[tt])] for tt in (1, 2, 3, 4)}
+            # up at ``here`` and across to the corner: a transit the heights model got wrong (a
+            # steep table) is lifted to z_safe below; checked in the same batch
+            over = {tt: way_over(here, corner[tt], z_in[tt]) if known else []
+                    for tt in (1, 2, 3, 4)}
             sides = [(1, 2), (2, 3), (3, 4), (4, 1)]
             groups = ([down[tt] for tt in (1, 2, 3, 4)] + [up_pole[tt] for tt in (1, 2, 3, 4)]
-                      + [[(corner[ta], corner[tb])] for ta, tb in sides])
+                      + [[(corner[ta], corner[tb])] for ta, tb in sides]
+                      + [over[tt] for tt in (1, 2, 3, 4)])
             # Radial moves (corner ⇄ probing line) are rapids when both dog-legs are clear of the
             # other balls, else linear moves at the machine's max feed: checked in the same batch.
             ends = {tt: at(-dirs[tt] * (r_env - prog.overtravel_mm)) for tt in (1, 2, 3, 4)}
@@ -285,16 +276,17 @@ def _pose_touches(prog: Program, bld: _Builder, pf: PoseFrame, ip: int, rep: int
             sl = slack(flat + radial, [-1] * len(flat) + [j] * len(radial))
             ok, i0 = [], 0
             for g in groups:
-                ok.append(bool(sl[i0:i0 + len(g)].min() >= 0))
+                ok.append(bool(sl[i0:i0 + len(g)].min(initial=np.inf) >= 0))
                 i0 += len(g)
             fmax = prog.machine_file.dynamics.max_feed_mm_min
             f_in = {tt: 0.0 if sl[i0 + tt - 1] >= 0 else fmax for tt in (1, 2, 3, 4)}
             f_out = {tt: 0.0 if sl[i0 + tt + 3] >= 0 else fmax for tt in (1, 2, 3, 4)}
             down_ok = dict(zip((1, 2, 3, 4), ok[:4], strict=True))
             up_ok = dict(zip((1, 2, 3, 4), ok[4:8], strict=True))
+            over_ok = dict(zip((1, 2, 3, 4), ok[12:16], strict=True))
             edges: dict[tuple[int, int], list] = {}
             edge_ok: dict[tuple[int, int], bool] = {}
-            for (ta, tb), good in zip(sides, ok[8:], strict=True):
+            for (ta, tb), good in zip(sides, ok[8:12], strict=True):
                 path, good_path = [(corner[ta], corner[tb])], good
                 if not good:
                     for z in (z_pole, higher(transit(corner[ta][hz], corner[tb][hz]), z_pole)):
@@ -317,16 +309,20 @@ def _pose_touches(prog: Program, bld: _Builder, pf: PoseFrame, ip: int, rep: int
                             and all(edge_ok[e] for e in itertools.pairwise(visit)))
                     cost = sum(float(np.linalg.norm(p1 - p0)) for p0, p1 in path)
                     cost += float(np.linalg.norm(here - path[0][0])) if known else 0.0
-                    key = (not good, round(cost, 6))  # rounded: ties break by order, not noise
-                    if best is None or key < best[0]:
-                        best = (key, visit)
+                    # rounded: ties break by order, not noise
+                    rank = (not good, not over_ok[visit[0]], round(cost, 6))
+                    if best is None or rank < best[0]:
+                        best = (rank, visit)
             visit = best[1]
+            if not over_ok[visit[0]]:  # a steep table the heights model got wrong
+                z_in = {**z_in, visit[0]: higher(z_in[visit[0]], z_safe)}
             memo[key] = (visit, edges, f_in, f_out, z_in)
 
         kw0 = {"pose": ip, "ball": ball.id}
         first = corner[visit[0]]
+        z = z_in[visit[0]]
         if known:  # else stay at the start retract (the end of travel) for the first move
-            bld.emit("rapid", _axes({k: z_in[visit[0]]}), **kw0)
+            bld.emit("rapid", _axes({k: z}), **kw0)
         bld.emit("rapid", _axes({i: first[i] for i in hz}), **kw0)
         bld.emit("rapid", _axes({k: first[k]}), **kw0)
         for tt in [*visit, 5]:
@@ -355,12 +351,14 @@ def _pose_touches(prog: Program, bld: _Builder, pf: PoseFrame, ip: int, rep: int
             if plan.dwell_s > 0:
                 bld.emit("dwell", [None] * 5, dwell_s=plan.dwell_s, **kw)
             bld.emit("feed", [*start, None, None], feed_mm_min=plan.feeds.approach_mm_min, **kw)
-            bld.emit("probe", [*end, None, None], feed_mm_min=plan.feeds.probe_mm_min, **kw)
+            bld.emit("probe", [*end, None, None], feed_mm_min=plan.feeds.probe_mm_min,
+                     locate_feed_mm_min=fast or 0.0, backoff_mm=BACKOFF_MM if fast else 0.0,
+                     **kw)
             if tt < 5:
                 bld.emit("retract", [*corner[tt], None, None], feed_mm_min=f_out[tt],
                          **kw)
-            else:
-                bld.emit("retract", _axes({k: higher(z_in[visit[0]], z_pole)}), **kw)
+            else:  # only out of the ball: the next transit rises as far as it must
+                bld.emit("retract", _axes({k: z_pole}), **kw)
     return seq
 
 

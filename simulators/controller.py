@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+from dataclasses import replace
 
 import numpy as np
 
@@ -251,8 +252,11 @@ class VirtualController:
     def message(self, text: str) -> None:
         self.messages.append(text)
 
-    def probe(self, target: dict[str, float], feed_mm_min: float) -> ProbeOutcome:
+    def probe(self, target: dict[str, float], feed_mm_min: float, locate: bool = False
+              ) -> ProbeOutcome:
         check_travel(self.truth.machine, self.axes, target)
+        if locate:
+            return self._locate(target, feed_mm_min)
         self._seq += 1
         seq = self._seq
         t = self.machine_time_s + self._pending_s
@@ -261,13 +265,19 @@ class VirtualController:
         length = probing_length_mm(self.truth.machine_file.dynamics, p0, p1,
                                    target[self.axes[3]] != b or target[self.axes[4]] != c,
                                    feed_mm_min)
-        faults = self.faults.due({"no_trigger", "early_trigger", "drop_result_line"},
+        faults = self.faults.due({"no_trigger", "early_trigger", "drop_result_line", "chip"},
                                  touch=seq, t_s=t)
         for f in faults:
             self._emit(FaultEvent(f.kind, f))
             if f.kind == "drop_result_line":
                 self._drop_lines += f.params.get("lines", 1)
-        hit = self._latch.latch(p0, p1, b, c, t, faults, self._rotary_moves)
+        hit = self._latch.latch(p0, p1, b, c, t, faults, self._rotary_moves, feed_mm_min)
+        if hit.triggered and hit.target is not None and hit.target >= 0:
+            chip = self.faults.chip_mm(faults, hit.ball, hit.touch, b, c, seq)
+            if chip:  # a chip on the ball: the stylus meets it that much earlier on the line
+                back = (p1 - p0) / hit.length_mm * chip
+                hit = replace(hit, fraction=hit.fraction - chip / hit.length_mm,
+                              stop=hit.stop - back, xyz=hit.xyz - back)
         stop, triggered = hit.stop, hit.triggered
         self._pending_s += length * (hit.fraction if hit.fraction is not None else 1.0) \
             / feed_mm_min * 60
@@ -280,6 +290,24 @@ class VirtualController:
                                {"X": latched["X"], "Y": latched["Y"], "Z": latched["Z"],
                                 "b": b, "c": c}, triggered))
         return ProbeOutcome(triggered, latched)
+
+    def _locate(self, target: dict[str, float], feed_mm_min: float) -> ProbeOutcome:
+        """The fast approach of a two-speed touch: probe physics and machine time, but no
+        touch number, result or probing fault (the re-touch that follows is the touch)."""
+        p0, p1 = self._q(self._pos)[:3], self._q(target)[:3]
+        b, c = self._pos[self.axes[3]], self._pos[self.axes[4]]
+        length = probing_length_mm(self.truth.machine_file.dynamics, p0, p1,
+                                   target[self.axes[3]] != b or target[self.axes[4]] != c,
+                                   feed_mm_min)
+        t = self.machine_time_s + self._pending_s
+        hit = self._latch.latch(p0, p1, b, c, t, [], self._rotary_moves, feed_mm_min,
+                                locate=True)
+        self._pending_s += length * (hit.fraction if hit.fraction is not None else 1.0) \
+            / feed_mm_min * 60
+        self._pos.update({"X": hit.stop[0], "Y": hit.stop[1], "Z": hit.stop[2]})
+        latched = {"X": float(hit.xyz[0]), "Y": float(hit.xyz[1]), "Z": float(hit.xyz[2]),
+                   self.axes[3]: b, self.axes[4]: c}
+        return ProbeOutcome(hit.triggered, latched)
 
     # ---------------------------------------------------------------- running
     def _begin(self) -> None:

@@ -3,6 +3,8 @@
 Units in the file: link rotations (EA0B, EB0Z …) in µrad, link translations (EX0C …) in µm,
 setup errors in µm, noise in µm, positions of obstacles in mm. Effect parameters are given in the
 units the effect model declares (``identification.effects``); the loader converts to mm / rad.
+``rotary_error_motion`` is in the axis' fixed frame, ISO 230-7 (options ``orders``,
+``components``; config/errors/README.md), as the gap diagnosis reports it.
 """
 
 from __future__ import annotations
@@ -36,6 +38,9 @@ class ProbeFile(StrictModel):
     stylus_diameter_mm: float = Field(6.0, gt=0, le=50)
     pretravel_um: float = Field(0.0, ge=0, le=200)  # along the move, after contact
     touch_noise_um: float = Field(0.0, ge=0, le=100)  # per touch, along the approach
+    # The controller samples the probe input this often (LinuxCNC: the servo period): the latch
+    # lies past the contact by feed x period x U(0, 1), a scatter that grows with the feed.
+    sample_period_ms: float = Field(0.0, ge=0, le=100)
     # Per visit of a ball (the five touches share it): the centre repeatability (thesis §3.4).
     centre_noise_um: Vec3 = [0.0, 0.0, 0.0]
 

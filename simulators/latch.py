@@ -76,9 +76,15 @@ class ProbeLatch:
         self._visit = _Visit()
 
     def latch(self, p0: np.ndarray, p1: np.ndarray, b: float, c: float, t: float,
-              faults: list[Fault], rotary_moves: int) -> Latch:
-        """The probing move p0 → p1 (controller X Y Z, rotary axes at b, c) at machine time t,
-        with the probing faults due on it; ``rotary_moves`` counts indexations so far."""
+              faults: list[Fault], rotary_moves: int, feed_mm_min: float = 0.0,
+              locate: bool = False) -> Latch:
+        """The probing move p0 → p1 (controller X Y Z, rotary axes at b, c) at machine time t
+        and ``feed_mm_min``, with the probing faults due on it; ``rotary_moves`` counts
+        indexations so far. The switch is sampled every ``probe.sample_period_ms``: the latch
+        lies past the contact by v·T·U(0, 1) (config/linuxcnc/README.md, servo-period
+        overshoot), so its scatter grows with the feed. ``locate``: the fast approach of a
+        two-speed touch — where the axes stopped, no noise and no visit of its own (the
+        re-touch is the touch)."""
         truth = self.truth
         length = float(np.linalg.norm(p1 - p0))
         u = (p1 - p0) / length
@@ -93,17 +99,27 @@ class ProbeLatch:
             if contact is None or frac < contact.s:
                 s_latch, target_id = frac, EARLY_TRIGGER_TARGET
         if s_latch is None and contact is not None:
-            s_latch = contact.s + truth.errors.probe.pretravel_um * 1e-3 / length
+            s_latch = contact.s + (truth.errors.probe.pretravel_um * 1e-3
+                                   + self._sampled_mm(feed_mm_min)) / length
             target_id = contact.target
             if s_latch > 1.0:
                 s_latch = None  # the move ended before the probe switched
         if s_latch is None:
             return Latch(touch, direction, ball, length, None, target_id, p1, p1.copy())
         stop = p0 + s_latch * (p1 - p0)
+        if locate:
+            return Latch(touch, direction, ball, length, s_latch, target_id, stop, stop.copy())
         xyz = stop + self._errors(u, t, b, c, touch, direction, stop, rotary_moves,
                                   target_id if target_id is not None and target_id >= 0
                                   else ball)
         return Latch(touch, direction, ball, length, s_latch, target_id, stop, xyz)
+
+    def _sampled_mm(self, feed_mm_min: float) -> float:
+        """How far past the contact the sampled switch is seen (0 with a continuous latch)."""
+        period_s = self.truth.errors.probe.sample_period_ms * 1e-3
+        if period_s <= 0 or feed_mm_min <= 0:
+            return 0.0  # no draw: the noise sequence of a continuous latch is unchanged
+        return feed_mm_min / 60.0 * period_s * float(self._rng.uniform())
 
     def _touch_number(self, u: np.ndarray) -> tuple[int, tuple[float, float, float]]:
         """Touch 1..5 from the move direction (controller X Y Z = tool relative to workpiece);

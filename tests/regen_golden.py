@@ -44,6 +44,12 @@ def golden_files() -> dict[str, str]:
         out[f"{name}.{g.dialect.extension}"] = g.text
         for aux, text in g.aux_files.items():
             out[f"{name}.{aux}"] = text
+    # the two-speed touch (plan feeds.fast_probe_mm_min): only linuxcnc renders it, the other
+    # dialects keep one speed (their golden would equal the one above)
+    machine, mf, art, plan = golden_setup()
+    fast = plan.model_copy(update={"feeds": plan.feeds.model_copy(
+        update={"fast_probe_mm_min": 1000.0})})
+    out["linuxcnc-two-speed.ngc"] = generate(machine, mf, art, fast, "linuxcnc").text
     return out
 
 

@@ -8,6 +8,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import jinja2
+import numpy as np
 
 from contracts.jobs import VERDICT_CODES
 from contracts.messages import ProbeHit
@@ -79,6 +80,11 @@ class Block:
     dwell: str
     comment: str
     touch: dict | None
+    # two-speed probe (dialects with ``two_speed``): the locating feed, the back-off words
+    # relative to the latched point and their feed; "" for a one-speed probe
+    locate_feed: str = ""
+    backoff: str = ""
+    backoff_feed: str = ""
 
 
 class Dialect:
@@ -99,6 +105,7 @@ class Dialect:
     slot_base = 0
     result_channel = ""  # where the controller writes the result lines
     verdict_variable = ""  # where the verdict program writes the verdict code (1-4)
+    two_speed = False  # can render a two-speed touch (``backoff_words``)
 
     def __init__(self) -> None:
         self._template = _env().get_template(f"{self.name}/program.j2")
@@ -188,10 +195,24 @@ class Dialect:
             idx = [letters.index(w) for w in mv.words]
             kind = {"retract": "linear" if mv.feed_mm_min else "rapid",
                     "feed": "linear"}.get(mv.kind, mv.kind)
+            two = {}
+            if mv.kind == "probe" and mv.locate_feed_mm_min > 0 and mv.touch is not None:
+                if not self.two_speed:
+                    raise ProgramError(f"the {self.name} dialect has no two-speed touch: build "
+                                       "the program with two_speed=False (programs.generate)")
+                u = np.array(mv.touch.end) - np.array(mv.touch.start)
+                back = -mv.backoff_mm * u / np.linalg.norm(u)
+                two = {"locate_feed": fmt(mv.locate_feed_mm_min),
+                       "backoff": self.backoff_words(back),
+                       "backoff_feed": fmt(program.plan.feeds.approach_mm_min)}
             out.append(Block(mv.block, kind, self.words(mv.words, [mv.target[i] for i in idx]),
                              fmt(mv.feed_mm_min), f"{mv.dwell_s:.3f}", safe_text(comment),
-                             touch))
+                             touch, **two))
         return out
+
+    def backoff_words(self, offset_mm: np.ndarray) -> str:
+        """X Y Z words moving to the last latched point + ``offset_mm`` (two-speed touch)."""
+        raise NotImplementedError
 
     def context(self, program: Program, cycle_time: CycleTime) -> dict:
         """Everything the program template sees."""

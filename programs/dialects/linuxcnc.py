@@ -2,14 +2,17 @@
 
 from __future__ import annotations
 
+import numpy as np
+
 from contracts.result_lines import VERDICT_VARIABLES
 from programs.cycletime import CycleTime
-from programs.dialects.base import Dialect
+from programs.dialects.base import Code, Dialect, fmt
 from programs.model import Program
 
 
 class LinuxCNC(Dialect):
-    """LinuxCNC 2.9: G38.2, #5061-#5070, (LOG,…), O-word miss check guarded by #<_task>."""
+    """LinuxCNC 2.9: G38.2 (two-speed: G38.3, G1 back-off, G38.2), #5061-#5070, (LOG,…), O-word
+    miss check guarded by #<_task>."""
 
     name, extension, counter, slot_prefix, slot_base = "linuxcnc", "ngc", "#3999", "#", 4000
     log_file = "rumba_results.log"
@@ -18,6 +21,12 @@ class LinuxCNC(Dialect):
 
     def _verdict_lines(self, code: int) -> list[str]:
         return ["%", "(RUMBA VERDICT)", f"{self.verdict_variable} = {code}", "M2", "%"]
+
+    two_speed = True  # G38.3 locates (no error on a miss), G1 backs off, G38.2 re-touches
+
+    def backoff_words(self, offset_mm: np.ndarray) -> str:
+        return Code(" ".join(f"{a}[#{5061 + i}{'-' if d < 0 else '+'}{fmt(abs(d))}]"
+                             for i, (a, d) in enumerate(zip("XYZ", offset_mm, strict=True))))
 
     def sources(self, program: Program) -> list[str]:
         rot = [f"#{5061 + 'XYZABC'.index(a)}" for a in program.rotary]

@@ -238,8 +238,13 @@ class FanucInterpreter(Interpreter):
             raise Alarm(f"G{self.probe_g:g} without a feed rate (F)")
         if any(a not in "XYZ" for a in axes):
             raise Alarm(f"G{self.probe_g:g}: only X, Y, Z may move during probing")
-        out = self.io.probe(self.target(axes), self.modal.feed_mm_min)
+        out = self.io.probe(self.target(axes), self.modal.feed_mm_min, locate=self.locating())
         self.store_probe(out.latched, out.triggered)
+
+    def locating(self) -> bool:
+        """Is this probing move the fast approach of a two-speed touch? (Fanuc: never — G31
+        is its one probing move.)"""
+        return False
 
     def store_probe(self, latched: dict[str, float], triggered: bool) -> None:
         for k, a in enumerate(self.io.axes):

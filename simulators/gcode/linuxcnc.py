@@ -2,7 +2,9 @@
 
 Probe results as in LinuxCNC 2.9: ``#5061``-``#5069`` X Y Z A B C U V W at the trip (the end
 point when nothing tripped) and ``#5070`` = 1 on success; G38.2 without contact is an error
-("G38.2 move finished without making contact"), G38.3 is not. ``(LOG,…)``/``(DEBUG,…)``
+("G38.2 move finished without making contact"), G38.3 is not. Our programs use G38.3 only as the
+fast approach of a two-speed touch (G38.3, G1 back-off from #5061…, G38.2 slow): it is a
+locating move, not a touch result (``MachineIO.probe(locate=True)``). ``(LOG,…)``/``(DEBUG,…)``
 substitute parameters with six decimals; ``(ABORT,…)`` stops with an error.
 """
 
@@ -144,6 +146,9 @@ class LinuxcncInterpreter(FanucInterpreter):
                 raise Alarm(f"G{g:g} (probe away) is not used by our programs")
         self.probe_g = 38.3 if 38.3 in gs else 38.2
         return super().motion(gs, ms, vals, raw)
+
+    def locating(self) -> bool:
+        return self.probe_g == 38.3
 
     def store_probe(self, latched: dict[str, float], triggered: bool) -> None:
         for letter in _LETTERS:

@@ -1,0 +1,127 @@
+"""What a pose set buys: the predicted standard uncertainty of every link from the identification
+Jacobian, per pose, before anything is probed (optimal design, Atkinson, Donev & Tobias 2007).
+
+The estimator (``identification.estimate``) fits links and setup errors to the measured centres
+by weighted least squares; with the centre repeatability σ given per controller axis its
+covariance is ``(JᵀWJ)⁻¹``, W = diag(σ⁻²) (thesis eqs 4.1-4.2; the calibrated distances of a
+scale-enriched artefact add their rows). J is linear in the poses: the information matrix of a
+plan is the sum of one block per visit, ``I_p = J_pᵀ W J_p`` (every ball of pose p), evaluated
+at the nominal machine (5 µrad errors change J by ~1e-5 relative: identification/montecarlo.py).
+So a candidate grid is differentiated once and every plan is a sum of blocks.
+
+Drift: a linear thermal drift of the measured centres (three rates, µm/h per controller axis,
+the gap diagnosis' ``thermal_drift`` family) added as nuisance columns, with each visit at its
+time in the plan, gives the uncertainty the links keep when drift must be told apart from pose
+effects: a plan whose time order follows C (or B) confounds the two and inflates it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from identification.identifiability import identifiable_links, nominal_centres
+from identification.kinematics import Machine
+from identification.model import Artefact, Layout, predict
+
+
+@dataclass(frozen=True)
+class Design:
+    """Information blocks of candidate poses for one layout (links + setup [+ scale])."""
+
+    links: tuple[str, ...]
+    layout: Layout
+    poses: list[tuple[float, float]]
+    jw: np.ndarray  # (N, 3n, P) Jacobian of each pose's centres, rows weighted by 1/σ
+    info: np.ndarray  # (N, P, P) J_pᵀ W J_p
+    prior: np.ndarray  # (P, P) information of the calibrated distances (0 without)
+    unit: np.ndarray  # (L,) rad → µrad, mm → µm
+    sigma_um: np.ndarray  # (3,)
+    centres_mm: np.ndarray  # (N, n, 3) nominal ball centres, controller X Y Z, per pose
+
+    def info_of(self, counts: np.ndarray) -> np.ndarray:
+        """Information of a plan visiting candidate k ``counts[k]`` times."""
+        return self.prior + np.einsum("k,kij->ij", np.asarray(counts, float), self.info)
+
+
+def link_units(links: Sequence[str]) -> np.ndarray:
+    """Report units per link: µrad for rotations (E[ABC]…), µm for translations."""
+    return np.array([1e6 if n[1] in "ABC" else 1e3 for n in links])
+
+
+def build_design(machine: Machine, artefact: Artefact, poses: Sequence[tuple[float, float]],
+                 links: Sequence[str], sigma_um: Sequence[float]) -> Design:
+    """Differentiate the nominal centres of every candidate pose once."""
+    poses = [(float(b), float(c)) for b, c in poses]
+    centres = nominal_centres(machine, artefact, poses)
+    layout = Layout(tuple(links), len(artefact.balls), scale=bool(artefact.distances))
+    _, jac = predict(machine, artefact, layout, np.zeros(layout.size), centres, jacobian=True)
+    sig = np.asarray(sigma_um, float) * 1e-3
+    n = len(artefact.balls)
+    jw = (jac / sig[None, :, None]).reshape(len(poses), 3 * n, layout.size)
+    info = np.einsum("kri,krj->kij", jw, jw)
+    prior = np.zeros((layout.size, layout.size))
+    ids = artefact.ids
+    for cd in artefact.distances:  # as identification.estimate: rows on the ball offsets
+        a, b = ids.index(cd.ball_a), ids.index(cd.ball_b)
+        v = artefact.nominal_mm[a] - artefact.nominal_mm[b]
+        row = np.zeros(layout.size)
+        s = layout.ball_slice.start
+        row[s + 3 * a:s + 3 * a + 3] = v / np.linalg.norm(v)
+        row[s + 3 * b:s + 3 * b + 3] = -v / np.linalg.norm(v)
+        row /= cd.std_um * 1e-3
+        prior += np.outer(row, row)
+    return Design(tuple(links), layout, poses, jw, info, prior, link_units(links),
+                  np.asarray(sigma_um, float), centres.xyz_mm.reshape(len(poses), n, 3))
+
+
+def link_u(design: Design, m: np.ndarray) -> np.ndarray:
+    """Standard uncertainty per link (µrad / µm) from information matrices m (…, P, P); inf
+    where m is singular (the plan cannot separate every parameter)."""
+    m = np.asarray(m, float)
+    scale = np.sqrt(np.maximum(np.einsum("...ii->...i", m), 1e-300))
+    mn = m / (scale[..., :, None] * scale[..., None, :])  # unit diagonal: a fair rank test
+    w, v = np.linalg.eigh(mn)
+    ok = w[..., 0] > 1e-10 * w[..., -1]
+    inv = np.einsum("...ik,...k,...jk->...ij", v, 1.0 / np.where(ok[..., None], w, 1.0), v)
+    var = np.einsum("...ii->...i", inv)[..., :len(design.links)] / \
+        scale[..., :len(design.links)] ** 2
+    u = np.sqrt(np.maximum(var, 0.0)) * design.unit
+    return np.where(ok[..., None], u, np.inf)
+
+
+def link_u_regular(design: Design, m: np.ndarray) -> np.ndarray:
+    """``link_u`` for information matrices known to be regular (a ridge added): one LU solve
+    for the link columns only, several times faster on a batch of candidates."""
+    m = np.asarray(m, float)
+    n_l = len(design.links)
+    scale = np.sqrt(np.einsum("...ii->...i", m))
+    mn = m / (scale[..., :, None] * scale[..., None, :])
+    rhs = np.broadcast_to(np.eye(m.shape[-1])[:, :n_l], (*m.shape[:-2], m.shape[-1], n_l))
+    x = np.linalg.solve(mn, rhs)
+    var = np.einsum("...ii->...i", x[..., :n_l, :]) / scale[..., :n_l] ** 2
+    return np.sqrt(np.maximum(var, 0.0)) * design.unit
+
+
+def drift_u(design: Design, visits: Sequence[int], times_h: Sequence[float]) -> np.ndarray:
+    """Link uncertainty (µrad / µm) of the visits (candidate indices in run order, a repeat
+    allowed) with a linear drift of the centres (three rates) estimated alongside."""
+    p = design.layout.size
+    n3 = design.jw.shape[1]
+    sig_mm = design.sigma_um[np.arange(n3) % 3] * 1e-3  # row r is axis r % 3 of its ball
+    axis = np.tile(np.eye(3), (n3 // 3, 1)) / sig_mm[:, None]
+    j = np.vstack([np.hstack([design.jw[k], axis * float(t)])
+                   for k, t in zip(visits, times_h, strict=True)])
+    m = j.T @ j
+    m[:p, :p] += design.prior
+    return link_u(design, m)
+
+
+def max_links(machine: Machine, artefact: Artefact, poses: Sequence[tuple[float, float]]
+              ) -> tuple[tuple[str, ...], dict[str, str]]:
+    """The identifiable link set of a pose set (and what absorbs the others)."""
+    ident = identifiable_links(machine, artefact, nominal_centres(machine, artefact,
+                                                                   list(poses)))
+    return ident.links, ident.dropped
