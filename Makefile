@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test test-linuxcnc demo-linuxcnc linuxcnc-up linuxcnc-down lint bench golden peers clean
+.PHONY: demo test test-linuxcnc demo-linuxcnc demo-fleet linuxcnc-up linuxcnc-down lint bench golden peers clean
 LCNC_ENV := .peers/linuxcnc.env
 
 $(BIN)/python:
@@ -39,6 +39,10 @@ linuxcnc-down: $(STAMP)
 demo-linuxcnc: $(STAMP)
 	bash .ci/install-peers.sh linuxcnc
 	$(BIN)/python -m demos.linuxcnc
+
+demo-fleet: $(STAMP)
+	bash .ci/install-peers.sh postgresql mosquitto
+	$(BIN)/python -m demos.fleet
 
 lint: $(STAMP)
 	$(BIN)/ruff check .

@@ -1,6 +1,6 @@
 """The daemon's fleet side, wired by the service: the drainer to the PostgreSQL fleet store
-(``store.url``) and one MQTT publisher per machine (``mqtt``), both optional and both unable to
-block or fail a run."""
+(``store.url``), one MQTT publisher per machine (``mqtt``) and the notifications (``notify``),
+all optional and none able to block or fail a run."""
 
 from __future__ import annotations
 
@@ -34,6 +34,8 @@ class FleetLink:
         self.drainer: Any = None
         self.publishers: dict[str, Any] = {}
         self._health: asyncio.Task | None = None
+        self.notifier: Any = None
+        self._morning: asyncio.Task | None = None
         if config.store_dsn:
             from daemon.store_drain import Drainer
 
@@ -46,7 +48,9 @@ class FleetLink:
             self.drainer.start()
 
     def attach(self, sessions: dict[str, Any]) -> None:
-        """One publisher per machine, listening to its session's status."""
+        """One publisher and one notification watcher per machine, listening to its
+        session's status; the morning-check timer."""
+        self._attach_notify(sessions)
         cfg = self.config.mqtt
         if cfg is None:
             return
@@ -60,6 +64,23 @@ class FleetLink:
             self.publishers[name] = pub
         self._health = asyncio.get_running_loop().create_task(self._health_loop(cfg),
                                                               name="mqtt-health")
+
+    def _attach_notify(self, sessions: dict[str, Any]) -> None:
+        cfg = self.config.notify
+        if cfg is None:
+            return
+        from daemon.notify import Notifier, RunWatcher, morning_loop
+
+        self.notifier = Notifier(cfg, self.config.mqtt.site if self.config.mqtt else "")
+        for name, session in sessions.items():
+            watcher = RunWatcher(self.notifier, name)
+            session.listeners.append(watcher.on_status)
+            watcher.on_status(session.status())
+        if cfg.deadlines:
+            self._morning = asyncio.get_running_loop().create_task(
+                morning_loop(self.notifier, self.store,
+                             lambda m: bool(sessions[m].busy) if m in sessions else False),
+                name="notify-morning")
 
     def _daemon_health(self) -> dict[str, Any]:
         if self.drainer is None:
@@ -75,10 +96,13 @@ class FleetLink:
                 pub.publish_health()
 
     async def close(self) -> None:
-        if self._health is not None:
-            self._health.cancel()
-            with contextlib.suppress(BaseException):
-                await self._health
+        for task in (self._health, self._morning):
+            if task is not None:
+                task.cancel()
+                with contextlib.suppress(BaseException):
+                    await task
+        if self.notifier is not None:
+            await self.notifier.close()
         for pub in self.publishers.values():
             with contextlib.suppress(Exception):
                 await pub.stop()

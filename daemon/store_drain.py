@@ -56,6 +56,7 @@ class Drainer:
         self.commit_s: list[float] = []  # per-transaction PostgreSQL commit time (benchmarks)
         self.quarantined: set[str] = set()  # run ids refused by the store (never merged)
         self._task: asyncio.Task | None = None
+        self._stopping = False
         self._loop = asyncio.get_running_loop()
         store.db.create_function("rumba_outbox_wake", 0, self._wake_soon, deterministic=False)
         for stmt in CAPTURE_TRIGGERS:
@@ -76,7 +77,11 @@ class Drainer:
     async def stop(self, flush_timeout_s: float = 3.0) -> None:
         """Last copy attempt (bounded), then close; what is left stays in the outbox."""
         if self._task is not None:
+            # The flag as well as the cancel: Python 3.11's wait_for loses a cancellation that
+            # arrives as the awaited event is set (gh-86296), and the loop would run on.
+            self._stopping = True
             self._task.cancel()
+            self.wake.set()
             with contextlib.suppress(BaseException):
                 await self._task
         with contextlib.suppress(Exception):
@@ -108,7 +113,7 @@ class Drainer:
     # -------------------------------------------------------------------------------- loop
     async def _forever(self) -> None:
         failures = 0
-        while True:
+        while not self._stopping:
             with contextlib.suppress(TimeoutError):
                 # the wake-up normally comes from the trigger; the timeout is a safety net
                 await asyncio.wait_for(self.wake.wait(), 5.0)

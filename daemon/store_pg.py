@@ -205,6 +205,16 @@ class PgStore:
         return [{"run_id": r[0], "started_at": r[1], "verdict": r[2] or "ERROR",
                  "links": r[3] or {}} for r in rows]
 
+    async def runs(self, machine: str, limit: int) -> list[dict[str, Any]]:
+        """A machine's last ``limit`` runs, newest first, with whether a report exists."""
+        rows = await self._all(
+            "SELECT r.id, r.trigger, r.state, r.verdict, r.summary, r.started_at, r.ended_at,"
+            " EXISTS (SELECT 1 FROM reports p WHERE p.run_id = r.id) FROM runs r"
+            " WHERE r.machine=%s ORDER BY r.started_at DESC LIMIT %s", (machine, limit))
+        keys = ("id", "trigger", "state", "verdict", "summary", "started_at", "ended_at",
+                "has_report")
+        return [dict(zip(keys, r, strict=True)) for r in rows]
+
     async def report_path(self, run_id: str) -> str | None:
         rows = await self._all("SELECT html_path FROM reports WHERE run_id=%s", (run_id,))
         return rows[0][0] if rows else None

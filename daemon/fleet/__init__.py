@@ -1,0 +1,1 @@
+"""The fleet page: a read-only web service over the PostgreSQL fleet store."""

@@ -1,0 +1,179 @@
+"""The fleet page (aiohttp, read-only over the PostgreSQL fleet store): every machine's last
+verdict with date, age and stale flag, a machine's per-link trend and runs, and its reports.
+
+Authentication, login, Host / Origin checks and request limits are the HMI's own
+(``daemon.hmi.app.security`` and its login handlers, reused with the same app keys), so the
+two pages behave alike: ``Authorization: Bearer <token>`` for scripts, a signed session
+cookie after the login form for browsers. Reports: the store holds the path each daemon
+wrote its report to; the page serves that file only if it resolves (symlinks followed)
+inside one of the ``reports_dirs`` it was given (a fleet service on the daemons' host, or
+with their report directories mounted read-only); otherwise the link answers 404 naming the
+host path. A run id from the URL is validated before it is looked up; no path ever comes
+from a request.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import time
+from collections.abc import Awaitable, Callable, Iterable, Sequence
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import psycopg
+from aiohttp import web
+
+from daemon.fleet import view
+from daemon.hmi.app import (
+    AUTH_KEY,
+    LIMITER_KEY,
+    LIMITS_KEY,
+    ORIGINS_KEY,
+    REPORT_CSP,
+    asset,
+    login,
+    login_page,
+    logout,
+    run_id_ok,
+    security,
+)
+from daemon.hmi.auth import Auth
+from daemon.hmi.limits import AuthLimiter, HmiLimits, Origins, int_param
+from daemon.store import StoreError
+from daemon.store_pg import PgStore
+from daemon.store_url import redact
+
+READER_KEY = web.AppKey("fleet_reader", object)
+STALE_KEY = web.AppKey("stale_after_h", float)
+ROOTS_KEY = web.AppKey("report_roots", tuple)
+RUNS_SHOWN, DAYS_DEFAULT, DAYS_MAX = 50, 90, 3660
+
+
+class StoreReader:
+    """One connection to the fleet store, opened on first use and again after it broke (the
+    page keeps answering 503 while the server is down, and recovers by itself)."""
+
+    def __init__(self, dsn: str) -> None:
+        self.dsn = dsn
+        self.store: PgStore | None = None
+
+    async def call(self, fn: Callable[[PgStore], Awaitable[Any]], empty: Any = None) -> Any:
+        try:
+            if self.store is None or self.store.conn.closed:
+                self.store = await PgStore.connect(self.dsn, app="rumba-fleet", migrate=False)
+            return await fn(self.store)
+        except psycopg.errors.UndefinedTable:
+            return empty  # no daemon has created the schema yet
+        except (psycopg.OperationalError, StoreError) as e:
+            await self.close()
+            raise web.HTTPServiceUnavailable(
+                text=f"fleet store {redact(self.dsn)} unreachable: {' '.join(str(e).split())}",
+                headers={"Retry-After": "10"}) from None
+
+    async def close(self) -> None:
+        if self.store is not None:
+            with contextlib.suppress(Exception):
+                await self.store.close()
+            self.store = None
+
+
+def _reader(request: web.Request) -> StoreReader:
+    return request.app[READER_KEY]  # type: ignore[return-value]
+
+
+def _html(text: str) -> web.Response:
+    return web.Response(text=text, content_type="text/html")
+
+
+async def fleet_rows(request: web.Request) -> list[dict[str, Any]]:
+    fleet = await _reader(request).call(lambda s: s.fleet(), [])
+    return view.fleet_rows(fleet, time.time(), request.app[STALE_KEY])
+
+
+async def index(request: web.Request) -> web.Response:
+    return _html(view.fleet_page(await fleet_rows(request), request.app[STALE_KEY]))
+
+
+async def fleet_json(request: web.Request) -> web.Response:
+    return web.json_response({"stale_after_h": request.app[STALE_KEY],
+                              "machines": await fleet_rows(request)})
+
+
+async def machine(request: web.Request) -> web.Response:
+    name = request.match_info["machine"]
+    days = int_param(request, "days", DAYS_DEFAULT, 1, DAYS_MAX)
+    since = time.time() - days * 86400.0
+
+    async def load(s: PgStore) -> tuple:
+        return await s.machine(name), await s.runs(name, RUNS_SHOWN), await s.trend(name, since)
+
+    m, runs, trend = await _reader(request).call(load, (None, [], []))
+    if m is None and not runs:
+        raise web.HTTPNotFound(text=f"no machine {name!r} in the fleet store")
+    return _html(view.machine_page(name, m, runs, trend, days))
+
+
+def inside(path: Path, roots: Sequence[Path]) -> bool:
+    """Whether ``path`` (symlinks resolved) lies in one of ``roots``."""
+    real = path.resolve()
+    return any(real.is_relative_to(r.resolve()) for r in roots)
+
+
+async def report(request: web.Request) -> web.StreamResponse:
+    run_id = request.match_info["run_id"]
+    if not run_id_ok(run_id):
+        raise web.HTTPNotFound(text="no such run")
+    stored = await _reader(request).call(lambda s: s.report_path(run_id))
+    if stored is None:
+        raise web.HTTPNotFound(text=f"no report for run {run_id!r} in the fleet store")
+    path = Path(stored)
+    roots = request.app[ROOTS_KEY]
+    if not path.is_absolute() or not inside(path, roots) or not path.is_file():
+        where = ", ".join(str(r) for r in roots) or "none given (--reports-dir)"
+        raise web.HTTPNotFound(text=f"report of run {run_id} is {stored} on its daemon's host:"
+                                    f" not readable inside this page's report directories"
+                                    f" ({where})")
+    resp = web.FileResponse(path, headers={"Content-Type": "text/html; charset=utf-8"})
+    resp.headers["Content-Security-Policy"] = REPORT_CSP
+    return resp
+
+
+async def fleet_css(request: web.Request) -> web.Response:
+    text = resources.files("daemon.fleet").joinpath("fleet.css").read_text(encoding="utf-8")
+    return web.Response(text=text, content_type="text/css",
+                        headers={"Cache-Control": "no-cache"})
+
+
+def create_fleet_app(dsn: str, token: str, *, stale_after_h: float = 26.0,
+                     reports_dirs: Iterable[Path] = (), secure_cookie: bool = False,
+                     secret: bytes | None = None, limits: HmiLimits | None = None,
+                     bind_host: str | None = None, public_origins: Iterable[str] = ()
+                     ) -> web.Application:
+    """The fleet page over the store at ``dsn``; the other arguments mean what they mean for
+    the HMI (``daemon.hmi.app.create_app``)."""
+    limits = limits or HmiLimits()
+    app = web.Application(middlewares=[security], client_max_size=limits.max_body_bytes,
+                          handler_args=limits.server_args())
+    app[AUTH_KEY] = Auth(token, secure_cookie, secret=secret)
+    app[LIMITS_KEY] = limits
+    app[LIMITER_KEY] = AuthLimiter(limits)
+    app[ORIGINS_KEY] = Origins(bind_host, public_origins)
+    app[READER_KEY] = StoreReader(dsn)
+    app[STALE_KEY] = float(stale_after_h)
+    app[ROOTS_KEY] = tuple(Path(d) for d in reports_dirs)
+
+    async def close_store(app: web.Application) -> None:
+        await app[READER_KEY].close()  # type: ignore[attr-defined]
+
+    app.on_cleanup.append(close_store)
+    app.router.add_get("/login", login_page)
+    app.router.add_post("/login", login)
+    app.router.add_post("/logout", logout)
+    app.router.add_get("/", index)
+    app.router.add_get("/{name:hmi\\.css}", asset)
+    app.router.add_get("/fleet.css", fleet_css)
+    app.router.add_get("/api/fleet", fleet_json)
+    app.router.add_get("/machines/{machine:[^/]{1,64}}", machine)
+    app.router.add_get("/reports/{run_id:[A-Za-z0-9_.-]{1,64}}.html", report)
+    return app

@@ -1,0 +1,213 @@
+"""The fleet page's HTML as text (no I/O): the fleet table (last verdict, date, age, stale
+flag), a machine's run list and its per-link trend as inline SVG, one chart per link with
+its own axis in its unit (µrad rotations and µm translations never share an axis)."""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Mapping, Sequence
+from html import escape
+from typing import Any
+from urllib.parse import quote
+
+UNITS = {"urad": "µrad", "um": "µm"}
+VERDICTS = ("PASS", "WARN", "FAIL", "ERROR")
+_ENDED = ("DONE", "FAILED", "ABORTED", "INTERRUPTED")  # a run in no other state is running
+_W, _H, _L, _R, _T, _B = 560, 150, 64, 12, 10, 26  # chart size and margins, px
+
+
+def _e(x: Any) -> str:
+    return escape("" if x is None else str(x), quote=True)
+
+
+def when(t: float | None) -> str:
+    """A date the shop reads: local time with its zone."""
+    return "—" if t is None else time.strftime("%Y-%m-%d %H:%M %Z", time.localtime(t))
+
+
+def age_text(age_s: float | None) -> str:
+    if age_s is None:
+        return "—"
+    m = max(0, int(age_s // 60))
+    if m < 60:
+        return f"{m} min"
+    h, m = divmod(m, 60)
+    if h < 48:
+        return f"{h} h {m:02d} min"
+    return f"{h // 24} d {h % 24} h"
+
+
+def fleet_rows(fleet: Sequence[Mapping[str, Any]], now: float, stale_after_h: float
+               ) -> list[dict[str, Any]]:
+    """The table's rows: age from the verdict's end (its start if it never ended); stale when
+    older than ``stale_after_h`` or when a machine has no verdict at all."""
+    out = []
+    for m in fleet:
+        t = m.get("ended_at") or m.get("started_at")
+        age = None if t is None else now - float(t)
+        running = m.get("current_state") not in (None, *_ENDED)
+        out.append({**m, "verdict_at": t, "age_s": age,
+                    "stale": age is None or age > stale_after_h * 3600.0,
+                    "running": running})
+    return out
+
+
+def _page(title: str, body: str, refresh_s: int | None = None) -> str:
+    meta = f'<meta http-equiv="refresh" content="{refresh_s}">' if refresh_s else ""
+    return ("<!doctype html>\n<html lang=\"en\"><head><meta charset=\"utf-8\">"
+            f"<title>{_e(title)}</title>{meta}"
+            '<meta name="viewport" content="width=device-width, initial-scale=1">'
+            '<link rel="stylesheet" href="/hmi.css"><link rel="stylesheet" href="/fleet.css">'
+            f"</head><body class=\"fleet\">{body}</body></html>\n")
+
+
+def _badge(verdict: str | None) -> str:
+    v = verdict if verdict in VERDICTS else "ERROR"
+    return f'<span class="badge {v}">{v}</span>' if verdict else '<span class="none">—</span>'
+
+
+def fleet_page(rows: Sequence[Mapping[str, Any]], stale_after_h: float, note: str = "") -> str:
+    head = ("<tr><th>Machine</th><th>Site</th><th>Dialect / transport</th><th>Last verdict"
+            "</th><th>Date</th><th>Age</th><th>Now</th><th>Report</th></tr>")
+    body = []
+    for r in rows:
+        name = _e(r["machine"])
+        href = f"/machines/{quote(str(r['machine']), safe='')}"
+        stale = ' <span class="stale-flag">STALE</span>' if r["stale"] else ""
+        report = (f'<a class="report" href="/reports/{_e(r["run_id"])}.html">report</a>'
+                  if r.get("has_report") else "—")
+        now = (f'<span class="running">{_e(r["current_state"])}</span>' if r["running"]
+               else "idle")
+        body.append(
+            f'<tr class="row{" stale" if r["stale"] else ""}" data-machine="{name}">'
+            f'<td><a class="machine-link" href="{_e(href)}">{name}</a></td>'
+            f'<td>{_e(r.get("site") or "")}</td>'
+            f'<td>{_e(r.get("dialect") or "?")} / {_e(r.get("transport") or "?")}</td>'
+            f'<td class="verdict-cell">{_badge(r.get("verdict"))}</td>'
+            f'<td class="date">{_e(when(r["verdict_at"]))}</td>'
+            f'<td class="age">{_e(age_text(r["age_s"]))}{stale}</td>'
+            f'<td class="now">{now}</td><td>{report}</td></tr>')
+    empty = ('<p class="empty">No machine has reported to this store yet.</p>'
+             if not rows else "")
+    counts = {v: sum(1 for r in rows if r.get("verdict") == v) for v in VERDICTS}
+    stale_n = sum(1 for r in rows if r["stale"])
+    summary = " · ".join(f"{v} {n}" for v, n in counts.items()) + f" · stale {stale_n}"
+    html = (f'<header><h1>rumba fleet</h1><p class="sub">{len(rows)} machines · {summary} · '
+            f"stale after {stale_after_h:g} h</p>{note}</header>"
+            f'<main><table class="fleet-table"><thead>{head}</thead><tbody>'
+            f'{"".join(body)}</tbody></table>{empty}</main>')
+    return _page("rumba fleet", html, refresh_s=60)
+
+
+def _limit(name: str, unit: str, limits: Mapping[str, Any]) -> Mapping[str, Any] | None:
+    own = (limits.get("links") or {}).get(name)
+    return own or limits.get("default_urad" if unit == "urad" else "default_um")
+
+
+def _ticks(lo: float, hi: float, n: int = 4) -> list[float]:
+    step = (hi - lo) / n
+    mag = 10 ** math.floor(math.log10(step)) if step > 0 else 1.0
+    step = next(m * mag for m in (1, 2, 2.5, 5, 10) if m * mag >= step)
+    first = math.ceil(lo / step) * step
+    return [first + i * step for i in range(int((hi - first) / step + 1e-9) + 1)]
+
+
+def link_chart(name: str, unit: str, points: Sequence[tuple[float, float, str, str]],
+               limit: Mapping[str, Any] | None) -> str:
+    """One link's trend: ``points`` (time s, value, verdict, run id), its warn / fail lines
+    (two-sided: the judge compares |value|) and a y axis labelled in ``unit``."""
+    label = UNITS.get(unit, unit)
+    vals = [p[1] for p in points]
+    bounds = vals + [s * float(limit[k]) for k in ("warn", "fail") for s in (1, -1)
+                     if limit and limit.get(k) is not None]
+    lo, hi = min(bounds), max(bounds)
+    if hi - lo < 1e-9:
+        lo, hi = lo - 1.0, hi + 1.0
+    pad = 0.06 * (hi - lo)
+    lo, hi = lo - pad, hi + pad
+    t0, t1 = points[0][0], points[-1][0]
+    span = (t1 - t0) or 1.0
+
+    def x(t: float) -> float:
+        return _L + (_W - _L - _R) * ((t - t0) / span if t1 > t0 else 0.5)
+
+    def y(v: float) -> float:
+        return _T + (_H - _T - _B) * (hi - v) / (hi - lo)
+
+    parts = [f'<svg class="chart" data-link="{_e(name)}" data-unit="{_e(label)}" '
+             f'viewBox="0 0 {_W} {_H}" width="{_W}" height="{_H}" role="img" '
+             f'aria-label="{_e(name)} trend in {_e(label)}">']
+    for tv in _ticks(lo, hi):
+        parts.append(f'<line class="grid" x1="{_L}" x2="{_W - _R}" y1="{y(tv):.1f}" '
+                     f'y2="{y(tv):.1f}"/><text class="tick" x="{_L - 4}" y="{y(tv) + 4:.1f}" '
+                     f'text-anchor="end">{tv:g}</text>')
+    parts.append(f'<text class="axis-label" x="12" y="{(_T + _H - _B) / 2:.0f}" '
+                 f'transform="rotate(-90 12 {(_T + _H - _B) / 2:.0f})" '
+                 f'text-anchor="middle">{_e(label)}</text>')
+    for k in ("warn", "fail"):
+        if limit and limit.get(k) is not None:
+            for s in (1, -1):
+                yy = y(s * float(limit[k]))
+                parts.append(f'<line class="limit {k}" data-limit="{k}" x1="{_L}" '
+                             f'x2="{_W - _R}" y1="{yy:.1f}" y2="{yy:.1f}"/>')
+    if len(points) > 1:
+        line = " ".join(f"{x(p[0]):.1f},{y(p[1]):.1f}" for p in points)
+        parts.append(f'<polyline class="series" points="{line}"/>')
+    for t, v, verdict, run_id in points:
+        parts.append(f'<circle class="pt {_e(verdict)}" cx="{x(t):.1f}" cy="{y(v):.1f}" r="3">'
+                     f"<title>{_e(run_id)} {_e(when(t))}: {v:.3g} {_e(label)} ({_e(verdict)})"
+                     "</title></circle>")
+    for t, anchor in ((t0, "start"), (t1, "end")):
+        parts.append(f'<text class="tick" x="{x(t) if t1 > t0 else _L:.1f}" y="{_H - 6}" '
+                     f'text-anchor="{anchor}">{_e(time.strftime("%Y-%m-%d", time.localtime(t)))}'
+                     "</text>")
+    parts.append("</svg>")
+    return "".join(parts)
+
+
+def trend_charts(trend: Sequence[Mapping[str, Any]], limits: Mapping[str, Any]) -> str:
+    """Per link one chart, rotations (µrad) in one section and translations (µm) in
+    another, link order as the analysis gives it."""
+    series: dict[str, dict[str, Any]] = {}
+    for run in trend:
+        for name, link in (run.get("links") or {}).items():
+            v = link.get("value") if isinstance(link, Mapping) else None
+            if not isinstance(v, int | float) or not math.isfinite(v):
+                continue
+            s = series.setdefault(name, {"unit": link.get("unit", ""), "points": []})
+            s["points"].append((float(run["started_at"]), float(v), str(run["verdict"]),
+                                str(run["run_id"])))
+    out = []
+    for unit, title in (("urad", "Rotations"), ("um", "Translations")):
+        charts = [f'<figure class="link"><figcaption>{_e(n)} '
+                  f'({len(s["points"])} runs)</figcaption>'
+                  f'{link_chart(n, unit, s["points"], _limit(n, unit, limits))}</figure>'
+                  for n, s in series.items() if s["unit"] == unit]
+        if charts:
+            out.append(f'<section class="unit" data-unit="{UNITS[unit]}"><h2>{title} — '
+                       f'{UNITS[unit]}</h2>{"".join(charts)}</section>')
+    return "".join(out) or '<p class="empty">No analysed run in this period.</p>'
+
+
+def machine_page(name: str, machine: Mapping[str, Any] | None, runs: Sequence[Mapping[str, Any]],
+                 trend: Sequence[Mapping[str, Any]], days: int) -> str:
+    limits = (machine or {}).get("limits") or {}
+    rows = "".join(
+        f'<tr><td>{_e(r["id"])}</td><td>{_e(when(r["started_at"]))}</td>'
+        f'<td>{_e(r["trigger"])}</td><td>{_e(r["state"])}</td>'
+        f'<td>{_badge(r["verdict"] or ("ERROR" if r["state"] in _ENDED else None))}</td>'
+        f'<td>{_e(r["summary"])}</td><td>'
+        + (f'<a class="report" href="/reports/{_e(r["id"])}.html">report</a>'
+           if r["has_report"] else "—") + "</td></tr>" for r in runs)
+    desc = ("" if machine is None else
+            f'{_e(machine.get("site"))} · {_e(machine.get("dialect"))} / '
+            f'{_e(machine.get("transport"))}')
+    html = (f'<header><p><a href="/">← fleet</a></p><h1>{_e(name)}</h1>'
+            f'<p class="sub">{desc}</p></header><main>'
+            f'<h2>Trend, last {days} days (limits: dashed amber warn, red fail)</h2>'
+            f'{trend_charts(trend, limits)}'
+            '<h2>Runs</h2><table class="runs"><thead><tr><th>Run</th><th>Started</th>'
+            '<th>Trigger</th><th>State</th><th>Verdict</th><th>Summary</th><th>Report</th>'
+            f"</tr></thead><tbody>{rows}</tbody></table></main>")
+    return _page(f"rumba fleet — {name}", html)
