@@ -22,11 +22,11 @@ from contracts.setup_files import (
     MachineFile,
     Plan,
     Record,
-    _safe_name,
     check_touch_count,
     load_artefact_file,
     load_machine,
     load_plan,
+    safe_name,
 )
 from contracts.yaml_files import (
     ConfigError,
@@ -107,7 +107,7 @@ class MachineEntry(StrictModel):
     # the program, its whole pose, up to this many rounds; 0: never (the verdict is ERROR).
     reprobe_max: int = Field(2, ge=0, le=5)
     operator: Record | None = None  # who answers for this machine's checks (on every report)
-    _n = field_validator("name")(_safe_name)
+    _n = field_validator("name")(safe_name)
 
     @field_validator("link")
     @classmethod
