@@ -151,11 +151,17 @@ def analyse(setup: MachineSetup, hits: Sequence[ProbeHit], run_id: str = "run",
                                                if str(w.message) not in data.warnings)))
     centres, ids = cd.centres, setup.artefact.ids
     health = {(h.pose, h.ball, h.repeat): h for h in cd.health}
+    # The store keeps one centre per pose and ball: the first repeat's, or the re-probe that
+    # replaced it; a visit left out as faulty has none.
+    stands_for = {(o.pose, o.ball, o.replaced_by_repeat): o.repeat
+                  for o in data.outliers or () if o.status == "repaired"}
+    left_out = {(o.pose, o.ball, o.repeat) for o in data.outliers or ()}
     centre_rows = []
     for k in range(len(centres)):
-        if int(cd.repeat[k]) != 0:
-            continue  # the store keeps one centre per pose and ball: the first repeat
-        h = health[(int(centres.pose[k]), ids[int(centres.ball[k])], 0)]
+        key = (int(centres.pose[k]), ids[int(centres.ball[k])], int(cd.repeat[k]))
+        if stands_for.get(key, key[2]) != 0 or key in left_out:
+            continue
+        h = health[key]
         centre_rows.append((int(centres.pose[k]), ids[int(centres.ball[k])],
                             float(centres.b_deg[k]), float(centres.c_deg[k]),
                             *map(float, centres.xyz_mm[k]), h.radius_dev_um, h.form_rms_um))

@@ -1,10 +1,12 @@
-"""Probing-log touches → one sphere centre per (run, repeat, pose, ball), with fit health."""
+"""Probing-log touches → one sphere centre per (run, repeat, pose, ball), with fit health, and
+the outlier test that decides which of those visits an estimate uses."""
 
 from __future__ import annotations
 
 import warnings
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+from typing import Any
 
 import numpy as np
 
@@ -17,7 +19,16 @@ from contracts.probing_log import (
     ProbeLogError,
     ProbeLogWarning,
 )
+from daemon.analysis_result import Analysis, Outlier, OutlierTest
+from identification.kinematics import Machine
 from identification.model import Artefact, Centres
+from identification.outliers import (
+    CENTRE_Z,
+    MIN_SIZE_UM,
+    SPHERE_Z,
+    find_outliers,
+    resolve,
+)
 from identification.spherefit import SphereFitError, fit_spheres
 
 
@@ -41,6 +52,8 @@ class CentreData:
     repeat: np.ndarray
     health: list[GroupHealth]
     warnings: list[str]
+    points_mm: np.ndarray | None = None  # (G, 5, 3) latched touches 1..5 (outlier test)
+    radius_nominal_mm: np.ndarray | None = None  # (G,) ball + stylus radius
 
 
 _NEEDED = ("run_id", "repeat", "pose", "ball", "touch", "x_mm", "y_mm", "z_mm", "b_deg",
@@ -123,4 +136,75 @@ def rows_to_centres(rows: Sequence[LogRow], artefact: Artefact, stylus_radius_mm
               for i, (rep, pose, b) in enumerate(uniq)]
     centres = Centres(uniq[:, 1].copy(), uniq[:, 2].copy(), b_g.mean(axis=1), c_g.mean(axis=1),
                       fit.centre_mm, col["t_s"][idx].mean(axis=1))
-    return CentreData(centres, uniq[:, 0].copy(), health, msgs)
+    return CentreData(centres, uniq[:, 0].copy(), health, msgs, pts, r_nom)
+
+
+OUTLIER_METHOD = ("per ball visit, against the run's own median and MAD × 1.4826: D from the "
+                  "free sphere fit's radius and form residual; z_c (one-sided) from the "
+                  "centre's deleted residual against setup + location errors + a creep of "
+                  "each ball, minus the median of the other balls of the same pass, along the "
+                  "pole normal; identification/outliers.py")
+
+
+def describe_outlier(ball: str, pose: int, repeat: int, touch: int, size_um: float) -> str:
+    """'ball B2 pose 7 touch 2 (+10.3 µm)': a visit and its fault, as every message names it."""
+    rep = f" repeat {repeat}" if repeat else ""
+    return f"ball {ball} pose {pose}{rep} touch {touch} ({size_um:+.1f} µm)"
+
+
+def screen_centres(machine: Machine, artefact: Artefact, data: CentreData
+                   ) -> tuple[CentreData, dict[str, Any] | None]:
+    """The outlier test of every visit (``identification.outliers``) and the visits the
+    estimate uses: a faulty visit is left out, a clean re-probe stands for the visit it
+    re-measures (repeat of the original), a re-probe of a clean visit is not used. Returns
+    that ``CentreData`` (health and warnings of every visit kept) and the analysis JSON parts
+    ``outlier_test`` and ``outliers`` (None without touch points: centres given as such)."""
+    if data.points_mm is None or data.radius_nominal_mm is None:
+        return data, None
+    c, ids = data.centres, artefact.ids
+    scr = find_outliers(machine, artefact, c, data.points_mm, data.radius_nominal_mm,
+                        data.repeat)
+    res = resolve(data.repeat, c.pose, c.ball, [o.index for o in scr.outliers])
+    outliers, msgs = [], []
+    for o in sorted(scr.outliers, key=lambda o: (int(c.pose[o.index]), int(c.ball[o.index]),
+                                                 int(data.repeat[o.index]))):
+        k = o.index
+        status = res.status[k]
+        by = res.replaced_by.get(k)
+        by_repeat = int(data.repeat[by]) if by is not None else None
+        what = describe_outlier(ids[int(c.ball[k])], int(c.pose[k]), int(data.repeat[k]),
+                                o.touch, o.size_um)
+        fate = {"repaired": f"repaired: the re-probe (repeat {by_repeat}) is used instead",
+                "unrepaired": "left out of the estimate; the measurement is not trusted until "
+                              "the ball is cleaned and probed again",
+                "not used": "a re-probe that met a fault; the clean first visit is used"}
+        msgs.append(f"measurement outlier at {what}: the touch latched "
+                    f"{'outside' if o.size_um > 0 else 'inside'} the sphere the rest of the run "
+                    f"predicts (chip, dirt, coolant or a bad trigger; robust z {o.score:.0f}); "
+                    f"{fate[status]}")
+        outliers.append({"pose": int(c.pose[k]), "ball": ids[int(c.ball[k])],
+                         "repeat": int(data.repeat[k]), "touch": o.touch,
+                         "size_um": round(o.size_um, 3), "score": round(o.score, 2),
+                         "stage": o.stage, "status": status, "replaced_by_repeat": by_repeat})
+    if scr.note:
+        msgs.append(f"outlier test: {scr.note}")
+    test = {"method": OUTLIER_METHOD, "visits": scr.visits, "sphere_z": SPHERE_Z,
+            "centre_z": CENTRE_Z, "min_size_um": MIN_SIZE_UM,
+            "radius_scale_um": _r(scr.radius_scale_um), "form_scale_um": _r(scr.form_scale_um),
+            "centre_scale_um": _r(scr.centre_scale_um), "note": scr.note}
+    u = res.use
+    used = CentreData(c.subset(u), res.repeat[u], data.health, [*data.warnings, *msgs],
+                      data.points_mm[u], data.radius_nominal_mm[u])
+    return used, {"outlier_test": test, "outliers": outliers}
+
+
+def with_outliers(analysis: Analysis, parts: dict[str, Any] | None) -> Analysis:
+    """``analysis`` with the outlier test's JSON parts (``screen_centres``) typed in."""
+    if parts is None:
+        return analysis
+    return replace(analysis, outlier_test=OutlierTest.from_json(parts["outlier_test"]),
+                   outliers=tuple(Outlier.from_json(o) for o in parts["outliers"]))
+
+
+def _r(x: float | None) -> float | None:
+    return None if x is None else round(float(x), 4)

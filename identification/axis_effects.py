@@ -4,14 +4,18 @@ Polynomials are in the model joint value expressed in metres (seed 004 Eqs (4)-(
 parametric errors as polynomials in the axis position); constant and — for straightness —
 linear terms are excluded because they are link errors (offsets, squareness) already estimated
 with the setup (thesis §3.5, Table B.2), so including them would only duplicate twin parameters.
+Rotary error motion (ISO 230-7) is given in the axis' fixed frame and mapped to the moving-frame
+6-vector the chain applies (``fixed_to_moving``).
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
+
 import numpy as np
 
 from identification.effect_types import ABC, UM, URAD, XYZ, Effect, need_axis
-from identification.kinematics import LINEAR_LETTERS, ROTARY_LETTERS, Machine, MotionErrorFn
+from identification.kinematics import LINEAR_LETTERS, ROTARY_LETTERS, Axis, Machine, MotionErrorFn
 
 
 def _perp(index: int) -> list[int]:
@@ -110,40 +114,129 @@ def rotary_positioning(machine: Machine, axis: str | None, orders: tuple[int, ..
                   note="ISO 230-1 / seed 003 §5.2: angular positioning error of a rotary axis")
 
 
-def rotary_error_motion(machine: Machine, axis: str | None, orders: tuple[int, ...] = (2,),
-                         components: tuple[str, ...] = ("radial", "axial", "tilt")) -> Effect:
-    # ISO 230-7 error motion of a rotary axis as harmonics of its angle, expressed in the moving
-    # axis frame (components applied after the motion). Order 0 is a link (location) error and
-    # order 1 of radial/tilt is an eccentricity/wobble equivalent to one too: orders >= 2 only.
-    letter = need_axis(machine, "rotary_error_motion", axis, ROTARY_LETTERS)
-    if any(k < 2 for k in orders):
-        raise ValueError("rotary_error_motion: orders must be >= 2 (0 and 1 are link errors)")
-    idx = machine.axes[letter].index
-    comp_of = {"radial": [c for c in _perp(idx)], "axial": [idx],
-               "tilt": [3 + c for c in _perp(idx)]}
-    comps = [c for name in components for c in comp_of[name]]
-    names, units = [], []
-    for c in comps:
-        iso = f"E{(XYZ + ABC)[c]}{letter}"
-        for k in orders:
-            names += [f"{iso}_cos{k}", f"{iso}_sin{k}"]
-            units += ["um" if c < 3 else "urad"] * 2
+# ISO 230-7 error motion of a rotary axis, in its FIXED (non-rotating) frame — the frame of the
+# stator, i.e. the axis' parent frame in the chain — at the axis reference point p (point_mm):
+# radial δ_i(θ), δ_j(θ), axial δ_axis(θ) and tilt ε_i(θ), ε_j(θ) (i, j ⟂ the axis) relative to the
+# axis average line, each Σ_k a_k cos kθ + b_k sin kθ of the axis angle θ (model joint value).
+# The chain applies motion errors in the moving frame (kinematics.axis_htm), i.e. Rᵀ(θ)·δ. With
+# u = δ_i + i·δ_j, Rᵀ multiplies by e^{−iθ}: a fixed order k, u = α e^{ikθ} + β e^{−ikθ}, is seen
+# in the moving frame as α e^{i(k−1)θ} + β e^{−i(k+1)θ} — orders k−1 (co-rotating part α) and
+# k+1 (counter-rotating part β); the axial component is not rotated. Hence, as the tests prove on
+# the full-turn C and the tilting B (tests/test_rotary_error_motion.py):
+# * order 0: a location (link) error, or a setup error where it commutes with the rotation
+#   (axial shift, tilt about the axis itself, offsets absorbed by the tip setup) — absorbed;
+# * order 1 radial/tilt, co-rotating part δ = R(θ)·v: constant in the moving frame — the
+#   eccentricity (wobble) of the rotor, taken up by the ball setup — absorbed;
+# * order 1 counter-rotating part (moving order 2) and axial order 1: NOT absorbed. ISO 230-7
+#   drops the fundamental of radial motion measured in one fixed sensitive direction, where it
+#   cannot be told from the centring error; probing balls in 3-D sees both directions at once;
+# * order ≥ 2: not absorbed (the 2nd harmonic of C is order 1 and 3 in the moving frame).
+# On a tilting axis (limited range) the algebra is the same, but harmonics are far from
+# orthogonal: the diagnosis keeps only the directions the plan sees (gap.linear.projected).
+ERROR_MOTION_COMPONENTS = ("radial", "axial", "tilt")
+MAX_ERROR_MOTION_ORDER = 36  # a 10° period: finer than any plan of indexed poses resolves
+
+
+def _perp_cyclic(index: int) -> tuple[int, int]:
+    """The two directions (i, j) perpendicular to ``index`` with (index, i, j) cyclic, so that
+    a rotation by θ about ``index`` turns the complex number v_i + i·v_j by e^{iθ}."""
+    return [(1, 2), (2, 0), (0, 1)][index]
+
+
+def fixed_to_moving(axis: Axis, q: np.ndarray, e_fixed: np.ndarray) -> np.ndarray:
+    """(N, 6) error motion of a rotary axis given in its fixed frame → the moving-frame 6-vector
+    the chain applies after the motion (kinematics.axis_htm), to first order.
+
+    The fixed-frame motion E_f acts about the axis reference point p (``point_mm``) before the
+    rotation R(q): T(p)·E_f·R·T(−p) = [T(p)·R·T(−p)]·E_m, so E_m = T(p)·Rᵀ·E_f·R·T(−p): rotation
+    ε_m = Rᵀε_f, translation δ_m = Rᵀδ_f − ε_m × p (second-order terms ~ε² ≈ 1e-10 dropped)."""
+    q = np.asarray(q, float)
+    e = np.asarray(e_fixed, float).reshape(q.shape[0], 6)
+    idx = axis.index
+    i, j = _perp_cyclic(idx)
+    th = float(np.sign(axis.direction[idx])) * q  # kinematics: an axis along −z turns by −q
+    c, s = np.cos(th), np.sin(th)
+    out = e.copy()
+    for off in (0, 3):  # Rᵀ on the translation, then on the rotation vector
+        out[:, off + i] = c * e[:, off + i] + s * e[:, off + j]
+        out[:, off + j] = -s * e[:, off + i] + c * e[:, off + j]
+    p = np.asarray(axis.point_mm, float)
+    if p.any():
+        out[:, :3] -= np.cross(out[:, 3:], p)
+    return out
+
+
+def error_motion_slots(axis: Axis, component: str) -> list[int]:
+    """Slots of [EX, EY, EZ, EA, EB, EC] a component acts on (ascending: ISO name order)."""
+    i, j = sorted(_perp_cyclic(axis.index))
+    return {"radial": [i, j], "axial": [axis.index], "tilt": [3 + i, 3 + j]}[component]
+
+
+def order1_params(axis: Axis, component: str, v: Sequence[float], co_rotating: bool
+                  ) -> dict[str, float]:
+    """Parameters {name: value} of an order-1 radial or tilt error motion (the effect
+    ``fixed_error_motion(…, (1,), (component,))``) whose vector at θ = 0 is v = (v_i, v_j) in
+    the cyclic perpendicular directions (i, j): co-rotating, δ = R(θ)·v — an eccentricity of the
+    rotor, constant in the moving frame — or counter-rotating, δ = Rᵀ(θ)·v (moving order 2)."""
+    vi, vj = (float(x) for x in v)
+    sg = float(np.sign(axis.direction[axis.index]))  # θ = sg·q: cos θ = cos q, sin θ = sg sin q
+    t = -1.0 if co_rotating else 1.0
+    # δ_i = v_i cos θ ∓ v_j sin θ, δ_j = v_j cos θ ± v_i sin θ (upper sign: co-rotating).
+    i, j = (k + (3 if component == "tilt" else 0) for k in _perp_cyclic(axis.index))
+    ni, nj = (f"E{(XYZ + ABC)[k]}{axis.letter}" for k in (i, j))
+    return {f"{ni}_cos1": vi, f"{ni}_sin1": t * sg * vj,
+            f"{nj}_cos1": vj, f"{nj}_sin1": -t * sg * vi}
+
+
+def fixed_error_motion(machine: Machine, letter: str, orders: tuple[int, ...],
+                       components: tuple[str, ...]) -> Effect:
+    """The fixed-frame harmonic family for any orders ≥ 0 (order 0: one constant ``_cos0`` per
+    slot), unchecked: ``rotary_error_motion`` is the public, checked one; orders 0 and 1 serve
+    the proof of what links and setup absorb."""
+    ax = machine.axes[letter]
+    # One term per (slot, order, cos|sin): the slot of the 6-vector, k, and the trig function.
+    terms = [(c, k, trig) for name in components for c in error_motion_slots(ax, name)
+             for k in orders for trig in (("cos",) if k == 0 else ("cos", "sin"))]
+    names = tuple(f"E{(XYZ + ABC)[c]}{letter}_{trig}{k}" for c, k, trig in terms)
+    units = tuple("um" if c < 3 else "urad" for c, _, _ in terms)
 
     def motion(p: np.ndarray) -> dict[str, MotionErrorFn]:
-        coef = p.reshape(len(comps), len(orders), 2)
-
         def fn(q: np.ndarray) -> np.ndarray:
             q = np.asarray(q, float)
-            out = np.zeros((q.shape[0], 6))
-            for i, c in enumerate(comps):
-                unit = UM if c < 3 else URAD
-                for j, k in enumerate(orders):
-                    out[:, c] += (coef[i, j, 0] * np.cos(k * q) + coef[i, j, 1] * np.sin(k * q)) \
-                        * unit
-            return out
+            e = np.zeros((q.shape[0], 6))
+            for v, (c, k, trig) in zip(p, terms, strict=True):
+                wave = np.cos(k * q) if trig == "cos" else np.sin(k * q)
+                e[:, c] += v * (UM if c < 3 else URAD) * wave
+            return fixed_to_moving(ax, q, e)
 
         return {letter: fn}
 
-    return Effect("rotary_error_motion", letter, tuple(names), tuple(units), _motion=motion,
-                  note="ISO 230-7: radial/axial/tilt error motion harmonics of order >= 2")
+    return Effect("rotary_error_motion", letter, names, units, _motion=motion,
+                  note="ISO 230-7: radial/axial/tilt error motion in the fixed frame, "
+                       "harmonics of the axis angle")
 
+
+def _checked(name: str, values: object, ok: Callable[[object], bool], expected: str) -> tuple:
+    if isinstance(values, str | bytes) or not isinstance(values, Sequence) or not values:
+        raise ValueError(f"rotary_error_motion: {name}: expected a non-empty list of {expected}, "
+                         f"got {values!r}")
+    bad = [v for v in values if not ok(v)]
+    if bad:
+        raise ValueError(f"rotary_error_motion: {name}: {bad} not {expected}")
+    if len(set(values)) != len(values):
+        raise ValueError(f"rotary_error_motion: {name}: {list(values)} has repeats")
+    return tuple(values)
+
+
+def rotary_error_motion(machine: Machine, axis: str | None, orders: Sequence[int] = (2,),
+                         components: Sequence[str] = ERROR_MOTION_COMPONENTS) -> Effect:
+    # ISO 230-7 radial, axial and tilt error motion in the fixed frame (see above). Order 0 is
+    # rejected: it is wholly a link or setup error. Order 1 is accepted: only its co-rotating
+    # radial/tilt part is absorbed (the diagnosis reports the visible part, minimum norm).
+    letter = need_axis(machine, "rotary_error_motion", axis, ROTARY_LETTERS)
+    ords = _checked("orders", orders, lambda k: isinstance(k, int) and not isinstance(k, bool)
+                    and 1 <= k <= MAX_ERROR_MOTION_ORDER,
+                    f"whole numbers 1..{MAX_ERROR_MOTION_ORDER} (0 is a link error)")
+    comps = _checked("components", components, lambda c: c in ERROR_MOTION_COMPONENTS,
+                     f"one of {list(ERROR_MOTION_COMPONENTS)}")
+    return fixed_error_motion(machine, letter, ords, comps)

@@ -52,7 +52,7 @@ def test_library_covers_every_family_with_units(thesis):
     with pytest.raises(ValueError, match="straightness"):
         make_effect("straightness", "X", thesis, powers=(1, 2))  # linear term = squareness
     with pytest.raises(ValueError, match="rotary_error_motion"):
-        make_effect("rotary_error_motion", "C", thesis, orders=(1,))
+        make_effect("rotary_error_motion", "C", thesis, orders=(0,))  # order 0 = link error
     with pytest.raises(ValueError, match="linear_scale"):
         make_effect("linear_scale", "B", thesis)
     with pytest.raises(ValueError, match="thermal_drift"):
@@ -78,7 +78,9 @@ def test_polynomial_and_harmonic_component_errors(thesis):
     rem = make_effect("rotary_error_motion", "B", thesis)
     assert rem.param_names[:2] == ("EXB_cos2", "EXB_sin2")  # radial ⟂ to B (y): x and z
     f = rem.motion_errors(np.eye(rem.n_params)[0] * 2.0)["B"]
-    np.testing.assert_allclose(f(np.array([0.0, np.pi / 2]))[:, 0], [2e-3, -2e-3])
+    # ISO 230-7 fixed frame: −2 µm along fixed x at B = 90°, i.e. along −z of the turned B frame.
+    np.testing.assert_allclose(f(np.array([0.0, np.pi / 2]))[:, [0, 2]], [[2e-3, 0], [0, -2e-3]],
+                               atol=1e-15)
 
 
 def test_motion_errors_move_the_centre_through_the_chain(thesis):

@@ -122,7 +122,7 @@ def test_selfcheck_reduced_every_family(setup):
     (the full size — two plans, ten seeds or more — is benchmarks/bench_gap.py)."""
     machine, artefact, poses = setup
     summary = selfcheck.run(machine, artefact, {"14": poses}, STYLUS_R, seeds=1)
-    assert len(summary.cases) == 12
+    assert len(summary.cases) == 14  # 9 families, 1 variant (issue 12), 4 controls
     assert all(c.ok for c in summary.cases), summary.table()
     assert "thermal_drift" in summary.table()
 

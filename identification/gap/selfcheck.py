@@ -2,10 +2,14 @@
 
 For every library family (and axis), simulate a run with the effect injected at ``factor`` × the
 noise floor — measured as the RMS, over all observations, of the part of the effect the twin's
-setup and link errors cannot absorb — diagnose it with a held-out split and compare. Control
-cases: no effect (→ ``none``), identical pre-travel for every direction and ball (→ ``absorbed``
-or ``none``: it only changes the fitted radius), and an effect outside the library — one pose
-displaced rigidly, as a non-repeatable indexing fault would — (→ ``unexplained`` at that pose).
+setup and link errors cannot absorb — diagnose it with a held-out split and compare. Variants
+(``VARIANTS``) inject one part of a family alone: the fixed-frame 2nd-harmonic radial error
+motion of a full-turn axis (issue 12: order 1 and 3 in the moving frame, → ``rotary_error_motion``
+on that axis). Control cases: no effect (→ ``none``), identical pre-travel for every direction
+and ball (→ ``absorbed`` or ``none``: it only changes the fitted radius), an effect outside the
+library — one pose displaced rigidly, as a non-repeatable indexing fault would — (→
+``unexplained`` at that pose), and the rotary error motion the twin absorbs — order 0 and the
+co-rotating order 1 (eccentricity) of every rotary axis, ISO 230-7 fixed frame — (→ ``none``).
 """
 
 from __future__ import annotations
@@ -16,6 +20,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from identification.axis_effects import ERROR_MOTION_COMPONENTS, fixed_error_motion, order1_params
 from identification.effects import FAMILIES, Effect, library, make_effect
 from identification.gap.data import group_touches
 from identification.gap.diagnose import TYPICAL, Options, diagnose
@@ -24,7 +29,13 @@ from identification.gap.twin import fit_twin
 from identification.kinematics import Machine
 from identification.model import Artefact, predict
 
-CONTROLS = ("null", "uniform_pretravel", "outside")
+CONTROLS = ("null", "uniform_pretravel", "outside", "absorbed_motion")
+# Scenario → (family it must be attributed to, make_effect options of the injected part).
+VARIANTS: dict[str, tuple[str, dict]] = {
+    "radial2_fixed": ("rotary_error_motion", {"orders": (2,), "components": ("radial",)}),
+}
+SCENARIOS = (*FAMILIES, *VARIANTS, *CONTROLS)  # what ``run`` injects by default, in order
+ABSORBED_SIZE = 50.0  # µm / µrad of the absorbed error motion: 5× typical, still invisible
 AFTER_LIMIT = 1.3  # held-out RMS with the injected family added, over the noise floor
 MIN_VISIBLE = 0.3  # an injected draw must be at least this visible (RMS ratio) to the twin
 MAX_DRAWS = 20
@@ -43,6 +54,7 @@ class Case:
     after_ratio: float  # top candidate held-out RMS / noise floor
     located: bool  # outside case: the displaced pose is in the location list
     ok: bool
+    family: str | None = None  # the family the scenario must be attributed to (None: control)
 
 
 @dataclass
@@ -56,19 +68,21 @@ class Summary:
         return {k: float(np.mean(v)) for k, v in by.items()}
 
     def table(self) -> str:
-        """Confusion table: injected scenario (rows) × verdict (columns), plus rates."""
-        cols = ["none", "absorbed", "unexplained", *FAMILIES]
-        short = {c: c[:8] for c in cols}
+        """Confusion table, one row per injected scenario: its cases, the share diagnosed
+        right, and every verdict it got with its count (full names; a 12-column matrix of
+        mostly dots would not fit a terminal without cutting them)."""
         counts: dict[str, Counter] = defaultdict(Counter)
         for c in self.cases:
             counts[c.scenario][c.verdict] += 1
-        rows = [s for s in (*FAMILIES, *CONTROLS) if s in counts]
-        head = f"{'injected':22s}" + "".join(f"{short[c]:>9s}" for c in cols) + "   ok"
+        rows = [s for s in SCENARIOS if s in counts]
+        width = max([len("injected"), *map(len, rows)])
+        head = f"{'injected':{width}s}  cases      ok  diagnosed as (cases)"
         lines = [head, "-" * len(head)]
         rates = self.rates()
         for r in rows:
-            lines.append(f"{r:22s}" + "".join(f"{counts[r][c] or '.':>9}" for c in cols)
-                         + f"  {100 * rates[r]:3.0f}%")
+            got = ", ".join(f"{v} {n}" for v, n in counts[r].most_common())
+            lines.append(f"{r:{width}s}  {sum(counts[r].values()):5d}  {100 * rates[r]:4.0f} %  "
+                         f"{got}")
         return "\n".join(lines)
 
 
@@ -81,7 +95,7 @@ def _base_truth(machine: Machine, artefact: Artefact, rng: np.random.Generator) 
                  tip_setup_mm=rng.normal(0.0, 0.05, 3))
 
 
-def _visible_rms(machine: Machine, artefact: Artefact, poses: Sequence[tuple[float, float]],
+def visible_rms(machine: Machine, artefact: Artefact, poses: Sequence[tuple[float, float]],
                  base: Truth, injected: Truth, stylus_r: float) -> tuple[float, float, float]:
     """Noise-free: (RMS of what the injection changes in the observations once the twin has
     absorbed what it can, RMS of the whole change, floor per unit touch noise)."""
@@ -103,8 +117,33 @@ def _visible_rms(machine: Machine, artefact: Artefact, poses: Sequence[tuple[flo
     return vis, float(np.sqrt(np.mean(y**2))), floor
 
 
+def expected_family(scenario: str) -> str | None:
+    """The family a scenario must be attributed to (None for a control)."""
+    if scenario in VARIANTS:
+        return VARIANTS[scenario][0]
+    return scenario if scenario in FAMILIES else None
+
+
+def absorbed_motion(machine: Machine, rng: np.random.Generator
+                    ) -> list[tuple[Effect, np.ndarray]]:
+    """Order 0 (every component) and the co-rotating order 1 (radial, tilt) error motion of every
+    rotary axis, fixed frame, random of ``ABSORBED_SIZE``: links and setup absorb all of it."""
+    out = []
+    for a in machine.rotary_axes:
+        zero = fixed_error_motion(machine, a, (0,), ERROR_MOTION_COMPONENTS)
+        out.append((zero, rng.normal(0.0, ABSORBED_SIZE, zero.n_params)))
+        for comp in ("radial", "tilt"):
+            one = fixed_error_motion(machine, a, (1,), (comp,))
+            p = order1_params(machine.axes[a], comp, rng.normal(0.0, ABSORBED_SIZE, 2), True)
+            out.append((one, np.array([p[n] for n in one.param_names])))
+    return out
+
+
 def _effect_for(scenario: str, axis: str | None, machine: Machine, artefact: Artefact,
                 gravity_dir: Sequence[float] | None = None) -> Effect:
+    if scenario in VARIANTS:
+        family, options = VARIANTS[scenario]
+        return make_effect(family, axis, machine, **options)
     if scenario == "artefact_instability":
         return make_effect(scenario, axis, machine, ball_index=artefact.ids.index(axis))
     if scenario == "gravity_sag":
@@ -120,7 +159,8 @@ def run_case(machine: Machine, artefact: Artefact, poses: Sequence[tuple[float, 
     base = _base_truth(machine, artefact, rng)
     truth = Truth(base.links, base.ball_setup_mm, base.tip_setup_mm)
     displaced = None
-    if scenario in FAMILIES:
+    family = expected_family(scenario)
+    if family is not None:
         eff = _effect_for(scenario, axis, machine, artefact, gravity_dir)
         typical = np.array([TYPICAL.get(u, 1.0) for u in eff.units])
         # Draw a random parameter vector of typical size; redraw one that is mostly absorbed by
@@ -129,7 +169,7 @@ def run_case(machine: Machine, artefact: Artefact, poses: Sequence[tuple[float, 
         for _ in range(MAX_DRAWS):
             theta = rng.normal(size=eff.n_params) * typical
             truth.effects = [(eff, theta)]
-            vis, total, _ = _visible_rms(machine, artefact, poses, base, truth, stylus_r)
+            vis, total, _ = visible_rms(machine, artefact, poses, base, truth, stylus_r)
             if vis >= MIN_VISIBLE * total:
                 break
     elif scenario == "outside":
@@ -139,8 +179,10 @@ def run_case(machine: Machine, artefact: Artefact, poses: Sequence[tuple[float, 
     elif scenario == "uniform_pretravel":
         eff = make_effect("probe_pretravel", None, machine)
         truth.effects = [(eff, np.full(5, factor * noise_um))]
-    if scenario in FAMILIES or scenario == "outside":
-        vis, _, unit_floor = _visible_rms(machine, artefact, poses, base, truth, stylus_r)
+    elif scenario == "absorbed_motion":
+        truth.effects = absorbed_motion(machine, rng)
+    if family is not None or scenario == "outside":
+        vis, _, unit_floor = visible_rms(machine, artefact, poses, base, truth, stylus_r)
         k = factor * unit_floor * noise_um / max(vis, 1e-12)
         truth.effects = [(e, p * k) for e, p in truth.effects]
         truth.pose_offsets_mm = {i: o * k for i, o in truth.pose_offsets_mm.items()}
@@ -156,17 +198,18 @@ def run_case(machine: Machine, artefact: Artefact, poses: Sequence[tuple[float, 
         b, c = poses[displaced]
         key = f"b={round(b, 3):g},c={round(c, 3):g}"
         located = any(x["by"] == "pose" and x["key"] == key for x in rep["location"])
-    if scenario in FAMILIES:
-        ok = (top is not None and top["effect"] == scenario and top["axis"] == axis
-              and v["effect"] == scenario and after <= AFTER_LIMIT)
-    elif scenario == "null":
+    if family is not None:
+        ok = (top is not None and top["effect"] == family and top["axis"] == axis
+              and v["effect"] == family and after <= AFTER_LIMIT)
+    elif scenario in ("null", "absorbed_motion"):
         ok = v["effect"] == "none"
     elif scenario == "uniform_pretravel":
         ok = v["effect"] in ("none", "absorbed")
     else:
         ok = v["effect"] == "unexplained" and located
     return Case(scenario, axis, plan, seed, v["effect"], v["axis"],
-                top["effect"] if top else None, top["axis"] if top else None, after, located, ok)
+                top["effect"] if top else None, top["axis"] if top else None, after, located, ok,
+                family)
 
 
 def visible(machine: Machine, artefact: Artefact, poses: Sequence[tuple[float, float]],
@@ -178,17 +221,22 @@ def visible(machine: Machine, artefact: Artefact, poses: Sequence[tuple[float, f
     eff = _effect_for(family, axis, machine, artefact, gravity_dir)
     theta = np.array([TYPICAL.get(u, 1.0) for u in eff.units])
     inj = Truth(base.links, base.ball_setup_mm, base.tip_setup_mm, [(eff, theta)])
-    vis, _, unit_floor = _visible_rms(machine, artefact, poses, base, inj, stylus_r)
+    vis, _, unit_floor = visible_rms(machine, artefact, poses, base, inj, stylus_r)
     return vis > 0.01 * unit_floor * 0.5
 
 
-def axes_of(family: str, machine: Machine, artefact: Artefact) -> list[str | None]:
-    """The family's instances in the library (axes or ball ids; [None] without an axis)."""
-    return [e.axis for e in library(machine, artefact.ids) if e.family == family]
+def axes_of(scenario: str, machine: Machine, artefact: Artefact) -> list[str | None]:
+    """The scenario's instances in the library (axes or ball ids; [None] without an axis); a
+    variant of the rotary error motion on the full-turn axes only (its orders need the turn)."""
+    if scenario in VARIANTS:
+        return [a for a in machine.rotary_axes
+                if np.ptp(machine.axes[a].travel) >= 360.0]
+    return [e.axis for e in library(machine, artefact.ids) if e.family == scenario]
 
 
 def run(machine: Machine, artefact: Artefact, plans: dict[str, Sequence[tuple[float, float]]],
-        stylus_r: float, seeds: int, scenarios: Sequence[str] = (*FAMILIES, *CONTROLS),
+        stylus_r: float, seeds: int,
+        scenarios: Sequence[str] = SCENARIOS,
         skip: Sequence[tuple[str, str | None]] = (), progress=None, split: str = "auto",
         gravity_dir: Sequence[float] | None = None) -> Summary:
     """Every scenario × plan × seed; a family's axis cycles with the seed. ``skip`` lists
@@ -197,10 +245,11 @@ def run(machine: Machine, artefact: Artefact, plans: dict[str, Sequence[tuple[fl
     out = Summary()
     for plan, poses in plans.items():
         for sc in scenarios:
-            axes = axes_of(sc, machine, artefact) if sc in FAMILIES else [None]
+            fam = expected_family(sc)
+            axes = axes_of(sc, machine, artefact) if fam is not None else [None]
             axes = [a for a in axes if (sc, a) not in skip
-                    and (sc not in FAMILIES or visible(machine, artefact, poses, stylus_r, sc, a,
-                                                          gravity_dir))]
+                    and (fam is None or visible(machine, artefact, poses, stylus_r, sc, a,
+                                                   gravity_dir))]
             axes = axes or [None]
             for s in range(seeds):
                 ax = axes[s % len(axes)]
