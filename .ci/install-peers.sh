@@ -104,13 +104,17 @@ install_peer() {
 T_ALL=$(now)
 for p in "${peers[@]}"; do install_peer "$p"; done
 
-# Versions (each command answers in well under a second).
+# Versions (each command answers in well under a second). Under pipefail a reader that quits
+# early (head, awk's exit) kills the writer with SIGPIPE and the whole script with 141, so
+# every reader here consumes its input to the end.
+first_line() { awk 'NR == 1'; }
+
 for p in "${peers[@]}"; do
   case $p in
-    socat) v=$(socat -V | awk '/socat version/ {print $3; exit}') ;;
+    socat) v=$(socat -V | awk '/socat version/ && !v {v = $3} END {print v}') ;;
     mbpoll) v="mbpoll $(dpkg-query -W -f='${Version}' mbpoll), libmodbus $(pkg-config --modversion libmodbus)" ;;
     node-opcua) v="node-opcua $(node_opcua_version) on node $(node --version)" ;;
-    chromium) v="$(chromium --version 2>/dev/null | head -n1); $(chromedriver --version | cut -d' ' -f1-2); $(pdftoppm -v 2>&1 | head -n1)" ;;
+    chromium) v="$(chromium --version 2>/dev/null | first_line); $(chromedriver --version | cut -d' ' -f1-2); $(pdftoppm -v 2>&1 | first_line)" ;;
     linuxcnc) v="linuxcnc-uspace $(dpkg-query -W -f='${Version}' linuxcnc-uspace)" ;;
     postgresql) v="postgresql $(dpkg-query -W -f='${Version}' postgresql)" ;;
     mosquitto) v="mosquitto $(dpkg-query -W -f='${Version}' mosquitto)" ;;
