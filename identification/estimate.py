@@ -20,7 +20,7 @@ from identification.kinematics import Machine
 from identification.model import Artefact, Centres, Layout, predict
 
 DEFAULT_SIGMA_UM = 1.0  # prior centre std when no probing repeatability is given
-_ANGLE_LENGTH_MM = 1000.0  # an angle step counts as its effect at 1 m in the stop criterion
+ANGLE_LENGTH_MM = 1000.0  # an angle step counts as its effect at 1 m in the stop criterion
 STEP_TOL_MM = 1e-9  # stop when the step moves nothing by more than 1 pm (thesis B.4)
 MAX_ITER = 20
 COND_WARN = 1e4  # column-normalised condition number above which the result carries a warning
@@ -94,8 +94,8 @@ class Estimate:
         return q
 
 
-def _distance_rows(artefact: Artefact, layout: Layout, p: np.ndarray
-                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def distance_rows(artefact: Artefact, layout: Layout, p: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Predicted calibrated distances (mm), their Jacobian (D, P) and stds (mm)."""
     ids = artefact.ids
     _, dballs, _, _ = layout.unpack(p)
@@ -131,7 +131,7 @@ def _weighted(machine: Machine, artefact: Artefact, layout: Layout, p: np.ndarra
     jw = (jac / sigma_mm[None, :, None]).reshape(-1, layout.size)
     dres = np.zeros(0)
     if use_dist:
-        d, dj, dstd = _distance_rows(artefact, layout, p)
+        d, dj, dstd = distance_rows(artefact, layout, p)
         cal = np.array([cd.distance_mm for cd in artefact.distances])
         dres = cal - d
         rw = np.concatenate([rw, dres / dstd])
@@ -147,7 +147,7 @@ def _residuals(machine: Machine, artefact: Artefact, layout: Layout, p: np.ndarr
     rw = (res / sigma_mm).ravel()
     dres = np.zeros(0)
     if use_dist:
-        d, _, dstd = _distance_rows(artefact, layout, p)
+        d, _, dstd = distance_rows(artefact, layout, p)
         dres = np.array([cd.distance_mm for cd in artefact.distances]) - d
         rw = np.concatenate([rw, dres / dstd])
     return rw, res, dres
@@ -182,10 +182,7 @@ def estimate(
     except ValueError:
         ident = None  # the setup alone is not separable: the SVD check below names why
     chosen = tuple(() if ident is None else ident.links) if links is None else tuple(links)
-    unknown = [n for n in chosen if n not in machine.location_error_names()]
-    if unknown:
-        raise ValueError(f"unknown link errors {unknown}; this machine has "
-                         f"{machine.location_error_names()}")
+    check_links(machine, chosen)
     use_dist = bool(use_distances and artefact.distances)
     layout = Layout(chosen, len(artefact.balls), scale=use_dist)
     names = layout.names(artefact.ids)
@@ -196,9 +193,9 @@ def estimate(
         raise ValueError(f"sigma_um must be positive, got {sig_um}")
     sigma_mm = sig_um * 1e-3
     unit_len = np.ones(layout.size)
-    unit_len[[i for i, n in enumerate(layout.links) if n[1] in "ABC"]] = _ANGLE_LENGTH_MM
+    unit_len[[i for i, n in enumerate(layout.links) if n[1] in "ABC"]] = ANGLE_LENGTH_MM
     if layout.scale:
-        unit_len[-1] = _ANGLE_LENGTH_MM
+        unit_len[-1] = ANGLE_LENGTH_MM
 
     def solve(p: np.ndarray, sigma_mm: np.ndarray) -> tuple:
         """Gauss-Newton from ``p`` with centre weights 1/σ per axis (thesis B.4 stop rule)."""
@@ -254,41 +251,71 @@ def estimate(
     cond = float(s[0] / s[-1])
     cov_n = (vt.T / s**2) @ vt
     cov = cov_n / np.outer(norms, norms)
-    dof = rw.size - layout.size
-    chi2 = float(rw @ rw)
+    cov, sig_um, sigma_dof, warns = a_posteriori(rw, layout.size, cov, sig_um, sigma_dof, given)
+    status, more = fit_status(cond, converged, max_iter)
+    unobs, absorbed = unobservable(layout, ident.dropped if ident else {})
+    return Estimate(
+        layout=layout, ball_ids=list(artefact.ids), p=p, std=np.sqrt(np.diag(cov)), cov=cov,
+        residual_mm=res, distance_residual_um=dres * 1e3,
+        residual_rms_um=float(np.sqrt(np.mean(res**2)) * 1e3), condition_number=cond,
+        sigma_um=sig_um, sigma_given=given, iterations=it, converged=converged, status=status,
+        unobservable=unobs, absorbed_by=absorbed, warnings=warns + more, sigma_dof=sigma_dof,
+    )
+
+
+def check_links(machine: Machine, links: Sequence[str]) -> None:
+    """Raise ``ValueError`` naming the link errors ``machine`` does not have."""
+    unknown = [n for n in links if n not in machine.location_error_names()]
+    if unknown:
+        raise ValueError(f"unknown link errors {unknown}; this machine has "
+                         f"{machine.location_error_names()}")
+
+
+def a_posteriori(rw: np.ndarray, n_par: int, cov: np.ndarray, sig_um: np.ndarray,
+                 sigma_dof: float, given: bool
+                 ) -> tuple[np.ndarray, np.ndarray, float, list[str]]:
+    """(cov, σ, its dof, warnings): without a given σ the covariance and σ are scaled by the
+    variance factor of the weighted residuals ``rw`` (warned about when nothing is redundant)."""
+    dof = rw.size - n_par
     warns: list[str] = []
     if not given:
         if dof > 0:
-            var = chi2 / dof
+            var = float(rw @ rw) / dof
             cov = cov * var
             sig_um = sig_um * np.sqrt(var)
             sigma_dof = min(sigma_dof, float(dof))
         else:
             warns.append("no redundancy (as many unknowns as equations): uncertainties are "
                          "those of a 1 µm centre repeatability, not a posteriori")
+    return cov, sig_um, sigma_dof, warns
+
+
+def fit_status(cond: float, converged: bool, max_iter: int) -> tuple[str, list[str]]:
+    """(status, warnings) of a Gauss-Newton fit: poor conditioning, no convergence."""
+    warns: list[str] = []
     if cond > COND_WARN:
         warns.append(f"condition number {cond:.3g} (column-normalised): some parameters are "
                      "poorly separated by these poses; see their uncertainties")
     status = "converged" if converged else f"not converged after {max_iter} iterations"
     if not converged:
         warns.append(f"Gauss-Newton {status}: the parameters may be inaccurate")
+    return status, warns
 
+
+def unobservable(layout: Layout, dropped: dict[str, str]
+                 ) -> tuple[list[str], dict[str, str]]:
+    """(unobservable directions, what absorbs each): the scale without a calibrated distance,
+    then the ``dropped`` link errors."""
     unobs: list[str] = []
     absorbed: dict[str, str] = {}
     if not layout.scale:
         unobs.append("isotropic_scale")
         absorbed["isotropic_scale"] = ("the artefact geometry (ball setup errors): no calibrated "
                                        "distance, results are a volumetric distortion (thesis 3.5)")
-    for name, by in (ident.dropped if ident else {}).items():
+    for name, by in dropped.items():
         unobs.append(name)
         absorbed[name] = by
-    return Estimate(
-        layout=layout, ball_ids=list(artefact.ids), p=p, std=np.sqrt(np.diag(cov)), cov=cov,
-        residual_mm=res, distance_residual_um=dres * 1e3,
-        residual_rms_um=float(np.sqrt(np.mean(res**2)) * 1e3), condition_number=cond,
-        sigma_um=sig_um, sigma_given=given, iterations=it, converged=converged, status=status,
-        unobservable=unobs, absorbed_by=absorbed, warnings=warns, sigma_dof=sigma_dof,
-    )
+    return unobs, absorbed
 
 
 def coverage_factor(sigma_dof: float, coverage: float = 0.9973) -> float:

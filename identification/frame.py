@@ -24,16 +24,19 @@ from dataclasses import dataclass
 import numpy as np
 
 from identification.estimate import (
-    _ANGLE_LENGTH_MM,
-    COND_WARN,
+    ANGLE_LENGTH_MM,
     DEFAULT_SIGMA_UM,
     MAX_ITER,
     STEP_TOL_MM,
     Estimate,
     RankDeficientError,
-    _distance_rows,
+    a_posteriori,
+    check_links,
+    distance_rows,
+    fit_status,
+    unobservable,
 )
-from identification.identifiability import RANK_TOL, _explain, _rank
+from identification.identifiability import RANK_TOL, explain_absorption, numerical_rank
 from identification.kinematics import Machine
 from identification.model import Artefact, Centres, Layout, predict
 
@@ -122,24 +125,24 @@ def select(machine: Machine, artefact: Artefact, centres: Centres, rotation: np.
         names = names + list(FRAME_NAMES)
     j = np.concatenate(cols, axis=2).reshape(-1, len(names))
     kept = list(range(len(cands), full.size))
-    if _rank(j[:, kept]) < len(kept):
+    if numerical_rank(j[:, kept]) < len(kept):
         raise RankDeficientError("setup errors alone are not identifiable from these poses "
                                  "(too few poses or balls; need at least two distinct "
                                  "indexations)")
     frame_free, held = [], {}
     for i in range(full.size, len(names)):
-        if _rank(j[:, [*kept, i]]) > len(kept):
+        if numerical_rank(j[:, [*kept, i]]) > len(kept):
             kept.append(i)
             frame_free.append(True)
         else:
             frame_free.append(False)
-            held[names[i]] = _explain(j[:, i], j[:, kept], [names[k] for k in kept])
+            held[names[i]] = explain_absorption(j[:, i], j[:, kept], [names[k] for k in kept])
     dropped = {}
     for i, name in enumerate(cands):
-        if _rank(j[:, [*kept, i]]) > len(kept):
+        if numerical_rank(j[:, [*kept, i]]) > len(kept):
             kept.append(i)
         else:
-            dropped[name] = _explain(j[:, i], j[:, kept], [names[k] for k in kept])
+            dropped[name] = explain_absorption(j[:, i], j[:, kept], [names[k] for k in kept])
     return tuple(c for i, c in enumerate(cands) if i in kept), dropped, frame_free, held
 
 
@@ -160,10 +163,7 @@ def estimate_weighted(machine: Machine, artefact: Artefact, centres: Centres,
         rot0, t0 = kabsch(q0, centres.xyz_mm)
     ident, dropped, free, held = select(machine, artefact, centres, rot0)
     chosen = ident if links is None else tuple(links)
-    unknown = [n for n in chosen if n not in machine.location_error_names()]
-    if unknown:
-        raise ValueError(f"unknown link errors {unknown}; this machine has "
-                         f"{machine.location_error_names()}")
+    check_links(machine, chosen)
     use_dist = bool(use_distances and artefact.distances)
     layout = Layout(chosen, len(artefact.balls), scale=use_dist)
     names = layout.names(artefact.ids) + [n for n, f in zip(FRAME_NAMES, free, strict=False)
@@ -176,10 +176,10 @@ def estimate_weighted(machine: Machine, artefact: Artefact, centres: Centres,
     fcols = np.array([i for i, f in enumerate(free) if f], int) if frame else np.zeros(0, int)
     n_par = layout.size + fcols.size
     unit_len = np.ones(n_par)
-    unit_len[[i for i, n in enumerate(layout.links) if n[1] in "ABC"]] = _ANGLE_LENGTH_MM
+    unit_len[[i for i, n in enumerate(layout.links) if n[1] in "ABC"]] = ANGLE_LENGTH_MM
     if layout.scale:
-        unit_len[layout.size - 1] = _ANGLE_LENGTH_MM
-    unit_len[layout.size:][fcols >= 3] = _ANGLE_LENGTH_MM
+        unit_len[layout.size - 1] = ANGLE_LENGTH_MM
+    unit_len[layout.size:][fcols >= 3] = ANGLE_LENGTH_MM
 
     def system(p, rot, t, s_mm):
         q, jac = predict(machine, artefact, layout, p, centres, jacobian=True)
@@ -190,7 +190,7 @@ def estimate_weighted(machine: Machine, artefact: Artefact, centres: Centres,
         rw, jw = (res / s_mm).ravel(), (jm / s_mm[:, :, None]).reshape(-1, n_par)
         dres = np.zeros(0)
         if use_dist:
-            d, dj, dstd = _distance_rows(artefact, layout, p)
+            d, dj, dstd = distance_rows(artefact, layout, p)
             dres = np.array([cd.distance_mm for cd in artefact.distances]) - d
             dj = np.concatenate([dj, np.zeros((len(d), fcols.size))], axis=1)
             rw, jw = np.concatenate([rw, dres / dstd]), np.vstack([jw, dj / dstd[:, None]])
@@ -241,31 +241,12 @@ def estimate_weighted(machine: Machine, artefact: Artefact, centres: Centres,
     _, s, vt = np.linalg.svd(jw / norms, full_matrices=False)
     cond = float(s[0] / s[-1])
     cov = ((vt.T / s**2) @ vt) / np.outer(norms, norms)
-    dof = rw.size - n_par
-    warns: list[str] = []
-    if not given:
-        if dof > 0:
-            var = float(rw @ rw) / dof
-            cov, sig_report = cov * var, sig_report * np.sqrt(var)
-            sigma_dof = min(sigma_dof, float(dof))
-        else:
-            warns.append("no redundancy (as many unknowns as equations): uncertainties are "
-                         "those of a 1 µm centre repeatability, not a posteriori")
-    if cond > COND_WARN:
-        warns.append(f"condition number {cond:.3g} (column-normalised): some parameters are "
-                     "poorly separated by these poses; see their uncertainties")
-    status = "converged" if converged else f"not converged after {max_iter} iterations"
-    if not converged:
-        warns.append(f"Gauss-Newton {status}: the parameters may be inaccurate")
+    cov, sig_report, sigma_dof, warns = a_posteriori(rw, n_par, cov, sig_report, sigma_dof,
+                                                     given)
+    status, more = fit_status(cond, converged, max_iter)
+    warns += more
     std = np.sqrt(np.clip(np.diag(cov), 0.0, None))
-    unobs, absorbed = [], {}
-    if not layout.scale:
-        unobs.append("isotropic_scale")
-        absorbed["isotropic_scale"] = ("the artefact geometry (ball setup errors): no calibrated "
-                                       "distance, results are a volumetric distortion (thesis 3.5)")
-    for name, by in dropped.items():
-        unobs.append(name)
-        absorbed[name] = by
+    unobs, absorbed = unobservable(layout, dropped)
     fit = None
     if frame:
         fstd = np.full(6, np.nan)

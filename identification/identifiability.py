@@ -46,14 +46,17 @@ def _unit_columns(j: np.ndarray) -> np.ndarray:
     return j / np.where(norms > 0, norms, 1.0)
 
 
-def _rank(j: np.ndarray) -> int:
+def numerical_rank(j: np.ndarray) -> int:
+    """Rank of ``j`` with unit-norm columns, singular values below RANK_TOL relative dropped."""
     if j.shape[1] == 0:
         return 0
     s = np.linalg.svd(_unit_columns(j), compute_uv=False)
     return int(np.sum(s > RANK_TOL * s[0])) if s[0] > 0 else 0
 
 
-def _explain(col: np.ndarray, basis: np.ndarray, names: list[str]) -> str:
+def explain_absorption(col: np.ndarray, basis: np.ndarray, names: list[str]) -> str:
+    """What absorbs a dropped column: the (up to three) ``names`` of ``basis`` columns that
+    carry most of its least-squares combination."""
     if not np.any(col):
         return "nothing: no effect on the measured centres for these poses"
     coef, *_ = np.linalg.lstsq(basis, col, rcond=None)
@@ -73,16 +76,16 @@ def identifiable_links(machine: Machine, artefact: Artefact, centres: Centres,
     setup_cols = list(range(len(candidates), full.size - 1))
     kept = list(setup_cols)
     dropped: dict[str, str] = {}
-    if _rank(j[:, kept]) < len(kept):
+    if numerical_rank(j[:, kept]) < len(kept):
         raise ValueError("setup errors alone are not identifiable from these poses "
                          "(too few poses or balls; need at least two distinct indexations)")
     for i, name in enumerate(candidates):
-        if _rank(j[:, [*kept, i]]) > len(kept):
+        if numerical_rank(j[:, [*kept, i]]) > len(kept):
             kept.append(i)
         else:
-            dropped[name] = _explain(j[:, i], j[:, kept], [names[k] for k in kept])
+            dropped[name] = explain_absorption(j[:, i], j[:, kept], [names[k] for k in kept])
     scale_col = full.size - 1
     use_dist = bool(artefact.distances) if with_distances is None else with_distances
-    scale_observable = use_dist or _rank(j[:, [*kept, scale_col]]) > len(kept)
+    scale_observable = use_dist or numerical_rank(j[:, [*kept, scale_col]]) > len(kept)
     links = tuple(candidates[i] for i in kept if i < len(candidates))
     return Identifiability(links, dropped, scale_observable)

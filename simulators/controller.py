@@ -12,11 +12,8 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-from dataclasses import replace
 
-import numpy as np
-
-from contracts.result_lines import RING_SLOTS, VERDICT_VARIABLES
+from contracts.result_lines import VERDICT_VARIABLES
 from simulators.controller_events import (
     Block,
     ControllerEvent,
@@ -27,12 +24,17 @@ from simulators.controller_events import (
     StateChange,
     TouchResult,
 )
+from simulators.controller_io import MachineSide
 from simulators.faults import FRONT_END_KINDS, FaultPlan
 from simulators.gcode import Alarm, BlockQueue, ProbeOutcome, make_interpreter, run
 from simulators.latch import ProbeLatch, TouchRecord
-from simulators.motion import check_travel, move_time_s, probing_length_mm
-from simulators.probe import collision
 from simulators.truth import TruthModel
+
+__all__ = [  # the events and the touch types are re-exported: callers import them from here
+    "VERDICT_VARIABLE", "Block", "ControllerEvent", "FaultEvent", "MachineSide", "PrintLine",
+    "ProbeOutcome", "RequestRaised", "StateChange", "TouchRecord", "TouchResult",
+    "VirtualController",
+]
 
 VERDICT_VARIABLE = VERDICT_VARIABLES
 """Where the CNC's start-of-shift macro reads the verdict (gcode_templates/*/README.md): a
@@ -52,8 +54,9 @@ class _Variables(dict):
         self._on_write(key, value)
 
 
-class VirtualController:
-    """A CNC controller executing our programs on a ``TruthModel``."""
+class VirtualController(MachineSide):
+    """A CNC controller executing our programs on a ``TruthModel`` (its machine side, the
+    interpreter's MachineIO, is ``MachineSide``)."""
 
     def __init__(self, truth: TruthModel, *, time_scale: float = 0.0, rng_seed: int = 0,
                  faults: FaultPlan | None = None, dialect: str = "fanuc",
@@ -217,97 +220,6 @@ class VirtualController:
         """Reference (home) position: top of the Z travel (controller axes show the tool's
         motion relative to the workpiece, whatever moves), zero elsewhere."""
         return float(self.truth.machine.axes[axis].travel[1]) if axis == "Z" else 0.0
-
-    # ---------------------------------------------------------------- MachineIO
-    def position(self) -> dict[str, float]:
-        return dict(self._pos)
-
-    def _q(self, pos: dict[str, float]) -> np.ndarray:
-        return np.array([pos[a] for a in self.axes], float)
-
-    def move(self, target: dict[str, float], feed_mm_min: float | None) -> None:
-        check_travel(self.truth.machine, self.axes, target)
-        q0, q1 = self._q(self._pos), self._q(target)
-        hit = collision(self.truth, q0, q1, self.machine_time_s + self._pending_s)
-        if hit:
-            raise Alarm(f"PROBE COLLISION: {hit} on the move to "
-                        + " ".join(f"{a}{target[a]:.4f}" for a in self.axes))
-        dt, indexed = move_time_s(self.truth.machine_file.dynamics, q0, q1, feed_mm_min)
-        self._rotary_moves += int(indexed)  # the visit key of the probing noise counts these
-        self._pending_s += dt
-        self._pos = dict(target)
-
-    def dwell(self, seconds: float) -> None:
-        if seconds < 0:
-            raise Alarm("negative dwell")
-        self._pending_s += seconds
-
-    def output(self, text: str) -> None:
-        if self._drop_lines > 0:
-            self._drop_lines -= 1
-            return
-        self.printed.append(text)
-        self._emit(PrintLine(text))
-
-    def message(self, text: str) -> None:
-        self.messages.append(text)
-
-    def probe(self, target: dict[str, float], feed_mm_min: float, locate: bool = False
-              ) -> ProbeOutcome:
-        check_travel(self.truth.machine, self.axes, target)
-        if locate:
-            return self._locate(target, feed_mm_min)
-        self._seq += 1
-        seq = self._seq
-        t = self.machine_time_s + self._pending_s
-        p0, p1 = self._q(self._pos)[:3], self._q(target)[:3]
-        b, c = self._pos[self.axes[3]], self._pos[self.axes[4]]
-        length = probing_length_mm(self.truth.machine_file.dynamics, p0, p1,
-                                   target[self.axes[3]] != b or target[self.axes[4]] != c,
-                                   feed_mm_min)
-        faults = self.faults.due({"no_trigger", "early_trigger", "drop_result_line", "chip"},
-                                 touch=seq, t_s=t)
-        for f in faults:
-            self._emit(FaultEvent(f.kind, f))
-            if f.kind == "drop_result_line":
-                self._drop_lines += f.params.get("lines", 1)
-        hit = self._latch.latch(p0, p1, b, c, t, faults, self._rotary_moves, feed_mm_min)
-        if hit.triggered and hit.target is not None and hit.target >= 0:
-            chip = self.faults.chip_mm(faults, hit.ball, hit.touch, b, c, seq)
-            if chip:  # a chip on the ball: the stylus meets it that much earlier on the line
-                back = (p1 - p0) / hit.length_mm * chip
-                hit = replace(hit, fraction=hit.fraction - chip / hit.length_mm,
-                              stop=hit.stop - back, xyz=hit.xyz - back)
-        stop, triggered = hit.stop, hit.triggered
-        self._pending_s += length * (hit.fraction if hit.fraction is not None else 1.0) \
-            / feed_mm_min * 60
-        self._pos.update({"X": stop[0], "Y": stop[1], "Z": stop[2]})
-        latched = {"X": float(hit.xyz[0]), "Y": float(hit.xyz[1]),
-                   "Z": float(hit.xyz[2]), self.axes[3]: b, self.axes[4]: c}
-        self.touches.append(TouchRecord(seq, t, p0, p1, latched, triggered, feed_mm_min,
-                                        hit.touch, hit.direction, hit.ball, hit.target))
-        self._emit(TouchResult((seq - 1) % RING_SLOTS, seq,
-                               {"X": latched["X"], "Y": latched["Y"], "Z": latched["Z"],
-                                "b": b, "c": c}, triggered))
-        return ProbeOutcome(triggered, latched)
-
-    def _locate(self, target: dict[str, float], feed_mm_min: float) -> ProbeOutcome:
-        """The fast approach of a two-speed touch: probe physics and machine time, but no
-        touch number, result or probing fault (the re-touch that follows is the touch)."""
-        p0, p1 = self._q(self._pos)[:3], self._q(target)[:3]
-        b, c = self._pos[self.axes[3]], self._pos[self.axes[4]]
-        length = probing_length_mm(self.truth.machine_file.dynamics, p0, p1,
-                                   target[self.axes[3]] != b or target[self.axes[4]] != c,
-                                   feed_mm_min)
-        t = self.machine_time_s + self._pending_s
-        hit = self._latch.latch(p0, p1, b, c, t, [], self._rotary_moves, feed_mm_min,
-                                locate=True)
-        self._pending_s += length * (hit.fraction if hit.fraction is not None else 1.0) \
-            / feed_mm_min * 60
-        self._pos.update({"X": hit.stop[0], "Y": hit.stop[1], "Z": hit.stop[2]})
-        latched = {"X": float(hit.xyz[0]), "Y": float(hit.xyz[1]), "Z": float(hit.xyz[2]),
-                   self.axes[3]: b, self.axes[4]: c}
-        return ProbeOutcome(hit.triggered, latched)
 
     # ---------------------------------------------------------------- running
     def _begin(self) -> None:

@@ -2,7 +2,7 @@
 verdict with date, age and stale flag, a machine's per-link trend and runs, and its reports.
 
 Authentication, login, Host / Origin checks and request limits are the HMI's own
-(``daemon.hmi.app.security`` and its login handlers, reused with the same app keys), so the
+(``daemon.hmi.access.secured_app``: its ``security`` middleware and login handlers), so the
 two pages behave alike: ``Authorization: Bearer <token>`` for scripts, a signed session
 cookie after the login form for browsers. Reports: the store holds the path each daemon
 wrote its report to; the page serves that file only if it resolves (symlinks followed)
@@ -25,21 +25,10 @@ import psycopg
 from aiohttp import web
 
 from daemon.fleet import view
-from daemon.hmi.app import (
-    AUTH_KEY,
-    LIMITER_KEY,
-    LIMITS_KEY,
-    ORIGINS_KEY,
-    REPORT_CSP,
-    asset,
-    login,
-    login_page,
-    logout,
-    run_id_ok,
-    security,
-)
+from daemon.hmi.access import secured_app
+from daemon.hmi.app import REPORT_CSP, run_id_ok
 from daemon.hmi.auth import Auth
-from daemon.hmi.limits import AuthLimiter, HmiLimits, Origins, int_param
+from daemon.hmi.limits import HmiLimits, int_param
 from daemon.store import StoreError
 from daemon.store_pg import PgStore
 from daemon.store_url import redact
@@ -152,13 +141,8 @@ def create_fleet_app(dsn: str, token: str, *, stale_after_h: float = 26.0,
                      ) -> web.Application:
     """The fleet page over the store at ``dsn``; the other arguments mean what they mean for
     the HMI (``daemon.hmi.app.create_app``)."""
-    limits = limits or HmiLimits()
-    app = web.Application(middlewares=[security], client_max_size=limits.max_body_bytes,
-                          handler_args=limits.server_args())
-    app[AUTH_KEY] = Auth(token, secure_cookie, secret=secret)
-    app[LIMITS_KEY] = limits
-    app[LIMITER_KEY] = AuthLimiter(limits)
-    app[ORIGINS_KEY] = Origins(bind_host, public_origins)
+    app = secured_app(Auth(token, secure_cookie, secret=secret), limits, bind_host,
+                      public_origins, "fleet page")
     app[READER_KEY] = StoreReader(dsn)
     app[STALE_KEY] = float(stale_after_h)
     app[ROOTS_KEY] = tuple(Path(d) for d in reports_dirs)
@@ -167,11 +151,7 @@ def create_fleet_app(dsn: str, token: str, *, stale_after_h: float = 26.0,
         await app[READER_KEY].close()  # type: ignore[attr-defined]
 
     app.on_cleanup.append(close_store)
-    app.router.add_get("/login", login_page)
-    app.router.add_post("/login", login)
-    app.router.add_post("/logout", logout)
     app.router.add_get("/", index)
-    app.router.add_get("/{name:hmi\\.css}", asset)
     app.router.add_get("/fleet.css", fleet_css)
     app.router.add_get("/api/fleet", fleet_json)
     app.router.add_get("/machines/{machine:[^/]{1,64}}", machine)

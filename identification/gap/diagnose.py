@@ -18,7 +18,7 @@ verdict:
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -34,13 +34,8 @@ from identification.gap.attribute import (
     score,
 )
 from identification.gap.centres_input import exact_floor
-from identification.gap.data import (
-    Groups,
-    TouchData,
-    group_touches,
-    repeat_floor_um,
-    repeat_scatter_um,
-)
+from identification.gap.data import Groups, TouchData, group_touches, repeat_floor_um
+from identification.gap.floor import noise_floor_um, repeat_floor, whiteners
 from identification.gap.linear import FullFit, Problem, columns, fit, held_out, projected
 from identification.gap.locate import breakdowns
 from identification.gap.outlier_visits import exclude_outliers, outlier_verdict
@@ -54,15 +49,14 @@ DEFAULT_FOLDS = 0  # 0: the split's default (leave-one-pose-out, or split.TIME_B
 # effect of realistic size would be seen at all on this probing pattern.
 TYPICAL = {"um": 10.0, "urad": 10.0, "um/h": 10.0, "um/m": 10.0, "urad/m": 100.0,
            "urad/rad": 10.0, "um/m^2": 100.0, "um/m^3": 1000.0, "urad/m^2": 1000.0, "h": 1.0}
-
-
-def typical_size(eff) -> np.ndarray:
-    return np.array([TYPICAL.get(u, 1.0) for u in eff.units])
 ABSORBED_SIGMAS = 5.0  # a mean radius deviation beyond this many standard errors is evidence
-MIN_REPEAT_DOF = 6
-REPEAT_INFLATE = 1.2  # repeats clearly worse than the trigger noise alone explains
 MIN_POSES = 4  # a twin with links needs several indexations; leave-one-out needs one more
 SIGMA_REFINE = 0.9  # redo the diagnosis when the floor drops by more than 10 % without effects
+
+
+def typical_size(eff: Effect) -> np.ndarray:
+    """A plausible size of each of ``eff``'s parameters (``TYPICAL`` by unit, else 1)."""
+    return np.array([TYPICAL.get(u, 1.0) for u in eff.units])
 
 
 @dataclass
@@ -91,16 +85,6 @@ def _merge(train: TouchData, holdout: TouchData | None) -> tuple[TouchData, np.n
     return TouchData(**cat), np.r_[np.zeros(len(train), bool), np.ones(len(holdout), bool)]
 
 
-def _whiteners(groups: Groups) -> np.ndarray:
-    cov = np.zeros((len(groups), 4, 4))
-    cov[:, :3, :3] = groups.centre_cov_um2
-    cov[:, 3, 3] = groups.sigma_touch_um**2
-    w = np.linalg.inv(np.linalg.cholesky(cov))
-    if groups.channels < 4:  # no usable form residual: a zero row, not an observation
-        w[:, 3, :] = 0.0
-    return w
-
-
 def diagnose(machine: Machine, artefact: Artefact, touches: TouchData, stylus_radius_mm: float,
              holdout: TouchData | None = None, options: Options | None = None) -> dict:
     """Run the whole diagnosis; returns the JSON-ready report (units µm, µrad, as labelled)."""
@@ -127,7 +111,7 @@ def diagnose_groups(machine: Machine, artefact: Artefact, data: TouchData, group
     if n_train_poses < MIN_POSES:
         raise ValueError(f"{n_train_poses} complete poses to fit the twin on; the diagnosis "
                          f"needs at least {MIN_POSES}")
-    floored, rnote = _repeat_floor(groups)
+    floored, rnote = repeat_floor(groups)
     rep, refined = _analyse(machine, artefact, data, floored, is_ho, opt)
     if groups.channels < 4:
         rep["noise"]["source"] = note
@@ -137,32 +121,11 @@ def diagnose_groups(machine: Machine, artefact: Artefact, data: TouchData, group
         # The form residuals that gave the floor also carried the selected effects' sphere
         # distortion (e.g. the local slope of a straightness): estimate it again without them
         # and redo the diagnosis with the cleaner floor (repeats, if any, still bound it).
-        floored, note = _repeat_floor(groups.with_sigma(*refined))
+        floored, note = repeat_floor(groups.with_sigma(*refined))
         rep, _ = _analyse(machine, artefact, data, floored, is_ho, opt)
         rep["noise"]["source"] += (f"; re-estimated without the selected effects (first pass "
                                    f"{groups.sigma_touch_um:.3f} µm){note}")
     return rep
-
-
-def _repeat_floor(groups: Groups) -> tuple[Groups, str]:
-    """With repeated ball-poses, the centre scatter between repeats is the better floor: it
-    holds every non-repeatable error (indexing, clamping), the form residual only the trigger
-    noise. Where it is clearly larger, the difference is added per axis to the centre
-    covariances (an independent per-visit scatter on top of the sphere fit's)."""
-    rep = repeat_scatter_um(groups)
-    if rep is None:
-        return groups, ""
-    std, dof = rep
-    sphere = np.sqrt(np.mean(np.diagonal(groups.centre_cov_um2, axis1=1, axis2=2), axis=0))
-    xyz = "/".join(f"{v:.3f}" for v in std)
-    if dof < MIN_REPEAT_DOF or np.all(std <= REPEAT_INFLATE * sphere):
-        return groups, f"; repeats agree ({xyz} µm x/y/z, {dof} dof)"
-    extra = np.diag(np.maximum(std ** 2 - sphere ** 2, 0.0))
-    scaled = replace(groups, centre_cov_um2=groups.centre_cov_um2 + extra[None],
-                     sigma_dof=min(groups.sigma_dof, dof))
-    return scaled, (f"; per-visit scatter between repeats added to the centre covariances "
-                    f"({xyz} µm x/y/z vs {'/'.join(f'{v:.3f}' for v in sphere)} µm from the "
-                    f"form residuals, {dof} dof)")
 
 
 def _add_known(problem: Problem, known: Sequence[tuple[Effect, np.ndarray | None]], twin: Twin,
@@ -228,7 +191,7 @@ def _time_check(problem: Problem, groups: Groups, is_ho: np.ndarray, selected: l
 
 def _analyse(machine: Machine, artefact: Artefact, data: TouchData, groups: Groups,
              is_ho: np.ndarray, opt: Options) -> tuple[dict, tuple[float, int] | None]:
-    whiten = _whiteners(groups)
+    whiten = whiteners(groups)
     train = ~is_ho
     twin = fit_twin(machine, artefact, groups.centres.subset(train), whiten[train, :3, :3])
     pred = twin.predicted_um(groups.centres, groups)
@@ -242,9 +205,7 @@ def _analyse(machine: Machine, artefact: Artefact, data: TouchData, groups: Grou
     known = {e.label for e, _ in opt.known}
 
     rep_floor = repeat_floor_um(groups)
-    form_var = groups.sigma_touch_um**2 if groups.channels == 4 else 0.0
-    noise_floor = float(np.sqrt(np.mean(
-        (np.trace(groups.centre_cov_um2, axis1=1, axis2=2) + form_var) / groups.channels)))
+    noise_floor = noise_floor_um(groups)
     base_full = fit(problem, base)
     base_ho = held_out(problem, base)
     cells = breakdowns(groups, base_ho, artefact.ids)
