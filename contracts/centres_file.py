@@ -28,7 +28,6 @@ from __future__ import annotations
 import csv
 import io
 import math
-import os
 import warnings
 from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import astuple, dataclass, field, fields
@@ -37,19 +36,22 @@ from pathlib import Path
 import numpy as np
 
 from contracts.probing_log import (
-    _CONTROL_RE,
-    _FLOAT_RE,
-    _INT_RE,
-    _RANGES,
+    CONTROL_RE,
+    FLOAT_RE,
+    INT_RE,
     MAX_ID_CHARS,
-    MAX_LOG_BYTES,
     MAX_LOG_ROWS,
+    RANGES,
     TOUCHES_PER_BALL,
+    PoseRow,
     ProbeLogError,
     ProbeLogWarning,
-    _decoded,
-    _duplicate,
-    _ranges,
+    byte_lines,
+    data_rows,
+    decoded,
+    duplicate_key,
+    seq_gaps,
+    write_lines,
 )
 from identification.model import Artefact
 
@@ -60,8 +62,8 @@ FRAMES = ("machine", "instrument")
 KEYS = ("frame", "instrument", "source", "repeatability_um")
 MAX_CENTRE_ROWS = MAX_LOG_ROWS // TOUCHES_PER_BALL  # one centre per five touches
 MAX_U_UM = 1e4  # a stated centre uncertainty beyond 1 cm is a unit mistake
-_RANGES_C = {**{k: _RANGES[k] for k in ("t_s", "b_cmd_deg", "c_cmd_deg", "b_deg", "c_deg",
-                                         "x_mm", "y_mm", "z_mm")}, "u_um": (0.0, MAX_U_UM)}
+_RANGES_C = {**{k: RANGES[k] for k in ("t_s", "b_cmd_deg", "c_cmd_deg", "b_deg", "c_deg",
+                                        "x_mm", "y_mm", "z_mm")}, "u_um": (0.0, MAX_U_UM)}
 
 
 class CentresFileError(ProbeLogError):
@@ -69,17 +71,10 @@ class CentresFileError(ProbeLogError):
 
 
 @dataclass(frozen=True, slots=True)
-class CentreRow:
+class CentreRow(PoseRow):
     """One measured ball centre as in the CSV (columns in the same order); ``u_um`` NaN when
     the file does not state it."""
 
-    run_id: str
-    seq: int
-    t_s: float
-    repeat: int
-    pose: int
-    b_cmd_deg: float
-    c_cmd_deg: float
     b_deg: float
     c_deg: float
     ball: str
@@ -117,13 +112,13 @@ class CentresFile:
 
 
 def _printable(text: str) -> bool:
-    return len(text) <= MAX_ID_CHARS and not _CONTROL_RE.search(text)
+    return len(text) <= MAX_ID_CHARS and not CONTROL_RE.search(text)
 
 
 def parse_repeatability(text: str, where: str) -> tuple[float, float, float]:
     """``s`` or ``sx,sy,sz`` (µm, positive, ASCII decimal) → (sx, sy, sz)."""
     cells = text.split(",")
-    if len(cells) not in (1, 3) or not all(_FLOAT_RE.fullmatch(c) for c in cells):
+    if len(cells) not in (1, 3) or not all(FLOAT_RE.fullmatch(c) for c in cells):
         raise CentresFileError(f"{where}: expected one or three positive numbers (centre std "
                                f"x,y,z in µm), got {text.strip()[:40]!r}")
     v = [float(c) for c in cells]
@@ -165,14 +160,14 @@ def _cell(name: str, lineno: int, col: str, cell: str) -> object:
                                    f"{MAX_ID_CHARS} printable characters, got {s[:40]!r}")
         return s
     if kind == "int":
-        if not _INT_RE.fullmatch(cell) or int(cell) < 0:
+        if not INT_RE.fullmatch(cell) or int(cell) < 0:
             raise CentresFileError(f"{name}: line {lineno}: column {col}: expected an integer "
                                    f"≥ 0, got {cell[:40]!r} (ASCII digits, < 1e9)")
         return int(cell)
     if col == "u_um" and not cell.strip():
         return math.nan
     lo, hi = _RANGES_C[col]
-    if not _FLOAT_RE.fullmatch(cell):
+    if not FLOAT_RE.fullmatch(cell):
         raise CentresFileError(f"{name}: line {lineno}: column {col}: expected a finite number, "
                                f"got {cell[:40]!r} (ASCII decimal)")
     v = float(cell)
@@ -186,26 +181,12 @@ def _cell(name: str, lineno: int, col: str, cell: str) -> object:
 def read_centres(path: Path | str, artefact: Artefact | None = None,
                  text: str | None = None) -> CentresFile:
     """Read and validate a centres file (``text`` instead of the file content if given)."""
-    name = str(path)
-    try:
-        if text is None:
-            with open(path, "rb") as f:
-                size = os.fstat(f.fileno()).st_size
-                if size > MAX_LOG_BYTES:
-                    raise CentresFileError(f"{name}: {size} bytes, more than the reader's "
-                                           f"ceiling of {MAX_LOG_BYTES}")
-                return _read(f, name, artefact)
-        return _read(io.BytesIO(text.encode("utf-8", "surrogatepass")), name, artefact)
-    except OSError as e:
-        raise CentresFileError(f"{name}: cannot read: {e.strerror or e}") from None
-    except CentresFileError:
-        raise
-    except ProbeLogError as e:  # the shared line reader's (size, line length, UTF-8)
-        raise CentresFileError(str(e)) from None
+    with byte_lines(path, text, CentresFileError) as raw:
+        return _read(raw, str(path), artefact)
 
 
 def _read(raw: Iterable[bytes], name: str, artefact: Artefact | None) -> CentresFile:
-    lines = _decoded(raw, name)
+    lines = decoded(raw, name)
     cf = CentresFile(name, [])
     first = next(lines, "")
     if first.strip() != MAGIC:
@@ -243,16 +224,8 @@ def _rows(reader: Iterator[list[str]], name: str, offset: int,
     ids = set(artefact.ids) if artefact is not None else None
     rows: list[CentreRow] = []
     where: list[int] = []
-    for cells in reader:
-        lineno = offset + reader.line_num  # type: ignore[attr-defined]
-        if not cells or (len(cells) == 1 and not cells[0].strip()):
-            continue
-        if len(cells) != len(HEADER):
-            raise CentresFileError(f"{name}: line {lineno}: expected {len(HEADER)} columns, got "
-                                   f"{len(cells)}")
-        if len(rows) >= MAX_CENTRE_ROWS:
-            raise CentresFileError(f"{name}: line {lineno}: more than {MAX_CENTRE_ROWS} centre "
-                                   "rows (the reader's ceiling)")
+    for lineno, cells in data_rows(reader, name, len(HEADER), offset, MAX_CENTRE_ROWS,
+                                   CentresFileError, "centre rows (the reader's ceiling)"):
         row = CentreRow(*(_cell(name, lineno, col, c) for col, c in zip(HEADER, cells,
                                                                          strict=True)))
         if ids is not None and row.ball not in ids:
@@ -278,13 +251,13 @@ def check_rows(cf: CentresFile, name: str) -> None:
     run = np.array([run_codes[r.run_id] for r in rows], np.int64)
     ball = np.array([ball_codes[r.ball] for r in rows], np.int64)
     col = {c: cf.column(c) for c in ("seq", "repeat", "pose")}
-    dup = _duplicate(np.stack([run, col["repeat"], col["pose"], ball], 1), lines)
+    dup = duplicate_key(np.stack([run, col["repeat"], col["pose"], ball], 1), lines)
     if dup is not None:
         r = rows[dup[1]]
         raise CentresFileError(f"{name}: line {file_line[dup[1]]}: ball {r.ball} pose {r.pose} "
                                f"repeat {r.repeat} run {r.run_id} duplicates line "
                                f"{file_line[dup[0]]}")
-    dup = _duplicate(np.stack([run, col["seq"]], 1), lines)
+    dup = duplicate_key(np.stack([run, col["seq"]], 1), lines)
     if dup is not None:
         r = rows[dup[1]]
         raise CentresFileError(f"{name}: line {file_line[dup[1]]}: seq {r.seq} of run "
@@ -298,10 +271,8 @@ def check_rows(cf: CentresFile, name: str) -> None:
                                    f"b={rows[j].b_cmd_deg:g}, c={rows[j].c_cmd_deg:g} on line "
                                    f"{file_line[j]} (a pose number is one indexation)")
     for code, run_id in enumerate(run_codes):
-        missing = _ranges(np.sort(col["seq"][run == code]))
-        if missing:
-            shown = ", ".join(missing[:8]) + (f" and {len(missing) - 8} more gaps"
-                                              if len(missing) > 8 else "")
+        shown = seq_gaps(col["seq"][run == code])
+        if shown:
             warnings.warn(f"{name}: run {run_id}: seq {shown} missing (centres lost or rows "
                           "deleted)", ProbeLogWarning, stacklevel=4)
 
@@ -327,9 +298,4 @@ def write_centres(path: Path | str | io.TextIOBase, rows: Iterable[CentreRow], *
     if repeatability_um is not None:
         out.append("# repeatability_um: " + ",".join(repr(float(x)) for x in repeatability_um))
     out.append(",".join(HEADER))
-    out += [",".join(_fmt(v) for v in astuple(r)) for r in rows]
-    text = "\n".join(out) + "\n"
-    if isinstance(path, io.TextIOBase):
-        path.write(text)
-    else:
-        Path(path).write_text(text, encoding="utf-8")
+    write_lines(path, out + [",".join(_fmt(v) for v in astuple(r)) for r in rows])

@@ -30,6 +30,7 @@ import re
 import warnings
 from array import array
 from collections.abc import Iterable, Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import astuple, dataclass, fields
 from pathlib import Path
 from typing import overload
@@ -51,22 +52,21 @@ MAX_LINE_BYTES = 4096
 MAX_ID_CHARS = 200
 MAX_ABS_MM, MAX_ABS_DEG = MAX_RESULT_MM, MAX_RESULT_DEG  # one definition: contracts.result_lines
 # (low, high) per float column; NaN fails every comparison, so it is refused as well
-_RANGES = {"t_s": (0.0, 1e8), "b_cmd_deg": (-MAX_ABS_DEG, MAX_ABS_DEG),
-           "c_cmd_deg": (-MAX_ABS_DEG, MAX_ABS_DEG), "b_deg": (-MAX_ABS_DEG, MAX_ABS_DEG),
-           "c_deg": (-MAX_ABS_DEG, MAX_ABS_DEG), "dir_x": (-10.0, 10.0),
-           "dir_y": (-10.0, 10.0), "dir_z": (-10.0, 10.0), "x_mm": (-MAX_ABS_MM, MAX_ABS_MM),
-           "y_mm": (-MAX_ABS_MM, MAX_ABS_MM), "z_mm": (-MAX_ABS_MM, MAX_ABS_MM),
-           "feed_mm_min": (0.0, 1e6)}
+RANGES = {"t_s": (0.0, 1e8), "b_cmd_deg": (-MAX_ABS_DEG, MAX_ABS_DEG),
+          "c_cmd_deg": (-MAX_ABS_DEG, MAX_ABS_DEG), "b_deg": (-MAX_ABS_DEG, MAX_ABS_DEG),
+          "c_deg": (-MAX_ABS_DEG, MAX_ABS_DEG), "dir_x": (-10.0, 10.0),
+          "dir_y": (-10.0, 10.0), "dir_z": (-10.0, 10.0), "x_mm": (-MAX_ABS_MM, MAX_ABS_MM),
+          "y_mm": (-MAX_ABS_MM, MAX_ABS_MM), "z_mm": (-MAX_ABS_MM, MAX_ABS_MM),
+          "feed_mm_min": (0.0, 1e6)}
 # ASCII only: Python's int()/float() also take '٣', '１', '1_0', ' nan', 'infinity'
-_INT_RE = re.compile(r"[ \t]*[+-]?[0-9]{1,9}[ \t]*")
-_FLOAT_RE = re.compile(r"[ \t]*[+-]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]{1,3})?[ \t]*")
-_CONTROL_RE = re.compile(r"[\x00-\x1f\x7f]")
+INT_RE = re.compile(r"[ \t]*[+-]?[0-9]{1,9}[ \t]*")
+FLOAT_RE = re.compile(r"[ \t]*[+-]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]{1,3})?[ \t]*")
+CONTROL_RE = re.compile(r"[\x00-\x1f\x7f]")
 
 
 class ProbeLogError(ConfigError):
-    """The log cannot be used as is; the message names file, line and column (or ball/pose).
-
-    A ``ConfigError``, so every ``rumba`` command ends on it with one ``error:`` line."""
+    """The log cannot be used as is; the message names file, line and column (or ball/pose);
+    a ``ConfigError``, so every ``rumba`` command ends on it with one ``error:`` line."""
 
 
 class ProbeLogWarning(UserWarning):
@@ -74,8 +74,8 @@ class ProbeLogWarning(UserWarning):
 
 
 @dataclass(frozen=True)
-class LogRow:
-    """One touch as in the CSV (columns in the same order)."""
+class PoseRow:
+    """The columns a touch row and a centre row (``contracts.centres_file``) start with."""
 
     run_id: str
     seq: int
@@ -84,6 +84,12 @@ class LogRow:
     pose: int
     b_cmd_deg: float
     c_cmd_deg: float
+
+
+@dataclass(frozen=True)
+class LogRow(PoseRow):
+    """One touch as in the CSV (columns in the same order)."""
+
     ball: str
     touch: int
     dir_x: float
@@ -101,14 +107,13 @@ COLUMN_TYPES = {f.name: f.type for f in fields(LogRow)}
 _STR_COLS = [i for i, h in enumerate(HEADER) if COLUMN_TYPES[h] == "str"]
 _INT_COLS = [i for i, h in enumerate(HEADER) if COLUMN_TYPES[h] == "int"]
 _FLOAT_COLS = [i for i, h in enumerate(HEADER) if COLUMN_TYPES[h] == "float"]
-_FLOAT_RANGES = [_RANGES[HEADER[i]] for i in _FLOAT_COLS]
+_FLOAT_RANGES = [RANGES[HEADER[i]] for i in _FLOAT_COLS]
 
 
 class ProbeLog(Sequence[LogRow]):
-    """The rows of a log, stored by column (run/ball as codes, numbers in typed arrays).
-
-    Behaves as a read-only sequence of ``LogRow`` (made on access) and compares equal to a
-    list of the same rows; ``column(name)`` gives one column as a numpy array."""
+    """The rows of a log, stored by column (run/ball as codes, numbers in typed arrays): a
+    read-only sequence of ``LogRow`` (made on access) that compares equal to a list of the
+    same rows; ``column(name)`` gives one column as a numpy array."""
 
     __slots__ = ("_codes", "_floats", "_ints", "_names", "lines")
 
@@ -186,7 +191,7 @@ class ProbeLog(Sequence[LogRow]):
         return names[np.frombuffer(self._codes[i], np.dtype("l"))]
 
 
-def _decoded(raw_lines: Iterable[bytes], name: str) -> Iterator[str]:
+def decoded(raw_lines: Iterable[bytes], name: str) -> Iterator[str]:
     """Bytes lines → text lines, refusing non-UTF-8, over-long lines and over-large files."""
     total = 0
     for n, raw in enumerate(raw_lines, start=1):
@@ -212,17 +217,17 @@ def _bad_cell(name: str, lineno: int, cells: Sequence[str]) -> ProbeLogError:
             s = cell.strip()
             if not s and col == "run_id":
                 return ProbeLogError(f"{name}: line {lineno}: column run_id: empty")
-            if len(s) > MAX_ID_CHARS or _CONTROL_RE.search(s):
+            if len(s) > MAX_ID_CHARS or CONTROL_RE.search(s):
                 return ProbeLogError(f"{name}: line {lineno}: column {col}: expected an id of "
                                      f"at most {MAX_ID_CHARS} printable characters, "
                                      f"got {s[:40]!r}")
         elif i in _INT_COLS:
-            if not _INT_RE.fullmatch(cell):
+            if not INT_RE.fullmatch(cell):
                 return ProbeLogError(f"{name}: line {lineno}: column {col}: expected an "
                                      f"integer, got {cell[:40]!r} (ASCII digits, < 1e9)")
         else:
-            lo, hi = _RANGES[col]
-            if not _FLOAT_RE.fullmatch(cell):
+            lo, hi = RANGES[col]
+            if not FLOAT_RE.fullmatch(cell):
                 return ProbeLogError(f"{name}: line {lineno}: column {col}: expected a finite "
                                      f"number, got {cell[:40]!r} (ASCII decimal)")
             if not lo <= float(cell) <= hi:
@@ -231,14 +236,7 @@ def _bad_cell(name: str, lineno: int, cells: Sequence[str]) -> ProbeLogError:
     return ProbeLogError(f"{name}: line {lineno}: cannot be read")  # not reached
 
 
-def _ranges(values: np.ndarray) -> list[str]:
-    """Sorted unique ints → the missing runs between them, as 'a' or 'a–b'."""
-    d = np.flatnonzero(np.diff(values) > 1)
-    return [f"{values[k] + 1}" if values[k + 1] - values[k] == 2
-            else f"{values[k] + 1}–{values[k + 1] - 1}" for k in d]
-
-
-def _duplicate(keys: np.ndarray, lines: np.ndarray) -> tuple[int, int] | None:
+def duplicate_key(keys: np.ndarray, lines: np.ndarray) -> tuple[int, int] | None:
     """(first line, repeating line) of the earliest repeated key row, or None."""
     order = np.lexsort(keys.T[::-1])  # stable: equal keys stay in file order
     k = keys[order]
@@ -258,46 +256,81 @@ def _check_keys(log: ProbeLog, name: str) -> None:
     ball = np.frombuffer(log._codes[HEADER.index("ball")], np.dtype("l")).astype(np.int64)
     col = {c: log.column(c) for c in ("seq", "repeat", "pose", "touch")}
     lines = np.frombuffer(log.lines, np.int64)
-    dup = _duplicate(np.stack([run, col["repeat"], col["pose"], ball, col["touch"]], 1), lines)
+    dup = duplicate_key(np.stack([run, col["repeat"], col["pose"], ball, col["touch"]], 1), lines)
     if dup is not None:
         r = log[int(np.flatnonzero(lines == dup[1])[0])]
         raise ProbeLogError(f"{name}: line {dup[1]}: touch {r.touch} of ball {r.ball} pose "
                             f"{r.pose} repeat {r.repeat} run {r.run_id} duplicates line "
                             f"{dup[0]}")
-    dup = _duplicate(np.stack([run, col["seq"]], 1), lines)
+    dup = duplicate_key(np.stack([run, col["seq"]], 1), lines)
     if dup is not None:
         r = log[int(np.flatnonzero(lines == dup[1])[0])]
         raise ProbeLogError(f"{name}: line {dup[1]}: seq {r.seq} of run {r.run_id} duplicates "
                             f"line {dup[0]} (two touches cannot share a sequence number)")
     for code, run_id in enumerate(log._names[0]):
-        missing = _ranges(np.sort(col["seq"][run == code]))
-        if missing:
-            shown = ", ".join(missing[:8]) + (f" and {len(missing) - 8} more gaps"
-                                              if len(missing) > 8 else "")
+        shown = seq_gaps(col["seq"][run == code])
+        if shown:
             warnings.warn(f"{name}: run {run_id}: seq {shown} missing (touches lost in "
                           "transfer, not triggered, or rows deleted); the ball-poses they "
                           "belong to are incomplete and left out", ProbeLogWarning, stacklevel=3)
 
 
+@contextmanager
+def byte_lines(path: Path | str, text: str | None, error: type[ProbeLogError] = ProbeLogError,
+               note: str = "") -> Iterator[Iterable[bytes]]:
+    """The file's byte lines (``text``'s if given); a file beyond ``MAX_LOG_BYTES`` (``note``
+    added to the message), or an ``OSError`` or ``ProbeLogError`` in the block, is one ``error``."""
+    name = str(path)
+    try:
+        with (open(path, "rb") if text is None
+              else io.BytesIO(text.encode("utf-8", "surrogatepass"))) as f:
+            size = os.fstat(f.fileno()).st_size if text is None else 0
+            if size > MAX_LOG_BYTES:
+                raise error(f"{name}: {size} bytes, more than the reader's ceiling of "
+                            f"{MAX_LOG_BYTES}{note}")
+            yield f
+    except OSError as e:
+        raise error(f"{name}: cannot read: {e.strerror or e}") from None
+    except error:
+        raise
+    except ProbeLogError as e:  # the shared line reader's (size, line length, UTF-8)
+        raise error(str(e)) from None
+
+
+def data_rows(reader: Iterator[list[str]], name: str, columns: int, offset: int, ceiling: int,
+              error: type[ProbeLogError], what: str) -> Iterator[tuple[int, list[str]]]:
+    """(file line, cells) of the non-blank rows; a wrong cell count or row ``ceiling`` errs."""
+    count = 0
+    for cells in reader:
+        lineno = offset + reader.line_num  # type: ignore[attr-defined]
+        if not cells or (len(cells) == 1 and not cells[0].strip()):
+            continue
+        if len(cells) != columns:
+            raise error(f"{name}: line {lineno}: expected {columns} columns, got {len(cells)}")
+        if count >= ceiling:
+            raise error(f"{name}: line {lineno}: more than {ceiling} {what}")
+        count += 1
+        yield lineno, cells
+
+
+def seq_gaps(seq: np.ndarray) -> str:
+    """The ranges missing between one run's ``seq`` numbers, the first eight named ('' if none)."""
+    v = np.sort(seq)
+    missing = [f"{v[k] + 1}" if v[k + 1] - v[k] == 2 else f"{v[k] + 1}–{v[k + 1] - 1}"
+               for k in np.flatnonzero(np.diff(v) > 1)]
+    return ", ".join(missing[:8]) + (f" and {len(missing) - 8} more gaps"
+                                     if len(missing) > 8 else "")
+
+
 def read_log(path: Path | str, artefact: Artefact | None = None,
              text: str | None = None) -> ProbeLog:
     """Read and validate a probing log (``text`` instead of the file content if given)."""
-    name = str(path)
-    try:
-        if text is None:
-            with open(path, "rb") as f:
-                size = os.fstat(f.fileno()).st_size
-                if size > MAX_LOG_BYTES:
-                    raise ProbeLogError(f"{name}: {size} bytes, more than the reader's ceiling "
-                                        f"of {MAX_LOG_BYTES} (one run is far smaller)")
-                return _read(f, name, artefact)
-        return _read(io.BytesIO(text.encode("utf-8", "surrogatepass")), name, artefact)
-    except OSError as e:
-        raise ProbeLogError(f"{name}: cannot read: {e.strerror or e}") from None
+    with byte_lines(path, text, note=" (one run is far smaller)") as raw:
+        return _read(raw, str(path), artefact)
 
 
 def _read(raw: Iterable[bytes], name: str, artefact: Artefact | None) -> ProbeLog:
-    reader = csv.reader(_decoded(raw, name))
+    reader = csv.reader(decoded(raw, name))
     try:
         first = next(reader, [])
         if len(first) != 1 or first[0].strip() != MAGIC:
@@ -318,19 +351,11 @@ def _rows(reader: Iterator[list[str]], name: str, artefact: Artefact | None) -> 
     ids = set(artefact.ids) if artefact is not None else None
     log = ProbeLog()
     lookup: dict[int, dict[str, int]] = {i: {} for i in _STR_COLS}
-    int_m, float_m, ctrl = _INT_RE.fullmatch, _FLOAT_RE.fullmatch, _CONTROL_RE.search
+    int_m, float_m, ctrl = INT_RE.fullmatch, FLOAT_RE.fullmatch, CONTROL_RE.search
     i_touch, i_pose, i_rep = (_INT_COLS.index(HEADER.index(c)) for c in ("touch", "pose",
                                                                           "repeat"))
-    for cells in reader:
-        lineno = reader.line_num  # type: ignore[attr-defined]
-        if not cells or (len(cells) == 1 and not cells[0].strip()):
-            continue
-        if len(cells) != len(HEADER):
-            raise ProbeLogError(f"{name}: line {lineno}: expected {len(HEADER)} columns, "
-                                f"got {len(cells)}")
-        if len(log) >= MAX_LOG_ROWS:
-            raise ProbeLogError(f"{name}: line {lineno}: more than {MAX_LOG_ROWS} touch rows "
-                                "(the reader's ceiling; one run is far smaller)")
+    for lineno, cells in data_rows(reader, name, len(HEADER), 0, MAX_LOG_ROWS, ProbeLogError,
+                                   "touch rows (the reader's ceiling; one run is far smaller)"):
         strs = [cells[i].strip() for i in _STR_COLS]
         try:
             if not (all(int_m(cells[i]) for i in _INT_COLS)
@@ -363,11 +388,12 @@ def _fmt(v: object) -> str:
 
 def write_log(path: Path | str | io.TextIOBase, rows: Iterable[LogRow]) -> None:
     """Write rows in the contract format (floats in shortest round-trip form)."""
-    out = [MAGIC, ",".join(HEADER)]
-    for r in rows:
-        out.append(",".join(_fmt(v) for v in astuple(r)))
-    text = "\n".join(out) + "\n"
-    if isinstance(path, io.TextIOBase):
-        path.write(text)
-    else:
-        Path(path).write_text(text, encoding="utf-8")
+    write_lines(path, [MAGIC, ",".join(HEADER),
+                       *(",".join(_fmt(v) for v in astuple(r)) for r in rows)])
+
+
+def write_lines(path: Path | str | io.TextIOBase, lines: Sequence[str]) -> None:
+    """Write ``lines`` (each then a newline) to a UTF-8 file or a text stream."""
+    text = "\n".join(lines) + "\n"
+    _ = path.write(text) if isinstance(path, io.TextIOBase) else Path(path).write_text(
+        text, encoding="utf-8")

@@ -4,7 +4,6 @@ strictness rule as one error naming file, line and column."""
 from __future__ import annotations
 
 import io
-import math
 import warnings
 from pathlib import Path
 
@@ -20,20 +19,7 @@ from contracts.centres_file import (
     write_centres,
 )
 from contracts.probing_log import ProbeLogWarning
-from contracts.setup_files import load_artefact
-
-CFG = Path(__file__).resolve().parents[1] / "config"
-ARTEFACT = load_artefact(CFG / "artefacts/thesis_4ball.yaml")
-
-
-def _rows(u: float = math.nan) -> list[CentreRow]:
-    out, seq = [], 0
-    for pose, (b, c) in enumerate([(0.0, 0.0), (30.0, 90.0)]):
-        for k, ball in enumerate(ARTEFACT.ids):
-            seq += 1
-            out.append(CentreRow("run-1", seq, 10.0 * seq, 0, pose, b, c, b + 1e-4, c, ball,
-                                 -100.0 + k, 50.5 - pose, 152.125, u))
-    return out
+from tests.reader_helpers import ARTEFACT, centre_rows
 
 
 def _text(rows: list[CentreRow], **kw) -> str:
@@ -49,7 +35,7 @@ def _error(text: str) -> str:
 
 
 def test_round_trip_with_keys_and_comments(tmp_path: Path) -> None:
-    rows = _rows()
+    rows = centre_rows()
     p = tmp_path / "c.csv"
     write_centres(p, rows, frame="instrument", instrument="CMM PMM-C 700", source="lab run 7",
                   repeatability_um=(0.3, 0.4, 0.2), comments=["calibrated 2024-05"])
@@ -58,12 +44,12 @@ def test_round_trip_with_keys_and_comments(tmp_path: Path) -> None:
     assert cf.source == "lab run 7" and cf.repeatability_um == (0.3, 0.4, 0.2)
     assert cf.comments == ["calibrated 2024-05"] and not cf.u_stated
     assert cf.lines == list(range(8, 16))  # magic, comment, 4 keys, header: rows from line 8
-    stated = read_centres("c.csv", text=_text(_rows(u=0.5)))
+    stated = read_centres("c.csv", text=_text(centre_rows(u=0.5)))
     assert stated.u_stated and stated.column("u_um").tolist() == [0.5] * 8
 
 
 def test_header_and_preamble_errors() -> None:
-    good = _text(_rows())
+    good = _text(centre_rows())
     assert "line 1" in _error("# rumba-probing-log v1\n" + good.split("\n", 1)[1])
     assert "line 2: frame: expected one of machine, instrument" in _error(
         good.replace("# frame: machine", "# frame: cmm"))
@@ -87,12 +73,12 @@ def test_header_and_preamble_errors() -> None:
     ("152.125,\n", "152.125,0\n", "column u_um: 0 outside (0, 10000]"),
 ])
 def test_cell_errors_name_line_and_column(old: str, new: str, want: str) -> None:
-    msg = _error(_text(_rows()).replace(old, new, 1))
+    msg = _error(_text(centre_rows()).replace(old, new, 1))
     assert want in msg and "c.csv: line " in msg
 
 
 def test_ambiguous_data_is_refused_naming_both_lines() -> None:
-    rows = _rows()
+    rows = centre_rows()
     text = _text(rows)
     lines = text.splitlines()
     first = len(lines) - 8  # the line of row 0 (1-based: index + 1)
@@ -107,16 +93,16 @@ def test_ambiguous_data_is_refused_naming_both_lines() -> None:
 
 
 def test_seq_gap_is_a_warning_and_ceilings(monkeypatch) -> None:
-    rows = [r for r in _rows() if r.seq != 3]
+    rows = [r for r in centre_rows() if r.seq != 3]
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         cf = read_centres("c.csv", ARTEFACT, text=_text(rows))
     assert len(cf.rows) == 7
     assert [str(w.message) for w in caught if w.category is ProbeLogWarning] == [
         "c.csv: run run-1: seq 3 missing (centres lost or rows deleted)"]
-    assert "longer than 4096 bytes" in _error(_text(_rows()) + "#" * 5000 + "\n")
+    assert "longer than 4096 bytes" in _error(_text(centre_rows()) + "#" * 5000 + "\n")
     monkeypatch.setattr(centres_file, "MAX_CENTRE_ROWS", 5)
-    assert "more than 5 centre rows" in _error(_text(_rows()))
+    assert "more than 5 centre rows" in _error(_text(centre_rows()))
 
 
 def test_header_constant_is_the_documented_contract() -> None:

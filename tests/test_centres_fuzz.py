@@ -17,14 +17,13 @@ from hypothesis import strategies as st
 from contracts.centres_file import HEADER, CentresFile, CentresFileError, write_centres
 from contracts.importers import import_centres
 from contracts.probing_log import ProbeLogError, ProbeLogWarning
-from contracts.setup_files import load_artefact, load_machine
+from contracts.setup_files import load_machine
 from daemon.centres_input import load
+from tests.reader_helpers import ARTEFACT, centre_rows, mutate_line, mutate_whole
 from tests.regen_centres_fixtures import centres
-from tests.test_centres_file import _rows
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT / "tests" / "data" / "centres"
-ARTEFACT = load_artefact(ROOT / "config/artefacts/thesis_4ball.yaml")
 MACHINE, _ = load_machine(ROOT / "config/machines/thesis_wcbxfzyt.yaml")
 POSES = centres()[0]
 SETTINGS = settings(max_examples=120, deadline=None, derandomize=True,
@@ -52,35 +51,17 @@ _SEP = re.compile(rb"([,=])")
 def _mutate(data: bytes, ops: list[tuple]) -> bytes:
     lines = data.split(b"\n")
     for op in ops:
-        kind, k = op[0], op[1] % max(len(lines), 1)
-        if kind == "cell":  # replace one field between separators (, or =)
+        if op[0] == "cell":  # replace one field between separators (, or =)
+            k = op[1] % len(lines)
             parts = _SEP.split(lines[k])
             j = 2 * (op[2] % (len(parts) // 2 + 1))
             parts[min(j, len(parts) - 1)] = op[3].encode("utf-8", "surrogatepass")
             lines[k] = b"".join(parts)
-        elif kind == "drop":
-            del lines[k]
-        elif kind == "dup":
-            lines.insert(k, lines[k])
-        elif kind == "swap":
-            j = op[2] % len(lines)
-            lines[k], lines[j] = lines[j], lines[k]
-        elif kind == "bytes":
-            pos = op[2] % (len(lines[k]) + 1)
-            lines[k] = lines[k][:pos] + op[3] + lines[k][pos:]
-        elif kind == "long":
-            lines[k] = lines[k] + b"9" * op[2]
-        elif kind == "bom":
-            lines[0] = b"\xef\xbb\xbf" + lines[0]
+        else:
+            mutate_line(lines, op)
         if not lines:
             break
-    out = b"\n".join(lines)
-    for op in ops:
-        if op[0] == "crlf":
-            out = out.replace(b"\n", b"\r\n")
-        elif op[0] == "truncate":
-            out = out[:op[1] % (len(out) + 1)]
-    return out
+    return mutate_whole(b"\n".join(lines), ops)
 
 
 def _check(path: Path, fmt: str) -> CentresFile | None:
@@ -119,7 +100,7 @@ def _downstream(path: Path, fmt: str) -> None:
 @pytest.fixture(scope="module")
 def csv_bytes(tmp_path_factory) -> bytes:
     p = tmp_path_factory.mktemp("c") / "c.csv"
-    write_centres(p, _rows(u=0.5), repeatability_um=(0.3, 0.3, 0.3))
+    write_centres(p, centre_rows(u=0.5), repeatability_um=(0.3, 0.3, 0.3))
     return p.read_bytes()
 
 
@@ -157,19 +138,13 @@ def test_an_invalid_number_is_never_accepted(csv_bytes, tmp_path, row, col, cell
         assert getattr(cf.rows[row], col) == float(cell)
 
 
+@pytest.mark.parametrize(("fmt", "sample"), [("kinopt", "kinopt_B1.nc"),
+                                             ("dmis", "dmis_cmm.dmo")])
 @SETTINGS
-@given(ops=st.lists(_MUTATION, min_size=1, max_size=4), fmt=st.sampled_from(["auto", "kinopt"]))
-def test_mutated_kinopt_program_is_read_or_refused(tmp_path, ops, fmt) -> None:
-    path = tmp_path / "fuzz.nc"
-    path.write_bytes(_mutate((DATA / "kinopt_B1.nc").read_bytes(), ops))
-    if _check(path, fmt) is not None and fmt == "kinopt":
-        _downstream(path, fmt)
-
-
-@SETTINGS
-@given(ops=st.lists(_MUTATION, min_size=1, max_size=4), fmt=st.sampled_from(["auto", "dmis"]))
-def test_mutated_dmis_results_are_read_or_refused(tmp_path, ops, fmt) -> None:
-    path = tmp_path / "fuzz.dmo"
-    path.write_bytes(_mutate((DATA / "dmis_cmm.dmo").read_bytes(), ops))
-    if _check(path, fmt) is not None and fmt == "dmis":
+@given(ops=st.lists(_MUTATION, min_size=1, max_size=4), auto=st.sampled_from([True, False]))
+def test_mutated_instrument_file_is_read_or_refused(tmp_path, fmt, sample, ops, auto) -> None:
+    """A KinOpt program or DMIS results file, read as ``auto`` or as its own format."""
+    path = tmp_path / f"fuzz{Path(sample).suffix}"
+    path.write_bytes(_mutate((DATA / sample).read_bytes(), ops))
+    if _check(path, "auto" if auto else fmt) is not None and not auto:
         _downstream(path, fmt)

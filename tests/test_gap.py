@@ -4,12 +4,11 @@
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
 
-from contracts.setup_files import load_artefact, load_machine, load_plan
+from contracts.setup_files import load_machine, load_plan
 from identification.effects import make_effect
 from identification.gap import TouchData, diagnose, selfcheck
 from identification.gap.data import group_touches
@@ -18,26 +17,14 @@ from identification.gap.simlog import Truth, simulate
 from identification.gap.twin import fit_twin
 from identification.kinematics import ChainState, rotary_columns, solve_centre
 from identification.model import predict
+from tests.gap_helpers import CONFIG, STYLUS_R, annex_b_setup, gap_truth
 
-CONFIG = Path(__file__).resolve().parents[1] / "config"
-STYLUS_R = 3.0
 KEYS = {"noise_floor_um", "baseline", "candidates", "verdict", "location"}
 
 
 @pytest.fixture(scope="module")
 def setup():
-    machine, _ = load_machine(CONFIG / "machines/thesis_wcbxfzyt.yaml")
-    artefact = load_artefact(CONFIG / "artefacts/thesis_4ball.yaml")
-    plan = load_plan(CONFIG / "plans/thesis_annexB_14poses.yaml")
-    return machine, artefact, [(p.b_deg, p.c_deg) for p in plan.poses]
-
-
-def _truth(machine, artefact, seed=1, **kw) -> Truth:
-    rng = np.random.default_rng(seed)
-    links = {"EB0Z": -12e-6, "EA0Y": -24e-6, "EC0Y": 17e-6, "EC0B": -23e-6, "EA0B": 2e-6,
-             "EA0C": -19e-6, "EB0C": 26e-6, "EX0C": -0.106}  # thesis Table B.2
-    return Truth(links, rng.normal(0, 0.2, (len(artefact.balls), 3)), rng.normal(0, 0.05, 3),
-                 **kw)
+    return annex_b_setup()
 
 
 def test_exact_touches_fit_and_uniform_offsets_vanish(setup):
@@ -73,7 +60,7 @@ def test_twin_predicts_the_sphere_distortion_of_a_squareness(setup):
 
 def test_null_is_none_and_report_keys(setup):
     machine, artefact, poses = setup
-    data = simulate(machine, artefact, poses, _truth(machine, artefact), STYLUS_R, 0.5, seed=4)
+    data = simulate(machine, artefact, poses, gap_truth(artefact), STYLUS_R, 0.5, seed=4)
     rep = diagnose(machine, artefact, data, STYLUS_R)
     assert set(rep) >= KEYS
     assert set(rep["baseline"]) >= {"train_rms_um", "holdout_rms_um", "holdout_max_um"}
@@ -91,7 +78,7 @@ def test_null_is_none_and_report_keys(setup):
 def test_withheld_drift_is_found_and_quantified(setup):
     machine, artefact, poses = setup
     eff = make_effect("thermal_drift", "Y", machine)
-    truth = _truth(machine, artefact, effects=[(eff, np.array([6.0]))])  # 6 µm/h, 0.5 h run
+    truth = gap_truth(artefact, effects=[(eff, np.array([6.0]))])  # 6 µm/h, 0.5 h run
     data = simulate(machine, artefact, poses, truth, STYLUS_R, 0.5, seed=5)
     rep = diagnose(machine, artefact, data, STYLUS_R)
     v = rep["verdict"]
@@ -132,7 +119,7 @@ def test_too_few_poses_and_incomplete_groups(setup):
     data = simulate(machine, artefact, poses[:3], Truth(), STYLUS_R, 0.5, seed=1)
     with pytest.raises(ValueError, match="at least 4"):
         diagnose(machine, artefact, data, STYLUS_R)
-    data = simulate(machine, artefact, poses, _truth(machine, artefact), STYLUS_R, 0.5, seed=2)
+    data = simulate(machine, artefact, poses, gap_truth(artefact), STYLUS_R, 0.5, seed=2)
     keep = np.ones(len(data), bool)
     keep[7] = False  # one touch of one ball-pose lost (an aborted cycle)
     cut = TouchData(*(getattr(data, f)[keep] for f in TouchData.__dataclass_fields__))
@@ -147,7 +134,7 @@ def test_separate_holdout_annex_b_split(setup):
     est = [i for i, p in enumerate(plan.poses) if p.role == "estimate"]
     val = [i for i, p in enumerate(plan.poses) if p.role == "validate"]
     eff = make_effect("gravity_sag", None, machine)
-    truth = _truth(machine, artefact, effects=[(eff, np.array([4.0]))])
+    truth = gap_truth(artefact, effects=[(eff, np.array([4.0]))])
     train = simulate(machine, artefact, [poses[i] for i in est], truth, STYLUS_R, 0.5, seed=8)
     hold = simulate(machine, artefact, [poses[i] for i in val], truth, STYLUS_R, 0.5, seed=9)
     rep = diagnose(machine, artefact, train, STYLUS_R, holdout=hold)
@@ -162,8 +149,7 @@ def test_two_effects_are_selected_together(setup):
     machine, artefact, poses = setup
     drift = make_effect("thermal_drift", "X", machine)
     sag = make_effect("gravity_sag", None, machine)
-    truth = _truth(machine, artefact, effects=[(drift, np.array([5.0])),
-                                               (sag, np.array([3.0]))])
+    truth = gap_truth(artefact, effects=[(drift, np.array([5.0])), (sag, np.array([3.0]))])
     data = simulate(machine, artefact, poses, truth, STYLUS_R, 0.5, seed=10)
     rep = diagnose(machine, artefact, data, STYLUS_R)
     chosen = {(s["effect"], s["axis"]) for s in rep["verdict"]["selected"]}
@@ -176,7 +162,7 @@ def test_an_effect_the_twin_already_models_is_no_gap(setup):
 
     machine, artefact, poses = setup
     sag = make_effect("gravity_sag", None, machine)
-    truth = _truth(machine, artefact, effects=[(sag, np.array([4.0]))])
+    truth = gap_truth(artefact, effects=[(sag, np.array([4.0]))])
     data = simulate(machine, artefact, poses, truth, STYLUS_R, 0.5, seed=11)
     rep = diagnose(machine, artefact, data, STYLUS_R,
                    options=Options(known=[(sag, np.array([4.0]))]))
@@ -192,7 +178,7 @@ def test_repeats_set_the_floor_when_indexing_is_not_repeatable(setup):
     runs = []
     for r in range(2):
         jitter = {k: rng.normal(0, 1.5e-3, 3) for k in range(len(poses))}
-        truth = _truth(machine, artefact, pose_offsets_mm=jitter)
+        truth = gap_truth(artefact, pose_offsets_mm=jitter)
         d = simulate(machine, artefact, poses, truth, STYLUS_R, 0.5, seed=20 + r)
         d.repeat[:] = r
         d.t_s += r * (d.t_s.max() + 60.0)

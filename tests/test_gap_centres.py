@@ -16,20 +16,23 @@ from daemon.cli import main
 from identification.effects import make_effect
 from identification.gap import Options, diagnose
 from identification.gap.simlog import simulate
-from tests import test_gap
-from tests.test_gap import CONFIG, STYLUS_R, _truth
-from tests.test_gap_cli import _rows
+from tests import gap_helpers
+from tests.gap_helpers import STYLUS_R, annex_b_setup, gap_truth, log_rows
 
-setup = test_gap.setup  # machine, artefact, annex-B poses
-MACHINE = str(CONFIG / "machines/thesis_wcbxfzyt.yaml")
-ARTEFACT = str(CONFIG / "artefacts/thesis_4ball.yaml")
+MACHINE = str(gap_helpers.MACHINE)
+ARTEFACT = str(gap_helpers.ARTEFACT)
 # 0.5 µm trigger scatter along the approach → centre std of a 4 diagonal + pole fit (synth.py)
 CENTRE_STD_UM = "0.354,0.354,0.559"
 
 
+@pytest.fixture(scope="module")
+def setup():
+    return annex_b_setup()
+
+
 def _centres(tmp_path: Path, data, artefact, name: str = "c") -> Path:
     log, out = tmp_path / f"{name}.log.csv", tmp_path / f"{name}.csv"
-    write_log(log, _rows(data, artefact))
+    write_log(log, log_rows(data, artefact))
     assert main(["analyze", "--log", str(log), "--machine", MACHINE, "--artefact", ARTEFACT,
                  "--stylus-diameter", str(2 * STYLUS_R), "--write-centres", str(out)]) == 0
     return out
@@ -38,9 +41,8 @@ def _centres(tmp_path: Path, data, artefact, name: str = "c") -> Path:
 def test_exact_touches_take_the_floor_from_a_stated_repeatability(setup):
     machine, artefact, poses = setup
     eff = make_effect("gravity_sag", None, machine)
-    data = simulate(machine, artefact, poses, _truth(machine, artefact,
-                                                     effects=[(eff, np.array([3.0]))]),
-                    STYLUS_R, 0.0, seed=1)
+    truth = gap_truth(artefact, effects=[(eff, np.array([3.0]))])
+    data = simulate(machine, artefact, poses, truth, STYLUS_R, 0.0, seed=1)
     # before: a floor of 0.001 µm from the zero form residual, any gap "× 1e10 the floor"
     with pytest.raises(ValueError, match=r"touches are exact.*--repeatability-um"):
         diagnose(machine, artefact, data, STYLUS_R)
@@ -58,7 +60,7 @@ def test_gap_on_centres_names_the_effect_and_what_centres_cannot_see(setup, tmp_
     machine, artefact, poses = setup
     eff = make_effect("gravity_sag", None, machine)
     data = simulate(machine, artefact, poses,
-                    _truth(machine, artefact, effects=[(eff, np.array([3.0]))]),
+                    gap_truth(artefact, effects=[(eff, np.array([3.0]))]),
                     STYLUS_R, 0.5, seed=4)
     centres = _centres(tmp_path, data, artefact)
     out = tmp_path / "gap.json"
@@ -77,7 +79,7 @@ def test_gap_on_centres_names_the_effect_and_what_centres_cannot_see(setup, tmp_
 
 def test_gap_on_centres_with_repeats_and_without(setup, tmp_path, capsys):
     machine, artefact, poses = setup
-    truth = _truth(machine, artefact)
+    truth = gap_truth(artefact)
     runs = [simulate(machine, artefact, poses, truth, STYLUS_R, 0.5, seed=40 + k)
             for k in range(2)]
     one = _centres(tmp_path, runs[0], artefact, "one")

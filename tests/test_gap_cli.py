@@ -7,38 +7,27 @@ import json
 import numpy as np
 import pytest
 
-from contracts.probing_log import LogRow, write_log
+from contracts.probing_log import write_log
 from contracts.setup_files import load_artefact, load_machine
 from daemon.cli import main
 from identification.effects import make_effect
 from identification.gap import diagnose
 from identification.gap.simlog import simulate
-from tests import test_gap
-from tests.test_gap import CONFIG, STYLUS_R, _truth
-
-setup = test_gap.setup  # the machine/artefact/plan fixture of test_gap.py, shared
+from tests.gap_helpers import CONFIG, STYLUS_R, annex_b_setup, gap_json, gap_truth, log_rows
 
 
-def _rows(data, artefact, run="r1") -> list[LogRow]:
-    out = []
-    for i in range(len(data)):
-        x, y, z = data.xyz_mm[i]
-        d = data.direction[i]
-        out.append(LogRow(run, i, float(data.t_s[i]), int(data.repeat[i]), int(data.pose[i]),
-                          float(data.b_deg[i]), float(data.c_deg[i]),
-                          artefact.ids[int(data.ball[i])], int(data.touch[i]), float(d[0]),
-                          float(d[1]), float(d[2]), float(x), float(y), float(z),
-                          float(data.b_deg[i]), float(data.c_deg[i]), 300.0))
-    return out
+@pytest.fixture(scope="module")
+def setup():
+    return annex_b_setup()
 
 
 def test_cli_writes_json_and_html(setup, tmp_path, capsys):
     machine, artefact, poses = setup
     eff = make_effect("gravity_sag", None, machine)
-    truth = _truth(machine, artefact, effects=[(eff, np.array([3.0]))])
+    truth = gap_truth(artefact, effects=[(eff, np.array([3.0]))])
     data = simulate(machine, artefact, poses, truth, STYLUS_R, 0.5, seed=6)
     log = tmp_path / "log.csv"
-    write_log(log, _rows(data, artefact))
+    write_log(log, log_rows(data, artefact))
     out_json, out_html = tmp_path / "gap.json", tmp_path / "gap.html"
     code = main(["gap", "--log", str(log), "--machine",
                  str(CONFIG / "machines/thesis_wcbxfzyt.yaml"), "--artefact",
@@ -68,12 +57,12 @@ def test_cli_errors_are_one_line(tmp_path, capsys):
 
 def test_cli_holdout_log(setup, tmp_path, capsys):
     machine, artefact, poses = setup
-    truth = _truth(machine, artefact)
+    truth = gap_truth(artefact)
     logs = []
     for k, sub in enumerate((poses[::2], poses[1::2])):
         data = simulate(machine, artefact, sub, truth, STYLUS_R, 0.5, seed=30 + k)
         logs.append(tmp_path / f"log{k}.csv")
-        write_log(logs[-1], _rows(data, artefact, run=f"r{k}"))
+        write_log(logs[-1], log_rows(data, artefact, run=f"r{k}"))
     out = tmp_path / "gap.json"
     assert main(["gap", "--log", str(logs[0]), "--holdout", str(logs[1]), "--machine",
                  str(CONFIG / "machines/thesis_wcbxfzyt.yaml"), "--artefact",
@@ -89,11 +78,11 @@ def _two_effect_log(setup, tmp_path):
     machine, artefact, poses = setup
     rp = make_effect("rotary_positioning", "C", machine)
     sag = make_effect("gravity_sag", None, machine)
-    truth = _truth(machine, artefact, effects=[(rp, np.array([8.0, 0.0, 0.0, 15.0, -10.0])),
-                                               (sag, np.array([3.0]))])
+    truth = gap_truth(artefact, effects=[(rp, np.array([8.0, 0.0, 0.0, 15.0, -10.0])),
+                                         (sag, np.array([3.0]))])
     data = simulate(machine, artefact, poses, truth, STYLUS_R, 0.5, seed=40)
     log = tmp_path / "two.csv"
-    write_log(log, _rows(data, artefact))
+    write_log(log, log_rows(data, artefact))
     return data, log
 
 
@@ -162,11 +151,10 @@ def test_cli_uses_the_machine_file_gravity(setup, tmp_path):
     machine, artefact, poses = setup
     g = [0.0, -0.6, -0.8]
     sag = make_effect("gravity_sag", None, machine, gravity_dir=g)
-    data = simulate(machine, artefact, poses, _truth(machine, artefact, seed=0,
-                                                     effects=[(sag, np.array([4.0]))]),
-                    STYLUS_R, 0.5, seed=60)
+    truth = gap_truth(artefact, seed=0, effects=[(sag, np.array([4.0]))])
+    data = simulate(machine, artefact, poses, truth, STYLUS_R, 0.5, seed=60)
     log = tmp_path / "tilted.csv"
-    write_log(log, _rows(data, artefact))
+    write_log(log, log_rows(data, artefact))
     doc = yaml.safe_load((CONFIG / "machines/thesis_wcbxfzyt.yaml").read_text())
     doc["gravity"] = [0.0, -3.0, -4.0]  # normalised on load
     mfile = tmp_path / "tilted.yaml"
@@ -209,12 +197,7 @@ def test_repeats_on_the_simulated_cnc_floor_per_axis_and_without_the_drift(effec
     truth = TruthModel.build(m, mf, a, errors_from_dict({**errors, "effects": effects}))
     res = run_sync(truth, get_dialect("linuxcnc").render(build_program(m, mf, a, plan)),
                    "linuxcnc", seed=2)
-    log, out = tmp_path / "rep2.csv", tmp_path / "gap.json"
-    write_log(log, res.rows)
-    assert main(["gap", "--log", str(log), "--machine",
-                 str(CONFIG / "machines/thesis_wcbxfzyt.yaml"), "--artefact",
-                 str(CONFIG / "artefacts/thesis_4ball.yaml"), "--json", str(out)]) == 0
-    rep = json.loads(out.read_text())
+    rep = gap_json(tmp_path / "rep2.csv", res.rows, tmp_path / "gap.json")
     assert (rep["verdict"]["effect"], rep["verdict"]["axis"]) == want
     assert 0.6 < rep["noise"]["repeat_floor_um"] < 1.0  # the §3.4 scatter, drift removed
     assert rep["verdict"]["holdout_rms_after_um"] < 1.3 * rep["noise_floor_um"]

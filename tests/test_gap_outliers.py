@@ -6,38 +6,24 @@ from __future__ import annotations
 
 import json
 from dataclasses import replace
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 from contracts.probing_log import read_log, write_log
-from contracts.setup_files import load_artefact, load_machine, load_plan
 from daemon.cli import main
 from identification.effects import make_effect
 from identification.gap import diagnose
 from identification.gap.locate import MAX_SHOWN, shown_locations
-from identification.gap.simlog import Truth, simulate
+from identification.gap.simlog import simulate
+from tests.gap_helpers import CONFIG, STYLUS_R, annex_b_setup, gap_truth
 
-CONFIG = Path(__file__).resolve().parents[1] / "config"
-STYLUS_R = 3.0
 EXAMPLE = CONFIG / "examples/thesis_annexB_14poses.csv"
 
 
 @pytest.fixture(scope="module")
 def setup():
-    machine, _ = load_machine(CONFIG / "machines/thesis_wcbxfzyt.yaml")
-    artefact = load_artefact(CONFIG / "artefacts/thesis_4ball.yaml")
-    plan = load_plan(CONFIG / "plans/thesis_annexB_14poses.yaml")
-    return machine, artefact, [(p.b_deg, p.c_deg) for p in plan.poses]
-
-
-def _truth(artefact, seed: int, effects=()) -> Truth:
-    rng = np.random.default_rng(seed)
-    links = {"EB0Z": -12e-6, "EA0Y": -24e-6, "EC0Y": 17e-6, "EC0B": -23e-6, "EA0B": 2e-6,
-             "EA0C": -19e-6, "EB0C": 26e-6, "EX0C": -0.106}  # thesis Table B.2
-    return Truth(links, rng.normal(0, 0.2, (len(artefact.balls), 3)), rng.normal(0, 0.05, 3),
-                 list(effects))
+    return annex_b_setup()
 
 
 def _chip(data, pose: int, ball: int, touch: int, um: float) -> None:
@@ -49,7 +35,7 @@ def _chip(data, pose: int, ball: int, touch: int, um: float) -> None:
 @pytest.mark.parametrize(("touch", "stage"), [(3, "sphere"), (5, "centre")])
 def test_a_chip_is_its_own_verdict_and_leaves_the_floor_alone(setup, touch, stage):
     machine, artefact, poses = setup
-    data = simulate(machine, artefact, poses, _truth(artefact, 1), STYLUS_R, 0.5, seed=4)
+    data = simulate(machine, artefact, poses, gap_truth(artefact, 1), STYLUS_R, 0.5, seed=4)
     clean = diagnose(machine, artefact, data, STYLUS_R)
     assert clean["verdict"]["effect"] == "none" and clean["outliers"] == []
     _chip(data, 6, 2, touch, 15.0)
@@ -71,8 +57,8 @@ def test_a_chip_is_its_own_verdict_and_leaves_the_floor_alone(setup, touch, stag
 def test_a_real_effect_is_still_found_beside_a_chip(setup):
     machine, artefact, poses = setup
     drift = make_effect("thermal_drift", "Y", machine)
-    data = simulate(machine, artefact, poses, _truth(artefact, 2, [(drift, np.array([6.0]))]),
-                    STYLUS_R, 0.5, seed=5)
+    truth = gap_truth(artefact, 2, effects=[(drift, np.array([6.0]))])
+    data = simulate(machine, artefact, poses, truth, STYLUS_R, 0.5, seed=5)
     _chip(data, 9, 0, 1, 20.0)
     rep = diagnose(machine, artefact, data, STYLUS_R)
     assert rep["verdict"]["effect"] == "measurement_outlier"

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import asyncio
 import json
-import shutil
 import time
 
 import aiohttp
@@ -14,7 +13,7 @@ import pytest
 from contracts.yaml_files import ConfigError
 from daemon.daemon_yaml import load_daemon_config
 from daemon.service import Service
-from tests.browser import Cdp
+from tests.browser import chromium
 from tests.daemon_helpers import thesis_rows, thesis_setup, write_daemon_yaml
 from tests.replay_link import ReplayLink, prepare_from_rows
 
@@ -154,93 +153,59 @@ async def test_browser_start_progress_verdict_report(sim_service, tmp_path):
     # An older run, so the history table has a row at page load.
     service.store.new_run("20200101T000000Z-0a0a", "mill1", "import", state="IMPORTED",
                           imported=True, started_at=time.time() - 86400)
-    exe = shutil.which("chromium") or shutil.which("chromium-browser")
-    if exe is None:
-        pytest.skip("chromium not installed (make peers)")
-    profile = tmp_path / "profile"
-    proc = await asyncio.create_subprocess_exec(
-        exe, "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-        "--disable-background-networking", "--disable-component-update", "--disable-sync",
-        f"--user-data-dir={profile}", "--remote-debugging-port=0", "--window-size=1280,900",
-        "about:blank", stdout=asyncio.subprocess.DEVNULL, stderr=asyncio.subprocess.DEVNULL)
-    try:
-        port_file = profile / "DevToolsActivePort"
-        async with asyncio.timeout(30):
-            while not port_file.is_file() or len(port_file.read_text().split()) < 2:
-                await asyncio.sleep(0.05)
-        port, path = port_file.read_text().split()[:2]
-        async with aiohttp.ClientSession() as http, \
-                http.ws_connect(f"ws://127.0.0.1:{port}{path}", max_msg_size=0) as ws:
-            cdp = Cdp(ws)
-            target = (await cdp.call("Target.createTarget", url="about:blank"))["targetId"]
-            sid = (await cdp.call("Target.attachToTarget", targetId=target,
-                                  flatten=True))["sessionId"]
-            await cdp.call("Page.enable", sid)
-            await cdp.call("Page.navigate", sid, url=service.hmi_url)
-            await cdp.wait_for(sid, "location.pathname === '/login' && "
-                                    "document.readyState === 'complete'")
-            await cdp.eval(sid, f"document.getElementById('token').value = '{TOKEN}';"
-                                "document.querySelector('form').submit(); true")
-            await cdp.wait_for(sid, "!!document.querySelector('.machine .start')")
-            await cdp.wait_for(sid, "document.getElementById('conn').textContent === 'live'")
-            assert await cdp.eval(sid, "document.querySelector('.machine .state').textContent"
-                                  ) == "IDLE"
-            rows = "[...document.querySelectorAll('#history tbody tr')]"
-            await cdp.wait_for(sid, f"{rows}.length > 0")
-            assert await cdp.eval(sid, f"{rows}.map(r => r.dataset.run)") == [
-                "20200101T000000Z-0a0a"]
-            # A mark on this document: still there at the end = no navigation, no reload.
-            await cdp.eval(sid, "window.rumbaNoReload = 1; true")
-            await cdp.eval(sid, "document.querySelector('.machine .start').click(); true")
-            progress = set()
-            async with asyncio.timeout(60):
-                while True:
-                    st = await cdp.eval(sid, "[document.querySelector('.machine .state')"
-                                             ".textContent, document.querySelector("
-                                             "'.machine .progress-text').textContent]")
-                    if st[0] == "CAPTURE":
-                        progress.add(st[1])
-                        if len(progress) == 5:
-                            shot = await cdp.call("Page.captureScreenshot", sid)
-                            (tmp_path / "hmi-running.png").write_bytes(
-                                __import__("base64").b64decode(shot["data"]))
-                    if st[0] == "IDLE" and progress:
-                        break
-                    await asyncio.sleep(0.03)
-            assert len(progress) >= 3, progress  # the progress text advanced while running
-            assert any("touches" in p and "left" in p for p in progress)
-            badge = await cdp.wait_for(sid, "document.querySelector('.machine .badge')"
-                                            ".textContent.replace('none yet', '')")
-            assert badge == "PASS"
-            assert await cdp.eval(sid, "getComputedStyle(document.querySelector("
-                                       "'.machine .badge')).backgroundColor"
-                                  ) == "rgb(27, 135, 63)"
-            run_id = service.sessions["mill1"].run_id
-            assert run_id and run_id != "20200101T000000Z-0a0a"
-            # The new run's row arrives in the open page once the run has ended (DONE, PASS).
-            row = (f"{rows}.filter(r => r.dataset.run === '{run_id}')"
-                   ".map(r => [...r.cells].map(c => c.textContent))[0]")
-            cells = await cdp.wait_for(sid, f"(({row}) || [])[3] === 'DONE' && ({row})", 10)
-            assert cells[1:5] == ["mill1", "hmi", "DONE", "PASS"], cells
-            assert await cdp.eval(sid, f"{rows}.map(r => r.dataset.run)") == [
-                run_id, "20200101T000000Z-0a0a"]
-            assert await cdp.eval(sid, "window.rumbaNoReload") == 1
-            shot = await cdp.call("Page.captureScreenshot", sid)
-            (tmp_path / "hmi-done.png").write_bytes(__import__("base64").b64decode(shot["data"]))
-            href = await cdp.eval(sid, "document.querySelector('.machine .report').href")
-            assert href.endswith(".html")
-            await cdp.call("Page.navigate", sid, url=href)
-            await cdp.wait_for(sid, "document.readyState === 'complete' && "
-                                    "document.title.startsWith('rumba run')")
-            assert await cdp.eval(sid, "document.querySelector('.badge').textContent") == "PASS"
-            n_img = await cdp.eval(sid, "[...document.images].filter(i => i.naturalWidth > 0)"
-                                        ".length")
-            assert n_img >= 3  # embedded plots decoded
-            await cdp.call("Browser.close")
-    finally:
-        if proc.returncode is None:
-            proc.kill()
-        await proc.wait()
+    async with chromium(tmp_path / "profile") as cdp:
+        sid = await cdp.page()
+        await cdp.sign_in(sid, service.hmi_url, TOKEN)
+        assert await cdp.eval(sid, "document.querySelector('.machine .state').textContent"
+                              ) == "IDLE"
+        rows = "[...document.querySelectorAll('#history tbody tr')]"
+        await cdp.wait_for(sid, f"{rows}.length > 0")
+        assert await cdp.eval(sid, f"{rows}.map(r => r.dataset.run)") == [
+            "20200101T000000Z-0a0a"]
+        # A mark on this document: still there at the end = no navigation, no reload.
+        await cdp.eval(sid, "window.rumbaNoReload = 1; true")
+        await cdp.eval(sid, "document.querySelector('.machine .start').click(); true")
+        progress = set()
+        async with asyncio.timeout(60):
+            while True:
+                st = await cdp.eval(sid, "[document.querySelector('.machine .state')"
+                                         ".textContent, document.querySelector("
+                                         "'.machine .progress-text').textContent]")
+                if st[0] == "CAPTURE":
+                    progress.add(st[1])
+                    if len(progress) == 5:
+                        await cdp.screenshot(sid, tmp_path / "hmi-running.png")
+                if st[0] == "IDLE" and progress:
+                    break
+                await asyncio.sleep(0.03)
+        assert len(progress) >= 3, progress  # the progress text advanced while running
+        assert any("touches" in p and "left" in p for p in progress)
+        badge = await cdp.wait_for(sid, "document.querySelector('.machine .badge')"
+                                        ".textContent.replace('none yet', '')")
+        assert badge == "PASS"
+        assert await cdp.eval(sid, "getComputedStyle(document.querySelector("
+                                   "'.machine .badge')).backgroundColor"
+                              ) == "rgb(27, 135, 63)"
+        run_id = service.sessions["mill1"].run_id
+        assert run_id and run_id != "20200101T000000Z-0a0a"
+        # The new run's row arrives in the open page once the run has ended (DONE, PASS).
+        row = (f"{rows}.filter(r => r.dataset.run === '{run_id}')"
+               ".map(r => [...r.cells].map(c => c.textContent))[0]")
+        cells = await cdp.wait_for(sid, f"(({row}) || [])[3] === 'DONE' && ({row})", 10)
+        assert cells[1:5] == ["mill1", "hmi", "DONE", "PASS"], cells
+        assert await cdp.eval(sid, f"{rows}.map(r => r.dataset.run)") == [
+            run_id, "20200101T000000Z-0a0a"]
+        assert await cdp.eval(sid, "window.rumbaNoReload") == 1
+        await cdp.screenshot(sid, tmp_path / "hmi-done.png")
+        href = await cdp.eval(sid, "document.querySelector('.machine .report').href")
+        assert href.endswith(".html")
+        await cdp.call("Page.navigate", sid, url=href)
+        await cdp.wait_for(sid, "document.readyState === 'complete' && "
+                                "document.title.startsWith('rumba run')")
+        assert await cdp.eval(sid, "document.querySelector('.badge').textContent") == "PASS"
+        n_img = await cdp.eval(sid, "[...document.images].filter(i => i.naturalWidth > 0)"
+                                    ".length")
+        assert n_img >= 3  # embedded plots decoded
 
 
 async def test_service_serves_with_the_hmi_limits(service):

@@ -16,17 +16,15 @@ from contracts.probing_log import (
     read_log,
     write_log,
 )
-from contracts.setup_files import load_artefact, load_machine
+from contracts.setup_files import load_machine
 from daemon.touch_centres import rows_to_centres
+from tests.reader_helpers import ARTEFACT, CONFIG, mutate_line, mutate_whole
 from tests.synth import Truth, make_rows
-
-CFG = Path(__file__).resolve().parents[1] / "config"
-ARTEFACT = load_artefact(CFG / "artefacts/thesis_4ball.yaml")
 
 
 @pytest.fixture(scope="module")
 def valid(tmp_path_factory) -> tuple[Path, list[bytes]]:
-    m, _ = load_machine(CFG / "machines/thesis_wcbxfzyt.yaml")
+    m, _ = load_machine(CONFIG / "machines/thesis_wcbxfzyt.yaml")
     rows = make_rows(m, ARTEFACT, [(0.0, 0.0), (30.0, 90.0)], Truth({"EX0C": -0.1}),
                      touch_noise_um=0.5, seed=1)
     d = tmp_path_factory.mktemp("fuzz")
@@ -55,37 +53,16 @@ _MUTATION = st.one_of(
 def _mutate(lines: list[bytes], ops: list[tuple]) -> bytes:
     lines = list(lines)
     for op in ops:
-        kind, k = op[0], op[1] % max(len(lines), 1)
         if not lines:
             break
-        if kind == "cell":
+        if op[0] == "cell":
+            k = op[1] % len(lines)
             cells = lines[k].split(b",")
             cells[op[2] % len(cells)] = op[3].encode("utf-8", "surrogatepass")
             lines[k] = b",".join(cells)
-        elif kind == "drop":
-            del lines[k]
-        elif kind == "dup":
-            lines.insert(k, lines[k])
-        elif kind == "swap":
-            j = op[2] % len(lines)
-            lines[k], lines[j] = lines[j], lines[k]
-        elif kind in ("bytes", "nul"):
-            insert = op[3] if kind == "bytes" else b"\x00"
-            pos = op[2] % (len(lines[k]) + 1)
-            lines[k] = lines[k][:pos] + insert + lines[k][pos:]
-        elif kind == "long":
-            lines[k] = lines[k] + b"9" * op[2]
-        elif kind == "bom":
-            lines[0] = b"\xef\xbb\xbf" + lines[0]
-    data = b"\n".join(lines)
-    for op in ops:
-        if op[0] == "crlf":
-            data = data.replace(b"\n", b"\r\n")
-        elif op[0] == "cr":
-            data = data.replace(b"\n", b"\r")
-        elif op[0] == "truncate":
-            data = data[:op[1] % (len(data) + 1)]
-    return data
+        else:
+            mutate_line(lines, ("bytes", op[1], op[2], b"\x00") if op[0] == "nul" else op)
+    return mutate_whole(b"\n".join(lines), ops)
 
 
 def _clean(e: ProbeLogError, path: Path) -> None:

@@ -18,22 +18,13 @@ from daemon.journal_csv import export_csv
 from daemon.pipeline import prepare
 from daemon.session import Session, State
 from daemon.store import Store
-from drivers.opcua.link import OpcUaLink
-from drivers.opcua.schema import OpcUaLinkConfig
 from simulators.controller import VirtualController
 from simulators.faults import Fault, FaultPlan
-from simulators.frontends.opcua import OpcUaFrontend
 from simulators.offline import run_program
-from simulators.truth import TruthModel
 from tests.daemon_helpers import CONFIG, thesis_setup, write_daemon_yaml
+from tests.opcua_helpers import opcua_link, thesis_truth
 
-ERRORS = CONFIG / "errors/thesis_tableB2.yaml"
 CHIP_AT = (3, "B2", 2)  # pose, ball, touch
-
-
-def _truth() -> TruthModel:
-    return TruthModel.from_files(CONFIG / "machines/thesis_wcbxfzyt.yaml",
-                                 CONFIG / "artefacts/thesis_4ball.yaml", ERRORS)
 
 
 def _seq(pose: int, ball: str, touch: int) -> int:
@@ -47,7 +38,7 @@ async def test_a_chip_moves_one_touch_once_and_a_stuck_one_every_time():
     one_pose = setup.plan.model_copy(update={"poses": setup.plan.poses[CHIP_AT[0]:][:1]})
     job = prepare(replace(setup, plan=one_pose), "probe").job  # 20 touches
     seq = next(t.id.seq for t in job.touches if (t.id.ball, t.id.touch) == CHIP_AT[1:])
-    truth = _truth()
+    truth = thesis_truth()
     clean = await run_program(truth, job.text, "fanuc", seed=4)
     for persist in (False, True):
         faults = FaultPlan([Fault(kind="chip", at_touch=seq, size_um=18.0, persist=persist)])
@@ -80,14 +71,9 @@ def test_reprobe_max_is_a_checked_daemon_yaml_key(tmp_path):
 
 @pytest_asyncio.fixture(scope="module", loop_scope="module")
 async def cnc():
-    ctrl = VirtualController(_truth(), time_scale=0.0, dialect="fanuc")
-    sim = OpcUaFrontend(ctrl, security="none")
-    url = await sim.start()
-    link = OpcUaLink(OpcUaLinkConfig(transport="opcua", url=url, security="none"))
-    await link.connect()
-    yield ctrl, link
-    await link.close()
-    await sim.stop()
+    ctrl = VirtualController(thesis_truth(), time_scale=0.0, dialect="fanuc")
+    async with opcua_link(ctrl) as link:
+        yield ctrl, link
 
 
 async def _run(cnc, tmp_path, fault: Fault | None, **setup):

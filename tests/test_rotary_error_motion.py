@@ -4,7 +4,6 @@ what they do not, named by the gap diagnosis — down to a simulated CNC read by
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
@@ -17,6 +16,7 @@ from identification.effects import library, make_effect
 from identification.gap import diagnose, selfcheck
 from identification.gap.simlog import Truth, simulate
 from identification.kinematics import Axis, axis_htm
+from tests.gap_helpers import gap_json
 
 CONFIG = Path(__file__).resolve().parents[1] / "config"
 STYLUS_R = 3.0
@@ -208,9 +208,7 @@ def test_second_harmonic_radial_motion_of_C_through_the_simulator_is_named(thesi
     ≤ 1.3× the floor and the fitted harmonics are the file's."""
     import yaml
 
-    from contracts.probing_log import write_log
     from contracts.setup_files import plan_from_dict
-    from daemon.cli import main
     from programs.dialects import get_dialect
     from programs.toolpath import build_program
     from simulators.offline import run_sync
@@ -223,12 +221,7 @@ def test_second_harmonic_radial_motion_of_C_through_the_simulator_is_named(thesi
     plan = yaml.safe_load((CONFIG / "plans/thesis_annexB_14poses.yaml").read_text())
     program = build_program(machine, mfile, artefact, plan_from_dict({**plan, "repeats": 2}))
     res = run_sync(truth, get_dialect("linuxcnc").render(program), "linuxcnc", seed=0)
-    log, out = tmp_path / "run.csv", tmp_path / "gap.json"
-    write_log(log, res.rows)
-    assert main(["gap", "--log", str(log), "--machine",
-                 str(CONFIG / "machines/thesis_wcbxfzyt.yaml"), "--artefact",
-                 str(CONFIG / "artefacts/thesis_4ball.yaml"), "--json", str(out)]) == 0
-    rep = json.loads(out.read_text())
+    rep = gap_json(tmp_path / "run.csv", res.rows, tmp_path / "gap.json")
     v, floor = rep["verdict"], rep["noise_floor_um"]
     assert (v["effect"], v["axis"]) == ("rotary_error_motion", "C")
     assert v["holdout_rms_before_um"] > 3.0 * floor

@@ -14,31 +14,20 @@ import yaml
 
 from daemon.session import Session, State
 from daemon.store import Store
-from drivers.opcua.link import OpcUaLink
-from drivers.opcua.schema import OpcUaLinkConfig
 from identification.estimate import coverage_factor
 from simulators.controller import VirtualController
 from simulators.faults import Fault, FaultPlan
-from simulators.frontends.opcua import OpcUaFrontend
-from simulators.truth import TruthModel
-from tests.daemon_helpers import CONFIG, thesis_setup
+from tests.daemon_helpers import thesis_setup
+from tests.opcua_helpers import ERRORS, opcua_link, thesis_truth
 
-ERRORS = CONFIG / "errors/thesis_tableB2.yaml"
 TIME_SCALE = 0.02  # 140 touches ≈ 107 s of machine time → ≈ 2 s
 
 
 @pytest_asyncio.fixture(scope="module", loop_scope="module")
 async def cnc():
-    truth = TruthModel.from_files(CONFIG / "machines/thesis_wcbxfzyt.yaml",
-                                  CONFIG / "artefacts/thesis_4ball.yaml", ERRORS)
-    ctrl = VirtualController(truth, time_scale=TIME_SCALE, dialect="fanuc")
-    sim = OpcUaFrontend(ctrl, security="none")
-    url = await sim.start()
-    link = OpcUaLink(OpcUaLinkConfig(transport="opcua", url=url, security="none"))
-    await link.connect()
-    yield ctrl, link
-    await link.close()
-    await sim.stop()
+    ctrl = VirtualController(thesis_truth(), time_scale=TIME_SCALE, dialect="fanuc")
+    async with opcua_link(ctrl) as link:
+        yield ctrl, link
 
 
 def session(link, tmp_path: Path, **kw) -> Session:

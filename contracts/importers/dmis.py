@@ -18,11 +18,11 @@ are in the instrument's frame (``frame: instrument``); times are not part of the
 from __future__ import annotations
 
 import re
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 
 from contracts.centres_file import MAX_CENTRE_ROWS, CentreRow, CentresFile
-from contracts.importers.common import CentresImportError, number, text_lines
+from contracts.importers.common import CentresImportError, continued, number, text_lines
 
 MAX_STATEMENT_LINES = 64
 MAX_LABEL_CHARS = 64
@@ -33,35 +33,24 @@ _LABEL_RE = re.compile(r"(?P<ball>[A-Za-z0-9_]+?)_P(?P<pose>[0-9]{1,6})(?:_R(?P<
 _NAME_RE = re.compile(r"(?:DMISMN|FILNAM)\s*/\s*'(?P<name>[^']{0,200})'", re.I)
 
 
-def _statements(path: Path | str, text: str | None):
+def _uncommented(line: str) -> str:
+    """The line without its ``$$`` comment (a quote protects it), stripped."""
+    body, quoted = [], False
+    for i, ch in enumerate(line):
+        if ch == "'":
+            quoted = not quoted
+        elif not quoted and line.startswith("$$", i):
+            break
+        body.append(ch)
+    return "".join(body).strip()
+
+
+def _statements(path: Path | str, text: str | None) -> Iterator[tuple[int, str]]:
     """(first line number, statement) with ``$$`` comments removed and ``$`` continuations
     joined (a quote protects both)."""
-    name = str(path)
-    parts: list[str] = []
-    start = 0
-    for n, line in text_lines(path, text):
-        body, quoted = [], False
-        for i, ch in enumerate(line):
-            if ch == "'":
-                quoted = not quoted
-            elif not quoted and line.startswith("$$", i):
-                break
-            body.append(ch)
-        s = "".join(body).strip()
-        if not parts:
-            start = n
-        if s.endswith("$"):
-            parts.append(s[:-1])
-            if len(parts) > MAX_STATEMENT_LINES:
-                raise CentresImportError(f"{name}: line {start}: a statement continued over more "
-                                         f"than {MAX_STATEMENT_LINES} lines")
-            continue
-        parts.append(s)
-        yield start, "".join(parts).strip()
-        parts = []
-    if parts:
-        raise CentresImportError(f"{name}: line {start}: the last statement ends with '$' "
-                                 "(continued past the end of the file)")
+    bodies = ((n, _uncommented(line)) for n, line in text_lines(path, text))
+    for start, statement in continued(bodies, str(path), "$", "statement", MAX_STATEMENT_LINES):
+        yield start, statement.strip()
 
 
 def _sphere(rest: str, where: str, unit: float) -> tuple[float, float, float]:

@@ -17,11 +17,11 @@ indexation counting as the next repeat.
 from __future__ import annotations
 
 import re
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 
 from contracts.centres_file import MAX_CENTRE_ROWS, CentreRow, CentresFile
-from contracts.importers.common import CentresImportError, number, text_lines
+from contracts.importers.common import CentresImportError, continued, number, text_lines
 
 RECORD_CYCLE = "SYSCALIBFITADDRECORD.ECY"
 MAX_BLOCK_LINES = 64  # a record is 8 lines in the documentation
@@ -52,27 +52,11 @@ def _strip(line: str, where: str) -> str:
     return "".join(out).rstrip()
 
 
-def _blocks(path: Path | str, text: str | None):
+def _blocks(path: Path | str, text: str | None) -> Iterator[tuple[int, str]]:
     """(first line number, block text) of every NC block, continuations joined."""
     name = str(path)
-    parts: list[str] = []
-    start = 0
-    for n, line in text_lines(path, text):
-        body = _strip(line, f"{name}: line {n}")
-        if not parts:
-            start = n
-        if body.endswith("\\"):
-            parts.append(body[:-1])
-            if len(parts) > MAX_BLOCK_LINES:
-                raise CentresImportError(f"{name}: line {start}: a block continued over more "
-                                         f"than {MAX_BLOCK_LINES} lines")
-            continue
-        parts.append(body)
-        yield start, " ".join(parts)
-        parts = []
-    if parts:
-        raise CentresImportError(f"{name}: line {start}: the last block ends with '\\' "
-                                 "(continued past the end of the file)")
+    bodies = ((n, _strip(line, f"{name}: line {n}")) for n, line in text_lines(path, text))
+    return continued(bodies, name, "\\", "block", MAX_BLOCK_LINES, " ")
 
 
 def read_kinopt(path: Path | str, ball: str, rotary: Sequence[str], *, text: str | None = None,
