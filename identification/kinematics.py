@@ -66,6 +66,10 @@ class Machine:
     axes: Mapping[str, Axis]
     tool_tip_mm: tuple[float, float, float] = (0.0, 0.0, 0.0)
     spindle_axis: tuple[float, float, float] = (0.0, 0.0, 1.0)  # from tip towards spindle
+    # Location errors (ISO name, mm / rad) the CONTROLLER's kinematic model already holds after
+    # a compensation: identification runs relative to them (``model.predict``); ``frames`` does
+    # not apply them (they are the controller's belief, not the machine's physics).
+    held_links: tuple[tuple[str, float], ...] = ()
     workpiece_chain: tuple[str, ...] = field(init=False)
     tool_chain: tuple[str, ...] = field(init=False)
 
@@ -91,6 +95,20 @@ class Machine:
                     f"axis {letter}: direction {ax.direction} does not run along "
                     f"{'xyz'[_AXIS_INDEX[letter]]} (ISO 230-1 names assume it does)"
                 )
+        known = self.location_error_names()
+        for name, value in self.held_links:
+            if name not in known:
+                raise TopologyError(f"held link {name!r} is not a location error of "
+                                    f"{self.topology} (known: {known})")
+            if not np.isfinite(value):
+                raise TopologyError(f"held link {name}: value {value} is not finite")
+
+    def held_link_values(self) -> dict[str, float]:
+        """The controller-held location errors by ISO name (repeated names summed)."""
+        out: dict[str, float] = {}
+        for name, value in self.held_links:
+            out[name] = out.get(name, 0.0) + float(value)
+        return out
 
     @property
     def linear_axes(self) -> list[str]:

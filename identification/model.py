@@ -129,6 +129,15 @@ def _g(machine: Machine, rot_model: Mapping, balls_w: np.ndarray, q_ctrl: np.nda
     return tip_minus_ball(machine, {**qm, **rot_model}, balls_w, state)
 
 
+def chain_links(machine: Machine, estimated: Mapping[str, float]) -> dict[str, float]:
+    """Links of the predicted chain: the controller-held ones (``Machine.held_links``) plus the
+    estimated ones, summed per ISO name — identification runs relative to the controller."""
+    links = machine.held_link_values()
+    for name, value in estimated.items():
+        links[name] = links.get(name, 0.0) + float(value)
+    return links
+
+
 def predict(
     machine: Machine,
     artefact: Artefact,
@@ -140,8 +149,10 @@ def predict(
     motion_errors: Mapping[str, MotionErrorFn] | None = None,
 ) -> tuple[np.ndarray, np.ndarray | None]:
     """Predicted centres (K, 3) in controller mm for parameters ``p``; with ``jacobian`` also
-    d(predicted)/dp as (K, 3, P)."""
-    links, dballs, dtip, scale = layout.unpack(np.asarray(p, float))
+    d(predicted)/dp as (K, 3, P). The chain carries the controller-held links of ``machine``
+    plus the estimated ones (``chain_links``)."""
+    est_links, dballs, dtip, scale = layout.unpack(np.asarray(p, float))
+    links = chain_links(machine, est_links)
     state = ChainState(links=links, tip_offset_mm=dtip, linear_scale=scale,
                        motion_errors=motion_errors or {})
     balls_w = artefact.nominal_mm[centres.ball] + dballs[centres.ball]

@@ -27,7 +27,7 @@ from identification.kinematics import (
     tip_minus_ball,
     to_model,
 )
-from identification.model import Artefact, Centres, Layout, predict
+from identification.model import Artefact, Centres, Layout, chain_links, predict
 
 _GN_ITER = 12
 _STEP_TOL_MM = 1e-10
@@ -50,7 +50,7 @@ class Twin:
         controller displacement to a relative displacement of stylus and ball. Affine in the
         linear joints without motion errors, so a 1 mm step is exact."""
         links, _, tip, scale = self.layout.unpack(self.p if p is None else p)
-        state = ChainState(links, tip, scale, motion or {})
+        state = ChainState(chain_links(self.machine, links), tip, scale, motion or {})
         rot = to_model(self.machine, rotary_columns(self.machine, centres.b_deg, centres.c_deg))
         ball = np.zeros((len(centres), 3))
 
