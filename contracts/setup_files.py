@@ -17,6 +17,11 @@ from typing import Annotated, Any, Literal
 import numpy as np
 from pydantic import Field, field_validator, model_validator
 
+from contracts.controller_kinematics import (
+    ControllerKinematics,
+    ControllerKinematicsFile,
+    controller_kinematics,
+)
 from contracts.plan_files import (
     FeedsFile,
     Grid,
@@ -123,6 +128,8 @@ class MachineFile(StrictModel):
     # [0, -1, 0] on a horizontal machine; None: identification.effects.default_gravity guesses.
     gravity: Vec3 | None = None
     serial: Record | None = None  # the machine's serial number, printed on every report (audit)
+    # What the control keeps of its kinematic model and where (compensation write-back, issue 13)
+    controller_kinematics: ControllerKinematicsFile | None = None
     _n = field_validator("name")(safe_name)
 
     @field_validator("gravity")
@@ -202,12 +209,22 @@ def machine_from_dict(data: Any, path: Path | str = "<machine>") -> tuple[Machin
     extra = set(axes) - set(m.workpiece_chain + m.tool_chain)
     if extra:
         raise ConfigError(f"{path}: axes: {sorted(extra)} not in topology {mf.topology}")
+    if mf.controller_kinematics is not None:
+        controller_kinematics(mf.controller_kinematics, m, path)  # checked against the machine
     return m, mf
 
 
 def load_machine(path: Path | str) -> tuple[Machine, MachineFile]:
     """Load a machine file → (kinematic ``Machine``, validated file with dynamics/keep-outs)."""
     return machine_from_dict(read_yaml(path), path)
+
+
+def load_controller_kinematics(path: Path | str) -> tuple[Machine, ControllerKinematics | None]:
+    """The machine and its ``controller_kinematics`` section (None when the file has none)."""
+    m, mf = load_machine(path)
+    if mf.controller_kinematics is None:
+        return m, None
+    return m, controller_kinematics(mf.controller_kinematics, m, path)
 
 
 def artefact_from_dict(data: Any, path: Path | str = "<artefact>") -> Artefact:
@@ -237,5 +254,5 @@ __all__ = ["MAX_BALLS", "MAX_POSES", "MAX_TOUCHES", "SAFE_NAME", "ArtefactFile",
            "DynamicsFile", "FeedsFile", "Grid", "GridAxis", "KeepOutBox", "MachineFile", "Plan",
            "PlanFile", "PoseFile", "Range2", "Record", "TableFile", "ToolFile", "Vec3",
            "artefact_from_dict", "check_touch_count", "load_artefact", "load_artefact_file",
-           "load_machine", "load_plan", "machine_from_dict", "plan_from_dict", "safe_name",
-           "touch_count"]
+           "load_controller_kinematics", "load_machine", "load_plan", "machine_from_dict",
+           "plan_from_dict", "safe_name", "touch_count"]

@@ -1,0 +1,297 @@
+"""The machine file's ``controller_kinematics`` section: schema, per-control checks, dataclasses.
+
+What the control keeps of its kinematic model and where (issue 13): each parameter names what it
+moves in our model (``kind: pivot``: the rotary axes whose ``point_mm[component]`` it moves;
+``kind: orientation``: the ISO 230-1 location error it holds, e.g. ``EA0C``), the control's
+``address`` of it and its current ``value``: mm for a pivot, µrad of the held link for an
+orientation (default 0; the writers of ``programs.compensation`` convert to the control's unit).
+
+Addresses per family:
+
+* ``linuxcnc``: a HAL pin (``xyzbc-trt-kins.x-offset``); no orientation parameters (trt kins
+  has none).
+* ``fanuc``: a parameter number (``19700``, real type, mm / deg) or a macro variable (``#500``).
+* ``haas``: a setting number (``255``); no orientation parameters (MRZP settings are positions).
+* ``siemens``: ``$TC_CARR<n>[<k>]`` of tool carrier ``k``: a pivot an offset-vector component
+  (l1 ``n`` = 1-3, l2 4-6, l3 15-17, l4 18-20) of its own component, with ``closing`` (and
+  ``closing_value``) naming the vector component that keeps the chain closed (it receives the
+  opposite change, Siemens: "I4 = −(I2 + I3)"); an orientation a rotary-axis vector component
+  (v1 ``n`` = 7-9, v2 10-12) with ``vector``, the control's nominal vector of that axis (a table
+  axis' vector is reversed on Siemens), the component being the one the tilt moves.
+* ``heidenhain``: kinematics-table ``row/column``: a pivot column X/Y/Z (its component), an
+  orientation SPA/SPB/SPC (the error's rotation: EA… → SPA).
+
+The control's machine frame is taken as parallel to the model's (the machine files choose axis
+directions and ``sign`` so that it is).
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Annotated, Literal
+
+from pydantic import Field, field_validator
+
+from contracts.setup_types import Bounded, Vec3, safe_name
+from contracts.yaml_files import ConfigError, StrictModel
+from identification.kinematics import Machine
+
+if TYPE_CHECKING:
+    from identification.compensation import ControllerParam
+
+FAMILIES = ("linuxcnc", "fanuc", "haas", "siemens", "heidenhain")
+_HAL_PIN = re.compile(r"\A[A-Za-z0-9_][A-Za-z0-9_.-]{0,46}\Z")  # HAL_NAME_LEN 47
+_NUMBER = re.compile(r"\A[1-9][0-9]{0,4}\Z")
+_MACRO = re.compile(r"\A#[1-9][0-9]{0,4}\Z")
+_CARR = re.compile(r"\A\$TC_CARR([1-9][0-9]?)\[([1-9][0-9]{0,2})\]\Z")
+_HEIDENHAIN = re.compile(r"\A(0|[1-9][0-9]{0,3})/(X|Y|Z|SPA|SPB|SPC)\Z")
+_ORIENTATION = re.compile(r"\AE([ABC])0([ABCXYZ])\Z")
+_COMPONENTS = "xyz"
+# Siemens tool-carrier offset vectors: first index n of the x component → vector name
+_CARR_VECTORS = {1: "l1", 4: "l2", 15: "l3", 18: "l4"}
+_CARR_AXES = {7: "v1", 10: "v2"}
+
+
+class GuardsFile(StrictModel):
+    """Write-back guards (KinematicsOpt: 0.05 mm maximum modification, operator confirmation)."""
+
+    max_change_um: float = Field(50.0, gt=0, le=1000)
+    max_change_urad: float = Field(100.0, gt=0, le=10000)
+    max_total_um: float = Field(100.0, gt=0, le=10000)
+    unattended: bool = False
+
+
+class ParamFile(StrictModel):
+    name: str
+    kind: Literal["pivot", "orientation"]
+    axes: Annotated[list[Literal["A", "B", "C"]], Field(min_length=1, max_length=2)] | None = None
+    component: str
+    address: Annotated[str, Field(min_length=1, max_length=48)]
+    value: Bounded | None = None
+    closing: Annotated[str, Field(min_length=1, max_length=48)] | None = None
+    closing_value: Bounded | None = None
+    vector: Vec3 | None = None
+    _n = field_validator("name")(safe_name)
+
+
+class ControllerKinematicsFile(StrictModel):
+    family: Literal["linuxcnc", "fanuc", "haas", "siemens", "heidenhain"]
+    guards: GuardsFile = GuardsFile()
+    params: list[ParamFile] = Field(min_length=1, max_length=32)
+
+
+@dataclass(frozen=True)
+class ControllerParamSpec:
+    """One control value: what it moves in the model, where the control keeps it, its value
+    (mm for a pivot, µrad for an orientation), and the Siemens extras (closing vector, nominal
+    axis vector) when used."""
+
+    name: str
+    kind: str
+    axes: tuple[str, ...]
+    component: str
+    address: str
+    value: float
+    closing: str | None = None
+    closing_value: float | None = None
+    vector: tuple[float, float, float] | None = None
+
+    def to_math(self) -> ControllerParam:
+        from identification.compensation import ControllerParam  # the math's own type
+
+        return ControllerParam(self.name, self.kind, self.axes, self.component)
+
+
+@dataclass(frozen=True)
+class ControllerKinematics:
+    """The validated section: family, guards and parameters."""
+
+    family: str
+    max_change_um: float
+    max_change_urad: float
+    max_total_um: float
+    unattended: bool
+    params: tuple[ControllerParamSpec, ...]
+
+    def to_math(self) -> list[ControllerParam]:
+        """The parameters as ``identification.compensation`` sees them."""
+        return [p.to_math() for p in self.params]
+
+    def param(self, name: str) -> ControllerParamSpec:
+        for p in self.params:
+            if p.name == name:
+                return p
+        raise KeyError(name)
+
+
+def _check_address(family: str, p: ParamFile, address: str, what: str) -> None:
+    """Refuse an address this family cannot hold; ``what`` names the key in the message."""
+    if family == "linuxcnc":
+        if not _HAL_PIN.fullmatch(address):
+            raise ValueError(f"{what}: {address!r} is not a HAL pin name (letters, digits, "
+                             "'_', '.', '-', at most 47)")
+    elif family == "fanuc":
+        if not (_NUMBER.fullmatch(address) or _MACRO.fullmatch(address)):
+            raise ValueError(f"{what}: {address!r} is neither a parameter number (e.g. 19700) "
+                             "nor a macro variable (e.g. #500)")
+    elif family == "haas":
+        if not _NUMBER.fullmatch(address):
+            raise ValueError(f"{what}: {address!r} is not a setting number (e.g. 255)")
+    elif family == "siemens":
+        _check_carr(p, address, what)
+    else:
+        m = _HEIDENHAIN.fullmatch(address)
+        if not m:
+            raise ValueError(f"{what}: {address!r} is not a kinematics-table row/column "
+                             "(e.g. 3/X; columns X Y Z SPA SPB SPC)")
+        col = m.group(2)
+        want = p.component.upper() if p.kind == "pivot" else "SP" + p.component[1]
+        if col != want:
+            raise ValueError(f"{what}: column {col} does not hold {p.component} (use {want})")
+
+
+def _check_carr(p: ParamFile, address: str, what: str) -> None:
+    m = _CARR.fullmatch(address)
+    if not m:
+        raise ValueError(f"{what}: {address!r} is not a tool-carrier value $TC_CARR<n>[<k>]")
+    n = int(m.group(1))
+    table = _CARR_VECTORS if p.kind == "pivot" else _CARR_AXES
+    first = next((f for f in table if f <= n < f + 3), None)
+    if first is None:
+        kinds = "offset vectors l1-l4 (n 1-6, 15-20)" if p.kind == "pivot" else \
+            "rotary-axis vectors v1, v2 (n 7-12)"
+        raise ValueError(f"{what}: $TC_CARR{n} is not one of the {kinds} a {p.kind} uses")
+    comp = _COMPONENTS[n - first]
+    if p.kind == "pivot" and comp != p.component:
+        raise ValueError(f"{what}: $TC_CARR{n} is the {comp} component of {table[first]}, "
+                         f"not {p.component}")
+    if p.kind == "orientation" and p.vector is not None:
+        moved = siemens_tilt(p.component, p.vector)
+        if moved[0] != n - first:
+            raise ValueError(f"{what}: {p.component} tilts the {_COMPONENTS[moved[0]]} component "
+                             f"of the axis vector, $TC_CARR{n} is its {comp} component")
+
+
+def siemens_tilt(link: str, vector: tuple[float, ...] | list[float]) -> tuple[int, float]:
+    """(component index, factor): a small rotation θ of ``link`` (e.g. EA0C, about x) moves the
+    axis vector ``vector`` by θ·(e_i × v): that component gets ``factor``·θ (rad)."""
+    m = _ORIENTATION.fullmatch(link)
+    if m is None:
+        raise ValueError(f"{link!r} is not an orientation error name")
+    i = "ABC".index(m.group(1))
+    e = [0.0, 0.0, 0.0]
+    e[i] = 1.0
+    v = [float(x) for x in vector]
+    cross = (e[1] * v[2] - e[2] * v[1], e[2] * v[0] - e[0] * v[2], e[0] * v[1] - e[1] * v[0])
+    j = max(range(3), key=lambda k: abs(cross[k]))
+    if abs(cross[j]) < 0.5:
+        raise ValueError(f"{link} does not tilt an axis of vector {v}")
+    return j, cross[j]
+
+
+def _param(family: str, machine: Machine, p: ParamFile, key: str) -> ControllerParamSpec:
+    rotary = machine.rotary_axes
+    if p.kind == "pivot":
+        if p.component not in _COMPONENTS:
+            raise ValueError(f"{key}.component: a pivot moves x, y or z, got {p.component!r}")
+        if p.axes is None:
+            raise ValueError(f"{key}.axes: a pivot names the rotary axes it moves, e.g. [B]")
+        if p.value is None:
+            raise ValueError(f"{key}.value: a pivot needs the control's current value (mm)")
+        if p.vector is not None:
+            raise ValueError(f"{key}.vector: only an orientation takes an axis vector")
+        axes = tuple(p.axes)
+        if len(set(axes)) != len(axes):
+            raise ValueError(f"{key}.axes: {list(axes)} names an axis twice")
+        if family == "siemens" and p.closing is None:
+            raise ValueError(f"{key}.closing: a Siemens offset vector needs the vector that "
+                             "closes the chain (e.g. $TC_CARR18[1])")
+    else:
+        m = _ORIENTATION.fullmatch(p.component)
+        if m is None or p.component not in machine.location_error_names():
+            raise ValueError(f"{key}.component: {p.component!r} is not an orientation error of "
+                             f"this machine (one of {_tilts(machine)})")
+        if family in ("linuxcnc", "haas"):
+            raise ValueError(f"{key}.kind: a {family} control has no orientation parameter "
+                             "(its kinematics holds pivot positions only)")
+        axes = (m.group(2),)
+        if p.axes is not None and tuple(p.axes) != axes:
+            raise ValueError(f"{key}.axes: {p.component} belongs to axis {axes[0]}, not {p.axes}")
+        if p.closing is not None or p.closing_value is not None:
+            raise ValueError(f"{key}.closing: only a Siemens pivot takes a closing vector")
+        if family == "siemens":
+            if p.vector is None:
+                raise ValueError(f"{key}.vector: the control's nominal vector of axis "
+                                 f"{axes[0]} is needed, e.g. [0, 0, -1]")
+            nonzero = [x for x in p.vector if x != 0]
+            if len(nonzero) != 1 or abs(nonzero[0]) != 1:
+                raise ValueError(f"{key}.vector: expected a principal unit vector, got "
+                                 f"{p.vector}")
+            direction = machine.axes[axes[0]].direction
+            if any(abs(abs(a) - abs(b)) > 1e-9 for a, b in zip(p.vector, direction, strict=True)):
+                raise ValueError(f"{key}.vector: {p.vector} is not along axis {axes[0]} "
+                                 f"({list(direction)})")
+        elif p.vector is not None:
+            raise ValueError(f"{key}.vector: only a Siemens orientation takes an axis vector")
+    for a in axes:
+        if a not in rotary:
+            raise ValueError(f"{key}.axes: {a} is not a rotary axis of this machine {rotary}")
+    if p.closing is not None:
+        if family != "siemens":
+            raise ValueError(f"{key}.closing: only a Siemens pivot takes a closing vector")
+        if p.closing_value is None:
+            raise ValueError(f"{key}.closing_value: the control's current value of "
+                             f"{p.closing} is needed (mm)")
+        _check_address(family, p, p.closing, f"{key}.closing")
+        if p.closing == p.address:
+            raise ValueError(f"{key}.closing: the closing vector cannot be the address itself")
+    elif p.closing_value is not None:
+        raise ValueError(f"{key}.closing_value: given without closing")
+    _check_address(family, p, p.address, f"{key}.address")
+    value = p.value if p.value is not None else 0.0
+    return ControllerParamSpec(p.name, p.kind, axes, p.component, p.address, value, p.closing,
+                               p.closing_value, tuple(p.vector) if p.vector else None)
+
+
+def _tilts(machine: Machine) -> list[str]:
+    return [n for n in machine.location_error_names() if _ORIENTATION.fullmatch(n)]
+
+
+def controller_kinematics(section: ControllerKinematicsFile, machine: Machine,
+                          path: Path | str = "<machine>") -> ControllerKinematics:
+    """The section checked against the machine and its family; ``ConfigError`` naming the file
+    and the key (``controller_kinematics.params.2.address: …``)."""
+    key = "controller_kinematics.params"
+    params = []
+    seen: dict[str, str] = {}
+    values: dict[str, tuple[float, str]] = {}
+    try:
+        for i, p in enumerate(section.params):
+            spec = _param(section.family, machine, p, f"{key}.{i}")
+            if p.name in seen:
+                raise ValueError(f"{key}.{i}.name: {p.name!r} is used twice")
+            seen[p.name] = p.address
+            pairs = [(spec.address, spec.value, f"{key}.{i}.address")]
+            if spec.closing is not None:
+                pairs.append((spec.closing, spec.closing_value or 0.0, f"{key}.{i}.closing"))
+            for address, value, where in pairs:
+                if address in values and (where.endswith("address")
+                                          or values[address][1].endswith("address")):
+                    raise ValueError(f"{where}: {address} is already held by "
+                                     f"{values[address][1]}")
+                if address in values and values[address][0] != value:
+                    raise ValueError(f"{where}: {address} has value {value} here and "
+                                     f"{values[address][0]} at {values[address][1]}")
+                values.setdefault(address, (value, where))
+            params.append(spec)
+    except ValueError as e:
+        raise ConfigError(f"{path}: {e}") from None
+    g = section.guards
+    return ControllerKinematics(section.family, g.max_change_um, g.max_change_urad,
+                                g.max_total_um, g.unattended, tuple(params))
+
+
+__all__ = ["FAMILIES", "ControllerKinematics", "ControllerKinematicsFile", "ControllerParamSpec",
+           "GuardsFile", "ParamFile", "controller_kinematics", "siemens_tilt"]

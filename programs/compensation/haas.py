@@ -1,0 +1,61 @@
+"""Haas: the settings to enter by hand (Haas has no program write of settings), page and program.
+
+``render`` gives the operator's page (setting number, old, new, in mm: the control must be in
+metric, Setting 9 = MM); ``program`` the same as a program of comments only, to load on the
+control and read next to the settings page. Haas keeps no orientation setting: the section
+refuses orientation parameters for this family.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import TYPE_CHECKING
+
+from contracts.controller_kinematics import ControllerKinematics
+from programs.compensation.common import (
+    CompensationOutput,
+    comment,
+    filename,
+    fmt_value,
+    title,
+    values,
+)
+
+if TYPE_CHECKING:
+    from identification.compensation import ParamChange
+
+PROGRAM_NUMBER = "O09990"
+
+
+def render(spec: ControllerKinematics, changes: Sequence[ParamChange], *, run_id: str,
+           machine: str, rollback: bool = False) -> CompensationOutput:
+    """The operator's page: every setting to enter, old and new (``rollback``: old back)."""
+    vals = values(spec, changes, rollback=rollback)
+    lines = [comment(title(run_id, machine, rollback)),
+             "Enter on the control: SETTINGS, the number, the new value, WRITE/ENTER.",
+             "Values in mm: the control must be in metric (Setting 9 = MM).",
+             "",
+             f"{'setting':>8}  {'name':<24} {'old':>16} {'new':>16}"]
+    for v in vals:
+        lines.append(f"{v.address:>8}  {v.name:<24} {fmt_value(v.old, v.unit):>16} "
+                     f"{fmt_value(v.new, v.unit):>16}")
+    return CompensationOutput("\n".join(lines) + "\n", filename(run_id, machine, "txt", rollback),
+                              vals)
+
+
+def program(spec: ControllerKinematics, changes: Sequence[ParamChange], *, run_id: str,
+            machine: str, rollback: bool = False) -> CompensationOutput:
+    """The same as a program of comments (it changes nothing when run)."""
+    vals = values(spec, changes, rollback=rollback)
+    lines = ["%", f"{PROGRAM_NUMBER} ({comment(title(run_id, machine, rollback)).upper()})",
+             "(ENTER THESE SETTINGS BY HAND, VALUES IN MM)"]
+    for v in vals:
+        text = (f"SETTING {v.address} {v.name} OLD {fmt_value(v.old, v.unit)} "
+                f"NEW {fmt_value(v.new, v.unit)}")
+        lines.append(f"({comment(text).upper()})")
+    lines += ["M30", "%"]
+    return CompensationOutput("\n".join(lines) + "\n", filename(run_id, machine, "nc", rollback),
+                              vals)
+
+
+__all__ = ["PROGRAM_NUMBER", "program", "render"]

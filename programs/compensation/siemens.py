@@ -1,0 +1,58 @@
+"""Siemens 840D: an MPF part program assigning the tool carrier's ``$TC_CARR`` values.
+
+A pivot is an offset-vector component in mm; its ``closing`` component (l4 = −(l2 + l3) for a
+swivel table) gets the opposite change so the chain stays closed, changes on one component
+adding up. An orientation is a rotary-axis vector component: the nominal unit vector ``v``
+(``vector`` of the section, reversed for a table axis) tilted by the held link θ becomes
+v + θ·(e_i × v) to first order, so the component the tilt moves is written as ±θ (unit-less,
+9 decimals; the nominal components stay). Each line carries its old value as a comment.
+The carrier is re-selected (TCARR / CYCLE800) after the program for the values to act.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Sequence
+from typing import TYPE_CHECKING
+
+from contracts.controller_kinematics import (
+    ControllerKinematics,
+    ControllerParamSpec,
+    siemens_tilt,
+)
+from programs.compensation.common import (
+    CompensationOutput,
+    comment,
+    filename,
+    fmt_value,
+    title,
+    values,
+)
+
+if TYPE_CHECKING:
+    from identification.compensation import ParamChange
+
+
+def vector_component(spec: ControllerParamSpec, rad: float) -> tuple[float, str]:
+    """The axis-vector component holding a tilt of ``rad`` (first order)."""
+    assert spec.vector is not None  # the section requires it for a Siemens orientation
+    _, factor = siemens_tilt(spec.component, spec.vector)
+    return factor * rad, "1"
+
+
+def render(spec: ControllerKinematics, changes: Sequence[ParamChange], *, run_id: str,
+           machine: str, rollback: bool = False) -> CompensationOutput:
+    """The part program (``rollback``: the old values back)."""
+    vals = values(spec, changes, orientation=vector_component, rollback=rollback)
+    lines = [f"; {comment(title(run_id, machine, rollback))}",
+             "; REVIEW BEFORE RUNNING: WRITES TOOL CARRIER DATA, RESELECT THE CARRIER AFTER"]
+    for v in vals:
+        lines.append(f"{v.address}={fmt_value(v.new, v.unit)} "
+                     f"; {comment(f'{v.name} old {fmt_value(v.old, v.unit)}')}")
+    lines.append("M30")
+    # a Siemens program name is letters, digits and '_'
+    stem = re.sub(r"[^A-Za-z0-9_]", "_", filename(run_id, machine, "mpf", rollback)[:-4])
+    return CompensationOutput("\n".join(lines) + "\n", f"{stem}.mpf", vals)
+
+
+__all__ = ["render", "vector_component"]
