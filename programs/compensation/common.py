@@ -166,3 +166,19 @@ def title(run_id: str, machine: str, rollback: bool) -> str:
 __all__ = ["MAX_VALUE", "RUN_ID", "CompensationError", "CompensationOutput", "Orientation",
            "Value", "check_header", "comment", "degrees", "describe", "filename", "fixed",
            "fmt_value", "title", "values"]
+
+
+def operator_page(vals: Sequence[Value], *, run_id: str, machine: str, rollback: bool,
+                  instructions: Sequence[str], address_label: str, with_unit: bool
+                  ) -> CompensationOutput:
+    """A page of values the operator enters by hand (controls whose write rumba does not own):
+    title, instructions, then one row per value with its address, old and new."""
+    unit_head = "  unit" if with_unit else ""
+    lines = [comment(title(run_id, machine, rollback)), *instructions, "",
+             f"{address_label:>8}  {'name':<24} {'old':>16} {'new':>16}{unit_head}"]
+    for v in vals:
+        unit = f"  {v.unit}" if with_unit else ""
+        lines.append(f"{v.address:>8}  {v.name:<24} {fmt_value(v.old, v.unit):>16} "
+                     f"{fmt_value(v.new, v.unit):>16}{unit}")
+    return CompensationOutput("\n".join(lines) + "\n", filename(run_id, machine, "txt", rollback),
+                              list(vals))

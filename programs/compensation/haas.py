@@ -17,6 +17,7 @@ from programs.compensation.common import (
     comment,
     filename,
     fmt_value,
+    operator_page,
     title,
     values,
 )
@@ -30,17 +31,11 @@ PROGRAM_NUMBER = "O09990"
 def render(spec: ControllerKinematics, changes: Sequence[ParamChange], *, run_id: str,
            machine: str, rollback: bool = False) -> CompensationOutput:
     """The operator's page: every setting to enter, old and new (``rollback``: old back)."""
-    vals = values(spec, changes, rollback=rollback)
-    lines = [comment(title(run_id, machine, rollback)),
-             "Enter on the control: SETTINGS, the number, the new value, WRITE/ENTER.",
-             "Values in mm: the control must be in metric (Setting 9 = MM).",
-             "",
-             f"{'setting':>8}  {'name':<24} {'old':>16} {'new':>16}"]
-    for v in vals:
-        lines.append(f"{v.address:>8}  {v.name:<24} {fmt_value(v.old, v.unit):>16} "
-                     f"{fmt_value(v.new, v.unit):>16}")
-    return CompensationOutput("\n".join(lines) + "\n", filename(run_id, machine, "txt", rollback),
-                              vals)
+    return operator_page(
+        values(spec, changes, rollback=rollback), run_id=run_id, machine=machine,
+        rollback=rollback, address_label="setting", with_unit=False,
+        instructions=["Enter on the control: SETTINGS, the number, the new value, WRITE/ENTER.",
+                      "Values in mm: the control must be in metric (Setting 9 = MM)."])
 
 
 def program(spec: ControllerKinematics, changes: Sequence[ParamChange], *, run_id: str,
