@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test test-linuxcnc demo-linuxcnc demo-fleet linuxcnc-up linuxcnc-down lint bench golden peers clean
+.PHONY: demo test test-linuxcnc demo-linuxcnc demo-compensate demo-fleet linuxcnc-up linuxcnc-down lint bench golden peers clean
 LCNC_ENV := .peers/linuxcnc.env
 
 $(BIN)/python:
@@ -39,6 +39,11 @@ linuxcnc-down: $(STAMP)
 demo-linuxcnc: $(STAMP)
 	bash .ci/install-peers.sh linuxcnc
 	$(BIN)/python -m demos.linuxcnc
+
+# verify, compensate (kins pins live + HAL file), verify again: pivot errors before / after
+demo-compensate: $(STAMP)
+	bash .ci/install-peers.sh linuxcnc
+	$(BIN)/python -m demos.compensate
 
 demo-fleet: $(STAMP)
 	bash .ci/install-peers.sh postgresql mosquitto

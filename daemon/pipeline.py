@@ -128,10 +128,13 @@ class RunAnalysis:
 
 
 def analyse(setup: MachineSetup, hits: Sequence[ProbeHit], run_id: str = "run",
-            reference: tuple[str, analysis_result.Analysis] | None = None) -> RunAnalysis:
+            reference: tuple[str, analysis_result.Analysis] | None = None,
+            controller: Machine | None = None) -> RunAnalysis:
     """Centres (sphere fit) → estimate (setup + identifiable links) → analyses, as the shared
     ``daemon.analysis_result.Analysis`` plus the run's identity and the reference run (the
-    last good run the verdict's drift is judged against, None when there is none)."""
+    last good run the verdict's drift is judged against, None when there is none).
+    ``controller``: the model the controller runs when compensations were written to it
+    (``daemon.compensate.controller_model``), else the machine file's."""
     rows = [hit_to_row(run_id, h, setup.machine) for h in hits if h.triggered]
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
@@ -141,7 +144,7 @@ def analyse(setup: MachineSetup, hits: Sequence[ProbeHit], run_id: str = "run",
         except ValueError as e:  # ProbeLogError, and any numerical failure of the fit
             raise PipelineError(str(e)) from None
     try:
-        data = analyse_centres(setup.machine, setup.artefact, cd,
+        data = analyse_centres(controller or setup.machine, setup.artefact, cd,
                                validate_poses=setup.validate_poses, source=f"run {run_id}")
     except (AnalysisError, ValueError) as e:
         raise PipelineError(f"identification impossible: {e}") from None

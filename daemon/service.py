@@ -18,6 +18,7 @@ from typing import Any
 
 from aiohttp import web
 
+from daemon.compensate import journal_analyse
 from daemon.daemon_yaml import DaemonConfig, MachineSetup
 from daemon.fleet_link import FleetLink
 from daemon.session import Refused, Session
@@ -82,8 +83,9 @@ class Service:
                                        f"{e or type(e).__name__}") from None
                 if any(self.store.run(r).machine == name for r in self.interrupted):
                     await self._stop_leftover(name, link)
-                self.sessions[name] = Session(setup, link, self.store, cfg.reports_dir,
-                                              **self.session_kw)
+                # runs are identified against the model the controller holds (issue 13)
+                kw = {"analyse": journal_analyse(cfg.store_path), **self.session_kw}
+                self.sessions[name] = Session(setup, link, self.store, cfg.reports_dir, **kw)
             self.fleet.attach(self.sessions)
             if cfg.hmi.enabled:
                 await self._start_hmi()

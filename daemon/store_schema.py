@@ -55,6 +55,16 @@ MIGRATIONS: list[list[str]] = [
             hit_seq INTEGER)""",
         "CREATE INDEX outbox_key ON outbox(key, seq)",
     ],
+    [  # 4: compensation write-back (daemon/compensation_journal.py): every change to the
+        # controller's kinematic model with its old and new values and who confirmed it
+        """CREATE TABLE compensations (
+            id INTEGER PRIMARY KEY AUTOINCREMENT, machine TEXT NOT NULL,
+            run_id TEXT NOT NULL DEFAULT '', family TEXT NOT NULL, state TEXT NOT NULL,
+            values_json TEXT NOT NULL, confirmed_by TEXT NOT NULL DEFAULT '',
+            reason TEXT NOT NULL DEFAULT '', created_at REAL NOT NULL, applied_at REAL,
+            verify_run_id TEXT)""",
+        "CREATE INDEX compensations_machine ON compensations(machine, id)",
+    ],
 ]
 SCHEMA_VERSION = len(MIGRATIONS)
 

@@ -15,6 +15,7 @@ from rich.table import Table
 from contracts.messages import ProbeHit
 from contracts.probing_log import ProbeLogError
 from daemon.cli import UserError
+from daemon.compensate import ControllerModelError, controller_model
 from daemon.daemon_yaml import DaemonConfig, MachineSetup, load_daemon_config
 from daemon.journal_csv import export_csv, journal_import, read_import
 from daemon.judge import Judgement, judge, volumetric_max_um
@@ -133,7 +134,9 @@ def _analyse(setup: MachineSetup, store: Store, hits: list[ProbeHit], run_id: st
     # judged and recorded like a live run: against the last good run before it
     ref = store.last_good(setup.name, before=run_id)
     try:
-        a = analyse(setup, hits, run_id, ref)
+        a = analyse(setup, hits, run_id, ref, controller=controller_model(setup, store))
+    except ControllerModelError as e:
+        raise UserError(f"{path}: run {run_id}: {e}") from None
     except PipelineError as e:
         raise UserError(f"{path}: run {run_id}: analysis failed: {e}; nothing imported (use "
                         "--no-analyse to journal the touches anyway)") from None

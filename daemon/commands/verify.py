@@ -16,6 +16,7 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
 
 from daemon.cli import UserError
+from daemon.compensate import journal_analyse
 from daemon.daemon_yaml import load_daemon_config
 from daemon.service import LinkFactory, ServiceError, make_link
 from daemon.session import Session
@@ -66,7 +67,8 @@ async def verify(cfg_path: str, machine: str, *, strict: bool = False, quiet: bo
             await link.connect()
         except (LinkError, OSError) as e:
             raise UserError(f"machine {machine}: controller unreachable: {e}") from None
-        session = Session(setup, link, store, cfg.reports_dir, **session_kw)
+        kw = {"analyse": journal_analyse(cfg.store_path), **session_kw}  # issue 13
+        session = Session(setup, link, store, cfg.reports_dir, **kw)
         queue = session.subscribe()
         run_id = session.start("cli")
         with Progress(TextColumn("[bold]{task.fields[state]:<10}"), BarColumn(),

@@ -1,0 +1,113 @@
+"""Compensation write-back on LinuxCNC 2.9 (headless, HAL probe carrying the demo link errors,
+4-pose plan): verify, ``rumba compensate --confirm`` (halcmd setp live + HAL file patched +
+read-back), verify again against the compensated controller, before/after claims of issue 13,
+a kinematics change outside rumba refused, and ``--rollback`` restoring pins and HAL file.
+
+The demos.compensate flow; run with ``pytest -m linuxcnc`` (``make test-linuxcnc``).
+"""
+
+from __future__ import annotations
+
+import math
+import shutil
+from pathlib import Path
+
+import pytest
+
+from daemon import compensation_journal as cj
+from daemon.compensate import ControllerModelError, controller_model
+from daemon.daemon_yaml import load_daemon_config
+from daemon.store import Store
+from demos.compensate import MACHINE_NAME, daemon_yaml, demo_machine_file, judge, verification
+from drivers.linuxcnc import halkins
+from identification.estimate import coverage_factor
+from simulators import linuxcnc_peer
+from simulators.hal_probe import write_spec
+from simulators.truth import TruthModel
+from tests.linuxcnc_helpers import ARTEFACT, ERRORS, MACHINE, PLAN
+from tests.test_service_cli import run_cli
+
+pytestmark = [pytest.mark.linuxcnc,
+              pytest.mark.skipif(shutil.which("linuxcnc", path="/usr/bin") is None,
+                                 reason="LinuxCNC not installed (bash .ci/install-peers.sh "
+                                        "linuxcnc)")]
+
+PIN = "xyzbc-trt-kins.x-offset"
+
+
+@pytest.fixture
+def peer(tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
+    truth = TruthModel.from_files(MACHINE, ARTEFACT, ERRORS)
+    spec = tmp_path / "probe_spec.json"
+    write_spec(truth, spec)
+    p = linuxcnc_peer.up(spec, workdir=tmp_path / "peer")
+    fifo = (p.dir / "fifo.path").read_text().strip()
+    monkeypatch.setenv("RTAPI_FIFO_PATH", f"{fifo}/rtapi_fifo")
+    try:
+        yield p
+    finally:
+        linuxcnc_peer.down(p.dir)
+        assert not linuxcnc_peer.lcnc_running(), "LinuxCNC processes left behind"
+
+
+async def test_compensate_verify_and_rollback_on_linuxcnc(peer, tmp_path: Path, capsys) -> None:
+    cfg = tmp_path / "daemon.yaml"
+    cfg.write_text(daemon_yaml(tmp_path, peer.port, PLAN, demo_machine_file(tmp_path)))
+    hal = peer.dir / "config" / "rumba_xyzbc.hal"
+    assert f"setp {PIN} 12.5\n" in hal.read_text()
+    run1 = await verification(cfg, "before")
+    code, out, _ = run_cli(["compensate", "--config", str(cfg), "--confirm", run1, "--by",
+                            "demo"], capsys)
+    assert code == 0, out
+    assert "set live with halcmd and read back" in out
+    conf = load_daemon_config(cfg)
+    store = Store(conf.store_path)
+    try:
+        (row,) = cj.rows(store)
+        (v,) = row.values
+    finally:
+        store.close()
+    assert row.state == "applied" and row.confirmed_by == "demo" and v.address == PIN
+    assert abs(v.new - 12.606) < 0.003  # EX0C −106 µm held by x-offset +106 µm
+    # live (halcmd getp prints 7 significant digits: 10 nm at 12.6 mm)
+    assert halkins.getp(PIN) == pytest.approx(v.new, abs=1e-5)
+    assert halkins.getp(PIN) != pytest.approx(12.5, abs=1e-3)
+    assert f"setp {PIN} {v.new:.6f}\n" in hal.read_text()  # survives a restart
+    assert len(list(hal.parent.glob("rumba_xyzbc.hal.rumba-*.bak"))) == 1
+
+    run2 = await verification(cfg, "after")
+    outcome = judge(cfg, run1, run2)
+    assert outcome.ok, "\n".join(outcome.lines)
+    assert set(outcome.before) == {"EX0C"}
+    assert outcome.distortion_after_um <= 0.1 * outcome.distortion_before_um
+    # the run's own analysis (the session identified it against the controller model)
+    store = Store(conf.store_path)
+    try:
+        a1, a2 = store.analysis(run1), store.analysis(run2)
+        assert a1 is not None and a2 is not None
+        k = coverage_factor(a2.estimation.sigma_dof or math.inf)
+        ex1, ex2 = a1.links["EX0C"], a2.links["EX0C"]
+        assert abs(ex1.value + 106) <= k * ex1.std
+        assert abs(ex2.value) <= k * math.hypot(ex1.std, ex2.std), (ex2.value, ex2.std)
+        # someone changes the kinematics by hand: the next identification refuses
+        setup = conf.machines[MACHINE_NAME]
+        halkins.setp(PIN, 12.7)
+        with pytest.raises(ControllerModelError, match="outside rumba"):
+            controller_model(setup, store)
+        halkins.setp(PIN, v.new)
+        controller_model(setup, store)
+    finally:
+        store.close()
+
+    code, out, _ = run_cli(["compensate", "--config", str(cfg), "--rollback", "--machine",
+                            MACHINE_NAME, "--by", "operator"], capsys)
+    assert code == 0, out
+    assert halkins.getp(PIN) == 12.5
+    assert f"setp {PIN} 12.500000\n" in hal.read_text()
+    assert len(list(hal.parent.glob("rumba_xyzbc.hal.rumba-*.bak"))) == 2
+    store = Store(conf.store_path)
+    try:
+        assert [r.state for r in cj.rows(store)] == ["rolled_back", "rolled_back"]
+        assert controller_model(setup, store).axes == setup.machine.axes
+    finally:
+        store.close()
