@@ -21,9 +21,9 @@ from daemon.daemon_yaml import load_daemon_config
 from daemon.store import Store
 from daemon.store_schema import MIGRATIONS, for_postgres
 from drivers.linuxcnc import halkins
+from tests.cli_helpers import run_cli
 from tests.daemon_helpers import CONFIG, write_daemon_yaml
 from tests.synth import Truth, make_rows, thesis_noise, to_internal
-from tests.test_service_cli import run_cli
 
 LINKS = {"EA0B": 18, "EC0B": -23, "EX0C": -40, "EA0C": -19, "EB0C": 26, "EC0Y": 17,
          "EA0Z": -24, "EB0Z": -12}

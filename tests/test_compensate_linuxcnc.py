@@ -24,8 +24,8 @@ from identification.estimate import coverage_factor
 from simulators import linuxcnc_peer
 from simulators.hal_probe import write_spec
 from simulators.truth import TruthModel
+from tests.cli_helpers import run_cli
 from tests.linuxcnc_helpers import ARTEFACT, ERRORS, MACHINE, PLAN
-from tests.test_service_cli import run_cli
 
 pytestmark = [pytest.mark.linuxcnc,
               pytest.mark.skipif(shutil.which("linuxcnc", path="/usr/bin") is None,

@@ -117,6 +117,19 @@ async def test_token_required_and_checked(fleet_db):
             assert r.status == 421  # DNS rebinding: the HMI's Host check applies here too
 
 
+async def test_login_form_names_the_fleet_page(fleet_db):
+    """The shared login form (daemon/hmi/login.html) names the page it signs in to."""
+    dsn, reports, _ = fleet_db
+    async with serving(dsn, reports) as url, aiohttp.ClientSession() as http:
+        async with http.get(f"{url}/login") as r:
+            page = await r.text()
+        async with http.post(f"{url}/login", data={"token": "nope"}) as r:
+            refused = await r.text()
+    for html in (page, refused):
+        assert "<p>Machine verification — fleet page</p>" in html
+        assert "operator page" not in html and "{{" not in html
+
+
 async def test_fleet_json_verdicts_ages_and_stale(fleet_db):
     dsn, reports, times = fleet_db
     async with serving(dsn, reports, stale_after_h=26) as url, \

@@ -81,6 +81,16 @@ async def test_binds_loopback_and_requires_a_token(service):
         assert r.status == 200 and (await r.json())["mill1"]["state"] == "IDLE"
 
 
+async def test_login_form_names_the_operator_page(service):
+    """The shared login form (login.html) names the page it signs in to: the HMI's here."""
+    async with aiohttp.ClientSession() as http:
+        page = await (await http.get(service.hmi_url + "login")).text()
+        refused = await (await http.post(service.hmi_url + "login", data={"token": "x"})).text()
+    for html in (page, refused):
+        assert "<p>Machine verification — operator page</p>" in html
+        assert "fleet page" not in html and "{{" not in html
+
+
 async def test_login_cookie_csrf_and_origin(service):
     jar = aiohttp.CookieJar(unsafe=True)
     async with aiohttp.ClientSession(cookie_jar=jar) as http:

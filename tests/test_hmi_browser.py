@@ -17,7 +17,7 @@ from daemon.service import Service
 from tests.browser import chromium
 from tests.daemon_helpers import thesis_rows, thesis_setup, write_daemon_yaml
 from tests.replay_link import ReplayLink, prepare_from_rows
-from tests.test_report import journal_run
+from tests.report_helpers import journal_run
 
 pytestmark = [pytest.mark.peer]
 TOKEN = "t0k3n-for-browser-0123456789"

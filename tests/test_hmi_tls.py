@@ -5,8 +5,6 @@ the handshake; bad TLS files are one config line naming the key; a remote HMI wi
 from __future__ import annotations
 
 import asyncio
-import datetime
-import ipaddress
 import logging
 import re
 import ssl
@@ -15,10 +13,6 @@ from pathlib import Path
 
 import aiohttp
 import pytest
-from cryptography import x509
-from cryptography.hazmat.primitives import hashes, serialization
-from cryptography.hazmat.primitives.asymmetric import ec
-from cryptography.x509.oid import NameOID
 
 from daemon.cli import main as cli_main
 from daemon.daemon_yaml import load_daemon_config
@@ -26,32 +20,9 @@ from daemon.hmi.tls import server_context
 from daemon.service import Service, ServiceError
 from tests.daemon_helpers import thesis_rows, thesis_setup, write_daemon_yaml
 from tests.replay_link import ReplayLink, prepare_from_rows
+from tests.tls_helpers import make_cert
 
 TOKEN = "t0k3n-for-tests-0123456789"
-
-
-def make_cert(directory: Path, name: str = "hmi", *, passphrase: bytes | None = None
-              ) -> tuple[Path, Path]:
-    """A self-signed P-256 server certificate for 127.0.0.1 (PEM) and its key (mode 0600)."""
-    key = ec.generate_private_key(ec.SECP256R1())
-    subject = x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, "rumba HMI test")])
-    now = datetime.datetime.now(datetime.UTC)
-    cert = (x509.CertificateBuilder().subject_name(subject).issuer_name(subject)
-            .public_key(key.public_key()).serial_number(x509.random_serial_number())
-            .not_valid_before(now - datetime.timedelta(minutes=5))
-            .not_valid_after(now + datetime.timedelta(days=1))
-            .add_extension(x509.SubjectAlternativeName(
-                [x509.IPAddress(ipaddress.ip_address("127.0.0.1"))]), critical=False)
-            .add_extension(x509.BasicConstraints(ca=True, path_length=None), critical=True)
-            .sign(key, hashes.SHA256()))
-    crt, pem = directory / f"{name}.crt", directory / f"{name}.key"
-    crt.write_bytes(cert.public_bytes(serialization.Encoding.PEM))
-    enc = (serialization.NoEncryption() if passphrase is None
-           else serialization.BestAvailableEncryption(passphrase))
-    pem.touch(mode=0o600)
-    pem.write_bytes(key.private_bytes(serialization.Encoding.PEM,
-                                      serialization.PrivateFormat.PKCS8, enc))
-    return crt, pem
 
 
 def tls_yaml(tmp_path: Path, cert: Path, key: Path, host: str = "127.0.0.1") -> Path:

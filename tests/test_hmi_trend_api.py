@@ -12,7 +12,7 @@ from daemon.daemon_yaml import load_daemon_config
 from daemon.service import Service
 from tests.daemon_helpers import thesis_rows, thesis_setup, write_daemon_yaml
 from tests.replay_link import ReplayLink, prepare_from_rows
-from tests.test_report import journal_run
+from tests.report_helpers import journal_run
 
 TOKEN = "t0k3n-for-trend-api-0123456789"
 

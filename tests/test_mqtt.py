@@ -18,7 +18,7 @@ from daemon.store import Store
 from tests.daemon_helpers import thesis_rows, thesis_setup
 from tests.fleet_helpers import start_mosquitto, until
 from tests.replay_link import ReplayLink, prepare_from_rows
-from tests.test_hmi_tls import make_cert
+from tests.tls_helpers import make_cert
 
 peer = pytest.mark.peer
 PASSWORD = "mqtt-password-0123456789"

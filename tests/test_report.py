@@ -15,28 +15,10 @@ from pathlib import Path
 import pytest
 
 from daemon import pipeline, report
-from daemon.judge import Judgement, judge
+from daemon.judge import Judgement
 from daemon.store import Store
-from tests.daemon_helpers import thesis_rows, thesis_setup
-
-
-def journal_run(store: Store, setup, run_id: str, seed: int, started: float,
-                reason: str = "") -> tuple[pipeline.RunAnalysis, Judgement]:
-    """Journal one run like the session does; returns its analysis and judgement."""
-    rows = thesis_rows(setup, seed=seed)
-    hits = [pipeline.row_to_hit(r, setup.machine) for r in rows]
-    store.new_run(run_id, setup.name, "cnc", plan=setup.plan.name, started_at=started)
-    store.journal_hits(run_id, hits)
-    a = pipeline.analyse(setup, hits, run_id)
-    store.save_centres(run_id, a.centre_rows)
-    store.save_analysis(run_id, a.data)
-    j = judge(a.data, setup.tolerances)
-    if reason:
-        j = dataclasses.replace(j, reasons=(*j.reasons, reason))
-    store.save_verdict(run_id, j.status, list(j.reasons), [c.as_dict() for c in j.checks],
-                       j.summary)
-    store.set_state(run_id, "DONE")
-    return a, j
+from tests.daemon_helpers import thesis_setup
+from tests.report_helpers import journal_run
 
 
 def render(store: Store, setup, run_id: str, a: pipeline.RunAnalysis, j: Judgement,

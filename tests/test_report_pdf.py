@@ -29,7 +29,7 @@ from daemon.report_pdf import write_pdf
 from daemon.store import Store, TrendPoint
 from daemon.verdict_text import ADVICE, duration_text
 from tests.daemon_helpers import CONFIG, TOLERANCES, thesis_setup, write_daemon_yaml
-from tests.test_report import journal_run
+from tests.report_helpers import journal_run
 
 AUDIT = report.Audit(machine_serial="DMU65-2019-04417", operator="J. Keller, shift 1",
                      artefact_certificate="DAkkS D-K-15183 #2024-117",

@@ -121,7 +121,7 @@ def test_fixed_order_k_is_order_k_minus_and_plus_one_in_the_moving_frame(thesis)
 
 def _visible_fraction(thesis, poses, eff, theta) -> float:
     machine, _, artefact, _ = thesis
-    base = selfcheck._base_truth(machine, artefact, np.random.default_rng(5))
+    base = selfcheck.base_truth(machine, artefact, np.random.default_rng(5))
     injected = Truth(base.links, base.ball_setup_mm, base.tip_setup_mm, [(eff, theta)])
     vis, total, _ = selfcheck.visible_rms(machine, artefact, poses, base, injected, STYLUS_R)
     assert total > 1e-3  # the injection does move the touches (µm)
@@ -179,7 +179,7 @@ def test_each_visible_part_is_named_rotary_error_motion(thesis, letter, componen
                                                         amp):
     machine, _, artefact, _ = thesis
     rng = np.random.default_rng(2)
-    base = selfcheck._base_truth(machine, artefact, rng)
+    base = selfcheck.base_truth(machine, artefact, rng)
     eff = fixed_error_motion(machine, letter, (order,), (component,))
     ph = rng.uniform(0, 2 * np.pi)
     if part == "counter":

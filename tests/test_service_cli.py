@@ -15,21 +15,8 @@ from pathlib import Path
 
 import pytest
 
-from daemon.cli import main as cli_main
+from tests.cli_helpers import free_port, run_cli
 from tests.daemon_helpers import ROOT, write_daemon_yaml
-
-
-def run_cli(argv: list[str], capsys) -> tuple[int, str, str]:
-    code = cli_main(argv)
-    out, err = capsys.readouterr()
-    return code, out, err
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
 
 # ------------------------------------------------------------------------- bad configuration
 

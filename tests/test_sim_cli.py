@@ -10,8 +10,8 @@ from contracts.yaml_files import ConfigError
 from daemon.cli import main
 from simulators.errors_schema import errors_from_dict, load_errors
 from simulators.truth import TruthModel
+from tests.sim_helpers import TABLE_B2, truth_with
 from tests.sim_programs import program
-from tests.test_sim_probe import TABLE_B2, truth_with
 
 M = "config/machines/thesis_wcbxfzyt.yaml"
 A = "config/artefacts/thesis_4ball.yaml"

@@ -11,8 +11,8 @@ import pytest
 from simulators.controller import Block, FaultEvent, PrintLine, StateChange, TouchResult
 from simulators.controller import VirtualController as VC
 from simulators.faults import Fault, FaultPlan
+from tests.sim_helpers import TABLE_B2, truth_with
 from tests.sim_programs import program
-from tests.test_sim_probe import TABLE_B2, truth_with
 
 SIMPLE = "%\nG21 G90\nG00 Z300.\nG00 X100.\nG01 X110. F600.\nG04 X2.\nG00 B90.\nM30\n%\n"
 

@@ -10,8 +10,8 @@ from scipy.optimize import brentq
 from identification.effects import make_effect
 from identification.spherefit import fit_spheres
 from simulators.controller import VirtualController
+from tests.sim_helpers import TABLE_B2, g_true, truth_with
 from tests.sim_programs import program
-from tests.test_sim_probe import TABLE_B2, g_true, truth_with
 
 POSES = [(0.0, 0.0), (30.0, 60.0), (-45.0, 330.0)]
 

@@ -10,8 +10,8 @@ import pytest
 
 from simulators.controller import VirtualController
 from simulators.gcode import DIALECTS
+from tests.sim_helpers import TABLE_B2, analytic_contact, truth_with
 from tests.sim_programs import program
-from tests.test_sim_probe import TABLE_B2, analytic_contact, truth_with
 
 POSES = [(0.0, 0.0), (30.0, 60.0), (-45.0, 330.0)]
 

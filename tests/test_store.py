@@ -11,18 +11,11 @@ import time
 
 import pytest
 
-from contracts.messages import ProbeHit
 from contracts.probing_log import read_log
 from daemon.journal_csv import export_csv, import_csv
 from daemon.store import SCHEMA_VERSION, Store, StoreError
 from tests.daemon_helpers import thesis_rows, thesis_setup
-
-
-def hit(seq: int, triggered: bool = True) -> ProbeHit:
-    return ProbeHit(seq=seq, pose=seq // 20, ball="B1", touch=1 + seq % 5,
-                    axes={"X": 1.5 * seq, "Y": -2.0, "Z": 3.25, "B": 30.0, "C": 60.0},
-                    triggered=triggered, t_s=0.1 * seq, raw=f"#{seq}", direction=(1.0, 0, 0),
-                    feed_mm_min=300.0, extra={"q": 1.0})
+from tests.store_helpers import hit
 
 
 def test_wal_and_schema_version(tmp_path):
@@ -70,7 +63,7 @@ def test_hit_round_trip_and_interrupted(tmp_path):
 _WRITER = """
 import sys, time
 from daemon.store import Store
-from tests.test_store import hit
+from tests.store_helpers import hit
 s = Store(sys.argv[1], synchronous=sys.argv[2])
 s.new_run("K", "mill1", "cnc")
 for k in range(1, 100000):

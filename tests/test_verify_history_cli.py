@@ -9,9 +9,9 @@ from pathlib import Path
 import pytest
 
 from daemon.commands.verify import verify
+from tests.cli_helpers import free_port, run_cli
 from tests.daemon_helpers import thesis_rows, thesis_setup, write_daemon_yaml
 from tests.replay_link import Faults, ReplayLink, prepare_from_rows
-from tests.test_service_cli import free_port, run_cli
 
 # --------------------------------------------------------------------------------- verify
 

@@ -11,7 +11,7 @@ from drivers.base import ControllerAlarm
 from programs.generate import generate
 from simulators.controller import VirtualController
 from simulators.truth import TruthModel
-from tests.test_sim_probe import TABLE_B2, truth_with
+from tests.sim_helpers import TABLE_B2, truth_with
 
 # Where the start-of-shift macros read the verdict (gcode_templates/*/README.md), written out
 # here as the tests' own oracle for the table the dialects and the simulator share.

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import asyncio
 import hmac
+import re
 from collections.abc import Awaitable, Callable, Iterable
 from html import escape
 from importlib import resources
@@ -26,7 +27,7 @@ COOKIE = "rumba_session"
 CSP = ("default-src 'none'; script-src 'self'; style-src 'self'; img-src 'self' data:; "
        "connect-src 'self'; form-action 'self'; frame-ancestors 'none'; base-uri 'none'")
 PUBLIC = {"/login", "/hmi.css"}
-HMI_NAME = "operator page"  # what login.html calls the page it signs in to
+HMI_NAME = "operator page"  # the HMI's name on the login form (login.html {{page}})
 
 AUTH_KEY = web.AppKey("auth", object)
 LIMITS_KEY = web.AppKey("limits", HmiLimits)
@@ -156,9 +157,11 @@ async def security(request: web.Request, handler: Callable[[web.Request], Awaita
 
 
 def _login_html(request: web.Request, error: str) -> str:
-    """The login form, naming the page it signs in to (login.html names the HMI's)."""
-    return page_asset("login.html").replace("{{error}}", error).replace(
-        f"{HMI_NAME}</p>", f"{escape(request.app[LOGIN_NAME_KEY])}</p>")
+    """The login form naming the page it signs in to (escaped); ``error`` is our own markup.
+    One pass over login.html's placeholders, so a value is never itself substituted."""
+    values = {"error": error, "page": escape(request.app[LOGIN_NAME_KEY])}
+    return re.sub(r"\{\{(error|page)\}\}", lambda m: values[m.group(1)],
+                  page_asset("login.html"))
 
 
 async def login_page(request: web.Request) -> web.Response:

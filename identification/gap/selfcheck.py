@@ -86,7 +86,7 @@ class Summary:
         return "\n".join(lines)
 
 
-def _base_truth(machine: Machine, artefact: Artefact, rng: np.random.Generator) -> Truth:
+def base_truth(machine: Machine, artefact: Artefact, rng: np.random.Generator) -> Truth:
     links = {}
     for name in machine.location_error_names():
         rot = name[1] in "ABC"
@@ -156,7 +156,7 @@ def run_case(machine: Machine, artefact: Artefact, poses: Sequence[tuple[float, 
              noise_um: float = 0.5, factor: float = 5.0, split: str = "auto",
              gravity_dir: Sequence[float] | None = None) -> Case:
     rng = np.random.default_rng(seed)
-    base = _base_truth(machine, artefact, rng)
+    base = base_truth(machine, artefact, rng)
     truth = Truth(base.links, base.ball_setup_mm, base.tip_setup_mm)
     displaced = None
     family = expected_family(scenario)
@@ -217,7 +217,7 @@ def visible(machine: Machine, artefact: Artefact, poses: Sequence[tuple[float, f
             gravity_dir: Sequence[float] | None = None) -> bool:
     """Would a typical-size instance be seen at all (> 1 % of the floor) on these poses?"""
     rng = np.random.default_rng(0)
-    base = _base_truth(machine, artefact, rng)
+    base = base_truth(machine, artefact, rng)
     eff = _effect_for(family, axis, machine, artefact, gravity_dir)
     theta = np.array([TYPICAL.get(u, 1.0) for u in eff.units])
     inj = Truth(base.links, base.ball_setup_mm, base.tip_setup_mm, [(eff, theta)])
