@@ -13,6 +13,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 
+from contracts.controller_kinematics import controller_kinematics
 from contracts.result_lines import VERDICT_VARIABLES
 from simulators.controller_events import (
     Block,
@@ -25,6 +26,7 @@ from simulators.controller_events import (
     TouchResult,
 )
 from simulators.controller_io import MachineSide
+from simulators.controller_kinematics import KinematicsStore
 from simulators.faults import FRONT_END_KINDS, FaultPlan
 from simulators.gcode import Alarm, BlockQueue, ProbeOutcome, make_interpreter, run
 from simulators.latch import ProbeLatch, TouchRecord
@@ -60,9 +62,12 @@ class VirtualController(MachineSide):
 
     def __init__(self, truth: TruthModel, *, time_scale: float = 0.0, rng_seed: int = 0,
                  faults: FaultPlan | None = None, dialect: str = "fanuc",
-                 tnc_measuring_path_mm: float = 4.0, tnc_probe_feed_mm_min: float = 300.0
-                 ) -> None:
+                 tnc_measuring_path_mm: float = 4.0, tnc_probe_feed_mm_min: float = 300.0,
+                 kinematics: KinematicsStore | None = None) -> None:
         self.truth = truth
+        # The control's kinematic values (simulators/controller_kinematics.py): compensation
+        # writes go here, never to the truth; default: the machine file's section, if any.
+        self.kinematics = kinematics if kinematics is not None else _store_of(truth)
         self.time_scale = float(time_scale)
         self.rng_seed = rng_seed
         self.faults = faults or FaultPlan()
@@ -211,6 +216,22 @@ class VirtualController(MachineSide):
         self.rng_seed = seed
         self._latch.reseed(seed)
 
+    def halcmd_setp(self, pin: str, value: float) -> None:
+        """``halcmd setp pin value`` on the simulated LinuxCNC (its compensation is halcmd
+        lines, not G-code); only a declared kins pin: ``KeyError`` otherwise."""
+        self._kinematics_for(("linuxcnc",)).write(pin, value, "halcmd setp")
+
+    def operator_entry(self, address: str, value: float) -> None:
+        """What the operator types in on a Haas settings page or the Heidenhain kinematics
+        table (these controls have no program write of these values); declared addresses
+        only: ``KeyError`` otherwise."""
+        self._kinematics_for(("haas", "heidenhain")).write(address, value, "operator")
+
+    def _kinematics_for(self, families: tuple[str, ...]) -> KinematicsStore:
+        if self.kinematics is None or self.kinematics.family not in families:
+            raise KeyError(f"this control keeps no {'/'.join(families)} kinematic values")
+        return self.kinematics
+
     def feed_hold(self) -> None:
         if self.state == "running":
             self._resume.clear()
@@ -328,3 +349,10 @@ class VirtualController(MachineSide):
 
     def _emit(self, ev: ControllerEvent) -> None:
         self._events.emit(ev)
+
+
+def _store_of(truth: TruthModel) -> KinematicsStore | None:
+    section = truth.machine_file.controller_kinematics
+    if section is None:
+        return None
+    return KinematicsStore.from_spec(controller_kinematics(section, truth.machine))

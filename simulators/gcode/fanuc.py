@@ -3,6 +3,15 @@
 Skip results follow the controllers: ``#5061``-``#5065`` hold X, Y, Z, 4th, 5th at the skip
 signal — and the END POINT of the move when nothing triggered (Haas and Fanuc alike), so a
 program must never infer "triggered" from the position alone. Comments are ``( … )``.
+
+Compensation writes reach the control's kinematic values (``io.kinematics``,
+simulators/controller_kinematics.py), never the truth: ``G10 L52`` … ``N<param> R<value>`` …
+``G11`` (programmable parameter input) writes a real-type parameter the Fanuc section declares;
+the value needs its decimal point (without one a real control reads least input increments: the
+simulator refuses it rather than guess the increment). A parameter the control does not hold, an
+axis-type ``P`` word, or ``G10 L52`` on a control without a Fanuc section (Haas: settings are
+entered by hand, ``VirtualController.operator_entry``) raises an alarm, as a control rejects a
+parameter. A macro variable the section declares (``#500``) reads and writes the kinematic value.
 """
 
 from __future__ import annotations
@@ -20,6 +29,7 @@ _WHILE = re.compile(r"^WHILE\s*(\[.*\])\s*DO\s*(\d+)$", re.IGNORECASE)
 _END = re.compile(r"^END\s*(\d+)$", re.IGNORECASE)
 _ASSIGN = re.compile(r"^(#\s*(?:\d+|\[.*?\]))\s*=\s*(.+)$", re.IGNORECASE)
 _DPRNT = re.compile(r"^DPRNT\s*\[(.*)\]$", re.IGNORECASE)
+_PARAM = re.compile(r"^N\s*(\d+)\s*(P\s*\d+\s*)?R\s*([-+]?[0-9.]+)$", re.IGNORECASE)
 _DPRNT_VAR = re.compile(r"#(\d+|\[[^\]]*\])\s*\[\s*(\d)\s*(\d)\s*\]")
 
 # G codes that only set modes our moves do not depend on (planes, compensation off, canned
@@ -45,6 +55,33 @@ class FanucInterpreter(Interpreter):
 
     def __init__(self, io, variables=None, name: str = "fanuc") -> None:
         super().__init__(io, variables if variables is not None else {}, name=name)
+        self.parameter_input = False  # between G10 L52 and G11
+
+    def kinematic_address(self, address: str) -> bool:
+        """Does the control keep ``address`` as a Fanuc kinematic value?"""
+        store = getattr(self.io, "kinematics", None)
+        return store is not None and store.family == "fanuc" and store.holds(address)
+
+    def parameter_block(self, raw: str) -> Flow:
+        """One block of G10 L52 mode: ``N<param> R<value>`` or the closing ``G11``."""
+        code = raw.replace(" ", "").upper()
+        if code in ("G11", "G11.0"):
+            self.parameter_input = False
+            return NEXT
+        m = _PARAM.match(code)
+        if not m:
+            raise Alarm(f"G10 L52: {raw!r} is not N<parameter> R<value> (or G11)")
+        n, axis, text = int(m.group(1)), m.group(2), m.group(3)
+        if axis:
+            raise Alarm(f"G10 L52: parameter {n} P: axis-type parameters are not simulated")
+        if not self.kinematic_address(str(n)):
+            raise Alarm(f"G10 L52: parameter {n} is not available (not a kinematic parameter "
+                        "of this control)")
+        if "." not in text:
+            raise Alarm(f"G10 L52: parameter {n} R{text}: a real-type value needs its "
+                        "decimal point")
+        self.io.kinematics.write(str(n), float(text), "G10 L52")
+        return NEXT
 
     # ------------------------------------------------------------------ variables
     def lookup(self, name: str) -> float | str:
@@ -57,6 +94,8 @@ class FanucInterpreter(Interpreter):
                     return pos[axes[n - base]]
             if n == 0:
                 return 0.0  # #0 is <vacant>, read as 0 in arithmetic
+            if self.kinematic_address(name):
+                return self.io.kinematics.read(name)
         return self.variables.get(name, 0.0)
 
     def assign(self, target: str, value: float) -> None:
@@ -66,6 +105,8 @@ class FanucInterpreter(Interpreter):
             raise Alarm(f"#3000 alarm {3000 + int(value)}")
         if idx in range(1, 34) or idx >= 100:
             self.variables[f"#{idx}"] = float(value)
+            if self.kinematic_address(f"#{idx}"):
+                self.io.kinematics.write(f"#{idx}", float(value), f"#{idx}=")
         else:
             raise Alarm(f"#{idx} cannot be written (system variable)")
 
@@ -95,6 +136,8 @@ class FanucInterpreter(Interpreter):
     # ------------------------------------------------------------------ execution
     def execute(self, block: str, index: int) -> Flow:
         raw, comment = _clean(block)
+        if self.parameter_input and raw:
+            return self.parameter_block(raw)
         if raw == "%":
             return NEXT if index == 0 else END
         code = _N.sub("", raw, count=1).strip()
@@ -194,7 +237,12 @@ class FanucInterpreter(Interpreter):
                 probe = True
             elif g == 28.0:
                 home = True
-            elif g == 53.0 or g in _MODAL_NOOP:
+            elif g == 10.0:
+                if vals.get("L") != 52.0:
+                    raise Alarm("G10 is supported as G10 L52 (parameter input) only")
+                self.parameter_input = True
+                return NEXT
+            elif g in (11.0, 53.0) or g in _MODAL_NOOP:  # G11 outside L52 mode: nothing
                 pass
             else:
                 raise Alarm(f"G{g:g} is not supported by this controller model")

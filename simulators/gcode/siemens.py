@@ -3,19 +3,29 @@ $AC_MEA, WRITE, MSG, SETAL, IF/ELSE/ENDIF, WHILE/ENDWHILE, GOTOF/GOTOB, labels.
 
 A measuring move that does not trigger ends at its end point with ``$AC_MEA[1] = 0`` and no
 alarm (the part program decides). Comments start with ``;``.
+
+Tool-carrier data ``$TC_CARR<n>[<k>] = <expr>`` writes the control's kinematic value
+(``io.kinematics``, simulators/controller_kinematics.py; never the truth) and ``$TC_CARR<n>[<k>]``
+reads it back in expressions; only the values the Siemens section declares exist here, any other
+raises an alarm (refused rather than silently kept).
 """
 
 from __future__ import annotations
 
 import re
+from typing import TYPE_CHECKING
 
 from simulators.gcode.core import END, NEXT, Alarm, Flow, Interpreter
+
+if TYPE_CHECKING:
+    from simulators.controller_kinematics import KinematicsStore
 
 _N = re.compile(r"^\s*N\d+\s*", re.IGNORECASE)
 _LABEL = re.compile(r"^([A-Z_][A-Z0-9_]{1,31}):\s*", re.IGNORECASE)
 _DEF = re.compile(r"^DEF\s+(REAL|INT|BOOL|STRING\s*\[\s*\d+\s*\]|CHAR|AXIS|FRAME)\s+(.+)$",
                   re.IGNORECASE)
 _ASSIGN = re.compile(r"^(R\d+|R\[[^\]]+\]|[A-Z_][A-Z0-9_]*)\s*=\s*(.+)$", re.IGNORECASE)
+_CARR = re.compile(r"^(\$TC_CARR\d+\[\s*\d+\s*\])\s*=\s*(.+)$", re.IGNORECASE)
 _IF = re.compile(r"^IF\s*(.+?)\s+(GOTOF|GOTOB|GOTO|GOTOC)\s+(\w+)$", re.IGNORECASE)
 _CALL = re.compile(r"^(WRITE|MSG|SETAL)\s*\((.*)\)$", re.IGNORECASE)
 _ADDRESS_WORD = re.compile(r"\s*([A-Z]+)\s*(=\s*(?:\([^;]*?\)|\"[^\"]*\"|[^\s]+)|"
@@ -54,12 +64,21 @@ class SiemensInterpreter(Interpreter):
                 return pos[idx]
             if base == "$AC_MEA":
                 return self.meas_ok
+            if base.startswith("$TC_CARR"):
+                return self._carrier(name).read(name)
             raise Alarm(f"system variable {name} is not simulated")
         if name.startswith("R"):
             return self.variables.get(name, 0.0)
         if name not in self.variables:
             raise Alarm(f"variable {name} not defined (DEF missing)")
         return self.variables[name]
+
+    def _carrier(self, address: str) -> KinematicsStore:
+        """The kinematic store holding ``address`` (a declared tool-carrier value)."""
+        store = getattr(self.io, "kinematics", None)
+        if store is None or store.family != "siemens" or not store.holds(address):
+            raise Alarm(f"{address}: not a tool-carrier value of this control")
+        return store
 
     def label_of(self, block: str) -> str | None:
         code = _N.sub("", _strip(block), count=1)
@@ -98,6 +117,11 @@ class SiemensInterpreter(Interpreter):
                 value = self.eval(init) if init.strip() else ("" if kind.startswith("STRING")
                                                              else 0.0)
                 self.variables[name] = value
+            return NEXT
+        m = _CARR.match(code)
+        if m:
+            address = m.group(1).replace(" ", "").upper()
+            self._carrier(address).write(address, self.num(m.group(2)), "$TC_CARR=")
             return NEXT
         m = _IF.match(code)
         if m:
