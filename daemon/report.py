@@ -21,6 +21,7 @@ import jinja2
 from daemon.analysis_result import Analysis
 from daemon.judge import Judgement, Tolerances, volumetric_max_um
 from daemon.report_audit import Audit, audit_of, audit_rows, local_time
+from daemon.report_compensation import CompensationView
 from daemon.report_pdf import write_pdf
 from daemon.report_plots import (
     VERDICT_COLOURS,
@@ -76,6 +77,20 @@ reference: run {{ analysis.reference_run }}{% endif %}</small></p>
 <td>{{ '%+.2f' % v.value }}</td><td>{{ '%.2f' % v.std }}</td>
 <td class="l">{{ 'µrad' if v.unit == 'urad' else 'µm' }}</td></tr>{% endfor %}</table>
 <p><small>Not observable: {{ analysis.unobservable|join(', ') or 'nothing' }}.</small></p>
+{% if comp %}<h2>Compensation verified by this run</h2><p>Journal #{{ comp.row_id }}: written
+after run {{ comp.source_run }}, confirmed by {{ comp.confirmed_by }} on {{ comp_time }}.</p>
+<table><tr><th class="l">controller value</th><th class="l">address</th><th>old</th><th>new</th>
+<th class="l">unit</th></tr>{% for v in comp.values %}<tr><td class="l">{{ v.name }}</td>
+<td class="l">{{ v.address }}</td><td>{{ '%.6f' % v.old }}</td><td>{{ '%.6f' % v.new }}</td>
+<td class="l">{{ v.unit }}</td></tr>{% endfor %}</table>
+<table><tr><th class="l">ISO 230-1</th><th>before</th><th>u</th><th>after</th><th>u</th>
+<th class="l">unit</th></tr>{% for l in comp.links %}<tr><td class="l">{{ l.name }}</td>
+<td>{{ '%+.2f' % l.before }}</td><td>{{ '%.2f' % l.u_before }}</td>
+<td>{{ '%+.2f' % l.after }}</td><td>{{ '%.2f' % l.u_after }}</td>
+<td class="l">{{ 'µrad' if l.unit == 'urad' else 'µm' }}</td></tr>{% endfor %}</table>
+{% if comp.distortion_before_um is not none and comp.distortion_after_um is not none %}<p>Largest
+volumetric distortion {{ '%.1f' % comp.distortion_before_um }} µm before,
+{{ '%.1f' % comp.distortion_after_um }} µm now.</p>{% endif %}{% endif %}
 {% for title, img in plots %}{% if img %}<h2>{{ title }}</h2>
 <img alt="{{ title }}" src="data:image/png;base64,{{ img }}">{% endif %}{% endfor %}
 <h2>Setup errors</h2><table><tr><th class="l">item</th><th>dx / µm</th><th>dy / µm</th>
@@ -135,17 +150,20 @@ def render_plots(analysis: Analysis, centres: dict[tuple[int, str], Sequence[flo
 
 def build(run: RunRow, analysis: Analysis, judgement: Judgement | None,
           centre_rows: Iterable[Sequence[Any]], trend: list[TrendPoint],
-          tol: Tolerances | None, audit: Audit | None = None) -> tuple[str, dict[str, Any]]:
+          tol: Tolerances | None, audit: Audit | None = None,
+          compensation: CompensationView | None = None) -> tuple[str, dict[str, Any]]:
     """(HTML text, JSON document) for one run: its record, analysis, judgement, centre rows
-    (pose, ball, b, c, x, y, z, …), the trend of its machine (oldest first) and the audit
-    fields of its configuration."""
-    html, doc, _ = _render(run, analysis, judgement, centre_rows, trend, tol, audit)
+    (pose, ball, b, c, x, y, z, …), the trend of its machine (oldest first), the audit
+    fields of its configuration and the compensation it verifies (before/after)."""
+    html, doc, _ = _render(run, analysis, judgement, centre_rows, trend, tol, audit,
+                           compensation)
     return html, doc
 
 
 def _render(run: RunRow, analysis: Analysis, judgement: Judgement | None,
             centre_rows: Iterable[Sequence[Any]], trend: list[TrendPoint],
-            tol: Tolerances | None, audit: Audit | None
+            tol: Tolerances | None, audit: Audit | None,
+            compensation: CompensationView | None = None
             ) -> tuple[str, dict[str, Any], dict[str, bytes | None]]:
     audit = audit or Audit()
     verdict = verdict_doc(judgement)
@@ -164,6 +182,7 @@ def _render(run: RunRow, analysis: Analysis, judgement: Judgement | None,
                    "volumetric_max_um": volumetric_max_um(t.analysis),
                    "links": {k: v.value for k, v in t.analysis.links.items()}}
                   for t in trend],
+        "compensation": compensation.to_json() if compensation else None,
     }
     stab = analysis.stability
     html = _TEMPLATE.render(
@@ -173,7 +192,8 @@ def _render(run: RunRow, analysis: Analysis, judgement: Judgement | None,
         audit=audit_rows(run, audit, analysis),
         colour=VERDICT_COLOURS.get(status or "ERROR", "#555"),
         generated=local_time(time.time()), json_name=f"{run.id}.json",
-        pdf_name=f"{run.id}.pdf",
+        pdf_name=f"{run.id}.pdf", comp=compensation,
+        comp_time=local_time(compensation.applied_at) if compensation else "",
         stability_span=duration_text(stab.span_min * 60)
         if stab is not None and stab.span_min is not None else "",
         health_rad=max((abs(h.radius_dev_um or 0.0) for h in health), default=0.0),
@@ -189,13 +209,15 @@ def pdf_path(html_path: Path) -> Path:
 def write_report(reports_dir: Path, run: RunRow, analysis: Analysis,
                  judgement: Judgement | None, centre_rows: Iterable[Sequence[Any]],
                  trend: list[TrendPoint], tol: Tolerances | None = None,
-                 audit: Audit | None = None) -> tuple[Path, Path]:
+                 audit: Audit | None = None, compensation: CompensationView | None = None
+                 ) -> tuple[Path, Path]:
     """Write ``<reports_dir>/<run id>.html``, ``.json`` and ``.pdf`` from what the caller holds
     (no journal access); returns the HTML and JSON paths (the PDF is ``pdf_path(html)``, and
     the JSON names it). The run id names the files: it is checked, and every path is proven to
     stay in ``reports_dir``."""
     run_id = validate_run_id(run.id)
-    html, doc, plots = _render(run, analysis, judgement, centre_rows, trend, tol, audit)
+    html, doc, plots = _render(run, analysis, judgement, centre_rows, trend, tol, audit,
+                               compensation)
     reports_dir = Path(reports_dir)
     reports_dir.mkdir(parents=True, exist_ok=True)
     # after mkdir, so that the containment check sees the real directory and its symlinks

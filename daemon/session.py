@@ -25,6 +25,7 @@ from daemon import pipeline, reprobe
 from daemon.analysis_result import Analysis
 from daemon.daemon_yaml import MachineSetup
 from daemon.judge import Judgement, judge
+from daemon.report_compensation import verification_of
 from daemon.store import Store, validate_run_id
 from drivers.base import CncLink, ControllerAlarm, LinkError
 from drivers.retry import with_backoff
@@ -304,9 +305,11 @@ class Session:
         self._enter(State.REPORT)
         from daemon import report  # matplotlib import is slow: only when a run gets here
         run, trend = self.store.run(run_id), self.store.trend(self.setup.name)
+        verified = verification_of(self.store, run, analysis.data)  # issue 13: before/after
         paths = await asyncio.to_thread(report.write_report, self.reports_dir, run,
                                         analysis.data, judgement, analysis.centre_rows, trend,
-                                        self.setup.tolerances, report.audit_of(self.setup))
+                                        self.setup.tolerances, report.audit_of(self.setup),
+                                        verified)
         self.store.save_report(run_id, *paths)  # the PDF beside the HTML (report.pdf_path)
         self.verdict["report"] = str(paths[0])  # type: ignore[index]  # set by _judge
         self.verdict["pdf"] = str(report.pdf_path(paths[0]))  # type: ignore[index]

@@ -5,6 +5,7 @@ with a remote link writes the reviewed program for the operator)."""
 from __future__ import annotations
 
 import dataclasses
+import json
 import os
 from pathlib import Path
 
@@ -187,6 +188,16 @@ def test_second_run_after_compensation_proposes_nothing(tmp_path, capsys):
     finally:
         store.close()
     assert abs(before.value + 40) < 2 and abs(after.value) < 2 * after.std + 1e-3
+    # its report shows the compensation it verifies, before and after, and the journal links it
+    doc = json.loads((tmp_path / "reports" / "later.json").read_text())
+    comp = doc["compensation"]
+    assert comp["source_run"] == "synth" and comp["confirmed_by"] == "alice"
+    ex = next(v for v in comp["links"] if v["name"] == "EX0C")
+    assert ex["before"] == pytest.approx(before.value) and ex["after"] == pytest.approx(after.value)
+    assert [v["name"] for v in comp["values"]] == ["x-offset"]
+    html = (tmp_path / "reports" / "later.html").read_text()
+    assert "Compensation verified by this run" in html and "confirmed by alice" in html
+    assert json.loads((tmp_path / "reports" / "synth.json").read_text())["compensation"] is None
 
 
 def test_refused_when_over_the_guard(tmp_path, capsys):

@@ -20,6 +20,7 @@ from daemon.daemon_yaml import DaemonConfig, MachineSetup, load_daemon_config
 from daemon.journal_csv import export_csv, journal_import, read_import
 from daemon.judge import Judgement, judge, volumetric_max_um
 from daemon.pipeline import PipelineError, RunAnalysis, analyse, row_to_hit
+from daemon.report_compensation import verification_of
 from daemon.store import Store, StoreError
 
 # What bad data (absurd coordinates, degenerate ball-poses …) makes the analysis raise; the
@@ -119,8 +120,9 @@ def _import(cfg: DaemonConfig, store: Store, args: argparse.Namespace) -> int:
     a, j = result
     run, trend = store.run(run_id), store.trend(setup.name)  # as committed: state DONE
     try:  # after the commit: rendering takes seconds, the daemon must not wait on the journal
-        html, json_path = report.write_report(cfg.reports_dir, run, a.data, j, a.centre_rows,
-                                              trend, setup.tolerances, report.audit_of(setup))
+        html, json_path = report.write_report(
+            cfg.reports_dir, run, a.data, j, a.centre_rows, trend, setup.tolerances,
+            report.audit_of(setup), verification_of(store, run, a.data))
         store.save_report(run_id, html, json_path)
     except OSError as e:
         raise UserError(f"run {run_id} imported ({j.summary}), but its report cannot be "
