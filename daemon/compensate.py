@@ -99,6 +99,17 @@ def controller_model(setup: MachineSetup, store: Store, *, before: float | None 
     return apply_changes(setup.machine, params, changes) if changes else setup.machine
 
 
+def changed_since(store: Store, machine: str, started_at: float) -> cj.CompensationRow | None:
+    """The compensation written after ``started_at`` that left the controller's model other
+    than it was when the run started (applied, not undone by a rollback since), or None."""
+    before, now = cumulative_deltas(store, machine, started_at), cumulative_deltas(store, machine)
+    if all(abs(before.get(k, 0.0) - now.get(k, 0.0)) < 1e-12 for k in {*before, *now}):
+        return None
+    written = cj.written(store, machine)
+    later = [r for r in written if (r.applied_at or 0.0) >= started_at] or written
+    return later[-1] if later else None
+
+
 def expected_values(spec: ControllerKinematics, store: Store, machine: str
                     ) -> dict[str, tuple[str, float]]:
     """name → (address, value the controller should hold): the journal's last written value,
@@ -237,6 +248,11 @@ def propose(setup: MachineSetup, store: Store, run_id: str) -> Proposal:
     guard = check_guards(plan, guards_of(spec))
     compensated = [n for n, v in plan.links_compensable.items() if abs(v) > 1e-12]
     refusals = quality_refusals(store, run_id, est, compensated) + list(guard.refused)
+    later = changed_since(store, setup.name, run.started_at)
+    if later is not None:  # the deltas would be added to values they were not computed for
+        refusals.append(f"the controller's model changed after run {run_id} started (journal "
+                        f"#{later.id}, {later.state}): verify again and compensate from that "
+                        "run")
     return Proposal(run_id, spec, plan, guard,
                     to_value_changes(spec, store, setup.name, list(guard.accepted)),
                     est.links_si(), k, refusals, {ch.name: why for ch, why in guard.skipped},

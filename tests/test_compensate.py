@@ -200,6 +200,17 @@ def test_second_run_after_compensation_proposes_nothing(tmp_path, capsys):
     assert json.loads((tmp_path / "reports" / "synth.json").read_text())["compensation"] is None
 
 
+def test_the_same_run_cannot_be_applied_twice(tmp_path, capsys):
+    # a second --confirm of the same run would add its Δ to the values it already changed
+    cfg = _world(tmp_path, capsys)
+    assert run_cli(["compensate", "--config", cfg, "--confirm", "synth", "--by", "alice"],
+                   capsys)[0] == 0
+    code, out, _ = run_cli(["compensate", "--config", cfg, "--confirm", "synth", "--by",
+                            "alice"], capsys)
+    assert code == 2 and "the controller's model changed after run synth started" in out
+    assert [r.state for r in _journal(cfg)] == ["applied", "refused"]
+
+
 def test_refused_when_over_the_guard(tmp_path, capsys):
     cfg = _world(tmp_path, capsys, links={**LINKS, "EX0C": -80},
                  guards={"max_change_um": 50, "max_total_um": 100})

@@ -75,7 +75,9 @@ def target(tmp_path_factory) -> Iterator[Target]:
 ROUTES = ["/", "/login", "/logout", "/hmi.js", "/hmi.css", "/api/status", "/api/runs",
           "/api/events", "/api/machines/mill1/start", "/api/machines/mill1/abort",
           "/api/machines/nope/start", "/reports/20200101T000000Z-0a0a.html",
-          "/reports/x.json", "/reports/", "/api/", "/favicon.ico"]
+          "/reports/x.json", "/reports/", "/api/", "/favicon.ico", "/compensation.js",
+          "/api/compensation?machine=mill1", "/api/compensation/confirm",
+          "/api/compensation/rollback"]
 # Bytes a request line may carry (no space, CR, LF), plus percent escapes and dot segments.
 URL_CHARS = st.characters(min_codepoint=0x21, max_codepoint=0x7E)
 SEGMENT = st.one_of(st.text(URL_CHARS, max_size=12), st.sampled_from(

@@ -1,5 +1,5 @@
 """The operator web page served by the daemon (aiohttp): status, live progress (SSE), Start,
-Abort, last verdict, history and reports, behind a token.
+Abort, last verdict, history, reports and compensation, behind a token.
 
 Access (token, login form, session cookie, CSRF, Host / Origin, bounded requests) is
 ``daemon.hmi.access``, shared with the fleet page. Reports are looked up by a validated run id
@@ -33,6 +33,7 @@ from daemon.hmi.access import (  # the access names are re-exported: callers imp
     secured_app,
 )
 from daemon.hmi.auth import Auth
+from daemon.hmi.compensation_api import add_routes as add_compensation_routes
 from daemon.hmi.limits import HmiLimits, int_param
 from daemon.hmi.trend_api import trend_handler
 from daemon.session import Refused, Session
@@ -223,6 +224,7 @@ def create_app(sessions: Mapping[str, Session], store: Store, token: str,
     app.router.add_post("/api/machines/{machine}/abort", abort)
     app.router.add_get("/api/machines/{machine}/trend",
                        trend_handler(SESSIONS_KEY, STORE_KEY))
+    add_compensation_routes(app, SESSIONS_KEY, STORE_KEY)  # issue 13: confirm from the page
     app.router.add_get("/reports/{run_id:[A-Za-z0-9_.-]{1,64}}.{kind:html|json|pdf}",
                        report_file)
     return app

@@ -92,6 +92,7 @@ function card(name) {
   document.getElementById("machines").appendChild(el);
   cards[name] = el;
   loadTrend(name);
+  window.rumbaComp.attach(name, el);  // compensation.js: the compensation panel
   return el;
 }
 
@@ -305,16 +306,21 @@ function connect() {
     render(st);
     liveRow(st);
     const key = historyKey(st);
-    if (lastKeys[st.machine] !== key) {
+    const changed = lastKeys[st.machine] !== key;
+    if (changed) {
       lastKeys[st.machine] = key;
       loadLastVerdicts();
       if (!st.busy && st.verdict) loadTrend(st.machine);
     }
+    window.rumbaComp.status(st, changed);
   });
 }
 
 fetch("/api/status", {credentials: "same-origin"}).then(r => r.json()).then(all => {
-  Object.values(all).forEach(st => { live[st.machine] = st; render(st); lastKeys[st.machine] = historyKey(st); });
+  Object.values(all).forEach(st => {
+    live[st.machine] = st; render(st); lastKeys[st.machine] = historyKey(st);
+    window.rumbaComp.status(st, false);
+  });
   loadLastVerdicts();
   connect();
 });

@@ -1,0 +1,153 @@
+// rumba operator page, compensation panel (issue 13): the proposal of each machine's last
+// finished run, Confirm (a second, explicit confirmation naming the values) and Rollback.
+"use strict";
+window.rumbaComp = (() => {
+  const csrfToken = document.querySelector('meta[name="csrf-token"]').content;
+  const panels = {};  // machine → {el, data, busy}
+  const fmt = (v, d = 2) => (v === null || v === undefined) ? "—" :
+    `${v >= 0 ? "+" : ""}${v.toFixed(d)}`;
+  const unitText = u => u === "urad" ? "µrad" : u;
+  const num = v => (v === null || v === undefined) ? "—" : String(Number(v.toPrecision(9)));
+
+  async function postJson(url, body) {
+    let r, text;
+    try {
+      r = await fetch(url, {method: "POST", credentials: "same-origin", body: JSON.stringify(body),
+                            headers: {"X-CSRF-Token": csrfToken, "Content-Type": "application/json"}});
+      text = await r.text();
+    } catch (e) { return {ok: false, body: {error: "daemon not reachable"}}; }
+    try { return {ok: r.ok, body: JSON.parse(text)}; } catch (e) {
+      return {ok: r.ok, body: {error: text || `HTTP ${r.status}`}};
+    }
+  }
+
+  function cells(tr, values, labels) {
+    values.forEach((v, i) => {
+      const td = document.createElement("td");
+      td.textContent = v;
+      td.dataset.label = labels[i];
+      tr.appendChild(td);
+    });
+  }
+
+  function buttons(name) {
+    const p = panels[name];
+    if (!p) return;
+    const d = p.data;
+    p.el.querySelector(".comp-confirm").disabled =
+      p.busy || !d || !d.proposal || !d.proposal.applicable;
+    p.el.querySelector(".comp-rollback").disabled = p.busy || !d || !d.last_applied;
+  }
+
+  function render(name) {
+    const {el, data: d} = panels[name];
+    const body = el.querySelector(".comp-body");
+    const run = d.run ? `run ${d.run.id}` : "";
+    el.querySelector(".comp-note").textContent = run ? `(${run})` : "";
+    el.querySelector(".comp-why").textContent = d.why ? `Nothing to confirm: ${d.why}` : "";
+    body.hidden = !d.proposal;
+    if (d.proposal) {
+      const p = d.proposal, k = p.coverage_k;
+      const vl = ["Value", "Address", "Old", "New", "Δ", `U (k=${k})`, "Status"];
+      el.querySelector(".comp-values thead tr").replaceChildren(...vl.map(h => {
+        const th = document.createElement("th"); th.textContent = h; return th; }));
+      el.querySelector(".comp-values tbody").replaceChildren(...p.values.map(v => {
+        const tr = document.createElement("tr");
+        tr.dataset.name = v.name;
+        tr.className = "st-" + v.status;
+        cells(tr, [v.name, v.address, `${num(v.old)} ${unitText(v.unit)}`,
+                   v.new === null ? "—" : `${num(v.new)} ${unitText(v.unit)}`,
+                   `${fmt(v.delta)} ${v.delta_unit}`, `${v.u.toFixed(2)} ${v.delta_unit}`,
+                   v.status === "apply" ? "apply" : `${v.status}: ${v.reason}`], vl);
+        return tr;
+      }));
+      const ll = ["Link", "Identified", "Compensable", "Residual"];
+      el.querySelector(".comp-links tbody").replaceChildren(...p.links.map(l => {
+        const tr = document.createElement("tr");
+        cells(tr, [l.name, ...[l.identified, l.compensable, l.residual].map(
+          v => `${fmt(v)} ${l.unit}`)], ll);
+        return tr;
+      }));
+      const ds = p.distortion_um;
+      el.querySelector(".comp-dist").textContent = "Volumetric distortion (rms / max): before " +
+        `${ds.before.rms.toFixed(1)} / ${ds.before.max.toFixed(1)} µm, compensable ` +
+        `${ds.compensable.rms.toFixed(1)} / ${ds.compensable.max.toFixed(1)} µm, after ` +
+        `${ds.after.rms.toFixed(1)} / ${ds.after.max.toFixed(1)} µm`;
+      el.querySelector(".comp-refusals").replaceChildren(...p.refusals.map(r => {
+        const li = document.createElement("li"); li.textContent = r; return li; }));
+    }
+    el.querySelector(".comp-journal").replaceChildren(...(d.journal || []).map(r => {
+      const li = document.createElement("li");
+      li.textContent = `#${r.id} ${r.state}${r.rollback ? " (rollback)" : ""} — run ${r.run_id}` +
+        `${r.by ? `, by ${r.by}` : ""}`;
+      return li;
+    }));
+    buttons(name);
+  }
+
+  async function load(name) {
+    let r;
+    try {
+      r = await fetch(`/api/compensation?machine=${encodeURIComponent(name)}`,
+                      {credentials: "same-origin"});
+      if (!r.ok) return;
+      panels[name].data = await r.json();
+    } catch (e) { return; }
+    render(name);
+  }
+
+  function result(name, text, ok) {
+    const out = panels[name].el.querySelector(".comp-result");
+    out.textContent = text;
+    out.className = "comp-result " + (ok ? "ok" : "refused");
+  }
+
+  async function doConfirm(name) {
+    const d = panels[name].data;
+    if (!d || !d.proposal || !d.run) return;
+    const values = d.proposal.values.filter(v => v.status === "apply").map(v =>
+      `  ${v.name}  ${v.address}: ${num(v.old)} → ${num(v.new)} ${unitText(v.unit)}` +
+      ` (Δ ${fmt(v.delta)} ${v.delta_unit})`);
+    const ask = `Write these values into the kinematic model of ${name} ` +
+      `(${d.proposal.family}), from run ${d.run.id}?\n\n${values.join("\n")}\n\n` +
+      "Your session is recorded in the compensation journal as the one who confirmed.";
+    if (!confirm(ask)) { result(name, "Not confirmed: nothing written.", false); return; }
+    const r = await postJson("/api/compensation/confirm", {machine: name, run_id: d.run.id});
+    if (r.ok) {
+      result(name, `Applied (journal #${r.body.journal}, by ${r.body.by}): ${r.body.note}` +
+             (r.body.path ? ` — written to file ${r.body.path}` : ""), true);
+    } else result(name, `Refused: ${r.body.error}`, false);
+    load(name);
+  }
+
+  async function doRollback(name) {
+    const last = panels[name].data && panels[name].data.last_applied;
+    if (!last) return;
+    const values = last.values.map(v => `  ${v.name}  ${v.address}: ${num(v.new)} → ` +
+                                        `${num(v.old)} ${unitText(v.unit)}`);
+    if (!confirm(`Roll back compensation #${last.id} on ${name}, restoring:\n\n` +
+                 `${values.join("\n")}`)) return;
+    const r = await postJson("/api/compensation/rollback", {machine: name});
+    if (r.ok) {
+      result(name, `Rolled back (journal #${r.body.journal}, by ${r.body.by}): ${r.body.note}` +
+             (r.body.path ? ` — written to file ${r.body.path}` : ""), true);
+    } else result(name, `Refused: ${r.body.error}`, false);
+    load(name);
+  }
+
+  return {
+    attach(name, el) {  // a new machine card
+      panels[name] = {el, data: null, busy: false};
+      el.querySelector(".comp-confirm").addEventListener("click", () => doConfirm(name));
+      el.querySelector(".comp-rollback").addEventListener("click", () => doRollback(name));
+      load(name);
+    },
+    status(st, changed) {  // a status event; ``changed``: its run, state or verdict changed
+      const p = panels[st.machine];
+      if (!p) return;
+      p.busy = !!st.busy;
+      buttons(st.machine);
+      if (changed && !st.busy) load(st.machine);
+    },
+  };
+})();

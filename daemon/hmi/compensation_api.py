@@ -1,0 +1,245 @@
+"""The operator page's compensation API: the proposal of a machine's last finished run, its
+confirmation by the signed-in operator, and the rollback (``daemon.compensate``)."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+from collections.abc import Mapping
+from typing import Any
+
+from aiohttp import web
+
+from contracts.yaml_files import ConfigError
+from daemon import compensation_journal as cj
+from daemon.compensate import (
+    CompensationRefused,
+    ControllerModelError,
+    Proposal,
+    changed_since,
+    propose,
+    spec_of,
+    unit_of,
+)
+from daemon.compensate_apply import ApplyError, confirm, rollback
+from daemon.hmi.access import COOKIE, VIA_KEY, page_asset
+from daemon.session import Session
+from daemon.store import RunRow, Store, StoreError, validate_run_id
+
+FINISHED = ("DONE", "IMPORTED")  # a run that ended with an identification (not aborted)
+SCAN_RUNS = 50  # the last finished run is looked for among this many of the machine's runs
+LOCK_KEY = web.AppKey("compensation_lock", asyncio.Lock)
+
+
+def who(request: web.Request) -> str:
+    """Who confirms, as the access layer knows the client (never a name the client sends):
+    ``hmi:<session id prefix>@<address>`` for a signed-in page, ``hmi:token@<address>`` for a
+    script with the bearer token."""
+    if request.get(VIA_KEY) == "cookie":
+        sid = (request.cookies.get(COOKIE) or "").split(".")[0]
+        return f"hmi:{sid[:8]}@{request.remote}"
+    return f"hmi:token@{request.remote}"
+
+
+def _um(kind_or_link: str, model_value: float) -> tuple[float, str]:
+    """A model value (mm or rad) in µm or µrad: by the kind of a controller value (pivot /
+    orientation) or the ISO name of a link (EA0B: rotation)."""
+    rot = kind_or_link == "orientation" or (kind_or_link[:1] == "E" and kind_or_link[1:2]
+                                            in ("A", "B", "C"))
+    return (model_value * 1e6, "µrad") if rot else (model_value * 1e3, "µm")
+
+
+def last_finished(store: Store, machine: str) -> RunRow | None:
+    """The machine's most recent finished run, or None."""
+    return next((r for r in store.runs(machine, SCAN_RUNS) if r.state in FINISHED), None)
+
+
+def _row_dict(r: cj.CompensationRow) -> dict[str, Any]:
+    return {"id": r.id, "run_id": r.run_id, "state": r.state, "by": r.confirmed_by,
+            "reason": r.reason, "created_at": r.created_at, "applied_at": r.applied_at,
+            "rollback": r.is_rollback, "values": [v.as_dict() for v in r.values]}
+
+
+def proposal_dict(p: Proposal) -> dict[str, Any]:
+    """The proposal for the page: values (Δ and U in µm / µrad), links, distortion (µm)."""
+    accepted = {v.name: v for v in p.values}
+    passed = {ch.name for ch in p.guard.proposed} | set(accepted)
+    values = []
+    for ch in p.plan.changes:
+        sp = p.spec.param(ch.name)
+        v = accepted.get(ch.name)
+        delta, unit = _um(ch.kind, ch.delta)
+        u = _um(ch.kind, ch.u_expanded)[0]
+        if v is not None:
+            status, why = "apply", ""
+        elif p.refusals and ch.name in passed:
+            status, why = "refused", "the proposal is refused (see the reasons)"
+        else:
+            status, why = "skipped", p.skipped.get(ch.name, "not applied")
+        values.append({"name": ch.name, "address": sp.address, "kind": ch.kind,
+                       "old": v.old if v else p.current.get(ch.name),
+                       "new": v.new if v else None, "unit": v.unit if v else unit_of(ch.kind)[0],
+                       "delta": delta, "u": u, "delta_unit": unit, "status": status,
+                       "reason": why})
+    links = []
+    for name, ident in p.plan.links_identified.items():
+        value, unit = _um(name, ident)
+        links.append({"name": name, "unit": unit, "identified": value,
+                      "compensable": _um(name, p.plan.links_compensable[name])[0],
+                      "residual": _um(name, p.plan.links_residual[name])[0]})
+    pl = p.plan
+    dist = {k: {"rms": float(v[0]), "max": float(v[1])} for k, v in (
+        ("before", pl.distortion_before_um), ("compensable", pl.distortion_compensable_um),
+        ("after", pl.distortion_after_um))}
+    return {"family": p.spec.family, "coverage_k": p.coverage_k, "values": values,
+            "links": links, "distortion_um": dist, "refusals": list(p.refusals),
+            "applicable": bool(p.values) and not p.refusals}
+
+
+def _why_not(session: Session, store: Store) -> tuple[dict[str, Any], Proposal | None]:
+    """The machine's state of compensation and the proposal for its last finished run (None
+    with ``why`` saying why there is nothing to propose)."""
+    setup = session.setup
+    out: dict[str, Any] = {"machine": setup.name, "busy": session.busy, "run": None,
+                           "proposal": None, "why": None}
+    last = cj.last_applied(store, setup.name)
+    out["last_applied"] = _row_dict(last) if last else None
+    out["journal"] = [_row_dict(r) for r in cj.rows(store, setup.name)[-5:]][::-1]
+    try:
+        if spec_of(setup) is None:
+            out["why"] = ("no controller_kinematics section in the machine file: nothing rumba "
+                          "may write to this controller")
+            return out, None
+    except ConfigError as e:
+        out["why"] = f"refused: {e}"
+        return out, None
+    run = last_finished(store, setup.name)
+    if run is None:
+        out["why"] = "no finished run of this machine yet: run a verification first"
+        return out, None
+    out["run"] = {"id": run.id, "started_at": run.started_at, "ended_at": run.ended_at,
+                  "verdict": run.verdict, "state": run.state}
+    later = changed_since(store, setup.name, run.started_at)
+    if later is not None:
+        out["why"] = (f"the controller's model changed after run {run.id} started (journal "
+                      f"#{later.id}, {later.state}, by {later.confirmed_by}): run a "
+                      "verification first")
+        return out, None
+    try:
+        p = propose(setup, store, run.id)
+    except (CompensationRefused, ControllerModelError, ConfigError, StoreError) as e:
+        out["why"] = f"refused: {e}"
+        return out, None
+    out["proposal"] = proposal_dict(p)
+    if p.refusals:
+        out["why"] = "refused: " + "; ".join(p.refusals)
+    elif not p.values:
+        out["why"] = "nothing to change: every value is skipped"
+    return out, p
+
+
+def _error(status: int, text: str, **extra: Any) -> web.Response:
+    return web.json_response({"error": text, **extra}, status=status)
+
+
+async def _body(request: web.Request, *fields: str) -> dict[str, str]:
+    """The JSON object of the request with these string fields, else 400."""
+    try:
+        body = json.loads(await request.text())
+    except (ValueError, UnicodeDecodeError):
+        raise web.HTTPBadRequest(text="send a JSON object") from None
+    if not isinstance(body, dict):
+        raise web.HTTPBadRequest(text="send a JSON object")
+    for f in fields:
+        if not isinstance(body.get(f), str) or not 0 < len(body[f]) <= 64:
+            raise web.HTTPBadRequest(text=f"{f} must be a string of 1 to 64 characters")
+    return {f: body[f] for f in fields}
+
+
+async def script(request: web.Request) -> web.Response:
+    """The panel's script (behind the page's sign-in, like the page itself)."""
+    return web.Response(text=page_asset("compensation.js"), content_type="application/javascript",
+                        headers={"Cache-Control": "no-cache"})
+
+
+def add_routes(app: web.Application, sessions_key: web.AppKey, store_key: web.AppKey) -> None:
+    """GET /api/compensation?machine=, POST /api/compensation/confirm {machine, run_id} and
+    /api/compensation/rollback {machine} on ``app`` (behind its access layer)."""
+    app[LOCK_KEY] = asyncio.Lock()
+
+    def session_of(request: web.Request, name: str | None, status: int) -> Session:
+        sessions: Mapping[str, Session] = request.app[sessions_key]
+        if name is None or name not in sessions:
+            raise _http(status, f"no machine {name!r}")
+        return sessions[name]
+
+    async def get_proposal(request: web.Request) -> web.Response:
+        name = request.query.get("machine")
+        if name is None or not 0 < len(name) <= 64:
+            raise web.HTTPBadRequest(text="machine must be a machine name (1 to 64 characters)")
+        session = session_of(request, name, 404)
+        out, _ = _why_not(session, request.app[store_key])
+        return web.json_response(out)
+
+    async def post_confirm(request: web.Request) -> web.Response:
+        body = await _body(request, "machine", "run_id")
+        session = session_of(request, body["machine"], 422)
+        try:
+            validate_run_id(body["run_id"])
+        except StoreError:
+            return _error(422, f"{body['run_id']!r} is not a run id")
+        store: Store = request.app[store_key]
+        by = who(request)
+        async with request.app[LOCK_KEY]:  # one write at a time; no await below: no run starts
+            if session.busy:
+                return _error(409, f"{session.setup.name}: a run is active ({session.state}); "
+                                   "confirm once it has ended")
+            state, p = _why_not(session, store)
+            run = state["run"]
+            if run is None or run["id"] != body["run_id"]:
+                return _error(409, f"run {body['run_id']} is not the last finished run of "
+                                   f"{session.setup.name} (now: {run['id'] if run else 'none'})"
+                                   ": reload the proposal", state=state)
+            if p is not None and p.refusals:  # journaled, as `rumba compensate --confirm`
+                row = cj.record(store, session.setup.name, p.run_id, p.spec.family, "refused",
+                                p.values, confirmed_by=by, reason=state["why"])
+                state["why"] += f" (journal #{row})"
+            if p is None or p.refusals or not p.values:
+                return _error(409, state["why"], state=state)
+            try:
+                w = confirm(session.setup, store, session.reports_dir, p, by)
+            except CompensationRefused as e:
+                row = cj.record(store, session.setup.name, p.run_id, p.spec.family, "refused",
+                                p.values, confirmed_by=by, reason=str(e))
+                return _error(409, f"refused (journal #{row}): {e}")
+            except ApplyError as e:  # journaled by confirm()
+                return _error(502, str(e))
+        return web.json_response({"state": w.state, "journal": w.row_id, "by": by,
+                                  "path": str(w.path) if w.path else None, "note": w.note,
+                                  "values": [v.as_dict() for v in p.values]})
+
+    async def post_rollback(request: web.Request) -> web.Response:
+        body = await _body(request, "machine")
+        session = session_of(request, body["machine"], 422)
+        by = who(request)
+        async with request.app[LOCK_KEY]:
+            if session.busy:
+                return _error(409, f"{session.setup.name}: a run is active ({session.state}); "
+                                   "roll back once it has ended")
+            try:
+                w = rollback(session.setup, request.app[store_key], session.reports_dir, by)
+            except CompensationRefused as e:
+                return _error(409, f"refused: {e}")
+            except ApplyError as e:  # journaled by rollback()
+                return _error(502, str(e))
+        return web.json_response({"state": w.state, "journal": w.row_id, "by": by,
+                                  "path": str(w.path) if w.path else None, "note": w.note})
+
+    app.router.add_get("/compensation.js", script)
+    app.router.add_get("/api/compensation", get_proposal)
+    app.router.add_post("/api/compensation/confirm", post_confirm)
+    app.router.add_post("/api/compensation/rollback", post_rollback)
+
+
+def _http(status: int, text: str) -> web.HTTPException:
+    return {404: web.HTTPNotFound, 422: web.HTTPUnprocessableEntity}[status](text=text)
