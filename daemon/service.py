@@ -19,6 +19,7 @@ from typing import Any
 from aiohttp import web
 
 from daemon.compensate import journal_analyse
+from daemon.compensate_unattended import after_run
 from daemon.daemon_yaml import DaemonConfig, MachineSetup
 from daemon.fleet_link import FleetLink
 from daemon.session import Refused, Session
@@ -84,7 +85,8 @@ class Service:
                 if any(self.store.run(r).machine == name for r in self.interrupted):
                     await self._stop_leftover(name, link)
                 # runs are identified against the model the controller holds (issue 13)
-                kw = {"analyse": journal_analyse(cfg.store_path), **self.session_kw}
+                kw = {"analyse": journal_analyse(cfg.store_path), "after_run": after_run,
+                      **self.session_kw}
                 self.sessions[name] = Session(setup, link, self.store, cfg.reports_dir, **kw)
             self.fleet.attach(self.sessions)
             if cfg.hmi.enabled:

@@ -76,8 +76,10 @@ class Session:
 
     def __init__(self, setup: MachineSetup, link: CncLink, store: Store, reports_dir: Path,
                  *, analyse: Callable[..., pipeline.RunAnalysis] = pipeline.analyse,
-                 prepare: Callable[..., pipeline.Prepared] = pipeline.prepare) -> None:
+                 prepare: Callable[..., pipeline.Prepared] = pipeline.prepare,
+                 after_run: Callable[[Session, str], object] | None = None) -> None:
         self.setup = setup
+        self.after_run = after_run  # e.g. unattended compensation (daemon.compensate_unattended)
         self.link = link
         self.store = store
         self.reports_dir = Path(reports_dir)
@@ -227,6 +229,11 @@ class Session:
                                            judgement.reasons), strict=True)
             self.store.mark_written_back(run_id)
             self._enter(State.IDLE, "")
+            if self.after_run is not None:
+                try:
+                    self.after_run(self, run_id)
+                except Exception:  # the run is done and reported; a follow-up must not undo it
+                    log.exception("after run %s", run_id)
         except asyncio.CancelledError:
             reason = self._abort_reason or "daemon shutting down"
             await self._stop_controller()

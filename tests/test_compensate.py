@@ -200,6 +200,16 @@ def test_second_run_after_compensation_proposes_nothing(tmp_path, capsys):
     assert json.loads((tmp_path / "reports" / "synth.json").read_text())["compensation"] is None
 
 
+def test_verify_follows_only_a_live_write(tmp_path, capsys):
+    cfg = _world(tmp_path, capsys)
+    code, out, err = run_cli(["compensate", "--config", cfg, "synth", "--verify"], capsys)
+    assert code == 2 and "--verify follows a write" in err
+    # a remote LinuxCNC: the program is for the operator, who loads it before verifying
+    code, out, _ = run_cli(["compensate", "--config", cfg, "--confirm", "synth", "--by",
+                            "alice", "--verify"], capsys)
+    assert code == 0 and "verify: load the program on the control first" in out
+
+
 def test_the_same_run_cannot_be_applied_twice(tmp_path, capsys):
     # a second --confirm of the same run would add its Δ to the values it already changed
     cfg = _world(tmp_path, capsys)

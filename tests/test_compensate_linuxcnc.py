@@ -8,15 +8,18 @@ The demos.compensate flow; run with ``pytest -m linuxcnc`` (``make test-linuxcnc
 
 from __future__ import annotations
 
+import asyncio
 import math
 import shutil
 from pathlib import Path
 
 import pytest
+import yaml
 
 from daemon import compensation_journal as cj
 from daemon.compensate import ControllerModelError, controller_model
 from daemon.daemon_yaml import load_daemon_config
+from daemon.service import Service
 from daemon.store import Store
 from demos.compensate import MACHINE_NAME, daemon_yaml, demo_machine_file, judge, verification
 from drivers.linuxcnc import halkins
@@ -56,10 +59,14 @@ async def test_compensate_verify_and_rollback_on_linuxcnc(peer, tmp_path: Path, 
     hal = peer.dir / "config" / "rumba_xyzbc.hal"
     assert f"setp {PIN} 12.5\n" in hal.read_text()
     run1 = await verification(cfg, "before")
-    code, out, _ = run_cli(["compensate", "--config", str(cfg), "--confirm", run1, "--by",
-                            "demo"], capsys)
-    assert code == 0, out
+    # --verify: the verification run follows the live write (a thread: the CLI runs its own
+    # event loop)
+    code, out, _ = await asyncio.to_thread(
+        run_cli, ["compensate", "--config", str(cfg), "--confirm", run1, "--by", "demo",
+                  "--verify"], capsys)
+    assert code in (0, 1), out  # the verdict of the verification run: PASS/WARN or FAIL
     assert "set live with halcmd and read back" in out
+    assert "verification run " in out and "EX0C" in out
     conf = load_daemon_config(cfg)
     store = Store(conf.store_path)
     try:
@@ -75,7 +82,12 @@ async def test_compensate_verify_and_rollback_on_linuxcnc(peer, tmp_path: Path, 
     assert f"setp {PIN} {v.new:.6f}\n" in hal.read_text()  # survives a restart
     assert len(list(hal.parent.glob("rumba_xyzbc.hal.rumba-*.bak"))) == 1
 
-    run2 = await verification(cfg, "after")
+    store = Store(conf.store_path)
+    try:
+        run2 = store.runs(MACHINE_NAME, 1)[0].id
+        assert run2 != run1 and f"verification run {run2}" in out
+    finally:
+        store.close()
     outcome = judge(cfg, run1, run2)
     assert outcome.ok, "\n".join(outcome.lines)
     assert set(outcome.before) == {"EX0C"}
@@ -111,3 +123,40 @@ async def test_compensate_verify_and_rollback_on_linuxcnc(peer, tmp_path: Path, 
         assert controller_model(setup, store).axes == setup.machine.axes
     finally:
         store.close()
+
+
+async def test_unattended_start_of_shift_compensates_and_verifies(peer, tmp_path: Path) -> None:
+    # guards.unattended: true — a run the CNC starts is followed, with no operator, by the
+    # write (within the guards) and at once by a verification run against the new model
+    machine = demo_machine_file(tmp_path)
+    data = yaml.safe_load(machine.read_text())
+    data["controller_kinematics"]["guards"]["unattended"] = True
+    machine.write_text(yaml.safe_dump(data, sort_keys=False))
+    cfg = tmp_path / "daemon.yaml"
+    cfg.write_text(daemon_yaml(tmp_path, peer.port, PLAN, machine))
+    svc = Service(load_daemon_config(cfg))
+    await svc.start()
+    try:
+        session = svc.sessions[MACHINE_NAME]
+        first = session.start("cnc")
+        await session.wait()
+        second = session.run_id
+        assert second != first, f"no verification run followed: {session.status()}"
+        status = await session.wait()
+        assert status["state"] == "IDLE", status
+    finally:
+        await svc.stop()
+    store = Store(load_daemon_config(cfg).store_path)
+    try:
+        (row,) = cj.rows(store)
+        assert (row.state, row.confirmed_by, row.run_id) == ("applied", "unattended", first)
+        assert row.verify_run_id == second and store.run(second).trigger == "rerun"
+        a1, a2 = store.analysis(first), store.analysis(second)
+        assert a1 is not None and a2 is not None
+        k = coverage_factor(a2.estimation.sigma_dof or math.inf)
+        ex1, ex2 = a1.links["EX0C"], a2.links["EX0C"]
+        assert abs(ex1.value + 106) <= k * ex1.std
+        assert abs(ex2.value) <= k * math.hypot(ex1.std, ex2.std), (ex2.value, ex2.std)
+    finally:
+        store.close()
+    assert halkins.getp(PIN) == pytest.approx(row.values[0].new, abs=1e-5)

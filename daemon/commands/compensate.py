@@ -5,14 +5,17 @@ restores the values before the last applied compensation. Exit 0 done, 2 refused
 from __future__ import annotations
 
 import argparse
+import asyncio
 
 from contracts.yaml_files import ConfigError
 from daemon import compensation_journal as cj
 from daemon.cli import UserError
+from daemon.commands.verify import verify
 from daemon.compensate import (
     CompensationRefused,
     ControllerModelError,
     Proposal,
+    is_local_linuxcnc,
     propose,
     spec_of,
     unit_of,
@@ -26,6 +29,7 @@ from daemon.compensate_apply import (
     write_program,
 )
 from daemon.daemon_yaml import DaemonConfig, MachineSetup, load_daemon_config
+from daemon.report_compensation import verification_of
 from daemon.store import Store, StoreError
 
 
@@ -43,6 +47,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "--machine and --by)")
     p.add_argument("--by", help="who confirms (recorded in the journal); 'unattended' only "
                                 "where the machine's guards allow it")
+    p.add_argument("--verify", action="store_true",
+                   help="with --confirm: when the values went live (LinuxCNC on this PC), run "
+                        "the verification at once and print each link before and after")
     p.set_defaults(func=cmd_compensate)
 
 
@@ -123,6 +130,28 @@ def _link_verification(store: Store, setup: MachineSetup, run_id: str) -> None:
         cj.update(store, last.id, verify_run_id=run_id)
 
 
+def _verify_after(cfg: DaemonConfig, setup: MachineSetup, store: Store, p: Proposal) -> int:
+    """The verification run that follows a live write, and each link before and after (the
+    run's report shows the same); its exit code is the command's."""
+    if not is_local_linuxcnc(setup, p.spec):
+        print(f"verify: load the program on the control first, then: rumba verify --config "
+              f"{cfg.path} --machine {setup.name}")
+        return 0
+    code = asyncio.run(verify(str(cfg.path), setup.name, quiet=True))
+    run = store.runs(setup.name, 1)[0]
+    analysis = store.analysis(run.id)
+    view = verification_of(store, run, analysis) if analysis is not None else None
+    if view is None:
+        print(f"verification run {run.id}: {run.state} ({run.reason or run.summary})")
+        return 2
+    print(f"verification run {run.id} ({run.summary}):")
+    for link in view.links:
+        unit = "µrad" if link.unit == "urad" else "µm"
+        print(f"  {link.name:<6} {link.before:+9.2f} ± {link.u_before:.2f} -> "
+              f"{link.after:+9.2f} ± {link.u_after:.2f} {unit}")
+    return code
+
+
 def _compensate(args: argparse.Namespace, cfg: DaemonConfig, store: Store) -> int:
     if args.rollback:
         if not args.machine or not args.by:
@@ -145,6 +174,8 @@ def _compensate(args: argparse.Namespace, cfg: DaemonConfig, store: Store) -> in
         raise UserError("give a RUN (or --rollback)")
     if args.confirm and not args.by:
         raise UserError("--confirm needs --by NAME (who confirms, recorded in the journal)")
+    if args.verify and not args.confirm:
+        raise UserError("--verify follows a write: give it with --confirm")
     try:
         store.run(args.run)
     except StoreError as e:
@@ -173,6 +204,8 @@ def _compensate(args: argparse.Namespace, cfg: DaemonConfig, store: Store) -> in
             return 2
         print(f"applied (journal #{w.row_id}, confirmed by {args.by}): {w.note}")
         print(f"program: {w.path}")
+        if args.verify:
+            return _verify_after(cfg, setup, store, p)
         return 0
     try:
         path, text, written = write_program(current_spec(p.spec, store, setup.name),
