@@ -24,7 +24,7 @@ from pathlib import Path
 
 import yaml
 
-from demos.linuxcnc import ARTEFACT, CONFIG, ERRORS, MACHINE
+from demos.linuxcnc import ARTEFACT, CONFIG, ERRORS, MACHINE, start_peer
 
 MACHINE_NAME = "lcnc-trt"
 # The demo's EX0C (−106 µm) is over KinematicsOpt's 50 µm per value: the demo's copy of the
@@ -145,14 +145,9 @@ async def demo(plan: Path, work: Path) -> int:
     from daemon.cli import main as rumba
     from drivers.linuxcnc import halkins
     from simulators import linuxcnc_peer
-    from simulators.hal_probe import write_spec
-    from simulators.truth import TruthModel
 
     t0 = time.monotonic()
-    truth = TruthModel.from_files(CONFIG / MACHINE, CONFIG / ARTEFACT, CONFIG / ERRORS)
-    spec = work / "probe_spec.json"
-    write_spec(truth, spec)
-    peer = linuxcnc_peer.up(spec, workdir=work / "linuxcnc")
+    truth, peer = start_peer(work)
     fifo = (peer.dir / "fifo.path").read_text().strip()
     os.environ["RTAPI_FIFO_PATH"] = f"{fifo}/rtapi_fifo"  # halcmd of this process → this HAL
     print(f"LinuxCNC up (linuxcncrsh 127.0.0.1:{peer.port}); HAL probe truth {ERRORS}: "

@@ -18,6 +18,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 import aiohttp
 
@@ -56,16 +57,24 @@ def _analog_out(peer_dir: Path, n: int) -> float:
     return float(out.stdout)
 
 
-async def demo(plan: Path, work: Path) -> int:
+def start_peer(work: Path) -> tuple[Any, Any]:
+    """LinuxCNC headless in ``work/linuxcnc`` with the HAL probe carrying the demo truth
+    (``ERRORS``): (the TruthModel, the running peer)."""
     from simulators import linuxcnc_peer
     from simulators.hal_probe import write_spec
     from simulators.truth import TruthModel
 
-    t0 = time.monotonic()
     truth = TruthModel.from_files(CONFIG / MACHINE, CONFIG / ARTEFACT, CONFIG / ERRORS)
     spec = work / "probe_spec.json"
     write_spec(truth, spec)
-    peer = linuxcnc_peer.up(spec, workdir=work / "linuxcnc")
+    return truth, linuxcnc_peer.up(spec, workdir=work / "linuxcnc")
+
+
+async def demo(plan: Path, work: Path) -> int:
+    from simulators import linuxcnc_peer
+
+    t0 = time.monotonic()
+    truth, peer = start_peer(work)
     print(f"LinuxCNC up (linuxcncrsh 127.0.0.1:{peer.port}, {time.monotonic() - t0:.1f} s); "
           f"HAL probe truth {ERRORS}")
     token = secrets.token_urlsafe(24)
