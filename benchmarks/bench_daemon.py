@@ -28,7 +28,7 @@ def _rss_mb() -> float:
 
 def bench_journal(n: int = 400) -> None:
     from contracts.messages import ProbeHit
-    from daemon.store import Store
+    from daemon.store.journal import Store
 
     for sync in ("FULL", "NORMAL"):
         with tempfile.TemporaryDirectory(dir=ROOT) as tmp:  # the project's disk, not tmpfs
@@ -51,8 +51,8 @@ def bench_journal(n: int = 400) -> None:
 async def bench_session_175() -> None:
     """The daemon's own cost per touch (journal + bookkeeping + progress), without transport,
     on a 175-pose × 4-ball run (3 500 touches), plus identification/report time and memory."""
-    from daemon.session import Session
-    from daemon.store import Store
+    from daemon.run.session import Session
+    from daemon.store.journal import Store
     from tests.daemon_helpers import thesis_rows, thesis_setup
     from tests.replay_link import ReplayLink, prepare_from_rows
 
@@ -92,10 +92,10 @@ async def bench_session_175() -> None:
 
 async def bench_transport(transport: str, time_scale: float = 0.1) -> None:
     """Capture wall time minus the simulator's scaled machine time, per touch (7-pose plan)."""
-    from daemon.daemon_yaml import MachineSetup
-    from daemon.service import make_link
-    from daemon.session import Session
-    from daemon.store import Store
+    from daemon.machines.setup import MachineSetup
+    from daemon.run.session import Session
+    from daemon.service.service import make_link
+    from daemon.store.journal import Store
     from simulators.controller import VirtualController
     from simulators.truth import TruthModel
     from tests.daemon_helpers import thesis_setup

@@ -34,9 +34,9 @@ def _hit(seq: int) -> ProbeHit:
 
 async def _daemon(dsn: str, k: int, touches: int, tmp: str, go: float, interval_s: float
                   ) -> dict[str, list[float]]:
-    from daemon.store import Store
-    from daemon.store_drain import Drainer
-    from daemon.store_pg import PgStore
+    from daemon.store.drain import Drainer
+    from daemon.store.journal import Store
+    from daemon.store.pg import PgStore
 
     store = Store(Path(tmp) / f"d{k}.sqlite")
     drainer = Drainer(store, dsn, app=f"bench{k}")
@@ -108,9 +108,9 @@ def store_bench(daemons: int, touches: int, interval_s: float = 0.0) -> None:
 async def mqtt_bench(messages: int = 300) -> None:
     import aiomqtt
 
-    from daemon.mqtt import MachinePublisher
-    from daemon.mqtt_config import MqttConfig
-    from daemon.store import Store
+    from daemon.mqtt.config import MqttConfig
+    from daemon.mqtt.publisher import MachinePublisher
+    from daemon.store.journal import Store
     from simulators.fleet_peers import MosquittoPeer
 
     b = MosquittoPeer()
@@ -164,7 +164,7 @@ async def page_bench(machines: int = 100, days: int = 365, repeats: int = 10) ->
     from aiohttp import web
 
     from daemon.fleet.app import create_fleet_app
-    from daemon.store_pg import PgStore
+    from daemon.store.pg import PgStore
     from simulators.fleet_peers import PostgresPeer
 
     pg = PostgresPeer(fsync=False)

@@ -12,7 +12,7 @@ import numpy as np
 
 from contracts.probing_log import write_log
 from contracts.setup_files import load_artefact, load_machine, load_plan
-from daemon.commands.analyze import run_analysis
+from daemon.cli.commands.analyze import run_analysis
 from identification import montecarlo as mc
 from tests.synth import THESIS_LINKS_UM_URAD, Truth, make_rows, thesis_noise, to_internal
 

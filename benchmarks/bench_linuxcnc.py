@@ -17,9 +17,9 @@ import time
 from pathlib import Path
 
 from contracts.setup_files import load_artefact, load_machine, load_plan
-from daemon import pipeline
-from daemon.daemon_yaml import MachineSetup, TriggersFile
-from daemon.judge import Tolerances
+from daemon.analysis import pipeline
+from daemon.machines.setup import MachineSetup, TriggersFile
+from daemon.machines.tolerances import Tolerances
 from drivers.linuxcnc.channel import RshChannel
 from drivers.registry import make_link
 from simulators import linuxcnc_peer

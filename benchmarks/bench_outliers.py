@@ -10,7 +10,7 @@ shift-start plan: 14 poses + drift check, 4 balls, 60 visits, 300 touches):
 2. a chip of 10-30 µm at a random touch (any pose, ball, touch — the pole included): how often
    the visit and touch are named (target ≥ 95 %), the size error, and the verdict of the
    daemon's judge on that run without a re-probe (target: never PASS);
-3. the daemon's repair, emulated offline (the re-probe program of ``daemon.reprobe`` run on
+3. the daemon's repair, emulated offline (the re-probe program of ``daemon.run.reprobe`` run on
    the same simulated CNC): a chip blown off → repaired, not ERROR; a chip stuck → ERROR;
 4. the cost: screening time per run, and ``analyse_centres`` on the 175-pose plan.
 """
@@ -32,12 +32,13 @@ sys.path.insert(0, str(ROOT))
 
 from contracts.probing_log import LogRow  # noqa: E402
 from contracts.setup_files import load_artefact, load_machine, load_plan  # noqa: E402
-from daemon.daemon_yaml import MachineSetup, TriggersFile  # noqa: E402
-from daemon.identify import analyse_centres  # noqa: E402
-from daemon.judge import Limit, Tolerances, judge  # noqa: E402
-from daemon.pipeline import analyse, prepare, row_to_hit  # noqa: E402
-from daemon.reprobe import plan_reprobe  # noqa: E402
-from daemon.touch_centres import rows_to_centres  # noqa: E402
+from daemon.analysis.identify import analyse_centres  # noqa: E402
+from daemon.analysis.judge import judge  # noqa: E402
+from daemon.analysis.pipeline import analyse, prepare, row_to_hit  # noqa: E402
+from daemon.analysis.touch_centres import rows_to_centres  # noqa: E402
+from daemon.machines.setup import MachineSetup, TriggersFile  # noqa: E402
+from daemon.machines.tolerances import Limit, Tolerances  # noqa: E402
+from daemon.run.reprobe import plan_reprobe  # noqa: E402
 from identification.gap.simlog import Truth, simulate  # noqa: E402
 from identification.outliers import CENTRE_Z, SPHERE_Z, find_outliers  # noqa: E402
 from simulators.faults import Fault, FaultPlan  # noqa: E402

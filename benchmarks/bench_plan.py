@@ -26,9 +26,9 @@ from pathlib import Path
 import numpy as np
 
 from contracts.setup_files import load_artefact, load_machine
-from daemon.commands.plan import Outcome, make_plan
-from daemon.identify import analyse_centres
-from daemon.touch_centres import rows_to_centres
+from daemon.analysis.identify import analyse_centres
+from daemon.analysis.touch_centres import rows_to_centres
+from daemon.cli.commands.plan import Outcome, make_plan
 from simulators.errors_schema import load_errors
 from simulators.offline import run_sync
 from simulators.truth import TruthModel
@@ -110,8 +110,8 @@ def through_linuxcnc(r: Outcome) -> None:
         print("LinuxCNC not installed: skipped (bash .ci/install-peers.sh linuxcnc)")
         return
     from benchmarks.bench_linuxcnc import _link, _run
-    from daemon.daemon_yaml import MachineSetup, TriggersFile
-    from daemon.judge import Tolerances
+    from daemon.machines.setup import MachineSetup, TriggersFile
+    from daemon.machines.tolerances import Tolerances
     from simulators import linuxcnc_peer
     from simulators.hal_probe import write_spec
 

@@ -30,7 +30,7 @@ from contracts.setup_files import load_artefact
 import os
 if os.path.samefile(sys.argv[2], os.path.join(sys.argv[3], "contracts", "probing_log.py")):
     import contracts.probing_log as mod
-    from daemon.touch_centres import rows_to_centres
+    from daemon.analysis.touch_centres import rows_to_centres
 else:  # an older probelog.py (before the touch-centres split it held rows_to_centres)
     spec = importlib.util.spec_from_file_location("probelog_under_test", sys.argv[2])
     mod = importlib.util.module_from_spec(spec)

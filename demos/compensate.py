@@ -12,19 +12,16 @@ distortion fell by at least 90 %.
 
 from __future__ import annotations
 
-import argparse
-import asyncio
 import math
 import os
 import sys
-import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
 
 import yaml
 
-from demos.linuxcnc import ARTEFACT, CONFIG, ERRORS, MACHINE, start_peer
+from demos.linuxcnc import ARTEFACT, CONFIG, ERRORS, MACHINE, run_demo, start_peer
 
 MACHINE_NAME = "lcnc-trt"
 # The demo's EX0C (−106 µm) is over KinematicsOpt's 50 µm per value: the demo's copy of the
@@ -76,10 +73,10 @@ class Outcome:
 async def verification(cfg: Path, label: str) -> str:
     """One verification run (``rumba verify``), identified against the controller model of
     the journal; its run id."""
-    from daemon.commands.verify import verify
-    from daemon.compensate import journal_analyse
-    from daemon.daemon_yaml import load_daemon_config
-    from daemon.store import Store
+    from daemon.cli.commands.verify import verify
+    from daemon.compensation.propose import journal_analyse
+    from daemon.config import load_daemon_config
+    from daemon.store.journal import Store
 
     t0 = time.monotonic()
     store_path = load_daemon_config(cfg).store_path
@@ -98,9 +95,9 @@ async def verification(cfg: Path, label: str) -> str:
 
 def judge(cfg: Path, run1: str, run2: str) -> Outcome:
     """Before/after from both runs re-identified against the controller model of their time."""
-    from daemon.compensate import propose
-    from daemon.daemon_yaml import load_daemon_config
-    from daemon.store import Store
+    from daemon.compensation.propose import propose
+    from daemon.config import load_daemon_config
+    from daemon.store.journal import Store
     from identification.estimate import coverage_factor
 
     conf = load_daemon_config(cfg)
@@ -142,7 +139,7 @@ def judge(cfg: Path, run1: str, run2: str) -> Outcome:
 
 
 async def demo(plan: Path, work: Path) -> int:
-    from daemon.cli import main as rumba
+    from daemon.cli.main import main as rumba
     from drivers.linuxcnc import halkins
     from simulators import linuxcnc_peer
 
@@ -179,21 +176,10 @@ async def demo(plan: Path, work: Path) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m demos.compensate", description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--plan", type=Path, default=CONFIG / "plans/linuxcnc_7poses.yaml")
-    ap.add_argument("--out", type=Path, help="folder for journal, reports and config "
-                                             "(default: a new temp folder, kept)")
-    args = ap.parse_args(argv)
-    out = args.out or Path(tempfile.mkdtemp(prefix="rumba-demo-comp-"))
-    out.mkdir(parents=True, exist_ok=True)
     from simulators.linuxcnc_peer import PeerError
 
-    try:
-        return asyncio.run(demo(args.plan.resolve(), out.resolve()))
-    except (PeerError, RuntimeError) as e:
-        print(f"demos.compensate: {e}", file=sys.stderr)
-        return 2
+    return run_demo("demos.compensate", "rumba-demo-comp-", demo, (PeerError, RuntimeError),
+                    argv, description=__doc__, raw_description=True)
 
 
 if __name__ == "__main__":

@@ -120,7 +120,7 @@ async def mqtt_count(port: int, counts: dict[str, int]) -> None:
 async def fleet_in_store(dsn: str, names: list[str], timeout_s: float) -> list[dict]:
     """Poll the fleet store until every machine's run has ended there: a verdict with its
     report, or an error end (a failed run is shown, never waited for forever)."""
-    from daemon.store_pg import PgStore
+    from daemon.store.pg import PgStore
 
     store = await PgStore.connect(dsn, migrate=False)
     try:
@@ -158,9 +158,9 @@ def print_table(fleet: list[dict]) -> None:
 async def demo(time_scale: float, out: Path, stay: bool) -> int:
     from aiohttp import web
 
-    from daemon.daemon_yaml import load_daemon_config
+    from daemon.analysis.pipeline import prepare
+    from daemon.config import load_daemon_config
     from daemon.fleet.app import create_fleet_app
-    from daemon.pipeline import prepare
     from simulators.fleet_peers import MosquittoPeer, PeerUnavailable, PostgresPeer, free_port
 
     t0 = time.monotonic()

@@ -17,6 +17,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Awaitable, Callable
 from pathlib import Path
 from typing import Any
 
@@ -119,21 +120,33 @@ async def demo(plan: Path, work: Path) -> int:
         linuxcnc_peer.down(peer.dir)
 
 
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m demos.linuxcnc", description=__doc__)
+def run_demo(prog: str, prefix: str, demo: Callable[[Path, Path], Awaitable[int]],
+             errors: tuple[type[BaseException], ...], argv: list[str] | None = None, *,
+             description: str | None = None, raw_description: bool = False) -> int:
+    """The command line of a LinuxCNC demo: ``--plan`` and ``--out`` (default: a new temp folder
+    named ``prefix…``, kept), then ``demo(plan, out)``; an exception of ``errors`` (the peer
+    missing, a demo step refused) ends as one line naming ``prog`` and exit code 2."""
+    ap = argparse.ArgumentParser(prog=f"python -m {prog}", description=description,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter
+                                 if raw_description else argparse.HelpFormatter)
     ap.add_argument("--plan", type=Path, default=CONFIG / "plans/linuxcnc_7poses.yaml")
     ap.add_argument("--out", type=Path, help="folder for journal, reports and config "
                                              "(default: a new temp folder, kept)")
     args = ap.parse_args(argv)
-    out = args.out or Path(tempfile.mkdtemp(prefix="rumba-demo-lcnc-"))
+    out = args.out or Path(tempfile.mkdtemp(prefix=prefix))
     out.mkdir(parents=True, exist_ok=True)
-    from simulators.linuxcnc_peer import PeerError
-
     try:
         return asyncio.run(demo(args.plan.resolve(), out.resolve()))
-    except PeerError as e:
-        print(f"demos.linuxcnc: {e}", file=sys.stderr)
+    except errors as e:
+        print(f"{prog}: {e}", file=sys.stderr)
         return 2
+
+
+def main(argv: list[str] | None = None) -> int:
+    from simulators.linuxcnc_peer import PeerError
+
+    return run_demo("demos.linuxcnc", "rumba-demo-lcnc-", demo, (PeerError,), argv,
+                    description=__doc__)
 
 
 if __name__ == "__main__":

@@ -51,7 +51,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def serve(args: argparse.Namespace) -> int:
-    """Entry point used by daemon/commands/sim.py (synchronous: runs its own event loop)."""
+    """Entry point used by daemon/cli/commands/sim.py (synchronous: runs its own event loop)."""
     return asyncio.run(serve_async(args))
 
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import socket
 
-from daemon.cli import main as cli_main
+from daemon.cli.main import main as cli_main
 
 
 def run_cli(argv: list[str], capsys) -> tuple[int, str, str]:

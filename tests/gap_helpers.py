@@ -11,7 +11,7 @@ import numpy as np
 
 from contracts.probing_log import LogRow, write_log
 from contracts.setup_files import load_artefact, load_machine, load_plan
-from daemon.cli import main
+from daemon.cli.main import main
 from identification.gap import TouchData
 from identification.gap.simlog import Truth
 from identification.kinematics import Machine

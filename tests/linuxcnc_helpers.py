@@ -14,10 +14,10 @@ import numpy as np
 import pytest
 
 from contracts.setup_files import load_artefact, load_machine, load_plan
-from daemon.daemon_yaml import MachineSetup, TriggersFile
-from daemon.judge import Limit, Tolerances
-from daemon.session import Session
-from daemon.store import Store
+from daemon.machines.setup import MachineSetup, TriggersFile
+from daemon.machines.tolerances import Limit, Tolerances
+from daemon.run.session import Session
+from daemon.store.journal import Store
 from drivers.registry import make_link
 from simulators import linuxcnc_peer
 from simulators.truth import TruthModel

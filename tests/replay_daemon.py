@@ -9,10 +9,10 @@ import asyncio
 import sys
 
 from contracts.yaml_files import ConfigError
-from daemon.cli import UserError
-from daemon.commands.run import serve
-from daemon.daemon_yaml import load_daemon_config
-from daemon.service import Service
+from daemon.cli.commands.run import serve
+from daemon.cli.main import UserError
+from daemon.config import load_daemon_config
+from daemon.service.service import Service
 from tests.daemon_helpers import thesis_rows
 from tests.replay_link import ReplayLink, prepare_from_rows
 

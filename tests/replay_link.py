@@ -14,7 +14,7 @@ from contracts.jobs import ProgramJob, Verdict
 from contracts.messages import ProbeHit, TouchId
 from contracts.probing_log import LogRow
 from contracts.touch_table import TouchInfo, TouchTable
-from daemon.pipeline import Prepared, row_to_hit
+from daemon.analysis.pipeline import Prepared, row_to_hit
 from drivers.base import Capabilities, CncLink, ControllerAlarm, LinkError, StartRequest
 from identification.kinematics import Machine
 

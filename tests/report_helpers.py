@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import dataclasses
 
-from daemon import pipeline
-from daemon.judge import Judgement, judge
-from daemon.store import Store
+from daemon.analysis import pipeline
+from daemon.analysis.judge import Judgement, judge
+from daemon.store.journal import Store
 from tests.daemon_helpers import thesis_rows
 
 

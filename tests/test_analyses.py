@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from contracts.setup_files import load_artefact, load_machine, load_plan
-from daemon.touch_centres import rows_to_centres
+from daemon.analysis.touch_centres import rows_to_centres
 from identification.analyses import (
     cluster_fit,
     clusters,

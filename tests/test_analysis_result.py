@@ -8,8 +8,8 @@ from pathlib import Path
 
 import pytest
 
-from daemon.analysis_result import Analysis, LinkError, Stability
-from daemon.commands.analyze import run_analysis
+from daemon.analysis.result import Analysis, LinkError, Stability
+from daemon.cli.commands.analyze import run_analysis
 
 CFG = Path("config")
 LOG = CFG / "examples/thesis_annexB_14poses.csv"

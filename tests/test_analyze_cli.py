@@ -8,8 +8,8 @@ import pytest
 
 from contracts.probing_log import HEADER, write_log
 from contracts.setup_files import load_artefact, load_machine, load_plan
-from daemon.cli import main
-from daemon.commands.analyze import run_analysis
+from daemon.cli.commands.analyze import run_analysis
+from daemon.cli.main import main
 from tests.synth import THESIS_LINKS_UM_URAD, Truth, make_rows, to_internal
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -186,8 +186,8 @@ def test_degenerate_touches_are_one_line_naming_ball_and_pose(log, tmp_path, cap
 def test_non_finite_centres_are_an_analysis_error_naming_ball_and_pose(log) -> None:
     from contracts.probing_log import read_log
     from contracts.yaml_files import ConfigError
-    from daemon.identify import AnalysisError, analyse_centres
-    from daemon.touch_centres import rows_to_centres
+    from daemon.analysis.identify import AnalysisError, analyse_centres
+    from daemon.analysis.touch_centres import rows_to_centres
 
     m, _ = load_machine(MACHINE)
     a = load_artefact(ARTEFACT)

@@ -3,6 +3,9 @@
 ``identification ← contracts ← {programs, drivers, simulators} ← daemon ← {demos, benchmarks}``:
 a package imports only packages of a lower layer (and itself); packages of one layer never import
 each other; and no module imports itself back through a chain of imports. No exceptions.
+
+Inside ``daemon/`` the rooms (one subpackage per job, a few top-level modules) follow the same
+rule with the order of ``ROOMS``: a room imports only rooms of a lower rank (and itself).
 """
 
 from __future__ import annotations
@@ -14,6 +17,10 @@ ROOT = Path(__file__).resolve().parents[1]
 LAYERS = {"identification": 0, "contracts": 1, "programs": 2, "drivers": 2, "simulators": 2,
           "daemon": 3, "demos": 4, "benchmarks": 4}
 OURS = tuple(LAYERS)
+# bottom → top; rooms of one rank never import each other ("daemon": its __init__)
+ROOMS = {"daemon": 0, "safepath": 0, "hosts": 0, "machines": 1, "analysis": 2, "store": 3,
+         "compensation": 4, "reports": 5, "mqtt": 5, "notify": 5, "run": 6, "hmi": 7,
+         "fleet": 8, "config": 9, "service": 10, "cli": 11}
 
 
 def _module(path: Path) -> str:
@@ -63,6 +70,42 @@ def test_every_import_points_down_the_layers():
     bad = sorted(f"{m} imports {i}" for m, deps in GRAPH.items() for i in deps
                  if _pkg(i) != _pkg(m) and LAYERS[_pkg(i)] >= LAYERS[_pkg(m)])
     assert bad == []
+
+
+def _room(name: str) -> str:
+    parts = name.split(".")
+    return parts[1] if len(parts) > 1 else parts[0]
+
+
+def _upward_in_daemon(graph: dict[str, set[str]]) -> list[str]:
+    return sorted(f"{m} imports {i}" for m, deps in graph.items() for i in deps
+                  if _pkg(m) == _pkg(i) == "daemon" and _room(i) != _room(m)
+                  and ROOMS[_room(i)] >= ROOMS[_room(m)])
+
+
+def test_every_daemon_module_is_in_a_room():
+    assert sorted({_room(m) for m in GRAPH if _pkg(m) == "daemon"} - set(ROOMS)) == []
+    assert set(ROOMS) <= {_room(m) for m in GRAPH if _pkg(m) == "daemon"}
+
+
+def test_every_import_in_the_daemon_points_down_the_rooms():
+    assert _upward_in_daemon(GRAPH) == []
+
+
+def test_an_upward_import_between_rooms_is_caught():
+    # the store journal importing the session (lazily or not), or two rooms of one rank
+    assert "daemon.store.journal" in GRAPH and "daemon.run.session" in GRAPH
+    graph = {m: set(deps) for m, deps in GRAPH.items()}
+    graph["daemon.store.journal"].add("daemon.run.session")
+    graph["daemon.mqtt.publisher"].add("daemon.notify.notifier")
+    assert _upward_in_daemon(graph) == [
+        "daemon.mqtt.publisher imports daemon.notify.notifier",
+        "daemon.store.journal imports daemon.run.session"]
+
+
+def test_a_lazy_import_is_in_the_graph():
+    # imports inside functions count: the session imports the report only when a run gets there
+    assert "daemon.reports.report" in GRAPH["daemon.run.session"]
 
 
 def _cycles(graph: dict[str, set[str]]) -> list[list[str]]:

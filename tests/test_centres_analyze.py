@@ -13,8 +13,8 @@ import yaml
 from contracts.centres_file import read_centres, write_centres
 from contracts.probing_log import write_log
 from contracts.setup_files import load_artefact, load_machine, load_plan
-from daemon.cli import main
-from daemon.touch_centres import rows_to_centres
+from daemon.analysis.touch_centres import rows_to_centres
+from daemon.cli.main import main
 from identification.estimate import estimate
 from identification.frame import estimate_weighted
 from programs.dialects import get_dialect

@@ -18,7 +18,7 @@ from contracts.centres_file import HEADER, CentresFile, CentresFileError, write_
 from contracts.importers import import_centres
 from contracts.probing_log import ProbeLogError, ProbeLogWarning
 from contracts.setup_files import load_machine
-from daemon.centres_input import load
+from daemon.analysis.centres_input import load
 from tests.reader_helpers import ARTEFACT, centre_rows, mutate_line, mutate_whole
 from tests.regen_centres_fixtures import centres
 

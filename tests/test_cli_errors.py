@@ -6,8 +6,8 @@ from pathlib import Path
 
 import pytest
 
-import daemon.commands.history as history
-from daemon.cli import EX_SOFTWARE, main
+import daemon.cli.commands.history as history
+from daemon.cli.main import EX_SOFTWARE, main
 
 
 def test_internal_error_is_one_line_with_a_crash_file(tmp_path: Path, monkeypatch,

@@ -11,9 +11,9 @@ import sys
 
 import pytest
 
-from daemon.analysis_result import Analysis, Stability, Where
-from daemon.cli import main as cli_main
-from daemon.judge import judge
+from daemon.analysis.judge import judge
+from daemon.analysis.result import Analysis, Stability, Where
+from daemon.cli.main import main as cli_main
 from demos.e2e import links_line
 from identification.gap.selfcheck import SCENARIOS, Case, Summary
 from tests.daemon_helpers import CONFIG, ROOT, TOLERANCES

@@ -15,12 +15,12 @@ import yaml
 
 from contracts.probing_log import write_log
 from contracts.setup_files import load_artefact, load_machine, load_plan
-from daemon import compensation_journal as cj
-from daemon import pipeline
-from daemon.compensate import ControllerModelError, controller_model, journal_analyse
-from daemon.daemon_yaml import load_daemon_config
-from daemon.store import Store
-from daemon.store_schema import MIGRATIONS, for_postgres
+from daemon.analysis import pipeline
+from daemon.compensation import journal as cj
+from daemon.compensation.propose import ControllerModelError, controller_model, journal_analyse
+from daemon.config import load_daemon_config
+from daemon.store.journal import Store
+from daemon.store.schema import MIGRATIONS, for_postgres
 from drivers.linuxcnc import halkins
 from tests.cli_helpers import run_cli
 from tests.daemon_helpers import CONFIG, write_daemon_yaml

@@ -16,11 +16,11 @@ from pathlib import Path
 import pytest
 import yaml
 
-from daemon import compensation_journal as cj
-from daemon.compensate import ControllerModelError, controller_model
-from daemon.daemon_yaml import load_daemon_config
-from daemon.service import Service
-from daemon.store import Store
+from daemon.compensation import journal as cj
+from daemon.compensation.propose import ControllerModelError, controller_model
+from daemon.config import load_daemon_config
+from daemon.service.service import Service
+from daemon.store.journal import Store
 from demos.compensate import MACHINE_NAME, daemon_yaml, demo_machine_file, judge, verification
 from drivers.linuxcnc import halkins
 from identification.estimate import coverage_factor

@@ -15,7 +15,7 @@ import yaml
 
 from contracts.controller_kinematics import ControllerKinematics, siemens_tilt
 from contracts.setup_files import load_artefact, load_controller_kinematics, load_machine, load_plan
-from daemon.touch_centres import rows_to_centres
+from daemon.analysis.touch_centres import rows_to_centres
 from identification.compensation import ParamChange, apply_changes, plan_compensation
 from identification.estimate import estimate
 from programs import compensation

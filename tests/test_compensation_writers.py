@@ -19,7 +19,7 @@ from contracts.controller_kinematics import ControllerKinematics, ControllerKine
 from contracts.controller_kinematics import controller_kinematics as build
 from contracts.setup_files import load_controller_kinematics, load_machine, machine_from_dict
 from contracts.yaml_files import ConfigError
-from daemon.store import RUN_ID_PATTERN
+from daemon.store.journal import RUN_ID_PATTERN
 from identification.compensation import ControllerParam, ParamChange
 from programs.compensation import CompensationError, fixed, fmt_value, patch_hal_file, render
 from programs.compensation import haas as haas_writer

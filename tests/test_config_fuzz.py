@@ -18,7 +18,7 @@ from hypothesis import strategies as st
 
 from contracts.setup_files import MAX_POSES, MAX_TOUCHES, load_artefact, load_machine, load_plan
 from contracts.yaml_files import MAX_YAML_BYTES, ConfigError, read_yaml
-from daemon.daemon_yaml import load_daemon_config
+from daemon.config import load_daemon_config
 from simulators.errors_schema import load_errors
 from simulators.faults import FaultPlan
 
@@ -195,7 +195,7 @@ def test_pose_list_ceiling(tmp_path):
 
 
 def test_touch_ceiling_in_daemon_yaml_and_rumba_gcode(tmp_path, capsys):
-    from daemon.cli import main
+    from daemon.cli.main import main
 
     grid = ("name: big\nstylus_diameter_mm: 6\nrepeats: 20\ngrid: {b: {start_deg: -45, "
             "stop_deg: 45, step_deg: 15}, c: {start_deg: 0, stop_deg: 360, step_deg: 15}}\n")

@@ -10,9 +10,10 @@ import pytest
 import yaml
 
 from contracts.setup_files import load_artefact, load_machine, load_plan
-from daemon.identify import analyse_centres
-from daemon.judge import Tolerances, judge
-from daemon.touch_centres import rows_to_centres
+from daemon.analysis.identify import analyse_centres
+from daemon.analysis.judge import judge
+from daemon.analysis.touch_centres import rows_to_centres
+from daemon.machines.tolerances import Tolerances
 from programs.dialects import get_dialect
 from programs.safety import check_program
 from programs.toolpath import build_program
@@ -107,7 +108,7 @@ def test_the_drift_check_revisit_is_not_taken_for_repeatability(setup, tmp_path)
     # drift behind a floor it inflated (before the fix: floor 1.7 µm, verdict "none" for a
     # 3.7 µm X drift).
     from contracts.probing_log import write_log
-    from daemon.cli import main
+    from daemon.cli.main import main
 
     m, mf, a, _, prog = setup
     errors = _thesis_errors()

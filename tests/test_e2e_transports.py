@@ -36,9 +36,10 @@ import yaml
 
 from contracts.jobs import VERDICT_CODES
 from contracts.result_lines import DIALECT_NAMES
-from daemon.daemon_yaml import MachineSetup, load_daemon_config
-from daemon.service import Service
-from daemon.session import State
+from daemon.config import load_daemon_config
+from daemon.machines.setup import MachineSetup
+from daemon.run.session import State
+from daemon.service.service import Service
 from identification.estimate import coverage_factor
 from programs.dialects import get_dialect
 from simulators.controller import VERDICT_VARIABLE, VirtualController
@@ -142,7 +143,7 @@ def write_config(tmp: Path, dialect: str, link: dict[str, Any], plan: str = PLAN
 def copy_aux_files(ctrl: VirtualController, setup: MachineSetup) -> None:
     """What the operator copies to a TNC once (format files of FN 16), when the transport
     cannot transfer files (DNC, Modbus mailbox)."""
-    from daemon.pipeline import prepare
+    from daemon.analysis.pipeline import prepare
 
     ctrl.files.update(prepare(setup, "setup").job.files)
 

@@ -6,8 +6,8 @@ from __future__ import annotations
 
 import asyncio
 
-from daemon.store import Store
-from daemon.store_drain import Drainer
+from daemon.store.drain import Drainer
+from daemon.store.journal import Store
 
 
 async def test_stop_is_not_lost_when_a_wake_arrives_with_it(tmp_path):

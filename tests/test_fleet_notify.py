@@ -15,11 +15,11 @@ import pytest
 from aiohttp import web
 
 from contracts.yaml_files import ConfigError
-from daemon.daemon_yaml import load_daemon_config
-from daemon.notify import missed_checks
-from daemon.notify_config import NotifyFile, load_notify
-from daemon.service import Service
-from daemon.store import Store
+from daemon.config import load_daemon_config
+from daemon.notify.config import NotifyFile, load_notify
+from daemon.notify.notifier import missed_checks
+from daemon.service.service import Service
+from daemon.store.journal import Store
 from simulators.fleet_peers import free_port
 from tests.daemon_helpers import thesis_rows, thesis_setup, write_daemon_yaml
 from tests.fleet_helpers import until

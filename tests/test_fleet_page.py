@@ -16,7 +16,7 @@ import pytest
 from aiohttp import web
 
 from daemon.fleet.app import create_fleet_app
-from daemon.store_pg import PgStore, RunBatch
+from daemon.store.pg import PgStore, RunBatch
 from tests.browser import chromium
 from tests.fleet_helpers import fresh_db, start_postgres
 
@@ -218,7 +218,7 @@ async def test_fleet_page_in_chromium(fleet_db, tmp_path):
 
 
 def test_fleet_command_refuses_bad_arguments(tmp_path, capsys):
-    from daemon.cli import main
+    from daemon.cli.main import main
 
     token = tmp_path / "t"
     token.write_text(TOKEN)

@@ -12,7 +12,7 @@ import pytest
 
 from contracts.centres_file import read_centres, write_centres
 from contracts.probing_log import write_log
-from daemon.cli import main
+from daemon.cli.main import main
 from identification.effects import make_effect
 from identification.gap import Options, diagnose
 from identification.gap.simlog import simulate

@@ -9,7 +9,7 @@ import pytest
 
 from contracts.probing_log import write_log
 from contracts.setup_files import load_artefact, load_machine
-from daemon.cli import main
+from daemon.cli.main import main
 from identification.effects import make_effect
 from identification.gap import diagnose
 from identification.gap.simlog import simulate

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from contracts.probing_log import read_log, write_log
-from daemon.cli import main
+from daemon.cli.main import main
 from identification.effects import make_effect
 from identification.gap import diagnose
 from identification.gap.locate import MAX_SHOWN, shown_locations

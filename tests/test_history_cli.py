@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from contracts.probing_log import write_log
-from daemon.cli import main as cli_main
-from daemon.pipeline import PipelineError
+from daemon.analysis.pipeline import PipelineError
+from daemon.cli.main import main as cli_main
 from identification.spherefit import SphereFitError
 from tests.daemon_helpers import thesis_rows, thesis_setup, write_daemon_yaml
 
@@ -68,7 +68,7 @@ def test_any_analysis_failure_is_one_line_and_journals_nothing(tmp_path, capsys,
     """Whatever the analysis raises on bad data (the log reader may not catch every absurd
     value), the import ends as one line and the journal stays as it was: the sphere fit's
     failures are turned into a PipelineError by the pipeline itself."""
-    import daemon.pipeline as pipeline
+    import daemon.analysis.pipeline as pipeline
 
     def failing(*_a: object, **_k: object) -> None:
         raise error

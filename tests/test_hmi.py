@@ -11,8 +11,8 @@ import aiohttp
 import pytest
 
 from contracts.yaml_files import ConfigError
-from daemon.daemon_yaml import load_daemon_config
-from daemon.service import Service
+from daemon.config import load_daemon_config
+from daemon.service.service import Service
 from tests.browser import chromium
 from tests.daemon_helpers import thesis_rows, thesis_setup, write_daemon_yaml
 from tests.replay_link import ReplayLink, prepare_from_rows

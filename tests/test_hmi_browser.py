@@ -2,7 +2,7 @@
 date (local time) and age, flagged stale past ``hmi.stale_after_h``; the trend, one chart per
 link error on its own unit axis with its limits; the "Last runs" row of a running run showing
 the same touch count as the progress bar; the PDF of a finished run; no sideways overflow on a
-390 px phone."""
+390 px phone; a refused start shown whether its answer is JSON or a proxy's text page."""
 
 from __future__ import annotations
 
@@ -12,8 +12,8 @@ from zoneinfo import ZoneInfo
 
 import pytest
 
-from daemon.daemon_yaml import load_daemon_config
-from daemon.service import Service
+from daemon.config import load_daemon_config
+from daemon.service.service import Service
 from tests.browser import chromium
 from tests.daemon_helpers import thesis_rows, thesis_setup, write_daemon_yaml
 from tests.replay_link import ReplayLink, prepare_from_rows
@@ -158,5 +158,34 @@ async def test_phone_width_nothing_overflows(tmp_path):
                                          "'#history td'), '::before').content")
             assert labels == '"Started"', labels
             await cdp.screenshot(sid, tmp_path / "hmi-phone.png", whole_page=True)
+    finally:
+        await svc.stop()
+
+
+async def test_start_refusals_are_shown_json_or_not(tmp_path):
+    # a proxy in front of the daemon may answer with a text page: the operator reads it
+    svc = await start_service(tmp_path, delay_s=0.05)
+    try:
+        async with chromium(tmp_path / "profile") as cdp:
+            sid = await cdp.page()
+            await cdp.sign_in(sid, svc.hmi_url, TOKEN)
+            card = "document.querySelector('.machine')"
+            await cdp.eval(sid, "window.realFetch = window.fetch; window.fetch = async () => "
+                                "new Response('502 Bad Gateway: upstream down', {status: 502, "
+                                "headers: {'Content-Type': 'text/plain'}}); true")
+            await cdp.eval(sid, f"{card}.querySelector('.start').click(); true")
+            msg = await cdp.wait_for(sid, f"{card}.querySelector('.message').textContent")
+            assert msg == "502 Bad Gateway: upstream down", msg
+            # an empty non-JSON answer names its status; the daemon's own refusal is JSON
+            await cdp.eval(sid, "window.fetch = async () => new Response('', {status: 503}); "
+                                "true")
+            assert await cdp.eval(sid, "post('/x').then(r => [r.ok, r.body.error])") == \
+                [False, "HTTP 503"]
+            await cdp.eval(sid, "window.fetch = window.realFetch; true")
+            url = f"/api/machines/{next(iter(svc.sessions))}/start"
+            first = await cdp.eval(sid, f"post('{url}').then(r => r.ok)")
+            ok, error = await cdp.eval(sid, f"post('{url}').then(r => [r.ok, r.body.error])")
+            assert first is True and ok is False and "in progress" in error, error
+            await svc.sessions[next(iter(svc.sessions))].wait()
     finally:
         await svc.stop()

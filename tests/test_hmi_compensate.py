@@ -16,9 +16,9 @@ import pytest
 import yaml
 from yarl import URL
 
-from daemon import compensation_journal as cj
-from daemon.daemon_yaml import load_daemon_config
-from daemon.service import Service
+from daemon.compensation import journal as cj
+from daemon.config import load_daemon_config
+from daemon.service.service import Service
 from tests.browser import chromium
 from tests.daemon_helpers import CONFIG, write_daemon_yaml
 

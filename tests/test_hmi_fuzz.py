@@ -15,10 +15,10 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from daemon.daemon_yaml import load_daemon_config
+from daemon.config import load_daemon_config
 from daemon.hmi.app import AUTH_KEY, COOKIE, LIMITER_KEY, PUBLIC
 from daemon.hmi.limits import HmiLimits
-from daemon.service import Service
+from daemon.service.service import Service
 from tests.daemon_helpers import thesis_rows, thesis_setup, write_daemon_yaml
 from tests.replay_link import ReplayLink, prepare_from_rows
 

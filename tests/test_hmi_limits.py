@@ -15,7 +15,7 @@ from aiohttp import web
 
 from daemon.hmi.app import AUTH_KEY, COOKIE, LIMITER_KEY, STORE_KEY, create_app
 from daemon.hmi.limits import AuthLimiter, HmiLimits, Origins, client_key
-from daemon.store import Store
+from daemon.store.journal import Store
 
 TOKEN = "t0k3n-for-tests-0123456789"
 FAST = HmiLimits(header_timeout_s=0.4, body_timeout_s=0.4, linger_s=0.2)

@@ -11,10 +11,10 @@ from pathlib import Path
 import aiohttp
 import pytest
 
-from daemon.daemon_yaml import load_daemon_config
+from daemon.config import load_daemon_config
 from daemon.hmi.app import AUTH_KEY, COOKIE
 from daemon.hmi.auth import SECRET_FILE, SESSION_TTL_S, Auth
-from daemon.service import Service, ServiceError
+from daemon.service.service import Service, ServiceError
 from tests.daemon_helpers import thesis_rows, thesis_setup, write_daemon_yaml
 from tests.replay_link import ReplayLink, prepare_from_rows
 

@@ -24,7 +24,7 @@ from contracts.setup_files import (
     plan_from_dict,
 )
 from contracts.yaml_files import ConfigError
-from daemon.daemon_yaml import config_from_dict
+from daemon.config import config_from_dict
 from drivers.registry import link_config
 from programs.dialects import get_dialect
 from programs.geometry import ProgramError

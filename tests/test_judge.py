@@ -5,8 +5,9 @@ from __future__ import annotations
 import math
 from dataclasses import replace
 
-from daemon.analysis_result import Analysis, Estimation, Health, LinkError, VolumetricPoint
-from daemon.judge import Limit, Tolerances, judge, volumetric_max_um
+from daemon.analysis.judge import judge, volumetric_max_um
+from daemon.analysis.result import Analysis, Estimation, Health, LinkError, VolumetricPoint
+from daemon.machines.tolerances import Limit, Tolerances
 
 
 def analysis(eb0c=10.0, std=1.0, ex0c=-20.0, vol=(30.0, 40.0, 0.0), rms=0.8) -> Analysis:

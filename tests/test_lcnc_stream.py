@@ -13,9 +13,9 @@ import pytest
 
 from contracts.setup_files import load_artefact, load_machine, load_plan
 from contracts.yaml_files import ConfigError
-from daemon import pipeline
-from daemon.daemon_yaml import MachineSetup, TriggersFile
-from daemon.judge import Tolerances
+from daemon.analysis import pipeline
+from daemon.machines.setup import MachineSetup, TriggersFile
+from daemon.machines.tolerances import Tolerances
 from drivers.base import LinkError
 from drivers.linuxcnc.program import auto_program, name_error, plan_steps
 from drivers.registry import link_config

@@ -22,8 +22,8 @@ import numpy as np
 import pytest
 
 from contracts.setup_files import load_artefact, load_machine
-from daemon.daemon_yaml import MachineSetup
-from daemon.session import State
+from daemon.machines.setup import MachineSetup
+from daemon.run.session import State
 from drivers.registry import make_link
 from identification.estimate import coverage_factor
 from identification.kinematics import ChainState, frames, to_model
@@ -204,8 +204,7 @@ async def test_missing_ball_stops_with_linuxcnc_probe_error(lcnc, tmp_path: Path
 async def test_local_mode_through_the_linuxcnc_module(lcnc) -> None:
     """The daemon on the LinuxCNC PC: same program, the ``linuxcnc`` module in a helper."""
     from contracts.setup_files import plan_from_dict
-    from daemon import pipeline
-
+    from daemon.analysis import pipeline
     peer, truth = lcnc.peer, lcnc.truth
     setup = _setup(_link(peer, "local-mdi"))
     plan = plan_from_dict({"name": "one", "stylus_diameter_mm": 6, "poses": [[30, 60]],

@@ -10,11 +10,11 @@ import aiomqtt
 import pytest
 
 from contracts.yaml_files import ConfigError
-from daemon.daemon_yaml import read_token_file
-from daemon.mqtt import MachinePublisher
-from daemon.mqtt_config import MqttConfig, MqttFile, load_mqtt
-from daemon.session import Session, State
-from daemon.store import Store
+from daemon.config import read_token_file
+from daemon.mqtt.config import MqttConfig, MqttFile, load_mqtt
+from daemon.mqtt.publisher import MachinePublisher
+from daemon.run.session import Session, State
+from daemon.store.journal import Store
 from tests.daemon_helpers import thesis_rows, thesis_setup
 from tests.fleet_helpers import start_mosquitto, until
 from tests.replay_link import ReplayLink, prepare_from_rows

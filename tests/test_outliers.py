@@ -14,11 +14,12 @@ import pytest
 from contracts.messages import TOUCH_DIRECTIONS
 from contracts.probing_log import write_log
 from contracts.setup_files import load_artefact, load_machine, load_plan
-from daemon.analysis_result import Analysis
-from daemon.cli import main
-from daemon.identify import analyse_centres
-from daemon.judge import Tolerances, judge
-from daemon.touch_centres import rows_to_centres
+from daemon.analysis.identify import analyse_centres
+from daemon.analysis.judge import judge
+from daemon.analysis.result import Analysis
+from daemon.analysis.touch_centres import rows_to_centres
+from daemon.cli.main import main
+from daemon.machines.tolerances import Tolerances
 from identification.gap.data import form_floor_um
 from identification.outliers import (
     CENTRE_Z,

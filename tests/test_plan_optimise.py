@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 
 from contracts.setup_files import PoseFile, load_artefact, load_machine, load_plan
-from daemon.cli import main
-from daemon.touch_centres import rows_to_centres
+from daemon.analysis.touch_centres import rows_to_centres
+from daemon.cli.main import main
 from identification.estimate import estimate
 from programs.generate import generate
 from programs.model import plan_visits
@@ -165,7 +165,7 @@ def test_prediction_is_the_estimators_own_covariance():
 
 
 def test_validation_poses_are_held_out_and_do_not_count_for_the_targets(tmp_path):
-    from daemon.commands.plan import make_plan
+    from daemon.cli.commands.plan import make_plan
     f = tmp_path / "t.yaml"
     f.write_text(TARGETS.read_text(encoding="utf-8").replace(
         "reference_plan: ../shift_start_14poses.yaml", f"reference_plan: {SHIPPED}").replace(

@@ -17,7 +17,7 @@ from contracts.probing_log import (
     write_log,
 )
 from contracts.setup_files import load_machine
-from daemon.touch_centres import rows_to_centres
+from daemon.analysis.touch_centres import rows_to_centres
 from tests.reader_helpers import ARTEFACT, CONFIG, mutate_line, mutate_whole
 from tests.synth import Truth, make_rows
 

@@ -189,7 +189,7 @@ def test_generate_checks_renders_and_times(tmp_path):
 
 
 def test_cli_with_targets_from_an_estimate(tmp_path, capsys):
-    from daemon.cli import main
+    from daemon.cli.main import main
 
     est = {"setup": {"balls": {b: {"value": [10.0, 0.0, 0.0]} for b in ("B1", "B2", "B3", "B4")},
                      "probe": {"value": [0.0, 0.0, 0.0]}}}

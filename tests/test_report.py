@@ -14,9 +14,10 @@ from pathlib import Path
 
 import pytest
 
-from daemon import pipeline, report
-from daemon.judge import Judgement
-from daemon.store import Store
+from daemon.analysis import pipeline
+from daemon.analysis.judge import Judgement
+from daemon.reports import report
+from daemon.store.journal import Store
 from tests.daemon_helpers import thesis_setup
 from tests.report_helpers import journal_run
 

@@ -21,13 +21,15 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from matplotlib.quiver import QuiverKey
 
-from daemon import report, report_plots
-from daemon.analysis_result import Analysis, Cluster, LinkError
-from daemon.daemon_yaml import load_daemon_config
-from daemon.judge import Check, Judgement, Limit
-from daemon.report_pdf import write_pdf
-from daemon.store import Store, TrendPoint
-from daemon.verdict_text import ADVICE, duration_text
+from daemon.analysis.judge import Check, Judgement
+from daemon.analysis.result import Analysis, Cluster, LinkError
+from daemon.analysis.verdict_text import ADVICE, duration_text
+from daemon.config import load_daemon_config
+from daemon.machines.tolerances import Limit
+from daemon.reports import plots as report_plots
+from daemon.reports import report
+from daemon.reports.pdf import write_pdf
+from daemon.store.journal import Store, TrendPoint
 from tests.daemon_helpers import CONFIG, TOLERANCES, thesis_setup, write_daemon_yaml
 from tests.report_helpers import journal_run
 

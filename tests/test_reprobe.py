@@ -12,12 +12,12 @@ import pytest
 import pytest_asyncio
 from pydantic import ValidationError
 
-from daemon.analysis_result import Analysis
-from daemon.daemon_yaml import load_daemon_config
-from daemon.journal_csv import export_csv
-from daemon.pipeline import prepare
-from daemon.session import Session, State
-from daemon.store import Store
+from daemon.analysis.pipeline import prepare
+from daemon.analysis.result import Analysis
+from daemon.config import load_daemon_config
+from daemon.run.session import Session, State
+from daemon.store.journal import Store
+from daemon.store.probing_csv import export_csv
 from simulators.controller import VirtualController
 from simulators.faults import Fault, FaultPlan
 from simulators.offline import run_program
@@ -114,7 +114,7 @@ async def test_a_chip_is_re_probed_after_the_program_and_the_verdict_notes_it(cn
     # the journal as a probing log re-analyses to the same result (re-probe rows included)
     log = tmp_path / "run.csv"
     export_csv(s.store, run_id, log, s.setup.machine)
-    from daemon.commands.analyze import run_analysis
+    from daemon.cli.commands.analyze import run_analysis
 
     again_a = run_analysis(log, CONFIG / "machines/thesis_wcbxfzyt.yaml",
                            CONFIG / "artefacts/thesis_4ball.yaml")

@@ -9,9 +9,9 @@ import pytest
 
 from contracts.messages import ProbeHit
 from contracts.yaml_files import ConfigError
+from daemon.run.session import new_run_id
 from daemon.safepath import UnsafePathError, contained_path, plain_name
-from daemon.session import new_run_id
-from daemon.store import RunIdError, Store, StoreError, validate_run_id
+from daemon.store.journal import RunIdError, Store, StoreError, validate_run_id
 
 BAD_IDS = ["../../x/PWNED", "a/b", "a\\b", "..", ".", "", "-x", "run\n", "run\nx", "a b",
            "a.html", "x" * 65, "/etc/passwd", "C:x", "r\x00", "ré"]
@@ -106,7 +106,7 @@ def test_contained_path_accepts_plain_names_and_refuses_symlink_escapes(tmp_path
 def test_prepare_refuses_an_auxiliary_file_name_that_leaves_its_directory(monkeypatch):
     """Aux files (Heidenhain format files) become files on the controller and next to
     `rumba gcode -o`; a name with a separator is refused before anything is sent."""
-    from daemon import pipeline
+    from daemon.analysis import pipeline
     from programs import dialects
     from tests.daemon_helpers import thesis_setup
 

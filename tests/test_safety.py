@@ -18,7 +18,7 @@ from contracts.setup_files import (
     machine_from_dict,
     plan_from_dict,
 )
-from daemon.cli import main
+from daemon.cli.main import main
 from programs.safety import SafetyError, check_program
 from programs.toolpath import build_program
 

@@ -11,7 +11,7 @@ import signal
 import socket
 import sys
 
-from daemon import sdnotify
+from daemon.service import sdnotify
 from tests.daemon_helpers import CONFIG, ROOT, write_daemon_yaml
 
 

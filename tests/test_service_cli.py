@@ -222,7 +222,8 @@ def test_shipped_daemon_yaml_is_valid():
     import yaml
 
     from contracts.setup_files import load_artefact, load_machine, load_plan
-    from daemon.daemon_yaml import _check_identifiable, config_from_dict
+    from daemon.config import config_from_dict
+    from daemon.machines.setup import _check_identifiable
     from drivers.registry import link_config
 
     path = ROOT / "config/daemon.yaml"

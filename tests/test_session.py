@@ -10,8 +10,8 @@ import asyncio
 
 import pytest
 
-from daemon.session import Refused, Session, State
-from daemon.store import Store
+from daemon.run.session import Refused, Session, State
+from daemon.store.journal import Store
 from tests.daemon_helpers import thesis_rows, thesis_setup
 from tests.replay_link import Faults, ReplayLink, prepare_from_rows
 
@@ -169,7 +169,7 @@ async def test_disabled_trigger_is_refused(env):
     setup, _rows, _store, _tmp = env
     from dataclasses import replace
 
-    from daemon.daemon_yaml import TriggersFile
+    from daemon.machines.setup import TriggersFile
     s, _ = make(env, setup=replace(setup, triggers=TriggersFile(can=False)))
     with pytest.raises(Refused, match="trigger 'can' is disabled"):
         s.start("can")

@@ -12,8 +12,8 @@ import pytest
 import pytest_asyncio
 import yaml
 
-from daemon.session import Session, State
-from daemon.store import Store
+from daemon.run.session import Session, State
+from daemon.store.journal import Store
 from identification.estimate import coverage_factor
 from simulators.controller import VirtualController
 from simulators.faults import Fault, FaultPlan

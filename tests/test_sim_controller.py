@@ -216,7 +216,7 @@ async def test_centre_noise_is_common_to_the_five_touches_of_a_visit():
     import numpy as np
 
     from contracts.setup_files import plan_from_dict
-    from daemon.touch_centres import rows_to_centres
+    from daemon.analysis.touch_centres import rows_to_centres
     from programs.dialects import get_dialect
     from programs.toolpath import build_program
     from simulators.offline import run_program

@@ -8,8 +8,8 @@ from __future__ import annotations
 import numpy as np
 
 from contracts.setup_files import load_artefact, load_machine, load_plan
-from daemon.cli import main
-from daemon.commands.analyze import run_analysis
+from daemon.cli.commands.analyze import run_analysis
+from daemon.cli.main import main
 from programs.dialects import get_dialect
 from programs.toolpath import build_program
 from simulators.errors_schema import load_errors

@@ -12,8 +12,8 @@ import time
 import pytest
 
 from contracts.probing_log import read_log
-from daemon.journal_csv import export_csv, import_csv
-from daemon.store import SCHEMA_VERSION, Store, StoreError
+from daemon.store.journal import SCHEMA_VERSION, Store, StoreError
+from daemon.store.probing_csv import export_csv, import_csv
 from tests.daemon_helpers import thesis_rows, thesis_setup
 from tests.store_helpers import hit
 
@@ -62,7 +62,7 @@ def test_hit_round_trip_and_interrupted(tmp_path):
 
 _WRITER = """
 import sys, time
-from daemon.store import Store
+from daemon.store.journal import Store
 from tests.store_helpers import hit
 s = Store(sys.argv[1], synchronous=sys.argv[2])
 s.new_run("K", "mill1", "cnc")
@@ -117,17 +117,17 @@ def test_import_is_all_or_nothing(tmp_path, monkeypatch):
     reader) leaves no half-imported run behind, so the corrected log imports."""
     import dataclasses
 
-    import daemon.journal_csv
+    import daemon.store.probing_csv
 
     setup = thesis_setup()
     rows = thesis_rows(setup)
     bad = [*rows[:-1], dataclasses.replace(rows[-1], seq=rows[0].seq)]
-    monkeypatch.setattr(daemon.journal_csv, "read_log", lambda path, artefact: bad)
+    monkeypatch.setattr(daemon.store.probing_csv, "read_log", lambda path, artefact: bad)
     s = Store(tmp_path / "j.sqlite")
     with pytest.raises(StoreError, match="refuses run synth"):
         import_csv(s, tmp_path / "log.csv", "mill1", setup.machine, setup.artefact)
     assert s.runs() == [] and s.db.execute("SELECT COUNT(*) FROM hits").fetchone()[0] == 0
-    monkeypatch.setattr(daemon.journal_csv, "read_log", lambda path, artefact: rows)
+    monkeypatch.setattr(daemon.store.probing_csv, "read_log", lambda path, artefact: rows)
     assert import_csv(s, tmp_path / "log.csv", "mill1", setup.machine,
                       setup.artefact) == ("synth", len(rows))
     s.close()

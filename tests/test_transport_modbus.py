@@ -306,9 +306,9 @@ async def test_mailbox_garbage_fails_the_service_run_with_the_reason(tmp_path):
     """daemon.yaml → Service → Modbus link: garbage in MBX_ACK mid-stream. With every silence
     timeout at an hour the run must still end at once, FAILED, naming the register; the CNC
     gets ERROR and its program is stopped."""
-    from daemon.daemon_yaml import load_daemon_config
-    from daemon.service import Service
-    from daemon.session import State
+    from daemon.config import load_daemon_config
+    from daemon.run.session import State
+    from daemon.service.service import Service
     from tests.daemon_helpers import write_daemon_yaml
 
     ctrl = VirtualController(make_truth(), dialect=DIALECT)

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from daemon.commands.verify import verify
+from daemon.cli.commands.verify import verify
 from tests.cli_helpers import free_port, run_cli
 from tests.daemon_helpers import thesis_rows, thesis_setup, write_daemon_yaml
 from tests.replay_link import Faults, ReplayLink, prepare_from_rows
@@ -82,8 +82,8 @@ async def test_can_panel_start_abort_and_lamps(tmp_path):
     import can
 
     from contracts.can_frames import LAMP_NAMES, button_frame
-    from daemon.daemon_yaml import load_daemon_config
-    from daemon.service import Service
+    from daemon.config import load_daemon_config
+    from daemon.service.service import Service
 
     channel = f"rumba-test-{os.getpid()}-{time.monotonic_ns()}"
     path = write_daemon_yaml(tmp_path, extra_top=f"can_panel: {{interface: virtual, channel: "
@@ -136,9 +136,9 @@ async def test_can_panel_start_abort_and_lamps(tmp_path):
 
 async def test_verify_through_the_running_daemon(tmp_path, capsys):
     """`rumba verify --daemon`: the CLI trigger of a running service, over its HMI API."""
-    from daemon.commands.verify import verify_via_daemon
-    from daemon.daemon_yaml import load_daemon_config
-    from daemon.service import Service
+    from daemon.cli.commands.verify import verify_via_daemon
+    from daemon.config import load_daemon_config
+    from daemon.service.service import Service
 
     path = write_daemon_yaml(tmp_path)
     path.write_text(path.read_text().replace("port: 0", f"port: {free_port()}"))
@@ -162,9 +162,9 @@ async def test_verify_through_the_running_daemon(tmp_path, capsys):
 async def test_two_machines_run_concurrently_with_one_session_each(tmp_path):
     import asyncio
 
-    from daemon.daemon_yaml import load_daemon_config
-    from daemon.service import Service
-    from daemon.session import Refused
+    from daemon.config import load_daemon_config
+    from daemon.run.session import Refused
+    from daemon.service.service import Service
 
     path = write_daemon_yaml(tmp_path)
     text = path.read_text()

@@ -20,7 +20,7 @@ PLAN = CONFIG / "plans/thesis_ch3_7poses.yaml"
 
 
 def fuzz(rng: random.Random, n: int, limit_s: float = 20.0) -> Tally:
-    from daemon.cli import main
+    from daemon.cli.main import main
     from tests.daemon_helpers import write_daemon_yaml
 
     tally = Tally("rumba CLI")

@@ -29,9 +29,9 @@ from daemon.hmi.access import secured_app
 from daemon.hmi.app import REPORT_CSP, run_id_ok
 from daemon.hmi.auth import Auth
 from daemon.hmi.limits import HmiLimits, int_param
-from daemon.store import StoreError
-from daemon.store_pg import PgStore
-from daemon.store_url import redact
+from daemon.store.journal import StoreError
+from daemon.store.pg import PgStore
+from daemon.store.url import redact
 
 READER_KEY = web.AppKey("fleet_reader", object)
 STALE_KEY = web.AppKey("stale_after_h", float)

@@ -1,1 +1,1 @@
-"""The daemon's operator web page (see ``daemon.hmi.app``)."""
+"""The operator web page (hmi in daemon.yaml) and what the fleet page shares: access, auth, TLS."""

@@ -17,6 +17,7 @@ from typing import Any
 
 from aiohttp import web
 
+from daemon.analysis.verdict_text import ADVICE
 from daemon.hmi.access import (  # the access names are re-exported: callers import them here
     AUTH_KEY,
     COOKIE,
@@ -36,9 +37,8 @@ from daemon.hmi.auth import Auth
 from daemon.hmi.compensation_api import add_routes as add_compensation_routes
 from daemon.hmi.limits import HmiLimits, int_param
 from daemon.hmi.trend_api import trend_handler
-from daemon.session import Refused, Session
-from daemon.store import Store, StoreError, validate_run_id
-from daemon.verdict_text import ADVICE
+from daemon.run.session import Refused, Session
+from daemon.store.journal import Store, StoreError, validate_run_id
 
 __all__ = ["AUTH_KEY", "COOKIE", "LIMITER_KEY", "LIMITS_KEY", "ORIGINS_KEY", "PUBLIC",
            "REPORT_CSP", "SESSIONS_KEY", "STORE_KEY", "asset", "create_app", "run_id_ok"]

@@ -21,7 +21,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from daemon.store import Store
+from daemon.store.journal import Store
 
 SESSION_TTL_S = 12 * 3600
 SECRET_FILE = "hmi-session.key"

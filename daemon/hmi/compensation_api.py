@@ -1,5 +1,5 @@
 """The operator page's compensation API: the proposal of a machine's last finished run, its
-confirmation by the signed-in operator, and the rollback (``daemon.compensate``)."""
+confirmation by the signed-in operator, and the rollback (``daemon.compensation.propose``)."""
 
 from __future__ import annotations
 
@@ -11,8 +11,9 @@ from typing import Any
 from aiohttp import web
 
 from contracts.yaml_files import ConfigError
-from daemon import compensation_journal as cj
-from daemon.compensate import (
+from daemon.compensation import journal as cj
+from daemon.compensation.apply import ApplyError, confirm, rollback
+from daemon.compensation.propose import (
     CompensationRefused,
     ControllerModelError,
     Proposal,
@@ -21,10 +22,9 @@ from daemon.compensate import (
     spec_of,
     unit_of,
 )
-from daemon.compensate_apply import ApplyError, confirm, rollback
 from daemon.hmi.access import COOKIE, VIA_KEY, page_asset
-from daemon.session import Session
-from daemon.store import RunRow, Store, StoreError, validate_run_id
+from daemon.run.session import Session
+from daemon.store.journal import RunRow, Store, StoreError, validate_run_id
 
 FINISHED = ("DONE", "IMPORTED")  # a run that ended with an identification (not aborted)
 SCAN_RUNS = 50  # the last finished run is looked for among this many of the machine's runs

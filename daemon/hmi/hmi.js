@@ -68,10 +68,15 @@ setInterval(() => {
 }, 30000);
 
 async function post(url) {
-  const r = await fetch(url, {method: "POST", headers: {"X-CSRF-Token": csrf}, credentials: "same-origin"});
-  let body = {};
-  try { body = await r.json(); } catch (e) { body = {error: await r.text()}; }
-  return {ok: r.ok, body};
+  // the body is read once, as text: an answer that is not JSON (a proxy's error page) is shown
+  let r, text;
+  try {
+    r = await fetch(url, {method: "POST", headers: {"X-CSRF-Token": csrf}, credentials: "same-origin"});
+    text = await r.text();
+  } catch (e) { return {ok: false, body: {error: "daemon not reachable"}}; }
+  try { return {ok: r.ok, body: JSON.parse(text)}; } catch (e) {
+    return {ok: r.ok, body: {error: text || `HTTP ${r.status}`}};
+  }
 }
 
 function card(name) {

@@ -1,12 +1,12 @@
 """``GET /api/machines/{machine}/trend?limit=N``: a machine's trend as JSON for the operator
-page's chart (``daemon.trend.trend_series``: per link its unit, values and limits)."""
+page's chart (``daemon.reports.trend.trend_series``: per link its unit, values and limits)."""
 
 from __future__ import annotations
 
 from aiohttp import web
 
 from daemon.hmi.limits import int_param
-from daemon.trend import trend_series
+from daemon.reports.trend import trend_series
 
 TREND_DEFAULT, TREND_MAX = 30, 200
 

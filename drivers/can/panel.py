@@ -36,7 +36,7 @@ FLAG_BLINK, FLAG_LINK_DOWN = 0x01, 0x02
 
 
 def lamp_for(status: dict[str, Any]) -> tuple[str, int | None, int]:
-    """Session status (daemon/session.py) → (lamp, progress %, flags)."""
+    """Session status (daemon/run/session.py) → (lamp, progress %, flags)."""
     flags = 0 if status.get("link_ok", True) else FLAG_LINK_DOWN
     if status.get("busy"):
         total, done = status.get("total") or 0, status.get("done") or 0

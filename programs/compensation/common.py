@@ -25,7 +25,7 @@ if TYPE_CHECKING:
     from identification.compensation import ParamChange
 
 RUN_ID = re.compile(r"[A-Za-z0-9][A-Za-z0-9-]{0,63}")
-"""Run ids as the store makes them (``daemon.store.RUN_ID_PATTERN``, checked by a test)."""
+"""Run ids as the store makes them (``daemon.store.journal.RUN_ID_PATTERN``, checked by a test)."""
 _ADDRESS = re.compile(r"\A[A-Za-z0-9_.$\[\]#/-]{1,48}\Z")  # every family's address charset
 MAX_VALUE = 1e6
 """Ceiling on a written value (mm, deg or a vector component): anything larger is a bug."""

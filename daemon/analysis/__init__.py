@@ -1,0 +1,1 @@
+"""One run's numbers: hits to ball centres, identification, verdict against tolerances."""

@@ -1,0 +1,209 @@
+"""One analysis of measured ball centres → the ``Analysis`` shared by `rumba analyze`, daemon
+runs and their reports: estimate (setup + links), volumetric distortion, clusters, validation.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import replace
+from typing import Any
+
+import numpy as np
+
+from contracts.yaml_files import ConfigError
+from daemon.analysis.result import Analysis
+from daemon.analysis.touch_centres import CentreData, screen_centres, with_outliers
+from identification.analyses import (
+    clusters,
+    distance_analysis,
+    revisits,
+    validate,
+    volumetric,
+)
+from identification.estimate import RankDeficientError, estimate
+from identification.kinematics import Machine
+from identification.model import Artefact, Centres
+
+_THESIS = {  # thesis Table B.2 / Fig B.2 names of the WCBXFZYT link errors
+    "EB0Z": "βZ squareness ZX", "EA0Y": "αY squareness YZ", "EC0Y": "γY squareness YX",
+    "EA0B": "αB orientation BZ", "EC0B": "γB orientation BX", "EX0C": "δxC offset CB",
+    "EA0C": "αC orientation CB", "EB0C": "βC orientation CX",
+}
+_GREEK = {"A": "α", "B": "β", "C": "γ"}
+
+
+class AnalysisError(ConfigError):
+    """The centres cannot be analysed as asked (held-out poses absent, rank deficiency, a
+    numerical failure caused by the data …); a ``ConfigError``, so every ``rumba`` command
+    ends on it with one ``error:`` line."""
+
+
+def thesis_name(iso: str) -> str:
+    """The thesis' name of an ISO 230-1 location error (Greek letter for the others)."""
+    if iso in _THESIS:
+        return _THESIS[iso]
+    kind, axis = iso[1], iso[3]
+    return f"δ{kind.lower()}{axis}" if kind in "XYZ" else f"{_GREEK[kind]}{axis}"
+
+
+def _v(a: Any) -> list[float]:
+    return [round(float(x), 6) for x in np.asarray(a).ravel()]
+
+
+def analyse_centres(machine: Machine, artefact: Artefact, data: CentreData, *,
+                    validate_poses: Sequence[int] = (), links: Sequence[str] | None = None,
+                    repeatability_um: Sequence[float] | None = None,
+                    fixed_radius: bool = False, source: str = "",
+                    estimator: Callable[[Centres], tuple[Any, Callable | None]] | None = None
+                    ) -> Analysis:
+    """The whole analysis (its ``to_json()``: the keys of issue 2, plus a few more).
+
+    ``links`` None: the identifiable set; () setup only. Poses in ``validate_poses`` are held
+    out of the estimate and predicted (thesis annex B). ``estimator`` (centres input,
+    ``daemon.analysis.centres_input``) replaces ``estimate`` on the estimation centres: it
+    returns the estimate and, for centres in an instrument frame, the map to controller X Y Z
+    the analyses then run in. Visits are screened for gross faults first (``screen_centres``)."""
+    data, screened = screen_centres(machine, artefact, data)
+    c = data.centres
+    poses = sorted(int(x) for x in np.unique(c.pose))
+    missing = sorted(set(validate_poses) - set(poses))
+    if missing:
+        raise AnalysisError(f"validation poses {missing} are not in {source or 'the data'} "
+                            f"(poses {poses})")
+    held = np.isin(c.pose, list(validate_poses))
+    if held.all():
+        raise AnalysisError("every pose is held out for validation; nothing left to estimate")
+    where = f"{source}: " if source else ""
+    bad = ~np.isfinite(c.xyz_mm).all(axis=1) | ~np.isfinite(c.b_deg) | ~np.isfinite(c.c_deg)
+    if bad.any():
+        k = int(np.flatnonzero(bad)[0])
+        raise AnalysisError(f"{where}centre of ball {artefact.ids[c.ball[k]]} pose "
+                            f"{int(c.pose[k])} is not a finite number")
+    est_c = c.subset(~held)
+    try:
+        with np.errstate(all="ignore"):
+            if estimator is None:
+                est, to_machine = estimate(machine, artefact, est_c, links,
+                                           sigma_um=repeatability_um), None
+            else:
+                est, to_machine = estimator(est_c)
+    except RankDeficientError as e:
+        raise AnalysisError(f"{where}{e}") from None
+    except (np.linalg.LinAlgError, ValueError, FloatingPointError) as e:
+        raise AnalysisError(f"{where}estimate (setup + links) failed on these centres: "
+                            f"{e}") from None
+    if not (np.isfinite(est.residual_rms_um)
+            and all(np.isfinite(v) for v, _, _ in est.links_si().values())):
+        raise AnalysisError(f"{where}estimate (setup + links) did not converge to finite "
+                            "numbers (centres far outside the machine's range?)")
+    if to_machine is not None:
+        data = replace(data, centres=replace(c, xyz_mm=to_machine(c.xyz_mm)))
+        est_c = data.centres.subset(~held)
+    try:
+        with np.errstate(all="ignore"):
+            return with_outliers(_analyses(machine, artefact, data, est, est_c, held,
+                                           fixed_radius), screened)
+    except (np.linalg.LinAlgError, FloatingPointError) as e:
+        raise AnalysisError(f"{where}analysis of the estimate failed: {e}") from None
+
+
+def _analyses(machine: Machine, artefact: Artefact, data: CentreData, est: Any, est_c: Any,
+              held: np.ndarray, fixed_radius: bool) -> Analysis:
+    """Volumetric, clusters, distances, stability, validation → the typed result."""
+    c = data.centres
+    ids = artefact.ids
+    vol = volumetric(machine, artefact, est, c)
+    pred_setup = c.xyz_mm - vol.before_um * 1e-3  # nominal machine + estimated setup
+    group = c.pose * 1000 + data.repeat  # one cluster per pose and repeat
+    groups = np.unique(group)
+    cl = clusters(c, pred_setup, vol.before_um, ids, group)
+    first = {int(g): int(np.flatnonzero(group == g)[0]) for g in groups}
+    dist = distance_analysis(c, ids, group)
+    balls_v, balls_s = est.balls_um
+    probe_v, probe_s = est.probe_um
+    out: dict[str, Any] = {
+        "machine": machine.name, "topology": machine.topology, "artefact": artefact.name,
+        "links": {k: {"value": round(v, 4), "std": round(s, 4), "unit": u,
+                      "thesis_name": thesis_name(k)} for k, (v, s, u) in est.links_si().items()},
+        "setup": {"probe": {"value": _v(probe_v), "std": _v(probe_s)},
+                  "balls": {b: {"value": _v(balls_v[i]), "std": _v(balls_s[i])}
+                            for i, b in enumerate(ids)}},
+        "residual_rms_um": round(est.residual_rms_um, 4),
+        "condition_number": round(est.condition_number, 3),
+        "unobservable": list(est.unobservable),
+        "unobservable_absorbed_by": dict(est.absorbed_by),
+        "estimation": {"status": est.status, "iterations": est.iterations,
+                       "centres": len(est_c), "sigma_um": _v(est.sigma_um),
+                       "sigma_from": "given" if est.sigma_given else "residuals",
+                       "sigma_dof": est.sigma_dof,  # None (JSON) when given: infinite
+                       "fixed_radius": fixed_radius},
+        "volumetric": [
+            {"pose": int(c.pose[k]), "repeat": int(data.repeat[k]), "b_deg": float(c.b_deg[k]),
+             "c_deg": float(c.c_deg[k]), "ball": ids[c.ball[k]],
+             "role": "validate" if held[k] else "estimate", "held_out": bool(held[k]),
+             "error_um": _v(vol.before_um[k]), "error_after_links_um": _v(vol.after_um[k])}
+            for k in range(len(c))],
+        "volumetric_max_um": {"before_links": round(vol.max_before_um, 4),
+                              "after_links": round(vol.max_after_um, 4)},
+        "cluster": [
+            {"pose": x.pose, "repeat": int(data.repeat[first[int(g)]]),
+             "b_deg": float(c.b_deg[first[int(g)]]), "c_deg": float(c.c_deg[first[int(g)]]),
+             "linear_um": None if x.linear_um is None else _v(x.linear_um),
+             "angular_urad": None if x.angular_urad is None else _v(x.angular_urad),
+             "local_um": {b: _v(v) for b, v in x.local_um.items()}, "note": x.note}
+            for x, g in zip(cl, groups, strict=True)],
+        "distances": [{"pose": d.pose, "balls": [d.ball_a, d.ball_b],
+                       "distance_mm": round(d.distance_mm, 7),
+                       "deviation_um": round(d.deviation_um, 4)} for d in dist],
+        "health": [{"pose": h.pose, "repeat": h.repeat, "ball": h.ball,
+                    "radius_dev_um": round(h.radius_dev_um, 4),
+                    "form_rms_um": round(h.form_rms_um, 4)} for h in data.health],
+        "warnings": list(data.warnings) + list(est.warnings),
+        "conventions": {
+            "volumetric": "measured − predicted centre, controller X Y Z, µm (thesis Eq. 3.22)",
+            "cluster": "rigid motion predicted → measured: ε ≈ linear + angular × P (P: "
+                       "predicted centre, mm, controller origin); the thesis' D, R of Eq. 4.4 "
+                       "are the negatives; local = ε − rigid part",
+            "setup": "ball offsets in the last workpiece frame, probe offset in the last tool "
+                     "frame, µm",
+        },
+    }
+    rv = revisits(c, data.repeat, ids)
+    if rv:
+        worst = max(rv, key=lambda r: r.norm_um)
+        out["stability"] = {
+            "convention": "ball centre at its last visit − at its first visit of the same "
+                          "pose, controller X Y Z, µm (thermal drift, loose ball, probe drift)",
+            "max_shift_um": round(worst.norm_um, 4),
+            "worst": {"pose": worst.pose, "ball": worst.ball},
+            "span_min": round(max(r.dt_s for r in rv) / 60.0, 3),
+            "revisits": [{"pose": r.pose, "ball": r.ball, "repeats": [r.repeat_first,
+                                                                       r.repeat_last],
+                          "dt_min": round(r.dt_s / 60.0, 3), "shift_um": _v(r.shift_um),
+                          "norm_um": round(r.norm_um, 4)} for r in rv]}
+    sc = est.scale_um_per_m
+    if sc is not None:
+        out["scale_um_per_m"] = {"value": round(sc[0], 4), "std": round(sc[1], 4)}
+    if held.any():
+        val = validate(machine, artefact, est, c.subset(held))
+        out["validation"] = {
+            "poses": val.poses, "rms_before_um": round(val.rms_before_um, 4),
+            "rms_after_um": round(val.rms_after_um, 4),
+            "max_before_um": round(val.max_before_um, 4),
+            "max_after_um": round(val.max_after_um, 4),
+            "explained_fraction": round(val.explained_fraction, 4),
+            "explained_fraction_rms": round(val.explained_fraction_rms, 4)}
+    # built as the JSON, then typed: rounding and NaN → None stay exactly those of the file
+    return Analysis.from_json(finite(out))
+
+
+def finite(obj: Any) -> Any:
+    """JSON has no NaN/inf: replace them by None so reports never show a silent number."""
+    if isinstance(obj, float):
+        return obj if math.isfinite(obj) else None
+    if isinstance(obj, dict):
+        return {k: finite(v) for k, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return [finite(v) for v in obj]
+    return obj

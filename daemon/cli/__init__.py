@@ -1,0 +1,1 @@
+"""The rumba command line: main.py dispatches to one module per subcommand in commands/."""

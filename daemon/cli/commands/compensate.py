@@ -1,0 +1,237 @@
+"""``rumba compensate RUN --config daemon.yaml``: the controller-model changes that hold the
+run's identified link errors, guarded; ``--confirm --by NAME`` applies them, ``--rollback``
+restores the values before the last applied compensation. Exit 0 done, 2 refused."""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+
+from contracts.yaml_files import ConfigError
+from daemon.cli.commands.verify import verify
+from daemon.cli.main import UserError
+from daemon.compensation import journal as cj
+from daemon.compensation.apply import (
+    ApplyError,
+    confirm,
+    current_spec,
+    rollback,
+    with_closing,
+    write_program,
+)
+from daemon.compensation.propose import (
+    CompensationRefused,
+    ControllerModelError,
+    Proposal,
+    is_local_linuxcnc,
+    propose,
+    spec_of,
+    unit_of,
+)
+from daemon.config import DaemonConfig, load_daemon_config
+from daemon.machines.setup import MachineSetup
+from daemon.reports.compensation import verification_of
+from daemon.store.journal import Store, StoreError
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("compensate", help="write the identified link errors back into the "
+                       "controller's kinematic model (guarded, journaled, reversible)",
+                       description=__doc__)
+    p.add_argument("run", nargs="?", help="run id (a verification run in the journal)")
+    p.add_argument("--config", required=True, help="daemon.yaml")
+    p.add_argument("--machine", help="machine name in daemon.yaml (default: the run's)")
+    p.add_argument("--confirm", action="store_true",
+                   help="apply the proposal (operator confirmation; needs --by)")
+    p.add_argument("--rollback", action="store_true",
+                   help="restore the values before the last applied compensation (needs "
+                        "--machine and --by)")
+    p.add_argument("--by", help="who confirms (recorded in the journal); 'unattended' only "
+                                "where the machine's guards allow it")
+    p.add_argument("--verify", action="store_true",
+                   help="with --confirm: when the values went live (LinuxCNC on this PC), run "
+                        "the verification at once and print each link before and after")
+    p.set_defaults(func=cmd_compensate)
+
+
+def _fmt(kind: str, model_value: float) -> str:
+    return f"{model_value * 1e3:+.2f} µm" if kind == "pivot" else f"{model_value * 1e6:+.2f} µrad"
+
+
+def _link(name: str, v: float) -> str:
+    return f"{v * 1e6:+.2f} µrad" if name[1] in "ABC" else f"{v * 1e3:+.2f} µm"
+
+
+def render(p: Proposal) -> list[str]:
+    """The proposal as text: values, links, distortion."""
+    plan = p.plan
+    accepted = {v.name: v for v in p.values}
+    refused = bool(p.refusals)
+    now = p.current
+    lines = [f"compensation of run {p.run_id} ({p.spec.family}), U with k = {p.coverage_k:g}:",
+             f"  {'value':<14} {'address':<30} {'old':>12} {'new':>12} {'Δ':>14} {'U':>12}  "
+             "status"]
+    for ch in plan.changes:
+        sp = p.spec.param(ch.name)
+        unit = unit_of(ch.kind)[0]
+        v = accepted.get(ch.name)
+        old = v.old if v else now[ch.name]
+        new = f"{v.new:.6g}" if v else "—"
+        if v is not None:
+            status = "refused" if refused else "apply"
+        else:
+            status = f"skipped ({p.skipped.get(ch.name, 'not applied')})"
+        lines.append(f"  {ch.name:<14} {sp.address:<30} {old:>12.6g} {new:>12} "
+                     f"{_fmt(ch.kind, ch.delta):>14} {_fmt(ch.kind, ch.u_expanded)[1:]:>12}  "
+                     f"{status}  [{unit}]")
+    lines.append("  links          identified    compensable       residual")
+    for k in plan.links_identified:
+        lines.append(f"  {k:<10} {_link(k, plan.links_identified[k]):>14} "
+                     f"{_link(k, plan.links_compensable[k]):>14} "
+                     f"{_link(k, plan.links_residual[k]):>14}")
+    b, c, a = plan.distortion_before_um, plan.distortion_compensable_um, \
+        plan.distortion_after_um
+    lines.append(f"  volumetric distortion (rms / max µm): before {b[0]:.2f} / {b[1]:.2f}, "
+                 f"compensable {c[0]:.2f} / {c[1]:.2f}, after {a[0]:.2f} / {a[1]:.2f}")
+    return lines
+
+
+def _setup(cfg: DaemonConfig, name: str | None, store: Store, run_id: str | None
+           ) -> MachineSetup:
+    if name is None:
+        if run_id is None:
+            raise UserError("--machine is needed without a run")
+        name = store.run(run_id).machine
+    setup = cfg.machines.get(name)
+    if setup is None:
+        raise UserError(f"{cfg.path}: no machine {name!r} (configured: "
+                        f"{', '.join(cfg.machines)})")
+    return setup
+
+
+def _refuse(store: Store, setup: MachineSetup, run_id: str, reason: str,
+            values: list[cj.ValueChange] | None = None, by: str = "") -> int:
+    spec = None
+    try:
+        spec = spec_of(setup)
+    except ConfigError:  # a broken section: refused, and journaled as such
+        spec = None
+    row = cj.record(store, setup.name, run_id, spec.family if spec else "", "refused",
+                    values or [], confirmed_by=by, reason=reason)
+    print(f"refused (journal #{row}): {reason}")
+    return 2
+
+
+def _link_verification(store: Store, setup: MachineSetup, run_id: str) -> None:
+    """A run after the last applied compensation verifies it (its id on that journal row)."""
+    last = cj.last_applied(store, setup.name)
+    if last is None or last.verify_run_id or last.run_id == run_id:
+        return
+    if last.applied_at is not None and store.run(run_id).started_at > last.applied_at:
+        cj.update(store, last.id, verify_run_id=run_id)
+
+
+def _verify_after(cfg: DaemonConfig, setup: MachineSetup, store: Store, p: Proposal) -> int:
+    """The verification run that follows a live write, and each link before and after (the
+    run's report shows the same); its exit code is the command's."""
+    if not is_local_linuxcnc(setup, p.spec):
+        print(f"verify: load the program on the control first, then: rumba verify --config "
+              f"{cfg.path} --machine {setup.name}")
+        return 0
+    code = asyncio.run(verify(str(cfg.path), setup.name, quiet=True))
+    run = store.runs(setup.name, 1)[0]
+    analysis = store.analysis(run.id)
+    view = verification_of(store, run, analysis) if analysis is not None else None
+    if view is None:
+        print(f"verification run {run.id}: {run.state} ({run.reason or run.summary})")
+        return 2
+    print(f"verification run {run.id} ({run.summary}):")
+    for link in view.links:
+        unit = "µrad" if link.unit == "urad" else "µm"
+        print(f"  {link.name:<6} {link.before:+9.2f} ± {link.u_before:.2f} -> "
+              f"{link.after:+9.2f} ± {link.u_after:.2f} {unit}")
+    return code
+
+
+def _compensate(args: argparse.Namespace, cfg: DaemonConfig, store: Store) -> int:
+    if args.rollback:
+        if not args.machine or not args.by:
+            raise UserError("--rollback needs --machine and --by")
+        setup = _setup(cfg, args.machine, store, None)
+        try:
+            w = rollback(setup, store, cfg.reports_dir, args.by)
+        except CompensationRefused as e:
+            return _refuse(store, setup, "", str(e), by=args.by)
+        except ApplyError as e:  # journaled by rollback()
+            print(f"error: {e}")
+            return 2
+        row = cj.get(store, w.row_id)
+        for v in row.values if row else ():
+            print(f"  {v.name:<14} {v.address:<30} {v.old:>12.6g} -> {v.new:.6g} {v.unit}")
+        print(f"rolled back (journal #{w.row_id}): {w.note}")
+        print(f"program: {w.path}")
+        return 0
+    if not args.run:
+        raise UserError("give a RUN (or --rollback)")
+    if args.confirm and not args.by:
+        raise UserError("--confirm needs --by NAME (who confirms, recorded in the journal)")
+    if args.verify and not args.confirm:
+        raise UserError("--verify follows a write: give it with --confirm")
+    try:
+        store.run(args.run)
+    except StoreError as e:
+        raise UserError(str(e)) from None
+    setup = _setup(cfg, args.machine, store, args.run)
+    try:
+        p = propose(setup, store, args.run)
+    except CompensationRefused as e:
+        return _refuse(store, setup, args.run, str(e), by=args.by or "")
+    _link_verification(store, setup, args.run)
+    print("\n".join(render(p)))
+    if p.refusals:
+        return _refuse(store, setup, args.run, "; ".join(p.refusals), p.values, args.by or "")
+    if not p.values:
+        row = cj.record(store, setup.name, args.run, p.spec.family, "proposed", [],
+                        reason="nothing to change: every value skipped")
+        print(f"nothing to change (journal #{row})")
+        return 0
+    if args.confirm:
+        try:
+            w = confirm(setup, store, cfg.reports_dir, p, args.by)
+        except CompensationRefused as e:
+            return _refuse(store, setup, args.run, str(e), p.values, args.by)
+        except ApplyError as e:
+            print(f"error: {e}")
+            return 2
+        print(f"applied (journal #{w.row_id}, confirmed by {args.by}): {w.note}")
+        print(f"program: {w.path}")
+        if args.verify:
+            return _verify_after(cfg, setup, store, p)
+        return 0
+    try:
+        path, text, written = write_program(current_spec(p.spec, store, setup.name),
+                                            p.values, cfg.reports_dir, args.run, setup.name)
+    except CompensationRefused as e:
+        return _refuse(store, setup, args.run, str(e), p.values, args.by or "")
+    row = cj.record(store, setup.name, args.run, p.spec.family, "proposed",
+                    with_closing(p.values, written), reason=f"written to {path}")
+    print(f"--- {path.name} ---\n{text.rstrip()}\n---")
+    print(f"proposed (journal #{row}); review {path}, then: rumba compensate --config "
+          f"{cfg.path} --confirm {args.run} --by NAME")
+    print(f"program: {path}")
+    return 0
+
+
+def cmd_compensate(args: argparse.Namespace) -> int:
+    cfg = load_daemon_config(args.config)
+    try:
+        store = Store(cfg.store_path, cfg.synchronous,  # type: ignore[arg-type]
+                      source=f"{cfg.path}: store.path")
+    except StoreError as e:
+        raise UserError(str(e)) from None
+    try:
+        return _compensate(args, cfg, store)
+    except ControllerModelError as e:
+        raise UserError(str(e)) from None
+    finally:
+        store.close()

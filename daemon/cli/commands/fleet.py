@@ -1,0 +1,100 @@
+"""``rumba fleet --store postgresql://… --token-file F``: serve the read-only fleet page over
+the PostgreSQL fleet store (loopback by default; TLS like the HMI's)."""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import signal
+from pathlib import Path
+
+from aiohttp import web
+
+from daemon.cli.main import UserError
+from daemon.config import read_token_file
+from daemon.hosts import is_loopback
+from daemon.store.url import parse_store_url
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("fleet", help="serve the read-only fleet page over the fleet store")
+    p.add_argument("--store", required=True, metavar="URL",
+                   help="postgresql://user@host/db?passfile=… (the daemons' store.url)")
+    p.add_argument("--listen", default="127.0.0.1:8090", metavar="HOST:PORT",
+                   help="address to serve on (default 127.0.0.1:8090; port 0: any free)")
+    p.add_argument("--token-file", required=True, type=Path,
+                   help="file with the access token (mode 600, ≥ 16 characters)")
+    p.add_argument("--stale-after-h", type=float, default=26.0,
+                   help="flag a machine whose last verdict is older (hours, default 26)")
+    p.add_argument("--reports-dir", action="append", type=Path, default=[],
+                   help="directory the page may serve reports from (repeatable)")
+    p.add_argument("--state-dir", type=Path,
+                   help="keeps the session secret so sign-ins survive a restart")
+    p.add_argument("--tls-cert", type=Path, help="PEM certificate (with --tls-key)")
+    p.add_argument("--tls-key", type=Path, help="PEM private key, mode 600")
+    p.add_argument("--public-origin", action="append", default=[],
+                   help="scheme://name[:port] users type, besides the listen address")
+    p.set_defaults(func=cmd_fleet)
+
+
+def _listen(value: str) -> tuple[str, int]:
+    host, sep, port = value.rpartition(":")
+    if not sep or not host or not port.isdigit() or int(port) > 65535:
+        raise UserError(f"--listen: expected HOST:PORT, got {value!r}")
+    return host.strip("[]"), int(port)
+
+
+def cmd_fleet(args: argparse.Namespace) -> int:
+    from daemon.fleet.app import create_fleet_app
+    from daemon.hmi.auth import SECRET_FILE, SecretError, load_or_create_secret
+    from daemon.hmi.tls import server_context
+
+    url = parse_store_url(args.store, "--store")
+    if url.kind != "postgresql":
+        raise UserError("--store: the fleet page reads the PostgreSQL fleet store "
+                        "(postgresql://…), not a single machine's sqlite journal")
+    host, port = _listen(args.listen)
+    if args.stale_after_h <= 0:
+        raise UserError("--stale-after-h: expected a positive number of hours")
+    token = read_token_file(args.token_file, "--token-file")
+    for d in args.reports_dir:
+        if not d.is_dir():
+            raise UserError(f"--reports-dir: {d} is not a directory")
+    if (args.tls_cert is None) != (args.tls_key is None):
+        raise UserError("--tls-cert and --tls-key go together")
+    ctx = server_context(args.tls_cert, args.tls_key, "--tls") if args.tls_cert else None
+    if ctx is None and not is_loopback(host):
+        print(f"warning: serving on {host} without TLS: the token and session cookies cross "
+              "the network in clear text (--tls-cert/--tls-key)", flush=True)
+    try:
+        secret = (load_or_create_secret(args.state_dir / SECRET_FILE)
+                  if args.state_dir else None)
+    except SecretError as e:
+        raise UserError(str(e)) from None
+    app = create_fleet_app(url.dsn or "", token, stale_after_h=args.stale_after_h,
+                           reports_dirs=args.reports_dir, secure_cookie=ctx is not None,
+                           secret=secret, bind_host=host, public_origins=args.public_origin)
+    asyncio.run(_serve(app, host, port, ctx))
+    return 0
+
+
+async def _serve(app: web.Application, host: str, port: int, ctx: object) -> None:
+    stop = asyncio.Event()
+    loop = asyncio.get_running_loop()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        loop.add_signal_handler(sig, stop.set)
+    runner = web.AppRunner(app, access_log=None, handle_signals=False)
+    await runner.setup()
+    site = web.TCPSite(runner, host, port, ssl_context=ctx)  # type: ignore[arg-type]
+    try:
+        await site.start()
+    except OSError as e:
+        await runner.cleanup()
+        raise UserError(f"--listen: cannot listen on {host}:{port}: {e.strerror}") from None
+    bound = runner.addresses[0][1] if runner.addresses else port
+    scheme = "https" if ctx else "http"
+    print(f"rumba fleet: {scheme}://{host}:{bound}/", flush=True)
+    try:
+        await stop.wait()
+    finally:
+        await runner.cleanup()

@@ -1,0 +1,183 @@
+"""``rumba history``: list runs and trends of the journal; export a run to the probing-log CSV
+(``--export RUN --csv OUT``) or import one (``--import CSV --machine NAME``, then analysed,
+judged and reported like a live run)."""
+
+from __future__ import annotations
+
+import argparse
+import sqlite3
+import time
+from pathlib import Path
+
+from rich.console import Console
+from rich.table import Table
+
+from contracts.messages import ProbeHit
+from contracts.probing_log import ProbeLogError
+from daemon.analysis.judge import Judgement, judge, volumetric_max_um
+from daemon.analysis.pipeline import PipelineError, RunAnalysis, analyse, row_to_hit
+from daemon.cli.main import UserError
+from daemon.compensation.propose import ControllerModelError, controller_model
+from daemon.config import DaemonConfig, load_daemon_config
+from daemon.machines.setup import MachineSetup
+from daemon.reports.compensation import verification_of
+from daemon.store.journal import Store, StoreError
+from daemon.store.probing_csv import export_csv, journal_import, read_import
+
+# What bad data (absurd coordinates, degenerate ball-poses …) makes the analysis raise; the
+# import then stops with one line and journals nothing.
+
+STYLE = {"PASS": "green", "WARN": "yellow", "FAIL": "red"}
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("history", help="list runs and trends; export/import probing logs")
+    p.add_argument("--config", required=True, help="daemon.yaml (names the journal)")
+    p.add_argument("--machine", help="only this machine (required with --import)")
+    p.add_argument("--limit", type=int, default=20, help="runs to list (default 20)")
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--export", metavar="RUN", help="export run RUN to --csv")
+    g.add_argument("--import", dest="import_csv", metavar="CSV", help="import a probing log")
+    p.add_argument("--csv", metavar="OUT", help="output file for --export")
+    p.add_argument("--no-analyse", action="store_true", help="--import: journal only")
+    p.set_defaults(func=cmd_history)
+
+
+def _open(cfg: DaemonConfig) -> Store:
+    try:
+        return Store(cfg.store_path, cfg.synchronous,  # type: ignore[arg-type]
+                     source=f"{cfg.path}: store.path")
+    except StoreError as e:
+        raise UserError(str(e)) from None
+
+
+def cmd_history(args: argparse.Namespace) -> int:
+    cfg = load_daemon_config(args.config)
+    if args.machine is not None and args.machine not in cfg.machines:
+        raise UserError(f"{args.config}: no machine {args.machine!r} "
+                        f"(configured: {', '.join(cfg.machines)})")
+    store = _open(cfg)
+    try:
+        if args.export:
+            return _export(cfg, store, args)
+        if args.import_csv:
+            return _import(cfg, store, args)
+        _list(store, args.machine, args.limit)
+        return 0
+    finally:
+        store.close()
+
+
+def _export(cfg: DaemonConfig, store: Store, args: argparse.Namespace) -> int:
+    if not args.csv:
+        raise UserError("--export needs --csv OUT")
+    try:
+        run = store.run(args.export)
+        n = export_csv(store, args.export, args.csv, cfg.machines[run.machine].machine
+                       if run.machine in cfg.machines else _unknown(run.machine, args.config))
+    except (StoreError, PipelineError, OSError) as e:
+        raise UserError(str(e)) from None
+    print(f"{args.csv}: {n} touches of run {args.export}")
+    return 0
+
+
+def _unknown(machine: str, config: str) -> None:
+    raise UserError(f"run belongs to machine {machine!r}, not configured in {config}")
+
+
+def _import(cfg: DaemonConfig, store: Store, args: argparse.Namespace) -> int:
+    """All or nothing: the log is read, checked, analysed and judged first, then the run, its
+    hits and its results are committed in one transaction. A bad row or a failed analysis
+    leaves the journal as it was, so the corrected file imports."""
+    if not args.machine:
+        raise UserError("--import needs --machine NAME (whose artefact and plan the log uses)")
+    setup = cfg.machines[args.machine]
+    path = args.import_csv
+    try:
+        run_id, rows = read_import(store, path, setup.artefact)
+    except (StoreError, ProbeLogError, OSError) as e:
+        raise UserError(str(e)) from None
+    hits = [row_to_hit(r, setup.machine) for r in rows]
+    result = None if args.no_analyse else _analyse(setup, store, hits, run_id, path)
+    try:
+        with store.transaction():
+            n = journal_import(store, run_id, hits, setup.name, setup.artefact)
+            if result is not None:
+                a, j = result
+                store.save_centres(run_id, a.centre_rows)
+                store.save_analysis(run_id, a.data)
+                store.save_judgement(run_id, j)
+                store.set_state(run_id, "DONE")
+    except sqlite3.IntegrityError as e:
+        raise UserError(f"{path}: run {run_id} refused by the journal ({e}: two rows with "
+                        "the same seq?); nothing imported") from None
+    except (StoreError, sqlite3.Error) as e:
+        raise UserError(f"{path}: run {run_id} not imported: {e}") from None
+    print(f"imported run {run_id}: {n} touches")
+    if result is None:
+        return 0
+    from daemon.reports import report
+    a, j = result
+    run, trend = store.run(run_id), store.trend(setup.name)  # as committed: state DONE
+    try:  # after the commit: rendering takes seconds, the daemon must not wait on the journal
+        html, json_path = report.write_report(
+            cfg.reports_dir, run, a.data, j, a.centre_rows, trend, setup.tolerances,
+            report.audit_of(setup), verification_of(store, run, a.data))
+        store.save_report(run_id, html, json_path)
+    except OSError as e:
+        raise UserError(f"run {run_id} imported ({j.summary}), but its report cannot be "
+                        f"written in {cfg.reports_dir}: {e.strerror or e}") from None
+    print(f"{j.summary}\nreport: {html}")
+    return 0
+
+
+def _analyse(setup: MachineSetup, store: Store, hits: list[ProbeHit], run_id: str,
+             path: str | Path) -> tuple[RunAnalysis, Judgement]:
+    # judged and recorded like a live run: against the last good run before it
+    ref = store.last_good(setup.name, before=run_id)
+    try:
+        a = analyse(setup, hits, run_id, ref, controller=controller_model(setup, store))
+    except ControllerModelError as e:
+        raise UserError(f"{path}: run {run_id}: {e}") from None
+    except PipelineError as e:
+        raise UserError(f"{path}: run {run_id}: analysis failed: {e}; nothing imported (use "
+                        "--no-analyse to journal the touches anyway)") from None
+    return a, judge(a.data, setup.tolerances, ref[1] if ref else None)
+
+
+def _list(store: Store, machine: str | None, limit: int) -> None:
+    console = Console()
+    if not console.is_terminal:
+        console = Console(width=200)  # piped output: do not squeeze the tables to 80 columns
+    t = Table(title="Runs (most recent first)")
+    for h in ("started", "run", "machine", "trigger", "state", "verdict", "touches",
+              "max distortion µm", "reason / summary"):
+        t.add_column(h)
+    for r in store.runs(machine, limit):
+        a = store.analysis(r.id)
+        vmax = volumetric_max_um(a) if a else None
+        t.add_row(time.strftime("%Y-%m-%d %H:%M", time.localtime(r.started_at)), r.id,
+                  r.machine, r.trigger, r.state,
+                  f"[{STYLE.get(r.verdict or '', 'white')}]{r.verdict or '—'}[/]",
+                  f"{r.hits}/{r.touch_total}", "—" if vmax is None else f"{vmax:.1f}",
+                  r.reason or r.summary)
+    console.print(t)
+    machines = [machine] if machine else sorted({r.machine for r in store.runs(None, 500)})
+    for m in machines:
+        trend = store.trend(m, limit)
+        if len(trend) < 2:
+            continue
+        names = sorted({n for x in trend for n in x.analysis.links})
+        tt = Table(title=f"Trend of {m} (oldest first; µrad / µm)")
+        tt.add_column("run")
+        tt.add_column("verdict")
+        for n in names:
+            tt.add_column(n, justify="right")
+        tt.add_column("max dist.", justify="right")
+        for x in trend:
+            links = x.analysis.links
+            v = volumetric_max_um(x.analysis)
+            tt.add_row(x.run_id, x.verdict,
+                       *(f"{links[n].value:+.1f}" if n in links else "—" for n in names),
+                       "—" if v is None else f"{v:.1f}")
+        console.print(tt)

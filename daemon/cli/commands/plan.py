@@ -1,0 +1,224 @@
+"""``rumba plan``: choose the B/C poses and their order that reach target link uncertainties in
+the least machine time, write them as a plan, and compare with the reference plan."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+from contracts.result_lines import DIALECT_NAMES
+from contracts.setup_files import (
+    Plan,
+    check_touch_count,
+    load_artefact,
+    load_machine,
+    load_plan,
+)
+from programs.dialects import get_dialect
+from programs.generate import GeneratedProgram, generate
+from programs.geometry import ProgramError
+from programs.optimise import Chosen
+from programs.safety import SafetyError
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "plan", help="optimise the poses of a plan: target link uncertainties, least time",
+        description="Choose the B/C poses (a grid of the reachable indexations that pass the "
+                    "safety check) and their order so that every link of the target file "
+                    "reaches its standard uncertainty in the least estimated machine time; "
+                    "write the plan and print its predicted uncertainties and time beside "
+                    "the reference plan's. Exit 0; 1 when --max-time leaves targets missed "
+                    "(the plan is written and they are named); 2 on bad input.")
+    p.add_argument("--machine", type=Path, required=True, metavar="M.yaml")
+    p.add_argument("--artefact", type=Path, required=True, metavar="A.yaml")
+    p.add_argument("--target", type=Path, required=True, metavar="TARGETS.yaml",
+                   help="target file (example: config/plans/targets/shift_start.yaml)")
+    p.add_argument("--max-time", type=float, metavar="S",
+                   help="cap on the estimated machine time (seconds)")
+    p.add_argument("--dialect", default="fanuc", choices=[*sorted(DIALECT_NAMES)],
+                   help="the controller's dialect: it decides the two-speed touch and so the "
+                        "time (default: fanuc)")
+    p.add_argument("-o", "--output", type=Path, metavar="PLAN.yaml",
+                   help="plan file to write (default: <name>.yaml here)")
+    p.add_argument("--force", action="store_true", help="overwrite the output file")
+    p.set_defaults(func=run)
+
+
+@dataclass
+class Outcome:
+    """What ``make_plan`` found: the plan written, both programs, predictions, timings."""
+
+    plan: Plan  # the optimised plan, as the loader reads it
+    text: str  # its file
+    reference: Plan
+    new: GeneratedProgram
+    old: GeneratedProgram
+    links: tuple[str, ...]
+    targets: dict[str, float]
+    new_u: dict[str, float]
+    ref_u: dict[str, float]
+    drift_u: dict[str, float] | None
+    chosen: Chosen
+    optimiser_s: float
+
+
+def make_plan(machine_path: Path, artefact_path: Path, target_path: Path, dialect: str,
+              max_time_s: float | None = None) -> Outcome:
+    """The whole of ``rumba plan`` but printing and writing (also for benchmarks/bench_plan)."""
+    from contracts.plan_targets import load_targets_file, reference_path
+    from programs.design import max_links
+    from programs.optimise import Problem, candidate_poses, optimise
+    from programs.plan_report import plan_links, plan_yaml, predicted_u, to_plan, to_plan_dict
+
+    if max_time_s is not None and not 0 < max_time_s <= 1e6:
+        raise _error(f"--max-time {max_time_s:g}: expected seconds in (0, 1e6]")
+    machine, mf = load_machine(machine_path)
+    artefact = load_artefact(artefact_path)
+    tf = load_targets_file(target_path)
+    ref_file = reference_path(tf, target_path)
+    ref = load_plan(ref_file)
+    check_touch_count(ref, artefact, f"{ref_file}: poses")
+    sigma = (tf.repeatability_um[0], tf.repeatability_um[1], tf.repeatability_um[2])
+    d = get_dialect(dialect)
+
+    def program(plan: Plan, what: str) -> GeneratedProgram:
+        try:
+            return generate(machine, mf, artefact, plan, dialect)
+        except (SafetyError, ProgramError) as e:
+            raise _error(f"{what}: {e}") from None
+
+    ref_links, _ = plan_links(machine, artefact, ref)
+    grid_links, dropped = max_links(machine, artefact, candidate_poses(machine, tf.candidates))
+    for name, want in tf.links.items():
+        if name not in grid_links:
+            why = dropped.get(name, "not a location error of this machine")
+            raise _error(f"{target_path}: links.{name}: not identifiable on "
+                         f"{machine.name} with {artefact.name} (absorbed by {why})")
+        if want == "reference" and name not in ref_links:
+            raise _error(f"{target_path}: links.{name}: 'reference', but {ref_file.name} "
+                         f"does not identify {name}")
+    ref_u, _ = predicted_u(machine, artefact, ref, ref_links, sigma)
+    targets = {k: (ref_u[k] if v == "reference" else float(v)) for k, v in tf.links.items()}
+    fast = mf.dynamics.max_probe_feed_mm_min
+    feeds = ref.feeds.model_copy(update={
+        "fast_probe_mm_min": fast if tf.two_speed and fast > ref.feeds.probe_mm_min else None})
+    probing = ref.model_copy(update={"feeds": feeds,
+                                     "clearance_mm": tf.clearance_mm or ref.clearance_mm})
+    problem = Problem(machine, mf, artefact, probing, grid_links, targets, sigma,
+                      tf.candidates, d.two_speed and feeds.fast_probe_mm_min is not None,
+                      tf.validate_poses, max_time_s)
+    t0 = time.perf_counter()
+    try:
+        chosen = optimise(problem)
+        plan = to_plan(chosen, probing, tf.name)
+        new = program(plan, "the optimised plan is refused")
+        for _ in range(3):  # the search's time model is approximate: honour the cap exactly
+            if max_time_s is None or new.estimated_s <= max_time_s:
+                break
+            problem = replace(problem, max_time_s=problem.max_time_s * max_time_s
+                              / new.estimated_s)  # type: ignore[operator]
+            chosen = optimise(problem)
+            plan = to_plan(chosen, probing, tf.name)
+            new = program(plan, "the optimised plan is refused")
+    except ValueError as e:
+        cap = f" (--max-time {max_time_s:g} s)" if max_time_s is not None else ""
+        raise _error(f"{target_path}: {e}{cap}; targets missed: {', '.join(targets)}") \
+            from None
+    opt_s = time.perf_counter() - t0
+    got, _ = plan_links(machine, artefact, plan)
+    if set(got) != set(grid_links):
+        raise _error(f"the optimised plan identifies {sorted(got)}, not {sorted(grid_links)}"
+                     ": make the candidate grid finer")
+    old = program(ref, f"{ref_file}")
+    new_u, new_du = predicted_u(machine, artefact, plan, grid_links, sigma,
+                                chosen.visit_times_h)
+    header = [f"rumba plan {time.strftime('%Y-%m-%d %H:%M')}: {machine.name} x "
+              f"{artefact.name}, from {Path(target_path).name}",
+              f"{len(chosen.poses)} poses + the first again (drift check), estimated "
+              f"{new.estimated_s:.0f} s ({dialect}); reference {ref.name}: "
+              f"{old.estimated_s:.0f} s",
+              "predicted link u (µrad / µm, σ = " + "/".join(f"{s:g}" for s in sigma)
+              + " µm): " + ", ".join(f"{k} {new_u[k]:.3g}" for k in grid_links)]
+    text = plan_yaml(to_plan_dict(chosen, probing, tf.name), header)
+    return Outcome(plan, text, ref, new, old, grid_links, targets, new_u, ref_u, new_du,
+                   chosen, opt_s)
+
+
+def run(args: argparse.Namespace) -> int:
+    from contracts.plan_targets import load_targets_file
+    from daemon.safepath import plain_name
+
+    out = args.output or Path(plain_name(f"{load_targets_file(args.target).name}.yaml",
+                                         "name"))
+    if out.exists() and not args.force:
+        raise _error(f"{out}: exists; choose another --output or add --force")
+    r = make_plan(args.machine, args.artefact, args.target, args.dialect, args.max_time)
+    _print(r, get_dialect(args.dialect), r.chosen.design.sigma_um if r.chosen.design else ())
+    try:
+        out.write_text(r.text, encoding="utf-8")
+    except OSError as e:
+        raise _error(f"{out}: cannot write: {e.strerror}") from None
+    print(f"wrote {out}")
+    if r.chosen.missed:
+        print(f"rumba plan: --max-time {args.max_time:g} s: targets missed: " + "; ".join(
+            f"{k} u {u:.3g} > {t:.3g} {_unit(k)}" for k, (u, t) in r.chosen.missed.items()),
+            file=sys.stderr)
+        return 1
+    return 0
+
+
+def _error(msg: str) -> Exception:
+    from daemon.cli.main import UserError  # late: cli imports every command module
+    return UserError(msg)
+
+
+def _unit(link: str) -> str:
+    return "µrad" if link[1] in "ABC" else "µm"
+
+
+def _now() -> str:
+    return time.strftime("%Y-%m-%d %H:%M")
+
+
+def _mmss(s: float) -> str:
+    m, sec = divmod(round(s), 60)
+    return f"{m} min {sec:02d} s"
+
+
+def _print(r: Outcome, dialect: object, sigma: object) -> None:
+    plan, ref, old, new = r.plan, r.reference, r.old, r.new
+    two = getattr(dialect, "two_speed", False) and plan.feeds.fast_probe_mm_min
+    print(f"{new.program.machine.name} x {new.program.artefact.name}, dialect "
+          f"{getattr(dialect, 'name', '')} ({'two-speed' if two else 'one-speed'} touch); "
+          f"predicted with centre repeatability {'/'.join(f'{s:g}' for s in sigma)} µm "
+          "(x/y/z)")
+    w = max(len(ref.name), len(plan.name), 12)
+    print(f"{'':22}{ref.name:>{w}}  {plan.name:>{w}}  {'target':>8}")
+    visits = (len(ref.poses) * ref.repeats + ref.drift_check, len(plan.poses) + 1)
+    print(f"{'poses (visits)':22}{len(ref.poses):>{w - 5}} ({visits[0]:>2})  "
+          f"{len(plan.poses):>{w - 5}} ({visits[1]:>2})")
+    print(f"{'touches':22}{len(old.touches):>{w}}  {len(new.touches):>{w}}")
+    pct = f"{100 * new.estimated_s / old.estimated_s:.0f} %"
+    print(f"{'machine time':22}{_mmss(old.estimated_s):>{w}}  {_mmss(new.estimated_s):>{w}}"
+          f"  {pct:>8}")
+    print(f"{'  lower bound':22}{_mmss(old.lower_bound_s):>{w}}  "
+          f"{_mmss(new.lower_bound_s):>{w}}")
+    for k in r.new_u:
+        t = f"{r.targets[k]:#.3g}" if k in r.targets else "-"
+        u_ref = f"{r.ref_u[k]:#.3g}" if k in r.ref_u else "-"
+        ok = "" if k not in r.targets else ("  met" if r.new_u[k] <= r.targets[k] * (1 + 1e-9)
+                                            else "  MISSED")
+        print(f"{'u ' + k + ' ' + _unit(k):22}{u_ref:>{w}}  {r.new_u[k]:>#{w}.3g}  {t:>8}{ok}")
+    if r.drift_u:
+        worst = max(r.drift_u, key=lambda k: r.drift_u[k] / r.new_u[k])  # type: ignore[index]
+        print(f"drift: the first pose is probed again at the end and the time order is not "
+              f"monotone in C; with a linear drift estimated too, u grows at most ×"
+              f"{r.drift_u[worst] / r.new_u[worst]:.2f} ({worst})")
+    c = r.chosen
+    print(f"optimiser {r.optimiser_s:.1f} s: {c.builds} one-pose programs built and checked, "
+          f"{len(c.excluded)} candidate poses refused by the safety check"
+          + ("; stopped at its time budget" if c.stopped else ""))

@@ -1,0 +1,94 @@
+"""``rumba sim``: the software CNC — run a program offline into a probing log, or serve it over a
+transport (``--serve``, provided by simulators/serve.py when present)."""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+from pathlib import Path
+
+from contracts.result_lines import DIALECT_NAMES
+from daemon.cli.main import UserError
+
+
+def _serve_module():
+    if importlib.util.find_spec("simulators.serve") is None:
+        return None
+    import simulators.serve as serve
+
+    return serve
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser(
+        "sim", help="software CNC with injected errors: run a program offline or serve it",
+        description="Simulated five-axis machine: true chain + link/setup errors + effects + "
+                    "probe physics, executing our G-code dialects.")
+    p.add_argument("--machine", required=True, type=Path, help="machine YAML")
+    p.add_argument("--artefact", required=True, type=Path, help="artefact YAML")
+    p.add_argument("--errors", type=Path, help="errors YAML (default: a perfect machine)")
+    p.add_argument("--seed", type=int, help="random seed (default: the errors file's seed)")
+    p.add_argument("--time-scale", type=float, default=0.0,
+                   help="0 = as fast as possible (default), 1 = real time")
+    p.add_argument("--faults", type=Path, help="faults YAML (simulators/faults.py)")
+    p.add_argument("--run", type=Path, metavar="PROGRAM", help="execute this program offline")
+    p.add_argument("--dialect", choices=DIALECT_NAMES,
+                   help="dialect of --run PROGRAM")
+    p.add_argument("--log", type=Path, metavar="OUT.csv", help="probing log to write (--run)")
+    p.add_argument("--run-id", help="run_id column of the log (default: program file stem)")
+    serve = _serve_module()
+    if serve is not None:
+        serve.add_arguments(p)
+    p.set_defaults(func=main)
+
+
+def main(args: argparse.Namespace) -> int:
+    from simulators.faults import FaultPlan
+    from simulators.truth import TruthModel
+
+    if args.time_scale < 0:
+        raise UserError("--time-scale must be >= 0")
+    truth = TruthModel.from_files(args.machine, args.artefact, args.errors, args.seed)
+    faults = FaultPlan.load(args.faults) if args.faults else None
+    if getattr(args, "serve", None):
+        serve = _serve_module()
+        if serve is None:
+            raise UserError("--serve is not available (simulators/serve.py missing)")
+        args.truth, args.fault_plan = truth, faults
+        try:
+            return int(serve.serve(args) or 0)
+        except serve.ServeError as e:
+            raise UserError(str(e)) from None
+    if args.run is None:
+        raise UserError("give --run PROGRAM (offline) or --serve TRANSPORT")
+    if args.dialect is None or args.log is None:
+        raise UserError("--run needs --dialect and --log OUT.csv")
+    return _offline(args, truth, faults)
+
+
+def _offline(args: argparse.Namespace, truth, faults) -> int:
+    from contracts.probing_log import write_log
+    from simulators.offline import aux_files, run_sync
+
+    try:
+        text = args.run.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as e:
+        raise UserError(f"{args.run}: cannot read: {e}") from None
+    run_id = args.run_id or args.run.stem
+    res = run_sync(truth, text, args.dialect, files=aux_files(args.run),
+                   seed=truth.seed if args.seed is None else args.seed,
+                   time_scale=args.time_scale, faults=faults, run_id=run_id)
+    try:
+        write_log(args.log, res.rows)
+    except OSError as e:
+        raise UserError(f"{args.log}: cannot write: {e.strerror}") from None
+    vc = res.controller
+    misses = sum(not t.triggered for t in vc.touches)
+    print(f"{args.run}: {res.state}; {len(vc.touches)} probing moves, {misses} without "
+          f"trigger, {len(res.rows)} touches logged to {args.log}; machine time "
+          f"{res.machine_time_s:.1f} s ({res.machine_time_s / 60:.1f} min), "
+          f"wall {res.wall_s:.2f} s")
+    if res.state != "done":
+        print(f"controller alarm: {res.alarm}")
+        return 1
+    return 0

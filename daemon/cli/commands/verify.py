@@ -1,0 +1,169 @@
+"""``rumba verify --config daemon.yaml --machine NAME``: one verification run in this process
+(CI or by hand), terminal progress; exit code 0 pass (and warn unless --strict), 1 fail, 2 error
+(run aborted or failed, or a measurement not trusted).
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import contextlib
+import logging
+import sys
+from typing import Any
+
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
+
+from daemon.cli.main import UserError
+from daemon.compensation.propose import journal_analyse
+from daemon.config import load_daemon_config
+from daemon.run.session import Session
+from daemon.service.service import LinkFactory, ServiceError, make_link
+from daemon.store.journal import Store, StoreError
+from drivers.base import LinkError
+
+COLOURS = {"PASS": "bold green", "WARN": "bold yellow", "FAIL": "bold red",
+           "ERROR": "bold magenta"}
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("verify", help="run one verification now (exit 0 pass, 1 fail, 2 error)")
+    p.add_argument("--config", required=True, help="daemon.yaml")
+    p.add_argument("--machine", required=True, help="machine name in daemon.yaml")
+    p.add_argument("--strict", action="store_true", help="exit 1 on WARN too")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--daemon", action="store_true",
+                   help="ask the running daemon of this config (through its HMI API) instead "
+                        "of driving the link from this process")
+    p.set_defaults(func=cmd_verify)
+
+
+def _eta(st: dict[str, Any]) -> str:
+    eta = st.get("eta_s")
+    if eta is None:
+        return "time left: —"
+    m, s = divmod(int(eta), 60)
+    return f"time left: {m} min {s:02d} s" if m else f"time left: {s} s"
+
+
+async def verify(cfg_path: str, machine: str, *, strict: bool = False, quiet: bool = False,
+                 link_factory: LinkFactory = make_link, console: Console | None = None,
+                 **session_kw: Any) -> int:
+    cfg = load_daemon_config(cfg_path)
+    setup = cfg.machines.get(machine)
+    if setup is None:
+        raise UserError(f"{cfg_path}: no machine {machine!r} (configured: "
+                        f"{', '.join(cfg.machines)})")
+    console = console or Console(stderr=True)
+    try:
+        store = Store(cfg.store_path, cfg.synchronous,  # type: ignore[arg-type]
+                      source=f"{cfg.path}: store.path")
+    except StoreError as e:
+        raise UserError(str(e)) from None
+    link = link_factory(setup)
+    try:
+        try:
+            await link.connect()
+        except (LinkError, OSError) as e:
+            raise UserError(f"machine {machine}: controller unreachable: {e}") from None
+        kw = {"analyse": journal_analyse(cfg.store_path), **session_kw}  # issue 13
+        session = Session(setup, link, store, cfg.reports_dir, **kw)
+        queue = session.subscribe()
+        run_id = session.start("cli")
+        with Progress(TextColumn("[bold]{task.fields[state]:<10}"), BarColumn(),
+                      MofNCompleteColumn(), TextColumn("touches  {task.fields[eta]}"),
+                      console=console, disable=quiet, transient=False) as bar:
+            task = bar.add_task(run_id, total=None, state="PREPARE", eta="")
+            waiter = asyncio.create_task(session.wait())
+            while not waiter.done():
+                getter = asyncio.create_task(queue.get())
+                done, _ = await asyncio.wait({getter, waiter},
+                                             return_when=asyncio.FIRST_COMPLETED)
+                if getter in done:
+                    st = getter.result()
+                    bar.update(task, total=st["total"] or None, completed=st["done"],
+                               state=st["state"], eta=_eta(st))
+                else:
+                    getter.cancel()
+            st = session.status()
+            bar.update(task, completed=st["done"], state=st["state"], eta="")
+    except ServiceError as e:
+        raise UserError(str(e)) from None
+    finally:
+        with contextlib.suppress(Exception):
+            await link.close()
+        store.close()
+    return _verdict_exit(run_id, st, strict, console)
+
+
+def _verdict_exit(run_id: str, st: dict[str, Any], strict: bool, console: Console) -> int:
+    if st["state"] not in ("IDLE",) or not st.get("verdict"):
+        console.print(f"[bold magenta]ERROR[/] run {run_id} {st['state']}: {st['reason']}")
+        return 2
+    v = st["verdict"]
+    console.print(f"[{COLOURS.get(v['status'], 'bold')}]{v['status']}[/] run {run_id}: "
+                  f"{v['summary']}")
+    for r in v["reasons"]:
+        console.print(f"  - {r}")
+    if v.get("pdf"):
+        print(f"for filing (PDF, A4): {v['pdf']}")
+    print(f"report: {v.get('report')}")  # the last line: scripts read the path from it
+    if v["status"] == "ERROR":
+        return 2
+    return 1 if v["status"] == "FAIL" or (strict and v["status"] == "WARN") else 0
+
+
+async def verify_via_daemon(cfg_path: str, machine: str, *, strict: bool = False,
+                            quiet: bool = False, console: Console | None = None) -> int:
+    """Trigger the running daemon through its HMI API (bearer token) and follow its events."""
+    import json
+    import ssl
+
+    import aiohttp
+
+    cfg = load_daemon_config(cfg_path)
+    if machine not in cfg.machines:
+        raise UserError(f"{cfg_path}: no machine {machine!r} (configured: "
+                        f"{', '.join(cfg.machines)})")
+    if not cfg.hmi.enabled or cfg.hmi.port == 0:
+        raise UserError(f"{cfg_path}: hmi: --daemon needs the HMI enabled on a fixed port")
+    console = console or Console(stderr=True)
+    scheme = "https" if cfg.hmi_tls else "http"
+    base = f"{scheme}://{cfg.hmi.host}:{cfg.hmi.port}/"
+    ctx = ssl.create_default_context(cafile=str(cfg.hmi_tls[0])) if cfg.hmi_tls else None
+    headers = {"Authorization": f"Bearer {cfg.hmi_token}"}
+    try:
+        async with aiohttp.ClientSession(headers=headers) as http:
+            events = await http.get(base + "api/events", ssl=ctx)
+            r = await http.post(base + f"api/machines/{machine}/start?trigger=cli", ssl=ctx)
+            body = await r.json()
+            if r.status != 202:
+                raise UserError(body.get("error", f"daemon answered HTTP {r.status}"))
+            run_id = body["run_id"]
+            with Progress(TextColumn("[bold]{task.fields[state]:<10}"), BarColumn(),
+                          MofNCompleteColumn(), TextColumn("touches  {task.fields[eta]}"),
+                          console=console, disable=quiet) as bar:
+                task = bar.add_task(run_id, total=None, state="PREPARE", eta="")
+                async for line in events.content:
+                    if not line.startswith(b"data: "):
+                        continue
+                    st = json.loads(line[6:])
+                    if st["machine"] != machine or st["run_id"] != run_id:
+                        continue
+                    bar.update(task, total=st["total"] or None, completed=st["done"],
+                               state=st["state"], eta=_eta(st))
+                    if not st["busy"]:
+                        break
+            events.close()
+    except aiohttp.ClientError as e:
+        raise UserError(f"daemon at {base} unreachable: {e}") from None
+    return _verdict_exit(run_id, st, strict, console)
+
+
+def cmd_verify(args: argparse.Namespace) -> int:
+    logging.basicConfig(level=logging.WARNING, stream=sys.stderr)
+    if args.daemon:
+        return asyncio.run(verify_via_daemon(args.config, args.machine, strict=args.strict,
+                                             quiet=args.quiet))
+    return asyncio.run(verify(args.config, args.machine, strict=args.strict, quiet=args.quiet))

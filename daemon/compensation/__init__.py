@@ -1,0 +1,1 @@
+"""Compensation write-back: proposals from a stored run, applying and rolling back, its journal."""

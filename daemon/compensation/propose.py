@@ -1,0 +1,278 @@
+"""Compensation write-back, the planning half: a stored run re-identified against the
+controller's current model, the plan of changes, guards and refusals, and that controller model
+(machine file + the compensations the journal says were written)."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from contracts.controller_kinematics import ControllerKinematics, controller_kinematics
+from contracts.messages import ProbeHit
+from daemon.analysis import pipeline
+from daemon.analysis.pipeline import PipelineError, RunAnalysis
+from daemon.analysis.result import Analysis
+from daemon.compensation import journal as cj
+from daemon.machines.setup import MachineSetup
+from daemon.store.journal import Store
+from identification.compensation import (
+    CompensationPlan,
+    GuardResult,
+    Guards,
+    ParamChange,
+    apply_changes,
+    check_guards,
+    plan_compensation,
+)
+from identification.estimate import Estimate, RankDeficientError, estimate
+from identification.kinematics import Machine
+from identification.model import Centres
+
+
+class CompensationRefused(Exception):
+    """A compensation the guards or the run's quality forbid; one line, exit 2, journaled."""
+
+
+class ControllerModelError(Exception):
+    """The controller's kinematics disagree with the journal (changed outside rumba)."""
+
+
+def spec_of(setup: MachineSetup) -> ControllerKinematics | None:
+    """The machine file's ``controller_kinematics`` section, checked against the machine; None
+    when the machine file has none."""
+    section = getattr(setup.machine_file, "controller_kinematics", None)
+    if section is None:
+        return None
+    return controller_kinematics(section, setup.machine, f"machine {setup.name}")
+
+
+def guards_of(spec: ControllerKinematics) -> Guards:
+    return Guards(spec.max_change_um * 1e-3, spec.max_change_urad * 1e-6,
+                  spec.max_total_um * 1e-3)
+
+
+def unit_of(kind: str) -> tuple[str, float]:
+    """The section's unit of a value and its factor from the model's (mm, rad)."""
+    return ("mm", 1.0) if kind == "pivot" else ("urad", 1e6)
+
+
+def is_local_linuxcnc(setup: MachineSetup, spec: ControllerKinematics | None) -> bool:
+    """LinuxCNC on this PC: the link's ``mode: local``, or linuxcncrsh on a loopback host."""
+    from daemon.hosts import is_loopback
+
+    link = setup.link
+    if spec is None or spec.family != "linuxcnc" or getattr(link, "transport", "") != "linuxcnc":
+        return False
+    return link.mode == "local" or is_loopback(link.host)
+
+
+# ------------------------------------------------------------------------- controller model
+
+
+def cumulative_deltas(store: Store, machine: str, before: float | None = None
+                      ) -> dict[str, float]:
+    """Per parameter: the sum of the deltas (mm / rad) written to the controller so far."""
+    out: dict[str, float] = {}
+    for row in cj.written(store, machine, before):
+        for v in row.values:
+            out[v.name] = out.get(v.name, 0.0) + v.delta
+    return out
+
+
+def controller_model(setup: MachineSetup, store: Store, *, before: float | None = None,
+                     check_hal: bool = True) -> Machine:
+    """The model the controller runs: the machine file's, changed by every compensation
+    written before ``before`` (default: all). For a LinuxCNC on this PC the live kinematics
+    pins must equal the journal's values, else ``ControllerModelError``."""
+    spec = spec_of(setup)
+    if spec is None:
+        return setup.machine
+    params = spec.to_math()
+    deltas = cumulative_deltas(store, setup.name, before)
+    if check_hal and before is None and is_local_linuxcnc(setup, spec):
+        check_hal_agrees(setup, spec, store)
+    changes = [ParamChange(p.name, p.kind, deltas[p.name], 0.0, True, "journal")
+               for p in params if abs(deltas.get(p.name, 0.0)) > 0.0]
+    return apply_changes(setup.machine, params, changes) if changes else setup.machine
+
+
+def changed_since(store: Store, machine: str, started_at: float) -> cj.CompensationRow | None:
+    """The compensation written after ``started_at`` that left the controller's model other
+    than it was when the run started (applied, not undone by a rollback since), or None."""
+    before, now = cumulative_deltas(store, machine, started_at), cumulative_deltas(store, machine)
+    if all(abs(before.get(k, 0.0) - now.get(k, 0.0)) < 1e-12 for k in {*before, *now}):
+        return None
+    written = cj.written(store, machine)
+    later = [r for r in written if (r.applied_at or 0.0) >= started_at] or written
+    return later[-1] if later else None
+
+
+def expected_values(spec: ControllerKinematics, store: Store, machine: str
+                    ) -> dict[str, tuple[str, float]]:
+    """name → (address, value the controller should hold): the journal's last written value,
+    else the machine file's."""
+    current = cj.current_values(store, machine)
+    return {p.name: (p.address, current[p.name].new if p.name in current else float(p.value))
+            for p in spec.params}
+
+
+def check_hal_agrees(setup: MachineSetup, spec: ControllerKinematics, store: Store) -> None:
+    from drivers.linuxcnc import halkins
+
+    want = expected_values(spec, store, setup.name)
+    try:
+        got = halkins.read_pins([a for a, _ in want.values()])
+    except halkins.HalError as e:
+        if not cj.written(store, setup.name):
+            # rumba never wrote to this controller: its model is the machine file's, as before
+            # compensation existed; the pins cannot be read (no HAL access for this user)
+            return
+        raise ControllerModelError(f"machine {setup.name}: cannot read the kinematics pins: "
+                                   f"{e}") from None
+    bad = [f"{a} = {got[a]:g} (journal/machine file: {v:g})" for a, v in want.values()
+           if not halkins.agrees(got[a], v)]
+    if bad:
+        raise ControllerModelError(
+            f"machine {setup.name}: LinuxCNC's kinematics differ from rumba's journal: "
+            f"{'; '.join(bad)} — someone changed the kinematics outside rumba; restore them "
+            "or record the change before identifying against this controller")
+
+
+# ----------------------------------------------------------------------------- planning
+
+
+@dataclass
+class Proposal:
+    """What ``rumba compensate RUN`` shows and (with --confirm) applies."""
+
+    run_id: str
+    spec: ControllerKinematics
+    plan: CompensationPlan
+    guard: GuardResult
+    values: list[cj.ValueChange]  # accepted changes, controller units
+    links: dict[str, tuple[float, float, str]]  # re-identified against the controller model
+    coverage_k: float
+    refusals: list[str] = field(default_factory=list)
+    skipped: dict[str, str] = field(default_factory=dict)  # name → why not applied
+    current: dict[str, float] = field(default_factory=dict)  # name → value the control holds
+
+
+def run_centres(setup: MachineSetup, store: Store, run_id: str) -> Centres:
+    rows = store.centres(run_id)
+    if not rows:
+        raise CompensationRefused(f"run {run_id} has no stored centres (not identified)")
+    ids = setup.artefact.ids
+    unknown = sorted({r[1] for r in rows} - set(ids))
+    if unknown:
+        raise CompensationRefused(f"run {run_id}: balls {unknown} are not on artefact "
+                                  f"{setup.artefact.name}")
+    return Centres(np.array([r[0] for r in rows]), np.array([ids.index(r[1]) for r in rows]),
+                   np.array([r[2] for r in rows], float), np.array([r[3] for r in rows], float),
+                   np.array([r[4:7] for r in rows], float))
+
+
+def reidentify(setup: MachineSetup, store: Store, run_id: str, machine: Machine
+               ) -> tuple[Estimate, Centres]:
+    """The run's stored centres (validation poses held out, as the run did) → estimate."""
+    c = run_centres(setup, store, run_id)
+    held = np.isin(c.pose, list(setup.validate_poses))
+    est_c = c.subset(~held)
+    try:
+        with np.errstate(all="ignore"):
+            est = estimate(machine, setup.artefact, est_c, None)
+    except (RankDeficientError, np.linalg.LinAlgError, ValueError) as e:
+        raise CompensationRefused(f"run {run_id}: identification failed: {e}") from None
+    return est, est_c
+
+
+def quality_refusals(store: Store, run_id: str, est: Estimate, compensated: list[str]
+                     ) -> list[str]:
+    """Why the run must not be compensated from: ERROR verdict, unstable (ill-conditioned)
+    or unconverged estimate, an observability warning naming a compensated link."""
+    out = []
+    v = store.verdict(run_id)
+    if v is None:
+        out.append(f"run {run_id} has no verdict")
+    elif v["status"] == "ERROR":
+        out.append(f"run {run_id} verdict is ERROR ({'; '.join(v['reasons'])[:160]})")
+    if not est.converged:
+        out.append(f"estimate {est.status}")
+    if not np.isfinite(est.residual_rms_um) or not np.all(np.isfinite(est.std)):
+        out.append("estimate not finite")
+    unstable = [w for w in est.warnings if "condition" in w.lower()]
+    if unstable:
+        out.append(f"estimate unstable: {unstable[0]}")
+    # est.unobservable lists the structural directions (absorbed by the setup, always there);
+    # a warning of the estimate naming a compensated link means its value is not to be trusted
+    for w in est.warnings:
+        hit = [n for n in compensated if n in w]
+        if hit and "observ" in w.lower():
+            out.append(f"compensated {', '.join(hit)}: {w}")
+    return out
+
+
+def to_value_changes(spec: ControllerKinematics, store: Store, machine: str,
+                     changes: list[ParamChange]) -> list[cj.ValueChange]:
+    """Math changes → controller values (old = what the controller holds now)."""
+    current = expected_values(spec, store, machine)
+    out = []
+    for ch in changes:
+        p = spec.param(ch.name)
+        unit, factor = unit_of(p.kind)
+        old = current[ch.name][1]
+        new = round(old + ch.delta * factor, 6)  # nm / µrad·1e-6: what halcmd reads back
+        out.append(cj.ValueChange(ch.name, p.address, unit, old, new, (new - old) / factor,
+                                  float(ch.u_expanded)))
+    return out
+
+
+def propose(setup: MachineSetup, store: Store, run_id: str) -> Proposal:
+    """Re-identify ``run_id`` against the controller model at the run's start, plan the
+    changes, check the guards and the run's quality (refusals listed, not raised)."""
+    spec = spec_of(setup)
+    if spec is None:
+        raise CompensationRefused(f"machine {setup.name}: its machine file has no "
+                                  "controller_kinematics section (nothing rumba may write)")
+    run = store.run(run_id)
+    if run.machine != setup.name:
+        raise CompensationRefused(f"run {run_id} is of machine {run.machine}, not "
+                                  f"{setup.name}")
+    model = controller_model(setup, store, before=run.started_at, check_hal=False)
+    est, c = reidentify(setup, store, run_id, model)
+    k = setup.tolerances.coverage_k
+    plan = plan_compensation(model, setup.artefact, est, spec.to_math(), c.b_deg, c.c_deg,
+                             coverage_k=k)
+    guard = check_guards(plan, guards_of(spec))
+    compensated = [n for n, v in plan.links_compensable.items() if abs(v) > 1e-12]
+    refusals = quality_refusals(store, run_id, est, compensated) + list(guard.refused)
+    later = changed_since(store, setup.name, run.started_at)
+    if later is not None:  # the deltas would be added to values they were not computed for
+        refusals.append(f"the controller's model changed after run {run_id} started (journal "
+                        f"#{later.id}, {later.state}): verify again and compensate from that "
+                        "run")
+    return Proposal(run_id, spec, plan, guard,
+                    to_value_changes(spec, store, setup.name, list(guard.accepted)),
+                    est.links_si(), k, refusals, {ch.name: why for ch, why in guard.skipped},
+                    {n: v for n, (_, v) in expected_values(spec, store, setup.name).items()})
+
+
+def journal_analyse(journal: Path) -> Callable[..., RunAnalysis]:
+    """``pipeline.analyse`` identifying against the controller model of the journal at
+    ``journal`` (its own connection: it runs in the session's worker thread); for
+    ``Session(analyse=…)``. A controller changed outside rumba fails the run."""
+
+    def analyse(setup: MachineSetup, hits: Sequence[ProbeHit], run_id: str = "run",
+                reference: tuple[str, Analysis] | None = None) -> RunAnalysis:
+        store = Store(journal)
+        try:
+            machine = controller_model(setup, store)
+        except ControllerModelError as e:
+            raise PipelineError(str(e)) from None
+        finally:
+            store.close()
+        return pipeline.analyse(setup, hits, run_id, reference, controller=machine)
+
+    return analyse

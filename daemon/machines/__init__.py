@@ -1,0 +1,1 @@
+"""The machines section of daemon.yaml: each machine's files, link, triggers, tolerances."""

@@ -1,0 +1,1 @@
+"""Live results over MQTT (the mqtt section of daemon.yaml)."""

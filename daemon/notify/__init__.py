@@ -1,0 +1,1 @@
+"""Webhook and e-mail notifications (the notify section of daemon.yaml)."""

@@ -1,0 +1,65 @@
+"""Before and after of a compensation, in the report of the run that verifies it: the first run
+started after an applied compensation shows the values written and, per link, the compensating
+run's estimate beside its own (identified against the compensated controller model)."""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+from typing import Any
+
+from daemon.analysis.judge import volumetric_max_um
+from daemon.analysis.result import Analysis
+from daemon.compensation import journal as cj
+from daemon.store.journal import RunRow, Store
+
+
+@dataclass(frozen=True)
+class LinkBeforeAfter:
+    name: str
+    unit: str  # "um" | "urad"
+    before: float
+    u_before: float  # standard uncertainty (k = 1)
+    after: float
+    u_after: float
+
+
+@dataclass(frozen=True)
+class CompensationView:
+    row_id: int
+    source_run: str  # the run the compensation was computed from
+    confirmed_by: str
+    applied_at: float
+    values: tuple[cj.ValueChange, ...]
+    links: tuple[LinkBeforeAfter, ...]
+    distortion_before_um: float | None  # largest volumetric distortion (nominal + setup)
+    distortion_after_um: float | None
+
+    def to_json(self) -> dict[str, Any]:
+        return {"journal_row": self.row_id, "source_run": self.source_run,
+                "confirmed_by": self.confirmed_by, "applied_at": self.applied_at,
+                "values": [v.as_dict() for v in self.values],
+                "links": [asdict(v) for v in self.links],
+                "distortion_before_um": self.distortion_before_um,
+                "distortion_after_um": self.distortion_after_um}
+
+
+def verification_of(store: Store, run: RunRow, analysis: Analysis) -> CompensationView | None:
+    """The compensation ``run`` verifies, or None: the machine's last applied compensation
+    (not rolled back) when ``run`` started after it and no other run verified it yet. Records
+    ``run`` as its verification run in the journal."""
+    last = cj.last_applied(store, run.machine)
+    if last is None or last.applied_at is None or run.started_at < last.applied_at:
+        return None
+    if last.verify_run_id not in (None, run.id):
+        return None
+    source = store.analysis(last.run_id)
+    if source is None:
+        return None
+    if last.verify_run_id is None:
+        cj.update(store, last.id, verify_run_id=run.id)
+    links = tuple(LinkBeforeAfter(n, v.unit, v.value, v.std, analysis.links[n].value,
+                                  analysis.links[n].std)
+                  for n, v in sorted(source.links.items()) if n in analysis.links)
+    return CompensationView(last.id, last.run_id, last.confirmed_by, last.applied_at,
+                            last.values, links, volumetric_max_um(source),
+                            volumetric_max_um(analysis))

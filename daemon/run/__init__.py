@@ -1,0 +1,1 @@
+"""One verification run on one machine: session state machine, capture, re-probing, after-run."""

@@ -1,0 +1,281 @@
+"""One verification session per machine: the run state machine of DESIGN.md.
+
+IDLE → PREPARE → STREAM → CAPTURE → IDENTIFY → JUDGE → REPORT → WRITE-BACK → IDLE, or ABORTED /
+FAILED with a reason. Each step is handed the previous step's result and the journal records it
+(raw hits before anything else looks at them); a probe that does not trigger, a hit that does not
+match the program, a silent controller or a lost link stop the run, and the next run reconnects
+first; a second trigger during a run is refused with a reason; abort works from any source.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from contracts.jobs import Verdict
+from contracts.messages import ProbeHit
+from daemon.analysis import pipeline
+from daemon.analysis.judge import Judgement, judge
+from daemon.analysis.result import Analysis
+from daemon.machines.setup import MachineSetup
+from daemon.reports.compensation import verification_of
+from daemon.run import reprobe
+from daemon.run.phases import Refused, RunFailed, RunStatus, State, new_run_id
+from daemon.store.journal import Store
+from drivers.base import CncLink, ControllerAlarm, LinkError
+from drivers.retry import with_backoff
+
+log = logging.getLogger("rumba.session")
+
+ABORT_TIMEOUT_S = 10.0
+WRITE_BACK_TIMEOUT_S = 30.0
+RECONNECT_TIMEOUT_S = 3600.0 * 24  # keep trying; the HMI shows the link as down meanwhile
+
+
+class Session(RunStatus):
+    """Runs verification programs on one machine through one link, one at a time."""
+
+    def __init__(self, setup: MachineSetup, link: CncLink, store: Store, reports_dir: Path,
+                 *, analyse: Callable[..., pipeline.RunAnalysis] = pipeline.analyse,
+                 prepare: Callable[..., pipeline.Prepared] = pipeline.prepare,
+                 after_run: Callable[[Session, str], object] | None = None) -> None:
+        super().__init__(setup, store)
+        self.after_run = after_run  # e.g. unattended compensation (daemon.run.unattended)
+        self.link = link
+        self.reports_dir = Path(reports_dir)
+        self._analyse = analyse
+        self._prepare = prepare
+        self._task: asyncio.Task | None = None
+        self._abort_reason: str | None = None
+
+    async def reconnect(self) -> None:
+        """Close the link and connect it again with backoff; the status shows it up again."""
+        with contextlib.suppress(Exception):
+            await self.link.close()
+        await with_backoff(self.link.connect, what=f"{self.setup.name} controller",
+                           timeout_s=RECONNECT_TIMEOUT_S)
+        self.set_link_ok(True)
+
+    # ----------------------------------------------------------------------------- commands
+    def start(self, trigger: str) -> str:
+        """Start a run now (returns its id) or raise ``Refused`` with the reason."""
+        if trigger not in ("cli", "rerun") and not getattr(self.setup.triggers, trigger, True):
+            raise Refused(f"{self.setup.name}: trigger '{trigger}' is disabled in the config")
+        if self.busy:
+            raise Refused(f"{self.setup.name}: run {self.run_id} in progress "
+                          f"(state {self.state}, started by {self.trigger}); "
+                          f"{trigger} request refused")
+        self.run_id = new_run_id()
+        self.trigger = trigger
+        self.done, self.total = 0, 0
+        self.started_at, self.first_hit_at, self.estimated_s = time.time(), None, None
+        self.verdict, self.reason, self._abort_reason = None, "", None
+        self.store.new_run(self.run_id, self.setup.name, trigger, plan=self.setup.plan.name,
+                           artefact=self.setup.artefact.name, dialect=self.setup.dialect)
+        self._enter(State.PREPARE, "")
+        self._task = asyncio.get_running_loop().create_task(self._run(self.run_id),
+                                                            name=f"run-{self.run_id}")
+        return self.run_id
+
+    async def abort(self, source: str) -> bool:
+        """Abort the current run (from any trigger source); False when nothing runs."""
+        if not self.busy or self._task is None:
+            return False
+        self._abort_reason = f"aborted by {source}"
+        self._task.cancel()
+        await _await_run(self._task)
+        return True
+
+    async def wait(self) -> dict[str, Any]:
+        """Wait for the current run to end; returns the final status."""
+        if self._task is not None:
+            await _await_run(self._task)
+        return self.status()
+
+    # ---------------------------------------------------------------------------------- run
+    async def _run(self, run_id: str) -> None:
+        """The steps in order, each handed the previous one's result."""
+        try:
+            if not self.link_ok:
+                await self.reconnect()
+            reference = self.store.last_good(self.setup.name, before=run_id)
+            prepared = await self._prepare_program(run_id, reference)
+            hits = await self._capture(prepared)
+            hits = await self._reprobe(run_id, hits, reference)
+            analysis = await self._identify(run_id, hits, reference)
+            judgement = self._judge(run_id, analysis, reference)
+            await self._report(run_id, analysis, judgement)
+            self._enter(State.WRITE_BACK)
+            await self._write_back(Verdict(judgement.status, run_id, judgement.summary,
+                                           judgement.reasons), strict=True)
+            self.store.mark_written_back(run_id)
+            self._enter(State.IDLE, "")
+            if self.after_run is not None:
+                try:
+                    self.after_run(self, run_id)
+                except Exception:  # the run is done and reported; a follow-up must not undo it
+                    log.exception("after run %s", run_id)
+        except asyncio.CancelledError:
+            reason = self._abort_reason or "daemon shutting down"
+            await self._stop_controller()
+            self._enter(State.ABORTED, reason)
+            await self._write_back(Verdict("ERROR", run_id, reason), strict=False)
+            if self._abort_reason is None:
+                raise
+        except (RunFailed, LinkError, ControllerAlarm, pipeline.PipelineError) as e:
+            reason = str(e) or type(e).__name__
+            if isinstance(e, LinkError):
+                self.link_ok = False
+            if isinstance(e, RunFailed | pipeline.PipelineError):
+                await self._stop_controller()
+            self._enter(State.FAILED, reason)
+            await self._write_back(Verdict("ERROR", run_id, reason), strict=False)
+        except Exception as e:  # a bug must not kill the daemon: the run fails with the cause
+            log.exception("run %s crashed", run_id)
+            self._enter(State.FAILED, f"internal error: {type(e).__name__}: {e}")
+            await self._write_back(Verdict("ERROR", run_id, str(e)), strict=False)
+
+    async def _prepare_program(self, run_id: str, reference: tuple[str, Analysis] | None
+                               ) -> pipeline.Prepared:
+        """PREPARE: the checked program and its touch table (targets from the last good run)."""
+        prepared = await asyncio.to_thread(self._prepare, self.setup, run_id,
+                                           reference[1] if reference else None)
+        self.total, self.estimated_s = prepared.job.touch_count, prepared.estimated_s
+        self.store.set_state(run_id, "PREPARE", touch_total=self.total)
+        self._enter(State.STREAM)
+        return prepared
+
+    async def _reprobe(self, run_id: str, hits: list[ProbeHit],
+                       reference: tuple[str, Analysis] | None) -> list[ProbeHit]:
+        """Ball visits the outlier test names (a chip, dirt, a bad trigger) are probed again
+        after the program, their poses in one more checked program, up to ``reprobe_max``
+        rounds (``run/reprobe.py``); every hit is journaled, the analysis uses the clean visit."""
+        for rnd in range(1, self.setup.reprobe_max + 1):
+            try:
+                rp = await asyncio.to_thread(reprobe.plan_reprobe, self.setup, hits, run_id,
+                                             rnd, reference[1] if reference else None)
+            except pipeline.PipelineError as e:  # the faulty visits stay unrepaired: ERROR
+                log.warning("%s %s: no re-probe: %s", self.setup.name, run_id, e)
+                break
+            if rp is None:
+                break
+            log.info("%s %s: re-probe %d of %s", self.setup.name, run_id, rnd,
+                     "; ".join(rp.faults))
+            self.total += rp.prepared.job.touch_count
+            self.store.set_state(run_id, str(self.state), touch_total=self.total)
+            hits = hits + await self._capture(rp.prepared, rp.remap)
+        return hits
+
+    async def _identify(self, run_id: str, hits: list[ProbeHit],
+                        reference: tuple[str, Analysis] | None) -> pipeline.RunAnalysis:
+        """IDENTIFY: hits → centres → estimate → analyses, recorded with the reference run."""
+        self._enter(State.IDENTIFY)
+        analysis = await asyncio.to_thread(self._analyse, self.setup, hits, run_id, reference)
+        self.store.save_centres(run_id, analysis.centre_rows)
+        self.store.save_analysis(run_id, analysis.data)
+        return analysis
+
+    def _judge(self, run_id: str, analysis: pipeline.RunAnalysis,
+               reference: tuple[str, Analysis] | None) -> Judgement:
+        """JUDGE: the verdict against the tolerances and the drift from the reference run."""
+        self._enter(State.JUDGE)
+        j = judge(analysis.data, self.setup.tolerances, reference[1] if reference else None)
+        self.store.save_judgement(run_id, j)
+        self.verdict = {"status": j.status, "summary": j.summary, "reasons": list(j.reasons),
+                        "at": time.time()}  # when judged: the HMI shows its date and age
+        return j
+
+    async def _report(self, run_id: str, analysis: pipeline.RunAnalysis,
+                      judgement: Judgement) -> None:
+        """REPORT: the HTML, JSON and PDF report of the run, rendered from what the steps before
+        produced; the run record and the machine's trend are read here, the report itself
+        does not touch the journal."""
+        self._enter(State.REPORT)
+        from daemon.reports import report  # matplotlib import is slow: only when a run gets here
+        run, trend = self.store.run(run_id), self.store.trend(self.setup.name)
+        verified = verification_of(self.store, run, analysis.data)  # issue 13: before/after
+        paths = await asyncio.to_thread(report.write_report, self.reports_dir, run,
+                                        analysis.data, judgement, analysis.centre_rows, trend,
+                                        self.setup.tolerances, report.audit_of(self.setup),
+                                        verified)
+        self.store.save_report(run_id, *paths)  # the PDF beside the HTML (report.pdf_path)
+        self.verdict["report"] = str(paths[0])  # type: ignore[index]  # set by _judge
+        self.verdict["pdf"] = str(report.pdf_path(paths[0]))  # type: ignore[index]
+
+    async def _capture(self, prepared: pipeline.Prepared,
+                       remap: Callable[[ProbeHit], ProbeHit] | None = None) -> list[ProbeHit]:
+        """Stream one program and journal its hits (``remap``: a re-probe's identities)."""
+        run_id = self.run_id or prepared.job.run_id
+        hits: list[ProbeHit] = []
+        done0 = self.done
+        agen = self.link.run(prepared.job)
+        try:
+            while True:
+                try:
+                    hit = await asyncio.wait_for(anext(agen), self.setup.touch_timeout_s)
+                except StopAsyncIteration:
+                    break
+                except TimeoutError:
+                    raise RunFailed(f"no probe result for {self.setup.touch_timeout_s:g} s after "
+                                    f"touch {self.done} of {self.total}: controller silent "
+                                    "(feed hold, alarm or lost results)") from None
+                own = prepared.complete(hit, time.time() - self.started_at)
+                hit = own if remap is None else remap(own)
+                self.store.journal_hit(run_id, hit)  # raw data first, always
+                hits.append(hit)
+                self.done = done0 + len(hits)
+                if self.first_hit_at is None:
+                    self.first_hit_at = time.time()
+                    self._enter(State.CAPTURE)
+                else:
+                    self._publish()
+                mismatch = prepared.mismatch(own)
+                if mismatch:
+                    raise RunFailed(mismatch)
+                if not hit.triggered:
+                    raise RunFailed(f"probe did not trigger at touch {hit.seq} (pose {hit.pose}, "
+                                    f"ball {hit.ball}, touch {hit.touch}): ball missing or "
+                                    "moved; run stopped")
+        finally:
+            with contextlib.suppress(Exception):
+                await agen.aclose()
+        if len(hits) != prepared.job.touch_count:
+            raise RunFailed(f"program ended after {len(hits)} of {prepared.job.touch_count} "
+                            "touches")
+        return hits
+
+    async def _stop_controller(self) -> None:
+        try:
+            await asyncio.wait_for(asyncio.shield(self.link.abort()), ABORT_TIMEOUT_S)
+        except Exception as e:
+            log.error("%s: abort on the controller failed: %s", self.setup.name, e)
+            self.reason = f"{self.reason}; controller abort failed: {e}".lstrip("; ")
+
+    async def _write_back(self, verdict: Verdict, strict: bool) -> None:
+        """Write the verdict where the CNC reads it; when ``strict`` a failure fails the run."""
+        if not self.link.capabilities.writes_verdict:
+            return
+        try:
+            await asyncio.wait_for(self.link.write_verdict(verdict), WRITE_BACK_TIMEOUT_S)
+        except Exception as e:
+            if strict:
+                raise LinkError(f"verdict {verdict.status} computed but not written back "
+                                f"to the controller: {e}") from None
+            log.warning("%s: could not write %s to the controller: %s", self.setup.name,
+                        verdict.status, e)
+
+
+async def _await_run(task: asyncio.Task) -> None:
+    """Wait for a run task to end, its own cancellation (an abort) included, but never swallow
+    the caller's: a service stopping while it waits on a stalled run must stop."""
+    try:
+        await asyncio.shield(task)
+    except asyncio.CancelledError:
+        current = asyncio.current_task()
+        if current is not None and current.cancelling():
+            raise

@@ -1,0 +1,1 @@
+"""The daemon process: a session per machine, triggers, HMI server, fleet link, systemd."""

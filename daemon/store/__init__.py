@@ -1,0 +1,1 @@
+"""The journal (store in daemon.yaml): SQLite, the PostgreSQL fleet store and its outbox."""

@@ -1,0 +1,101 @@
+"""The journal's schema: numbered migrations shared by the SQLite journal and the PostgreSQL
+fleet store (one list, translated per engine), and the fleet mode's change-capture triggers."""
+
+from __future__ import annotations
+
+import re
+
+# Each migration is applied once, in order, inside one transaction, and recorded in
+# schema_version. Never edit a released step: add a new one. Written in the SQLite dialect;
+# ``for_postgres`` maps the few type names that differ, so both engines get the same tables.
+MIGRATIONS: list[list[str]] = [
+    [  # 1: initial schema
+        """CREATE TABLE runs (
+            id TEXT PRIMARY KEY, machine TEXT NOT NULL, trigger TEXT NOT NULL,
+            state TEXT NOT NULL, reason TEXT NOT NULL DEFAULT '',
+            plan TEXT NOT NULL DEFAULT '', artefact TEXT NOT NULL DEFAULT '',
+            dialect TEXT NOT NULL DEFAULT '', touch_total INTEGER NOT NULL DEFAULT 0,
+            started_at REAL NOT NULL, ended_at REAL,
+            verdict TEXT, summary TEXT NOT NULL DEFAULT '', imported INTEGER NOT NULL DEFAULT 0)""",
+        "CREATE INDEX runs_machine ON runs(machine, started_at)",
+        """CREATE TABLE hits (
+            run_id TEXT NOT NULL REFERENCES runs(id), seq INTEGER NOT NULL,
+            t_s REAL NOT NULL, repeat INTEGER NOT NULL, pose INTEGER NOT NULL,
+            b_cmd_deg REAL NOT NULL, c_cmd_deg REAL NOT NULL, ball TEXT NOT NULL,
+            touch INTEGER NOT NULL, dir_x REAL NOT NULL, dir_y REAL NOT NULL, dir_z REAL NOT NULL,
+            axes TEXT NOT NULL, triggered INTEGER NOT NULL, feed_mm_min REAL NOT NULL,
+            raw TEXT NOT NULL, extra TEXT NOT NULL, received_at REAL NOT NULL,
+            PRIMARY KEY (run_id, seq))""",
+        """CREATE TABLE centres (
+            run_id TEXT NOT NULL REFERENCES runs(id), pose INTEGER NOT NULL, ball TEXT NOT NULL,
+            b_deg REAL NOT NULL, c_deg REAL NOT NULL, x_mm REAL NOT NULL, y_mm REAL NOT NULL,
+            z_mm REAL NOT NULL, radius_dev_um REAL, form_um REAL,
+            PRIMARY KEY (run_id, pose, ball))""",
+        """CREATE TABLE estimates (
+            run_id TEXT PRIMARY KEY REFERENCES runs(id), analysis TEXT NOT NULL)""",
+        """CREATE TABLE verdicts (
+            run_id TEXT PRIMARY KEY REFERENCES runs(id), status TEXT NOT NULL,
+            reasons TEXT NOT NULL, checks TEXT NOT NULL,
+            written_back INTEGER NOT NULL DEFAULT 0)""",
+        """CREATE TABLE reports (
+            run_id TEXT PRIMARY KEY REFERENCES runs(id), html_path TEXT NOT NULL,
+            json_path TEXT NOT NULL)""",
+    ],
+    [  # 2: HMI sessions signed out before their expiry (cookies are signed, not stored)
+        """CREATE TABLE hmi_revoked (
+            session_id TEXT PRIMARY KEY, expires_at REAL NOT NULL)""",
+    ],
+    [  # 3: fleet: each machine's declaration (site, dialect, transport, numeric limits for
+        # the fleet trend) and the outbox of rows not yet copied to the fleet store
+        """CREATE TABLE machines (
+            name TEXT PRIMARY KEY, site TEXT NOT NULL DEFAULT '', dialect TEXT NOT NULL,
+            transport TEXT NOT NULL, limits TEXT NOT NULL, updated_at REAL NOT NULL)""",
+        """CREATE TABLE outbox (
+            seq INTEGER PRIMARY KEY AUTOINCREMENT, kind TEXT NOT NULL, key TEXT NOT NULL,
+            hit_seq INTEGER)""",
+        "CREATE INDEX outbox_key ON outbox(key, seq)",
+    ],
+    [  # 4: compensation write-back (daemon/compensation/journal.py): every change to the
+        # controller's kinematic model with its old and new values and who confirmed it
+        """CREATE TABLE compensations (
+            id INTEGER PRIMARY KEY AUTOINCREMENT, machine TEXT NOT NULL,
+            run_id TEXT NOT NULL DEFAULT '', family TEXT NOT NULL, state TEXT NOT NULL,
+            values_json TEXT NOT NULL, confirmed_by TEXT NOT NULL DEFAULT '',
+            reason TEXT NOT NULL DEFAULT '', created_at REAL NOT NULL, applied_at REAL,
+            verify_run_id TEXT)""",
+        "CREATE INDEX compensations_machine ON compensations(machine, id)",
+    ],
+]
+SCHEMA_VERSION = len(MIGRATIONS)
+
+_PG_TYPES = [(re.compile(r"\bREAL\b"), "DOUBLE PRECISION"),
+             (re.compile(r"\bINTEGER PRIMARY KEY AUTOINCREMENT\b"),
+              "BIGINT GENERATED ALWAYS AS IDENTITY PRIMARY KEY"),
+             (re.compile(r"\bINTEGER\b"), "BIGINT")]
+
+
+def for_postgres(stmt: str) -> str:
+    """A migration statement in PostgreSQL's dialect: REAL is 4 bytes there (SQLite's is 8),
+    AUTOINCREMENT is an identity column; everything else is standard SQL both accept."""
+    for pattern, repl in _PG_TYPES:
+        stmt = pattern.sub(repl, stmt)
+    return stmt
+
+
+# Change capture of the fleet mode (daemon/store/drain.py): every write to a replicated table
+# adds an outbox row in the same transaction, so a row committed locally is either in the
+# outbox or already copied, never forgotten (a kill between the two cannot happen). TEMP
+# triggers live on the daemon's own connection only: a journal opened without a fleet URL
+# records nothing, and ``rumba_outbox_wake()`` (a Python function of that connection) wakes the
+# drainer at once instead of it polling.
+CAPTURE_TRIGGERS: list[str] = [
+    *(f"""CREATE TEMP TRIGGER IF NOT EXISTS outbox_{t}_{op.lower()} AFTER {op} ON main.{t}
+          BEGIN INSERT INTO outbox(kind, key) VALUES ('{t}', NEW.{k});
+          SELECT rumba_outbox_wake(); END"""
+      for t, k in (("runs", "id"), ("centres", "run_id"), ("estimates", "run_id"),
+                   ("verdicts", "run_id"), ("reports", "run_id"), ("machines", "name"))
+      for op in ("INSERT", "UPDATE")),
+    """CREATE TEMP TRIGGER IF NOT EXISTS outbox_hits_insert AFTER INSERT ON main.hits
+       BEGIN INSERT INTO outbox(kind, key, hit_seq) VALUES ('hits', NEW.run_id, NEW.seq);
+       SELECT rumba_outbox_wake(); END""",
+]
