@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test test-linuxcnc demo-linuxcnc demo-compensate demo-fleet linuxcnc-up linuxcnc-down lint bench golden peers clean
+.PHONY: install demo test test-linuxcnc demo-linuxcnc demo-compensate demo-fleet linuxcnc-up linuxcnc-down lint bench golden peers clean
 LCNC_ENV := .peers/linuxcnc.env
 
 $(BIN)/python:
@@ -16,15 +16,20 @@ $(STAMP): pyproject.toml | $(BIN)/python
 	$(BIN)/python -m pip install --quiet -e '.[test]'
 	@touch $(STAMP)
 
+install: $(STAMP)
+
 demo: $(STAMP)
 	$(BIN)/python -m demos.e2e
 
+# pytest-xdist workers: many tests wait on peers and sockets, so one more worker than cores
+# keeps both cores busy (TEST_WORKERS=0 runs in one process).
+TEST_WORKERS ?= 3
 test: $(STAMP)
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist worksteal
 
 test-linuxcnc: $(STAMP)
 	bash .ci/install-peers.sh linuxcnc
-	$(BIN)/python -m pytest -q -m linuxcnc
+	$(BIN)/python -m pytest -q -p no:xdist -m linuxcnc
 
 # LinuxCNC 2.9 headless with the HAL probe carrying our truth model (config/linuxcnc/).
 linuxcnc-up: $(STAMP)

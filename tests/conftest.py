@@ -21,3 +21,19 @@ def pytest_runtest_makereport(item: pytest.Item, call: pytest.CallInfo):  # type
         # .ci/run installed the peers: a skip here means the peer is broken, not absent.
         report.outcome = "failed"
         report.longrepr = f"peer test skipped in CI (RUMBA_REQUIRE_PEERS=1): {report.longrepr}"
+
+
+@pytest.fixture(scope="session")
+def lcnc(tmp_path_factory: pytest.TempPathFactory):  # type: ignore[no-untyped-def]
+    """One LinuxCNC 2.9 (HAL probe carrying the LinuxCNC sim machine's truth) for every
+    ``-m linuxcnc`` module: only one can run per machine and each start and stop costs seconds;
+    a test that changes it puts it back (tests/linuxcnc_helpers.Lcnc.reset) or restarts it."""
+    from simulators import linuxcnc_peer
+    from tests.linuxcnc_helpers import start_lcnc
+
+    state = start_lcnc(tmp_path_factory.mktemp("lcnc"))
+    try:
+        yield state
+    finally:
+        linuxcnc_peer.down(state.peer.dir)
+        assert not linuxcnc_peer.lcnc_running(), "LinuxCNC processes left behind"

@@ -108,6 +108,40 @@ class Lcnc:
     def restart(self) -> None:
         linuxcnc_peer.down(self.peer.dir)
         self.peer = linuxcnc_peer.up(self.spec, workdir=self.peer.dir)
+        self.reset()
+
+    @property
+    def hal_file(self) -> Path:
+        return self.peer.dir / "config" / "rumba_xyzbc.hal"
+
+    def reset(self) -> None:
+        """Back to the state ``up`` left: the HAL file as shipped (no backups beside it), the
+        kinematics pins at its values, every ball on the table (a compensation test writes the
+        first two, a missing-ball test the last)."""
+        pristine = self.peer.dir / "rumba_xyzbc.hal.pristine"
+        if not pristine.exists():
+            pristine.write_bytes(self.hal_file.read_bytes())
+        self.hal_file.write_bytes(pristine.read_bytes())
+        for backup in self.hal_file.parent.glob("rumba_xyzbc.hal.rumba-*"):
+            backup.unlink()
+        for line in self.hal_file.read_text().splitlines():
+            f = line.split()
+            if len(f) == 3 and f[0] == "setp" and f[1].startswith("xyzbc-trt-kins."):
+                halcmd(self.peer, "setp", f[1], f[2])
+        for k in range(len(self.truth.ball_radii_mm)):
+            halcmd(self.peer, "setp", f"rumba-probe.ball-{k}-present", "1")
+
+
+def start_lcnc(work: Path) -> Lcnc:
+    """LinuxCNC with the HAL probe carrying the truth of the LinuxCNC sim machine."""
+    from simulators.hal_probe import write_spec
+
+    truth = TruthModel.from_files(MACHINE, ARTEFACT, ERRORS)
+    spec = work / "probe_spec.json"
+    write_spec(truth, spec)
+    state = Lcnc(linuxcnc_peer.up(spec, workdir=work / "peer"), truth, spec)
+    state.reset()
+    return state
 
 
 def _link(peer: linuxcnc_peer.Peer, variant: str, **extra: object) -> dict:

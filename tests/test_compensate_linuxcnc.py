@@ -24,11 +24,8 @@ from daemon.store.journal import Store
 from demos.compensate import MACHINE_NAME, daemon_yaml, demo_machine_file, judge, verification
 from drivers.linuxcnc import halkins
 from identification.estimate import coverage_factor
-from simulators import linuxcnc_peer
-from simulators.hal_probe import write_spec
-from simulators.truth import TruthModel
 from tests.cli_helpers import run_cli
-from tests.linuxcnc_helpers import ARTEFACT, ERRORS, MACHINE, PLAN
+from tests.linuxcnc_helpers import PLAN
 
 pytestmark = [pytest.mark.linuxcnc,
               pytest.mark.skipif(shutil.which("linuxcnc", path="/usr/bin") is None,
@@ -39,18 +36,16 @@ PIN = "xyzbc-trt-kins.x-offset"
 
 
 @pytest.fixture
-def peer(tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
-    truth = TruthModel.from_files(MACHINE, ARTEFACT, ERRORS)
-    spec = tmp_path / "probe_spec.json"
-    write_spec(truth, spec)
-    p = linuxcnc_peer.up(spec, workdir=tmp_path / "peer")
-    fifo = (p.dir / "fifo.path").read_text().strip()
+def peer(lcnc, monkeypatch: pytest.MonkeyPatch):  # type: ignore[no-untyped-def]
+    """The session's LinuxCNC (tests/conftest.py) as shipped, put back after the test: HAL
+    file, kinematics pins (a compensation writes both) and balls."""
+    lcnc.reset()
+    fifo = (lcnc.peer.dir / "fifo.path").read_text().strip()
     monkeypatch.setenv("RTAPI_FIFO_PATH", f"{fifo}/rtapi_fifo")
     try:
-        yield p
+        yield lcnc.peer
     finally:
-        linuxcnc_peer.down(p.dir)
-        assert not linuxcnc_peer.lcnc_running(), "LinuxCNC processes left behind"
+        lcnc.reset()
 
 
 async def test_compensate_verify_and_rollback_on_linuxcnc(peer, tmp_path: Path, capsys) -> None:

@@ -15,6 +15,7 @@ import aiohttp
 import pytest
 from aiohttp import web
 
+from daemon.fleet import view
 from daemon.fleet.app import create_fleet_app
 from daemon.store.pg import PgStore, RunBatch
 from tests.browser import chromium
@@ -146,6 +147,44 @@ async def test_fleet_json_verdicts_ages_and_stale(fleet_db):
     assert got["mill-b"]["verdict"] == "FAIL" and got["mill-b"]["stale"]  # 30 h > 26 h
     assert got["mill-c"]["verdict"] == "ERROR" and not got["mill-c"]["stale"]
     assert (got["mill-b"]["dialect"], got["mill-b"]["transport"]) == ("siemens", "modbus")
+
+
+async def test_unsafe_machine_names_are_404_not_500(fleet_db):
+    dsn, reports, _ = fleet_db
+    async with serving(dsn, reports) as url, \
+            aiohttp.ClientSession(headers={"Authorization": f"Bearer {TOKEN}"}) as http:
+        for bad in ("%00", "mill-a%00", "a%0Ab", "%E2%80%AE", "x" * 33):
+            async with http.get(f"{url}/machines/{bad}") as r:
+                assert r.status == 404, (bad, r.status, await r.text())
+        async with http.get(f"{url}/machines/mill-a") as r:
+            assert r.status == 200
+
+
+def test_garbage_in_the_store_costs_a_point_never_the_page():
+    """A store written by other versions or by hand: NaN and infinite numbers, limits that are
+    not numbers, links that are not a mapping (issue 20: each gave a 500)."""
+    nan, inf = float("nan"), float("inf")
+    machine = {"limits": {"links": {"EX0C": {"warn": "abc", "fail": nan}, "EB0Z": "x"},
+                          "default_um": {"warn": 10, "fail": inf}, "default_urad": [1, 2]}}
+    trend = [
+        {"run_id": "r1", "started_at": 1.7e9, "verdict": "PASS",
+         "links": {"EX0C": {"value": 5.0, "unit": "um"}, "EB0Z": {"value": nan, "unit": "urad"},
+                   "EY0C": {"value": 2.0, "unit": "um"}}},
+        {"run_id": "r2", "started_at": nan, "verdict": "PASS",
+         "links": {"EX0C": {"value": 6.0, "unit": "um"}}},
+        {"run_id": "r3", "started_at": 1.7e9 + 86400, "verdict": "WARN",
+         "links": {"EX0C": {"value": "7", "unit": "um"}, "EA0B": {"value": 3.0, "unit": "urad"}}},
+        {"run_id": "r4", "started_at": 1.7e9 + 2 * 86400, "verdict": "PASS", "links": "junk"},
+    ]
+    runs = [{"id": "r1", "started_at": nan, "trigger": "cli", "state": "DONE",
+             "verdict": "PASS", "summary": "", "has_report": False}]
+    page = view.machine_page("mill-x", machine, runs, trend, 90)
+    assert "EX0C (1 runs)" in page and "EA0B (1 runs)" in page and "EB0Z" not in page
+    # EX0C's own limits are garbage (no lines); EY0C takes default_um: warn ±10, fail inf
+    assert page.count('data-limit="warn"') == 2 and 'data-limit="fail"' not in page
+    assert page.index('data-limit="warn"') > page.index("EY0C (1 runs)")
+    rows = view.fleet_rows([{"machine": "m", "ended_at": nan, "started_at": inf}], 1.7e9, 26)
+    assert rows[0]["age_s"] is None and rows[0]["stale"]
 
 
 async def test_reports_only_from_allowed_directories(fleet_db):

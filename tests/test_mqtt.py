@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+from pathlib import Path
 
 import aiomqtt
 import pytest
@@ -87,6 +88,9 @@ async def test_states_verdict_links_and_health_are_published(broker, tmp_path):
     assert col.on("state")[2]["machinery_item_state"] == "Executing"
     v = col.on("verdict")[-1]
     assert v["status"] == final["verdict"]["status"] and v["run_id"] == final["run_id"]
+    # the report by file name, never the daemon PC's path (issue 20)
+    assert final["verdict"]["report"].startswith(str(tmp_path))
+    assert v["report"] == Path(final["verdict"]["report"]).name and "/" not in v["report"]
     links = col.on("links")[-1]["links"]
     assert set(links) == set(store.analysis(final["run_id"]).links)
     assert all(set(d) in ({"value_um", "std_um"}, {"value_urad", "std_urad"})
@@ -177,6 +181,14 @@ def test_mqtt_config_errors(tmp_path):
         MqttFile.model_validate({"host": "h", "site": "p", "username": "u"})
     with pytest.raises(ValueError, match=r"Extra inputs|extra"):
         MqttFile.model_validate({"host": "h", "site": "p", "pasword": "x"})
+    # a password crosses a network only inside TLS; on loopback it never leaves the PC
+    creds = {"site": "p", "username": "u", "password_file": "pw"}
+    for host in ("broker.plant", "10.0.0.7", "::ffff:10.0.0.7"):
+        with pytest.raises(ValueError, match=r"needs 'tls'.*clear text"):
+            MqttFile.model_validate({"host": host, **creds})
+        MqttFile.model_validate({"host": host, **creds, "tls": {}})
+    for host in ("127.0.0.1", "localhost", "::1"):
+        MqttFile.model_validate({"host": host, **creds})
     f = MqttFile.model_validate({"host": "h", "site": "p", "tls": {"ca": "nope.pem"}})
     with pytest.raises(ConfigError, match=r"daemon\.yaml: mqtt\.tls"):
         load_mqtt(f, tmp_path, "daemon.yaml: mqtt", read_token_file)

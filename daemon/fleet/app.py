@@ -24,6 +24,7 @@ from typing import Any
 import psycopg
 from aiohttp import web
 
+from contracts.setup_types import SAFE_NAME
 from daemon.fleet import view
 from daemon.hmi.access import secured_app
 from daemon.hmi.app import REPORT_CSP, run_id_ok
@@ -91,6 +92,8 @@ async def fleet_json(request: web.Request) -> web.Response:
 
 async def machine(request: web.Request) -> web.Response:
     name = request.match_info["machine"]
+    if not SAFE_NAME.fullmatch(name):  # daemon.yaml's rule: nothing else is in the store
+        raise web.HTTPNotFound(text="no such machine (names are 1-32 of A-Z a-z 0-9 _ . -)")
     days = int_param(request, "days", DAYS_DEFAULT, 1, DAYS_MAX)
     since = time.time() - days * 86400.0
 

@@ -21,8 +21,18 @@ def _e(x: Any) -> str:
     return escape("" if x is None else str(x), quote=True)
 
 
-def when(t: float | None) -> str:
+def finite(x: Any) -> float | None:
+    """A stored number as a float, or None when it is missing, not a number, NaN or infinite:
+    the store is written by daemons of other versions and by hand, and one bad cell must
+    cost its chart a point or a line, never the page (a 500)."""
+    if isinstance(x, bool) or not isinstance(x, int | float):
+        return None
+    return float(x) if math.isfinite(x) else None
+
+
+def when(t: Any) -> str:
     """A date the shop reads: local time with its zone."""
+    t = finite(t)
     return "—" if t is None else time.strftime("%Y-%m-%d %H:%M %Z", time.localtime(t))
 
 
@@ -44,8 +54,8 @@ def fleet_rows(fleet: Sequence[Mapping[str, Any]], now: float, stale_after_h: fl
     older than ``stale_after_h`` or when a machine has no verdict at all."""
     out = []
     for m in fleet:
-        t = m.get("ended_at") or m.get("started_at")
-        age = None if t is None else now - float(t)
+        t = finite(m.get("ended_at")) or finite(m.get("started_at"))
+        age = None if t is None else now - t
         running = m.get("current_state") not in (None, *_ENDED)
         out.append({**m, "verdict_at": t, "age_s": age,
                     "stale": age is None or age > stale_after_h * 3600.0,
@@ -100,9 +110,17 @@ def fleet_page(rows: Sequence[Mapping[str, Any]], stale_after_h: float, note: st
     return _page("rumba fleet", html, refresh_s=60)
 
 
-def _limit(name: str, unit: str, limits: Mapping[str, Any]) -> Mapping[str, Any] | None:
-    own = (limits.get("links") or {}).get(name)
-    return own or limits.get("default_urad" if unit == "urad" else "default_um")
+def _limit(name: str, unit: str, limits: Any) -> dict[str, float] | None:
+    """The link's warn / fail limits that are numbers (its own, else the unit's default)."""
+    if not isinstance(limits, Mapping):
+        return None
+    links = limits.get("links")
+    own = links.get(name) if isinstance(links, Mapping) else None
+    lim = own or limits.get("default_urad" if unit == "urad" else "default_um")
+    if not isinstance(lim, Mapping):
+        return None
+    out = {k: v for k in ("warn", "fail") if (v := finite(lim.get(k))) is not None}
+    return out or None
 
 
 def _ticks(lo: float, hi: float, n: int = 4) -> list[float]:
@@ -119,8 +137,8 @@ def link_chart(name: str, unit: str, points: Sequence[tuple[float, float, str, s
     (two-sided: the judge compares |value|) and a y axis labelled in ``unit``."""
     label = UNITS.get(unit, unit)
     vals = [p[1] for p in points]
-    bounds = vals + [s * float(limit[k]) for k in ("warn", "fail") for s in (1, -1)
-                     if limit and limit.get(k) is not None]
+    bounds = vals + [s * limit[k] for k in ("warn", "fail") for s in (1, -1)
+                     if limit and k in limit]
     lo, hi = min(bounds), max(bounds)
     if hi - lo < 1e-9:
         lo, hi = lo - 1.0, hi + 1.0
@@ -171,12 +189,14 @@ def trend_charts(trend: Sequence[Mapping[str, Any]], limits: Mapping[str, Any]) 
     another, link order as the analysis gives it."""
     series: dict[str, dict[str, Any]] = {}
     for run in trend:
-        for name, link in (run.get("links") or {}).items():
-            v = link.get("value") if isinstance(link, Mapping) else None
-            if not isinstance(v, int | float) or not math.isfinite(v):
+        links = run.get("links")
+        for name, link in (links.items() if isinstance(links, Mapping) else ()):
+            v = finite(link.get("value")) if isinstance(link, Mapping) else None
+            t = finite(run.get("started_at"))
+            if v is None or t is None:
                 continue
             s = series.setdefault(name, {"unit": link.get("unit", ""), "points": []})
-            s["points"].append((float(run["started_at"]), float(v), str(run["verdict"]),
+            s["points"].append((t, v, str(run["verdict"]),
                                 str(run["run_id"])))
     out = []
     for unit, title in (("urad", "Rotations"), ("um", "Translations")):

@@ -12,6 +12,7 @@ from pathlib import Path
 from pydantic import Field, field_validator, model_validator
 
 from contracts.yaml_files import ConfigError, StrictModel
+from daemon.hosts import is_loopback
 
 _TOPIC_LEVEL = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,63}")
 
@@ -54,6 +55,11 @@ class MqttFile(StrictModel):
     def _creds(self) -> MqttFile:
         if (self.username is None) != (self.password_file is None):
             raise ValueError("give both 'username' and 'password_file', or neither")
+        if self.password_file is not None and self.tls is None and not is_loopback(self.host):
+            # MQTT sends the password in the CONNECT packet as it is: over a network only
+            # inside TLS
+            raise ValueError(f"a password to broker {self.host!r} (not loopback) needs 'tls': "
+                             "without it the password crosses the network in clear text")
         return self
 
 

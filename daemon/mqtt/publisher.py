@@ -26,6 +26,7 @@ import logging
 import time
 from collections import deque
 from collections.abc import Callable
+from pathlib import PurePath
 from typing import Any
 
 import aiomqtt
@@ -126,8 +127,11 @@ class MachinePublisher:
             "run_id": run_id, "status": v["status"] if ok else "ERROR",
             "summary": v.get("summary", "") if ok else st["reason"],
             "reasons": v.get("reasons", []) if ok else [st["reason"]],
-            "report": v.get("report"), "run_state": "DONE" if st["state"] == "IDLE"
-            else st["state"], "elapsed_s": st["elapsed_s"]}, retain=True)
+            # the file name only: a path on the daemon's PC means nothing to a subscriber
+            # elsewhere and would tell the network how the shop PC is laid out
+            "report": PurePath(v["report"]).name if v.get("report") else None,
+            "run_state": "DONE" if st["state"] == "IDLE" else st["state"],
+            "elapsed_s": st["elapsed_s"]}, retain=True)
         analysis = self.store.analysis(run_id) if ok else None
         if analysis is not None:
             self.publish("links", {"run_id": run_id, "links": link_payload(analysis)},
