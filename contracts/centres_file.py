@@ -62,6 +62,7 @@ FRAMES = ("machine", "instrument")
 KEYS = ("frame", "instrument", "source", "repeatability_um")
 MAX_CENTRE_ROWS = MAX_LOG_ROWS // TOUCHES_PER_BALL  # one centre per five touches
 MAX_U_UM = 1e4  # a stated centre uncertainty beyond 1 cm is a unit mistake
+_ROWS_WHAT = "centre rows (the reader's ceiling)"
 _RANGES_C = {**{k: RANGES[k] for k in ("t_s", "b_cmd_deg", "c_cmd_deg", "b_deg", "c_deg",
                                         "x_mm", "y_mm", "z_mm")}, "u_um": (0.0, MAX_U_UM)}
 
@@ -162,7 +163,8 @@ def _cell(name: str, lineno: int, col: str, cell: str) -> object:
     if kind == "int":
         if not INT_RE.fullmatch(cell) or int(cell) < 0:
             raise CentresFileError(f"{name}: line {lineno}: column {col}: expected an integer "
-                                   f"≥ 0, got {cell[:40]!r} (ASCII digits, < 1e9)")
+                                   f"≥ 0, got {cell[:40]!r} (ASCII digits, no minus sign, "
+                                   "< 1e9)")
         return int(cell)
     if col == "u_um" and not cell.strip():
         return math.nan
@@ -181,12 +183,13 @@ def _cell(name: str, lineno: int, col: str, cell: str) -> object:
 def read_centres(path: Path | str, artefact: Artefact | None = None,
                  text: str | None = None) -> CentresFile:
     """Read and validate a centres file (``text`` instead of the file content if given)."""
-    with byte_lines(path, text, CentresFileError) as raw:
+    with byte_lines(path, text, CentresFileError, noun="file",
+                    rows=(MAX_CENTRE_ROWS, _ROWS_WHAT)) as raw:
         return _read(raw, str(path), artefact)
 
 
 def _read(raw: Iterable[bytes], name: str, artefact: Artefact | None) -> CentresFile:
-    lines = decoded(raw, name)
+    lines = decoded(raw, name, CentresFileError)
     cf = CentresFile(name, [])
     first = next(lines, "")
     if first.strip() != MAGIC:
@@ -197,7 +200,11 @@ def _read(raw: Iterable[bytes], name: str, artefact: Artefact | None) -> Centres
         if not text.strip():
             continue
         if text.startswith("##"):
-            cf.comments.append(text[2:].strip())
+            comment = text[2:].strip()
+            if CONTROL_RE.search(comment.replace("\t", " ")):
+                raise CentresFileError(f"{name}: line {lineno}: a control character (NUL, "
+                                       "escape …) in a comment: expected printable text")
+            cf.comments.append(comment)
             continue
         if text.startswith("#"):
             _key_line(cf, text, f"{name}: line {lineno}", seen)
@@ -225,7 +232,7 @@ def _rows(reader: Iterator[list[str]], name: str, offset: int,
     rows: list[CentreRow] = []
     where: list[int] = []
     for lineno, cells in data_rows(reader, name, len(HEADER), offset, MAX_CENTRE_ROWS,
-                                   CentresFileError, "centre rows (the reader's ceiling)"):
+                                   CentresFileError, _ROWS_WHAT):
         row = CentreRow(*(_cell(name, lineno, col, c) for col, c in zip(HEADER, cells,
                                                                          strict=True)))
         if ids is not None and row.ball not in ids:

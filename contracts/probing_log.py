@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import csv
 import io
-import os
 import re
 import warnings
 from array import array
@@ -37,6 +36,7 @@ from typing import overload
 
 import numpy as np
 
+from contracts.input_files import bounded_lines, count_rows, opened
 from contracts.result_lines import MAX_RESULT_DEG, MAX_RESULT_MM
 from contracts.yaml_files import ConfigError
 from identification.model import Artefact
@@ -58,10 +58,13 @@ RANGES = {"t_s": (0.0, 1e8), "b_cmd_deg": (-MAX_ABS_DEG, MAX_ABS_DEG),
           "dir_y": (-10.0, 10.0), "dir_z": (-10.0, 10.0), "x_mm": (-MAX_ABS_MM, MAX_ABS_MM),
           "y_mm": (-MAX_ABS_MM, MAX_ABS_MM), "z_mm": (-MAX_ABS_MM, MAX_ABS_MM),
           "feed_mm_min": (0.0, 1e6)}
-# ASCII only: Python's int()/float() also take '٣', '１', '1_0', ' nan', 'infinity'
-INT_RE = re.compile(r"[ \t]*[+-]?[0-9]{1,9}[ \t]*")
+# ASCII only: Python's int()/float() also take '٣', '１', '1_0', ' nan', 'infinity'. The
+# integer columns (seq, repeat, pose, touch) are counters ≥ 0: a minus sign is refused, so a
+# '-0' (which int() reads as 0, and no writer produces) cannot pass for a counter.
+INT_RE = re.compile(r"[ \t]*\+?[0-9]{1,9}[ \t]*")
 FLOAT_RE = re.compile(r"[ \t]*[+-]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]{1,3})?[ \t]*")
 CONTROL_RE = re.compile(r"[\x00-\x1f\x7f]")
+_ROWS_WHAT = "touch rows (the reader's ceiling; one run is far smaller)"
 
 
 class ProbeLogError(ConfigError):
@@ -191,22 +194,16 @@ class ProbeLog(Sequence[LogRow]):
         return names[np.frombuffer(self._codes[i], np.dtype("l"))]
 
 
-def decoded(raw_lines: Iterable[bytes], name: str) -> Iterator[str]:
-    """Bytes lines → text lines, refusing non-UTF-8, over-long lines and over-large files."""
-    total = 0
+def decoded(raw_lines: Iterable[bytes], name: str,
+            error: type[ProbeLogError] | None = None) -> Iterator[str]:
+    """Bytes lines (bounded: ``byte_lines``) → text lines, refusing non-UTF-8."""
+    err = error or ProbeLogError
     for n, raw in enumerate(raw_lines, start=1):
-        total += len(raw)
-        if total > MAX_LOG_BYTES:
-            raise ProbeLogError(f"{name}: line {n}: the log is larger than {MAX_LOG_BYTES} "
-                                "bytes (the reader's ceiling; one run is far smaller)")
-        if len(raw) > MAX_LINE_BYTES:
-            raise ProbeLogError(f"{name}: line {n}: longer than {MAX_LINE_BYTES} bytes "
-                                "(a touch row is about 200)")
         try:
             text = raw.decode("utf-8")
         except UnicodeDecodeError as e:
-            raise ProbeLogError(f"{name}: line {n}: not UTF-8 text (byte {e.start + 1} of the "
-                                f"line is {raw[e.start:e.start + 1]!r})") from None
+            raise err(f"{name}: line {n}: not UTF-8 text (byte {e.start + 1} of the "
+                      f"line is {raw[e.start:e.start + 1]!r})") from None
         yield text[1:] if n == 1 and text.startswith("\ufeff") else text
 
 
@@ -224,7 +221,8 @@ def _bad_cell(name: str, lineno: int, cells: Sequence[str]) -> ProbeLogError:
         elif i in _INT_COLS:
             if not INT_RE.fullmatch(cell):
                 return ProbeLogError(f"{name}: line {lineno}: column {col}: expected an "
-                                     f"integer, got {cell[:40]!r} (ASCII digits, < 1e9)")
+                                     f"integer, got {cell[:40]!r} (ASCII digits, no minus "
+                                     "sign, < 1e9)")
         else:
             lo, hi = RANGES[col]
             if not FLOAT_RE.fullmatch(cell):
@@ -277,24 +275,20 @@ def _check_keys(log: ProbeLog, name: str) -> None:
 
 @contextmanager
 def byte_lines(path: Path | str, text: str | None, error: type[ProbeLogError] = ProbeLogError,
-               note: str = "") -> Iterator[Iterable[bytes]]:
-    """The file's byte lines (``text``'s if given); a file beyond ``MAX_LOG_BYTES`` (``note``
-    added to the message), or an ``OSError`` or ``ProbeLogError`` in the block, is one ``error``."""
+               note: str = "", *, rows: tuple[int, str] | None = None, noun: str = "log",
+               comments: bytes | None = b"#") -> Iterator[Iterable[bytes]]:
+    """The file's byte lines (``text``'s if given), bounded (``contracts.input_files``): a
+    regular file only, at most ``MAX_LOG_BYTES`` (``note`` added to the message) and
+    ``MAX_LINE_BYTES`` a line; ``rows`` = (ceiling, what): more data rows than the ceiling are
+    refused before any is parsed (lines starting with ``comments`` are not rows). An
+    ``OSError`` in the block is one ``error`` line too."""
     name = str(path)
-    try:
-        with (open(path, "rb") if text is None
-              else io.BytesIO(text.encode("utf-8", "surrogatepass"))) as f:
-            size = os.fstat(f.fileno()).st_size if text is None else 0
-            if size > MAX_LOG_BYTES:
-                raise error(f"{name}: {size} bytes, more than the reader's ceiling of "
-                            f"{MAX_LOG_BYTES}{note}")
-            yield f
-    except OSError as e:
-        raise error(f"{name}: cannot read: {e.strerror or e}") from None
-    except error:
-        raise
-    except ProbeLogError as e:  # the shared line reader's (size, line length, UTF-8)
-        raise error(str(e)) from None
+    with opened(path, text, error, max_bytes=MAX_LOG_BYTES, note=note) as f:
+        if rows is not None:
+            count_rows(f, name, error, max_bytes=MAX_LOG_BYTES, max_line=MAX_LINE_BYTES,
+                       max_rows=rows[0], headers=1 if comments else 0, what=rows[1],
+                       noun=noun, comments=comments)
+        yield bounded_lines(f, name, error, MAX_LOG_BYTES, MAX_LINE_BYTES, noun)
 
 
 def data_rows(reader: Iterator[list[str]], name: str, columns: int, offset: int, ceiling: int,
@@ -325,7 +319,8 @@ def seq_gaps(seq: np.ndarray) -> str:
 def read_log(path: Path | str, artefact: Artefact | None = None,
              text: str | None = None) -> ProbeLog:
     """Read and validate a probing log (``text`` instead of the file content if given)."""
-    with byte_lines(path, text, note=" (one run is far smaller)") as raw:
+    with byte_lines(path, text, note=" (one run is far smaller)",
+                    rows=(MAX_LOG_ROWS, _ROWS_WHAT)) as raw:
         return _read(raw, str(path), artefact)
 
 
@@ -352,10 +347,9 @@ def _rows(reader: Iterator[list[str]], name: str, artefact: Artefact | None) -> 
     log = ProbeLog()
     lookup: dict[int, dict[str, int]] = {i: {} for i in _STR_COLS}
     int_m, float_m, ctrl = INT_RE.fullmatch, FLOAT_RE.fullmatch, CONTROL_RE.search
-    i_touch, i_pose, i_rep = (_INT_COLS.index(HEADER.index(c)) for c in ("touch", "pose",
-                                                                          "repeat"))
+    i_touch = _INT_COLS.index(HEADER.index("touch"))
     for lineno, cells in data_rows(reader, name, len(HEADER), 0, MAX_LOG_ROWS, ProbeLogError,
-                                   "touch rows (the reader's ceiling; one run is far smaller)"):
+                                   _ROWS_WHAT):
         strs = [cells[i].strip() for i in _STR_COLS]
         try:
             if not (all(int_m(cells[i]) for i in _INT_COLS)
@@ -376,8 +370,6 @@ def _rows(reader: Iterator[list[str]], name: str, artefact: Artefact | None) -> 
         if not 1 <= ints[i_touch] <= TOUCHES_PER_BALL:
             raise ProbeLogError(f"{name}: line {lineno}: column touch: {ints[i_touch]} outside "
                                 f"1..{TOUCHES_PER_BALL}")
-        if ints[i_pose] < 0 or ints[i_rep] < 0:
-            raise ProbeLogError(f"{name}: line {lineno}: column pose/repeat: must be ≥ 0")
         log._append(strs, ints, floats, lineno, lookup)
     return log
 

@@ -41,6 +41,7 @@ from contracts.setup_types import (
     MAX_TOUCHES,
     SAFE_NAME,
     Bounded,
+    Direction,
     Range2,
     Record,
     Vec3,
@@ -60,7 +61,7 @@ from identification.model import Artefact, Ball, CalibratedDistance
 
 class AxisFile(StrictModel):
     type: Literal["linear", "rotary"]
-    direction: Vec3
+    direction: Direction
     point_mm: Vec3 | None = None
     travel_mm: Range2 | None = None
     travel_deg: Range2 | None = None
@@ -87,7 +88,7 @@ class AxisFile(StrictModel):
 
 class ToolFile(StrictModel):
     tip_mm: Vec3 = [0.0, 0.0, 0.0]
-    spindle_axis: Vec3 = [0.0, 0.0, 1.0]
+    spindle_axis: Direction = [0.0, 0.0, 1.0]
 
 
 class DynamicsFile(StrictModel):
@@ -126,7 +127,7 @@ class MachineFile(StrictModel):
     keep_out: list[KeepOutBox] = []
     # Direction of gravity in the foundation frame (any length, normalised on load), e.g.
     # [0, -1, 0] on a horizontal machine; None: identification.effects.default_gravity guesses.
-    gravity: Vec3 | None = None
+    gravity: Direction | None = None
     serial: Record | None = None  # the machine's serial number, printed on every report (audit)
     # What the control keeps of its kinematic model and where (compensation write-back, issue 13)
     controller_kinematics: ControllerKinematicsFile | None = None
@@ -137,9 +138,7 @@ class MachineFile(StrictModel):
     def _unit_gravity(cls, v: list[float] | None) -> list[float] | None:
         if v is None:
             return v
-        n = math.sqrt(sum(x * x for x in v))
-        if n < 1e-9:
-            raise ValueError("must be a non-zero direction, e.g. [0, 0, -1]")
+        n = math.sqrt(sum(x * x for x in v))  # not zero: ``Direction``
         return [x / n for x in v]
 
 
@@ -250,7 +249,7 @@ def load_artefact_file(path: Path | str) -> tuple[Artefact, ArtefactFile]:
 
 
 __all__ = ["MAX_BALLS", "MAX_POSES", "MAX_TOUCHES", "SAFE_NAME", "ArtefactFile", "AxisFile",
-           "BallFile", "Bounded", "CalibrationFile", "ConfigError", "DistanceFile",
+           "BallFile", "Bounded", "CalibrationFile", "ConfigError", "Direction", "DistanceFile",
            "DynamicsFile", "FeedsFile", "Grid", "GridAxis", "KeepOutBox", "MachineFile", "Plan",
            "PlanFile", "PoseFile", "Range2", "Record", "TableFile", "ToolFile", "Vec3",
            "artefact_from_dict", "check_touch_count", "load_artefact", "load_artefact_file",

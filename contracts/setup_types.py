@@ -2,10 +2,11 @@
 
 from __future__ import annotations
 
+import math
 import re
 from typing import Annotated
 
-from pydantic import Field
+from pydantic import AfterValidator, Field
 
 from contracts.result_lines import MAX_RESULT_MM
 
@@ -25,8 +26,6 @@ MAX_BALLS = 32
 """Ceiling on the balls of an artefact (the shipped ones have 4 or 5)."""
 
 
-
-
 # Every length and angle of a setup file is bounded like a latched value (±1e5 mm or °): a finite
 # but absurd number (1e308) would otherwise reach the kinematics and fail deep inside as a
 # singular matrix instead of naming the key.
@@ -35,6 +34,22 @@ Bounded = Annotated[float, Field(ge=-MAX_RESULT_MM, le=MAX_RESULT_MM)]
 Record = Annotated[str, Field(min_length=1, max_length=64, pattern=r"^[^\x00-\x1f\x7f]+$")]
 Vec3 = Annotated[list[Bounded], Field(min_length=3, max_length=3)]
 Range2 = Annotated[list[Bounded], Field(min_length=2, max_length=2)]
+
+MIN_DIRECTION_NORM = 1e-9
+"""A direction shorter than this cannot be normalised meaningfully (its direction would be
+rounding noise); the schemas' vectors are written as unit vectors such as [0, 0, 1]."""
+
+
+def _direction(v: list[float]) -> list[float]:
+    """A direction vector must be normalisable: finite (``Bounded``) and not zero — a zero
+    spindle axis or axis direction would turn into NaN in every transform further on."""
+    if not math.sqrt(sum(x * x for x in v)) >= MIN_DIRECTION_NORM:
+        raise ValueError(f"must be a non-zero direction such as [0, 0, 1], got "
+                         f"{[float(x) for x in v]} (length below {MIN_DIRECTION_NORM:g})")
+    return v
+
+
+Direction = Annotated[Vec3, AfterValidator(_direction)]
 
 
 def safe_name(v: str) -> str:

@@ -15,6 +15,7 @@ from typing import Any, Literal
 
 from pydantic import Field, field_validator, model_validator
 
+from contracts.input_files import read_bounded
 from contracts.yaml_files import (
     ConfigError,
     StrictModel,
@@ -110,13 +111,22 @@ class DaemonConfig:
     notify: Any = None  # daemon.notify.config.NotifyConfig
 
 
+MAX_TOKEN_FILE_BYTES = 4096  # a token is 16 to a few hundred characters
+
+
 def read_token_file(path: Path, where: str) -> str:
     """A token file must be private (no group/other permission bits) and ≥ 16 characters."""
     try:
         st = path.stat()
-        text = path.read_text(encoding="utf-8").strip()
+        # a regular file of at most 4 KiB: a FIFO would block the start, /dev/zero never end
+        text = read_bounded(path, ConfigError, MAX_TOKEN_FILE_BYTES, "token file").decode(
+            "utf-8").strip()
     except OSError as e:
         raise ConfigError(f"{where}: cannot read token file {path}: {e.strerror}") from None
+    except ConfigError as e:
+        raise ConfigError(f"{where}: token file {e}") from None
+    except UnicodeDecodeError:
+        raise ConfigError(f"{where}: token file {path}: not UTF-8 text") from None
     if stat.S_IMODE(st.st_mode) & 0o077:
         raise ConfigError(f"{where}: token file {path} is readable by others "
                           f"(mode {stat.S_IMODE(st.st_mode):04o}); chmod 600 it")

@@ -10,12 +10,16 @@ from pathlib import Path
 
 import numpy as np
 
+from contracts.input_files import read_bounded
 from contracts.messages import TouchId
 from contracts.setup_files import MachineFile, Plan
 from contracts.touch_table import TouchInfo, TouchTable
 from contracts.yaml_files import ConfigError
 from identification.kinematics import ChainState, Machine
 from identification.model import Artefact
+
+MAX_TARGETS_BYTES = 16 * 2**20
+"""Ceiling on a targets file (a `rumba analyze --json` file is well under 1 MB)."""
 
 
 @dataclass(frozen=True)
@@ -29,12 +33,17 @@ class Targets:
 
 def load_targets(path: Path | str, artefact: Artefact) -> Targets:
     """Read ``setup.balls.<id>.value`` and ``setup.probe.value`` (µm, as `rumba analyze --json`)."""
+    # a regular file of bounded size: a FIFO would block, /dev/zero never end
+    raw = read_bounded(path, ConfigError, MAX_TARGETS_BYTES, "`rumba analyze --json` file")
     try:
-        data = json.loads(Path(path).read_text(encoding="utf-8"))
-    except OSError as e:
-        raise ConfigError(f"{path}: cannot read: {e.strerror}") from None
+        data = json.loads(raw.decode("utf-8"))
+    except UnicodeDecodeError as e:
+        raise ConfigError(f"{path}: byte {e.start}: not UTF-8 text") from None
     except json.JSONDecodeError as e:
         raise ConfigError(f"{path}: line {e.lineno}: not valid JSON: {e.msg}") from None
+    except RecursionError:
+        raise ConfigError(f"{path}: nested too deeply: not a `rumba analyze --json` "
+                          "file") from None
 
     def vec(node: object, key: str) -> tuple[float, float, float]:
         v = node.get("value") if isinstance(node, dict) else None

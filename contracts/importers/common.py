@@ -5,8 +5,14 @@ from __future__ import annotations
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 
-from contracts.centres_file import CentresFileError
-from contracts.probing_log import FLOAT_RE, RANGES, byte_lines, decoded
+from contracts.centres_file import MAX_CENTRE_ROWS, CentresFileError
+from contracts.probing_log import CONTROL_RE, FLOAT_RE, RANGES, byte_lines, decoded
+
+MAX_IMPORT_LINES = 10 * MAX_CENTRE_ROWS
+"""Ceiling on the non-blank lines of an instrument file (500 000), counted before anything is
+parsed: a KinOpt record is 8 lines in the documentation and a DMIS sphere a statement or a
+few, so even a file at the centre-row ceiling stays below 10 lines a centre (real files have
+tens of centres). Bounds the parsing time of the largest file accepted to about 1.5 s."""
 
 
 class CentresImportError(CentresFileError):
@@ -16,10 +22,19 @@ class CentresImportError(CentresFileError):
 
 def text_lines(path: Path | str, text: str | None = None) -> Iterator[tuple[int, str]]:
     """(line number, text without line end) of a file, with the probing log's ceilings
-    (64 MiB, 4 096 bytes per line, UTF-8 only)."""
-    with byte_lines(path, text, CentresImportError) as raw:
-        for n, line in enumerate(decoded(raw, str(path)), start=1):
-            yield n, line.rstrip("\r\n")
+    (a regular file, 64 MiB, 4 096 bytes per line, UTF-8 only), at most ``MAX_IMPORT_LINES``
+    non-blank lines (counted first) and no control character but the tab."""
+    with byte_lines(path, text, CentresImportError, noun="file", comments=None,
+                    rows=(MAX_IMPORT_LINES, "lines (the importer's ceiling)")) as raw:
+        for n, line in enumerate(decoded(raw, str(path), CentresImportError), start=1):
+            line = line.rstrip("\r\n")
+            bad = CONTROL_RE.search(line.replace("\t", " "))
+            if bad:
+                # A NUL or an escape is no part of an NC program or a DMIS file, comment or
+                # not: the file is binary or damaged, and a comment is no place to hide it.
+                raise CentresImportError(f"{path}: line {n}: column {bad.start() + 1}: control "
+                                         f"character {bad.group()!r}: expected printable text")
+            yield n, line
 
 
 def continued(bodies: Iterable[tuple[int, str]], name: str, mark: str, what: str,

@@ -30,18 +30,20 @@ UNITS_MM = {"MM": 1.0, "INCH": 25.4}
 _FA_RE = re.compile(r"FA\((?P<label>[^)]*)\)\s*=\s*FEAT/(?P<kind>[A-Z]+)(?P<rest>.*)", re.I)
 _LABEL_RE = re.compile(r"(?P<ball>[A-Za-z0-9_]+?)_P(?P<pose>[0-9]{1,6})(?:_R(?P<rep>[0-9]{1,6}))?",
                        re.I)
+_DMIS_TOKEN = re.compile(r"'[^']*(?:'|$)|\$\$|[^'$]+|\$")
 _NAME_RE = re.compile(r"(?:DMISMN|FILNAM)\s*/\s*'(?P<name>[^']{0,200})'", re.I)
 
 
 def _uncommented(line: str) -> str:
-    """The line without its ``$$`` comment (a quote protects it), stripped."""
-    body, quoted = [], False
-    for i, ch in enumerate(line):
-        if ch == "'":
-            quoted = not quoted
-        elif not quoted and line.startswith("$$", i):
+    """The line without its ``$$`` comment (a quote protects it; an unclosed quote runs to the
+    end of the line), stripped; token by token, not character by character."""
+    if "$$" not in line:
+        return line.strip()
+    body = []
+    for tok in _DMIS_TOKEN.findall(line):
+        if tok == "$$":
             break
-        body.append(ch)
+        body.append(tok)
     return "".join(body).strip()
 
 

@@ -7,10 +7,12 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import replace
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from contracts.setup_files import load_machine
 from contracts.yaml_files import ConfigError
 from daemon.analysis.result import Analysis
 from daemon.analysis.touch_centres import CentreData, screen_centres, with_outliers
@@ -24,6 +26,7 @@ from identification.analyses import (
 from identification.estimate import RankDeficientError, estimate
 from identification.kinematics import Machine
 from identification.model import Artefact, Centres
+from identification.plausibility import describe, implausible
 
 _THESIS = {  # thesis Table B.2 / Fig B.2 names of the WCBXFZYT link errors
     "EB0Z": "βZ squareness ZX", "EA0Y": "αY squareness YZ", "EC0Y": "γY squareness YX",
@@ -37,6 +40,36 @@ class AnalysisError(ConfigError):
     """The centres cannot be analysed as asked (held-out poses absent, rank deficiency, a
     numerical failure caused by the data …); a ``ConfigError``, so every ``rumba`` command
     ends on it with one ``error:`` line."""
+
+
+class ImplausibleFitError(AnalysisError):
+    """The fit converged to values the declared geometry cannot have (``identification.
+    plausibility``): a wrong machine or artefact file, not errors to report or compensate."""
+
+
+def touch_noise_um(data: CentreData) -> float | None:
+    """The touches' noise as their sphere fits show it (median form residual, µm), None for
+    centres without touches or touches without noise (a noise-free simulation)."""
+    form = [h.form_rms_um for h in data.health if math.isfinite(h.form_rms_um)]
+    noise = float(np.median(form)) if form else 0.0
+    return noise if noise > 0.0 else None
+
+
+def fitting_machines(paths: Sequence[Path], artefact: Artefact, centres: Centres) -> list[Path]:
+    """Those of the machine files ``paths`` a plain estimate on ``centres`` fits plausibly (for
+    the hint of a refusal: which machine the data were measured on); unreadable files and
+    failing fits are skipped."""
+    out = []
+    for path in paths:
+        try:
+            machine, _ = load_machine(path)
+            with np.errstate(all="ignore"):
+                est = estimate(machine, artefact, centres)
+        except (ConfigError, ValueError, np.linalg.LinAlgError, FloatingPointError):
+            continue
+        if np.isfinite(est.residual_rms_um) and not implausible(machine, artefact, est):
+            out.append(path)
+    return out
 
 
 def thesis_name(iso: str) -> str:
@@ -97,6 +130,9 @@ def analyse_centres(machine: Machine, artefact: Artefact, data: CentreData, *,
             and all(np.isfinite(v) for v, _, _ in est.links_si().values())):
         raise AnalysisError(f"{where}estimate (setup + links) did not converge to finite "
                             "numbers (centres far outside the machine's range?)")
+    findings = implausible(machine, artefact, est, touch_noise_um(data))
+    if findings:  # 90° "link errors" are not a machine's: refuse, never report or compensate
+        raise ImplausibleFitError(f"{where}{describe(machine, artefact, findings)}")
     if to_machine is not None:
         data = replace(data, centres=replace(c, xyz_mm=to_machine(c.xyz_mm)))
         est_c = data.centres.subset(~held)

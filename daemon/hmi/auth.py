@@ -21,6 +21,7 @@ import tempfile
 import time
 from pathlib import Path
 
+from contracts.input_files import read_bounded
 from daemon.store.journal import Store
 
 SESSION_TTL_S = 12 * 3600
@@ -44,8 +45,9 @@ def load_or_create_secret(path: Path) -> bytes:
     if mode & 0o077:
         raise SecretError(f"{path}: HMI session secret is readable by others (mode {mode:04o});"
                           " chmod 600 it")
-    try:
-        secret = bytes.fromhex(path.read_text(encoding="ascii").strip())
+    try:  # a regular file of at most 4 KiB: a FIFO would block the start
+        secret = bytes.fromhex(read_bounded(path, SecretError, 4096, "session secret").decode(
+            "ascii").strip())
     except OSError as e:
         raise SecretError(f"{path}: cannot read the HMI session secret: {e.strerror}") from None
     except (ValueError, UnicodeDecodeError):

@@ -22,7 +22,12 @@ from contracts.setup_files import load_artefact, load_machine, load_plan
 from daemon.analysis import centres_input
 from daemon.analysis.centres_shape import OneIndexation
 from daemon.analysis.centres_shape import render as render_one_indexation
-from daemon.analysis.identify import AnalysisError, analyse_centres
+from daemon.analysis.identify import (
+    AnalysisError,
+    ImplausibleFitError,
+    analyse_centres,
+    fitting_machines,
+)
 from daemon.analysis.result import Analysis
 from daemon.analysis.touch_centres import rows_to_centres
 
@@ -93,9 +98,26 @@ def run_analysis(log: Path | str, machine_path: Path | str, artefact_path: Path 
         out = analyse_centres(machine, artefact, data, validate_poses=validate_poses,
                               links=chosen, repeatability_um=repeatability_um,
                               fixed_radius=fixed_radius, source=str(log))
+    except ImplausibleFitError as e:
+        raise _user_error(f"{e}{_taken_on(machine_path, artefact, data.centres)}") from None
     except (ProbeLogError, AnalysisError) as e:
         raise _user_error(str(e)) from None
     return replace(out, log=str(log), warnings=(*read_warnings, *out.warnings))
+
+
+MAX_SIBLINGS = 8  # machine files tried for the hint (about 0.5 s each, on the error path only)
+
+
+def _taken_on(machine_path: Path | str, artefact: Any, centres: Any) -> str:
+    """The hint of an implausible fit: the other machine files next to ``machine_path`` the
+    log does fit (the machine it was probably taken on), '' when none does."""
+    here = Path(machine_path)
+    try:
+        others = sorted(p for p in here.parent.glob("*.yaml") if p.resolve() != here.resolve())
+    except OSError:
+        return ""
+    fits = fitting_machines(others[:MAX_SIBLINGS], artefact, centres)
+    return f" The log fits {', '.join(map(str, fits))}: taken on that machine?" if fits else ""
 
 
 def _centres(args: argparse.Namespace) -> Analysis | OneIndexation:

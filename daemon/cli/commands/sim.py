@@ -66,14 +66,20 @@ def main(args: argparse.Namespace) -> int:
     return _offline(args, truth, faults)
 
 
+MAX_PROGRAM_BYTES = 64 * 2**20  # the largest plan's program (20 000 touches) is a few MB
+
+
 def _offline(args: argparse.Namespace, truth, faults) -> int:
+    from contracts.input_files import read_bounded
     from contracts.probing_log import write_log
     from simulators.offline import aux_files, run_sync
 
+    # a regular file of bounded size (a FIFO would block, /dev/zero never end)
+    raw = read_bounded(args.run, UserError, MAX_PROGRAM_BYTES, "program")
     try:
-        text = args.run.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as e:
-        raise UserError(f"{args.run}: cannot read: {e}") from None
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as e:
+        raise UserError(f"{args.run}: byte {e.start}: not UTF-8 text") from None
     run_id = args.run_id or args.run.stem
     res = run_sync(truth, text, args.dialect, files=aux_files(args.run),
                    seed=truth.seed if args.seed is None else args.seed,
