@@ -60,6 +60,10 @@ class GuardsFile(StrictModel):
     max_change_um: float = Field(50.0, gt=0, le=1000)
     max_change_urad: float = Field(100.0, gt=0, le=10000)
     max_total_um: float = Field(100.0, gt=0, le=10000)
+    # the sum of the changes of one value since the last verified baseline (issue 20): two
+    # changes each under max_change must not walk a value away; default: max_change_*
+    max_cumulative_um: float | None = Field(None, gt=0, le=10000)
+    max_cumulative_urad: float | None = Field(None, gt=0, le=100000)
     unattended: bool = False
 
 
@@ -80,6 +84,10 @@ class ControllerKinematicsFile(StrictModel):
     family: Literal["linuxcnc", "fanuc", "haas", "siemens", "heidenhain"]
     guards: GuardsFile = GuardsFile()
     params: list[ParamFile] = Field(min_length=1, max_length=32)
+    # LinuxCNC on this PC: must the live pins be readable before identifying and writing?
+    # ``when_written`` (default): only once rumba has written to this controller (before that
+    # the machine file's values are the model); ``required``: always (issue 20)
+    read_back: Literal["required", "when_written"] = "when_written"
 
 
 @dataclass(frozen=True)
@@ -114,6 +122,9 @@ class ControllerKinematics:
     max_total_um: float
     unattended: bool
     params: tuple[ControllerParamSpec, ...]
+    max_cumulative_um: float | None = None  # None: max_change_um
+    max_cumulative_urad: float | None = None  # None: max_change_urad
+    read_back: str = "when_written"
 
     def to_math(self) -> list[ControllerParam]:
         """The parameters as ``identification.compensation`` sees them."""
@@ -290,7 +301,9 @@ def controller_kinematics(section: ControllerKinematicsFile, machine: Machine,
         raise ConfigError(f"{path}: {e}") from None
     g = section.guards
     return ControllerKinematics(section.family, g.max_change_um, g.max_change_urad,
-                                g.max_total_um, g.unattended, tuple(params))
+                                g.max_total_um, g.unattended, tuple(params),
+                                g.max_cumulative_um or g.max_change_um,
+                                g.max_cumulative_urad or g.max_change_urad, section.read_back)
 
 
 __all__ = ["FAMILIES", "ControllerKinematics", "ControllerKinematicsFile", "ControllerParamSpec",

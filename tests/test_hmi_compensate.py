@@ -314,3 +314,35 @@ async def click_and_answer(cdp, sid: str, button: str, accept: bool) -> str:
                 break
     await cdp.call("Page.handleJavaScriptDialog", sid, accept=accept)
     return ev["params"]["message"]
+
+
+async def test_a_run_passes_while_its_page_is_refreshed_10_times_a_second(tmp_path):
+    """Issue 20: the compensation view is computed off the event loop, once per run end and
+    journal state; before, each GET re-identified on the loop (≈ 0.4 s) and a page refreshing
+    it starved /api/status and the run's own touch timeout."""
+    async with world(tmp_path) as svc, aiohttp.ClientSession() as http:
+        await run_once(svc)  # a finished run: the page has a proposal to show
+        session = svc.sessions["mill1"]
+        run_id = session.start("hmi")
+        slowest, gets = 0.0, 0
+
+        async def refresh(path: str) -> None:
+            nonlocal slowest, gets
+            while session.busy:
+                t0 = asyncio.get_running_loop().time()
+                r = await http.get(svc.hmi_url + path, headers=bearer())
+                assert r.status == 200, await r.text()
+                await r.read()
+                dt = asyncio.get_running_loop().time() - t0
+                gets += 1
+                if path.startswith("api/status"):
+                    slowest = max(slowest, dt)
+                await asyncio.sleep(max(0.0, 0.1 - dt))
+
+        async with asyncio.timeout(180):
+            await asyncio.gather(refresh("api/compensation?machine=mill1"),
+                                 refresh("api/status"), session.wait())
+        assert svc.store.run(run_id).state == "DONE", svc.store.run(run_id)
+        assert gets > 20 and slowest < 1.0, (gets, slowest)
+        st = await get_state(http, svc)  # the view follows the run that just ended
+        assert st["run"]["id"] == run_id and not st["busy"]

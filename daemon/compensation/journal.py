@@ -5,15 +5,21 @@ controller's kinematic model, with old and new values and who confirmed it (tabl
 from __future__ import annotations
 
 import json
+import sqlite3
 import time
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
 from daemon.store.journal import Store
 
-State = Literal["applied", "rolled_back", "refused", "proposed"]
-STATES: tuple[str, ...] = ("applied", "rolled_back", "refused", "proposed")
+State = Literal["applied", "applying", "rolled_back", "refused", "proposed"]
+STATES: tuple[str, ...] = ("applied", "applying", "rolled_back", "refused", "proposed")
 ROLLBACK_PREFIX = "rollback of compensation #"
+
+
+class DecisionTaken(Exception):
+    """The journal refused a second write of the same run (its unique indexes, migration 5):
+    another confirm got there first."""
 
 
 @dataclass(frozen=True)
@@ -59,6 +65,7 @@ class CompensationRow:
     applied_at: float | None
     verify_run_id: str | None = None
     extra: dict[str, Any] = field(default_factory=dict)
+    decision: int | None = None  # 1, 2, … : the n-th decision to write this run's values
 
     @property
     def is_rollback(self) -> bool:
@@ -66,13 +73,14 @@ class CompensationRow:
 
 
 _COLS = ("id, machine, run_id, family, state, values_json, confirmed_by, reason, created_at,"
-         " applied_at, verify_run_id")
+         " applied_at, verify_run_id, decision")
 
 
 def _row(r: tuple) -> CompensationRow:
     values = tuple(ValueChange.from_dict(d) for d in json.loads(r[5]))
     return CompensationRow(int(r[0]), r[1], r[2], r[3], r[4], values, r[6], r[7], float(r[8]),
-                           None if r[9] is None else float(r[9]), r[10])
+                           None if r[9] is None else float(r[9]), r[10],
+                           decision=None if r[11] is None else int(r[11]))
 
 
 def record(store: Store, machine: str, run_id: str, family: str, state: State,
@@ -140,3 +148,44 @@ def last_applied(store: Store, machine: str) -> CompensationRow | None:
         if r.state == "applied":
             return r
     return None
+
+
+def decisions(store: Store, run_id: str) -> list[CompensationRow]:
+    """The decisions to write ``run_id``'s values (applied, being applied, rolled back), in
+    order; rollbacks and refusals are not decisions."""
+    q = store.db.execute(f"SELECT {_COLS} FROM compensations WHERE run_id=? AND decision IS "
+                         "NOT NULL ORDER BY decision", (run_id,))
+    return [_row(r) for r in q]
+
+
+def begin_apply(store: Store, machine: str, run_id: str, family: str,
+                values: list[ValueChange], *, confirmed_by: str, decision: int) -> int:
+    """Reserve decision ``decision`` of ``run_id`` as an 'applying' row before anything is
+    written to the controller (BEGIN IMMEDIATE: the journal's unique indexes decide between
+    concurrent writers); its id, else ``DecisionTaken``."""
+    try:
+        with store.transaction():
+            taken = store.db.execute(
+                "SELECT id, state FROM compensations WHERE run_id=? AND (state IN ('applied',"
+                " 'applying') OR decision=?)", (run_id, decision)).fetchone()
+            if taken is not None:
+                raise DecisionTaken(f"run {run_id} is already {taken[1]} (journal #{taken[0]})")
+            cur = store.db.execute(
+                "INSERT INTO compensations (machine, run_id, family, state, values_json,"
+                " confirmed_by, reason, created_at, decision) VALUES (?,?,?,?,?,?,?,?,?)",
+                (machine, run_id, family, "applying", json.dumps([v.as_dict() for v in values]),
+                 confirmed_by, "being written to the controller", time.time(), decision))
+    except sqlite3.IntegrityError as e:  # the index saw what the SELECT could not
+        raise DecisionTaken(f"run {run_id}: decision {decision} is already journaled ({e})"
+                            ) from None
+    return int(cur.lastrowid or 0)
+
+
+def finish_apply(store: Store, row_id: int, state: State, values: list[ValueChange],
+                 reason: str, applied_at: float | None) -> None:
+    """The 'applying' row becomes 'applied' (with the values written) or 'refused' (its
+    decision number freed: nothing was written, a later confirm may try again)."""
+    store.db.execute(
+        "UPDATE compensations SET state=?, values_json=?, reason=?, applied_at=?,"
+        " decision=CASE WHEN ?='applied' THEN decision END WHERE id=?",
+        (state, json.dumps([v.as_dict() for v in values]), reason, applied_at, state, row_id))

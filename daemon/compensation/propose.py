@@ -17,7 +17,7 @@ from daemon.analysis.pipeline import PipelineError, RunAnalysis
 from daemon.analysis.result import Analysis
 from daemon.compensation import journal as cj
 from daemon.machines.setup import MachineSetup
-from daemon.store.journal import Store
+from daemon.store.journal import Store, StoreError
 from identification.compensation import (
     CompensationPlan,
     GuardResult,
@@ -126,9 +126,10 @@ def check_hal_agrees(setup: MachineSetup, spec: ControllerKinematics, store: Sto
     try:
         got = halkins.read_pins([a for a, _ in want.values()])
     except halkins.HalError as e:
-        if not cj.written(store, setup.name):
+        if spec.read_back == "when_written" and not cj.written(store, setup.name):
             # rumba never wrote to this controller: its model is the machine file's, as before
-            # compensation existed; the pins cannot be read (no HAL access for this user)
+            # compensation existed; the pins cannot be read (no HAL access for this user).
+            # ``read_back: required`` makes readable pins a condition of every run and write.
             return
         raise ControllerModelError(f"machine {setup.name}: cannot read the kinematics pins: "
                                    f"{e}") from None
@@ -253,10 +254,78 @@ def propose(setup: MachineSetup, store: Store, run_id: str) -> Proposal:
         refusals.append(f"the controller's model changed after run {run_id} started (journal "
                         f"#{later.id}, {later.state}): verify again and compensate from that "
                         "run")
-    return Proposal(run_id, spec, plan, guard,
-                    to_value_changes(spec, store, setup.name, list(guard.accepted)),
+    values = to_value_changes(spec, store, setup.name, list(guard.accepted))
+    if values and later is None:
+        refusals += cumulative_refusals(setup, store, spec, values, run_id)
+    return Proposal(run_id, spec, plan, guard, values,
                     est.links_si(), k, refusals, {ch.name: why for ch, why in guard.skipped},
                     {n: v for n, (_, v) in expected_values(spec, store, setup.name).items()})
+
+
+# ------------------------------------------------------------------------ cumulative guard
+
+
+def _held(setup: MachineSetup, store: Store, spec: ControllerKinematics,
+          row: cj.CompensationRow) -> bool:
+    """Did ``row``'s verification run confirm it? Its own plan (against the model it ran
+    on) would move none of the values ``row`` wrote by more than their expanded uncertainty.
+    A compensation that did not hold is no baseline: a second change on top of it is exactly
+    the walk the cumulative guard stops."""
+    if not row.verify_run_id:
+        return False
+    try:
+        v = store.run(row.verify_run_id)
+        model = controller_model(setup, store, before=v.started_at, check_hal=False)
+        est, c = reidentify(setup, store, v.id, model)
+        plan = plan_compensation(model, setup.artefact, est, spec.to_math(), c.b_deg,
+                                 c.c_deg, coverage_k=setup.tolerances.coverage_k)
+    except (CompensationRefused, StoreError, ValueError):
+        return False
+    names = {x.name for x in row.values}
+    return all(abs(ch.delta) <= ch.u_expanded or not ch.observable
+               for ch in plan.changes if ch.name in names)
+
+
+def baseline(setup: MachineSetup, store: Store, spec: ControllerKinematics, run_id: str
+             ) -> tuple[dict[str, float], str]:
+    """The last verified baseline: per parameter the deltas (mm / rad) written up to the last
+    compensation (still applied) that its verification run confirmed, else none (the machine
+    file's values); and what it is, for messages. ``run_id``'s own compensation verification
+    is never a baseline for itself (it wants to change the values: they did not hold)."""
+    rows = cj.written(store, setup.name)
+    for i in range(len(rows) - 1, max(-1, len(rows) - 6), -1):  # the 5 newest at most
+        r = rows[i]
+        if r.state == "applied" and r.verify_run_id != run_id and _held(setup, store, spec, r):
+            out: dict[str, float] = {}
+            for w in rows[:i + 1]:
+                for v in w.values:
+                    out[v.name] = out.get(v.name, 0.0) + v.delta
+            return out, f"compensation #{r.id} verified by run {r.verify_run_id}"
+    return {}, "the machine file's values"
+
+
+def cumulative_refusals(setup: MachineSetup, store: Store, spec: ControllerKinematics,
+                        values: list[cj.ValueChange], run_id: str) -> list[str]:
+    """Each value's changes since the last verified baseline, this one included, within
+    ``guards.max_cumulative_um`` / ``_urad`` (default: the per-change limit); the refusals,
+    with the numbers."""
+    base, what = baseline(setup, store, spec, run_id)
+    now = cumulative_deltas(store, setup.name)
+    out = []
+    for v in values:
+        kind = spec.param(v.name).kind
+        limit = (spec.max_cumulative_um or spec.max_change_um) * 1e-3 if kind == "pivot" \
+            else (spec.max_cumulative_urad or spec.max_change_urad) * 1e-6
+        earlier = now.get(v.name, 0.0) - base.get(v.name, 0.0)
+        total = earlier + v.delta
+        if abs(total) > limit * (1 + 1e-9):
+            f, unit, key = (1e3, "µm", "um") if kind == "pivot" else (1e6, "µrad", "urad")
+            out.append(f"{v.name}: {total * f:+.1f} {unit} since the last verified baseline "
+                       f"({what}: earlier {earlier * f:+.1f} {unit}, this change "
+                       f"{v.delta * f:+.1f} {unit}) is over the cumulative limit "
+                       f"{limit * f:.1f} {unit} (guards.max_cumulative_{key}); "
+                       "verify that the last compensation held first")
+    return out
 
 
 def journal_analyse(journal: Path) -> Callable[..., RunAnalysis]:

@@ -112,7 +112,15 @@ window.rumbaComp = (() => {
       `(${d.proposal.family}), from run ${d.run.id}?\n\n${values.join("\n")}\n\n` +
       "Your session is recorded in the compensation journal as the one who confirmed.";
     if (!confirm(ask)) { result(name, "Not confirmed: nothing written.", false); return; }
-    const r = await postJson("/api/compensation/confirm", {machine: name, run_id: d.run.id});
+    let r = await postJson("/api/compensation/confirm", {machine: name, run_id: d.run.id});
+    if (!r.ok && r.body && r.body.again) {
+      // this run was applied and rolled back: applying it again is a new decision, asked anew
+      if (!confirm(`${r.body.error}\n\nApply run ${d.run.id} again, as a new decision?`)) {
+        result(name, "Not confirmed again: nothing written.", false); load(name); return;
+      }
+      r = await postJson("/api/compensation/confirm",
+                         {machine: name, run_id: d.run.id, again: true});
+    }
     if (r.ok) {
       result(name, `Applied (journal #${r.body.journal}, by ${r.body.by}): ${r.body.note}` +
              (r.body.path ? ` — written to file ${r.body.path}` : ""), true);

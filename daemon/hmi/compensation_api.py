@@ -4,15 +4,20 @@ confirmation by the signed-in operator, and the rollback (``daemon.compensation.
 from __future__ import annotations
 
 import asyncio
+import copy
 import json
-from collections.abc import Mapping
+import logging
+import threading
+from collections.abc import Callable, Mapping
+from pathlib import Path
 from typing import Any
 
 from aiohttp import web
 
 from contracts.yaml_files import ConfigError
 from daemon.compensation import journal as cj
-from daemon.compensation.apply import ApplyError, confirm, rollback
+from daemon.compensation.apply import ApplyError, Written, confirm, rollback
+from daemon.compensation.names import BadName, validate_by
 from daemon.compensation.propose import (
     CompensationRefused,
     ControllerModelError,
@@ -29,6 +34,7 @@ from daemon.store.journal import RunRow, Store, StoreError, validate_run_id
 FINISHED = ("DONE", "IMPORTED")  # a run that ended with an identification (not aborted)
 SCAN_RUNS = 50  # the last finished run is looked for among this many of the machine's runs
 LOCK_KEY = web.AppKey("compensation_lock", asyncio.Lock)
+log = logging.getLogger("rumba.hmi")
 
 
 def who(request: web.Request) -> str:
@@ -37,8 +43,13 @@ def who(request: web.Request) -> str:
     script with the bearer token."""
     if request.get(VIA_KEY) == "cookie":
         sid = (request.cookies.get(COOKIE) or "").split(".")[0]
-        return f"hmi:{sid[:8]}@{request.remote}"
-    return f"hmi:token@{request.remote}"
+        name = f"hmi:{sid[:8]}@{request.remote}"
+    else:
+        name = f"hmi:token@{request.remote}"
+    try:  # the same rules as --by: it is printed in the journal and the reports
+        return validate_by(name, "HMI session", allow_unattended=False)
+    except BadName as e:
+        raise web.HTTPBadRequest(text=str(e)) from None
 
 
 def _um(kind_or_link: str, model_value: float) -> tuple[float, str]:
@@ -142,7 +153,7 @@ def _error(status: int, text: str, **extra: Any) -> web.Response:
     return web.json_response({"error": text, **extra}, status=status)
 
 
-async def _body(request: web.Request, *fields: str) -> dict[str, str]:
+async def _body(request: web.Request, *fields: str) -> dict[str, Any]:
     """The JSON object of the request with these string fields, else 400."""
     try:
         body = json.loads(await request.text())
@@ -153,7 +164,9 @@ async def _body(request: web.Request, *fields: str) -> dict[str, str]:
     for f in fields:
         if not isinstance(body.get(f), str) or not 0 < len(body[f]) <= 64:
             raise web.HTTPBadRequest(text=f"{f} must be a string of 1 to 64 characters")
-    return {f: body[f] for f in fields}
+    if "again" in body and not isinstance(body["again"], bool):
+        raise web.HTTPBadRequest(text="again must be true or false")
+    return {f: body[f] for f in fields} | ({"again": body["again"]} if "again" in body else {})
 
 
 async def script(request: web.Request) -> web.Response:
@@ -162,10 +175,97 @@ async def script(request: web.Request) -> web.Response:
                         headers={"Cache-Control": "no-cache"})
 
 
+class Views:
+    """The compensation view of each machine, computed off the event loop (issue 20: a
+    re-identification takes ≈ 0.4 s; on the loop, a page refreshing it stalled the run) and
+    kept per machine, last finished run and journal state: computed once per run end (the
+    session's status listener warms it) and served from here until the journal changes. One
+    connection of its own, used by one worker thread at a time (the lock also makes
+    concurrent requests for the same view wait for one computation instead of each doing
+    it)."""
+
+    def __init__(self, journal: Path) -> None:
+        self.journal = journal
+        self._lock = threading.Lock()
+        self._store: Store | None = None
+        self._cache: dict[str, tuple[tuple, dict[str, Any], Proposal | None]] = {}
+
+    def _key(self, store: Store, machine: str) -> tuple:
+        run = last_finished(store, machine)
+        row = store.db.execute(
+            "SELECT COUNT(*), COALESCE(MAX(id), 0), COALESCE(SUM(id * LENGTH(state)), 0),"
+            " COUNT(verify_run_id) FROM compensations WHERE machine=?", (machine,)).fetchone()
+        return (run.id if run else None, *row)
+
+    def get(self, session: Session) -> tuple[dict[str, Any], Proposal | None]:
+        """The view (a fresh copy; ``busy`` as now) and the proposal; blocking: call it in a
+        worker thread."""
+        name = session.setup.name
+        with self._lock:
+            if self._store is None:
+                self._store = Store(self.journal)
+            key = self._key(self._store, name)
+            hit = self._cache.get(name)
+            if hit is None or hit[0] != key:
+                out, p = _why_not(session, self._store)
+                hit = self._cache[name] = (key, out, p)
+        out = copy.deepcopy(hit[1])
+        out["busy"] = session.busy
+        return out, hit[2]
+
+    def close(self) -> None:
+        with self._lock:
+            if self._store is not None:
+                self._store.close()
+                self._store = None
+
+
+def _write_in_thread(journal: Path, fn: Callable[[Store], Written]) -> Written:
+    """A confirm or rollback (halcmd on a LinuxCNC takes seconds) on a connection of its own,
+    in a worker thread: the event loop keeps serving the run and the page meanwhile."""
+    store = Store(journal)
+    try:
+        return fn(store)
+    finally:
+        store.close()
+
+
 def add_routes(app: web.Application, sessions_key: web.AppKey, store_key: web.AppKey) -> None:
-    """GET /api/compensation?machine=, POST /api/compensation/confirm {machine, run_id} and
-    /api/compensation/rollback {machine} on ``app`` (behind its access layer)."""
+    """GET /api/compensation?machine=, POST /api/compensation/confirm {machine, run_id[,
+    again]} and /api/compensation/rollback {machine} on ``app`` (behind its access layer)."""
     app[LOCK_KEY] = asyncio.Lock()
+    views_key = web.AppKey("compensation_views", Views)
+
+    def views(request: web.Request) -> Views:
+        if views_key not in request.app:
+            request.app[views_key] = Views(request.app[store_key].path)
+        return request.app[views_key]
+
+    async def warm_on_run_end(app_: web.Application) -> None:
+        """Compute each machine's view when its run ends, before anyone asks for it."""
+        if views_key not in app_:
+            app_[views_key] = Views(app_[store_key].path)
+        v: Views = app_[views_key]
+        loop = asyncio.get_running_loop()
+        for session in app_[sessions_key].values():
+            seen: dict[str, str | None] = {"run": session.run_id}
+
+            def on_status(st: dict[str, Any], s: Session = session,
+                          seen: dict[str, str | None] = seen) -> None:
+                if not st.get("busy") and st.get("run_id") != seen["run"]:
+                    seen["run"] = st.get("run_id")
+                    task = loop.create_task(asyncio.to_thread(_quiet_get, v, s))
+                    _BACKGROUND.add(task)
+                    task.add_done_callback(_BACKGROUND.discard)
+
+            session.listeners.append(on_status)
+
+    async def close_views(app_: web.Application) -> None:
+        if views_key in app_:
+            await asyncio.to_thread(app_[views_key].close)
+
+    app.on_startup.append(warm_on_run_end)
+    app.on_cleanup.append(close_views)
 
     def session_of(request: web.Request, name: str | None, status: int) -> Session:
         sessions: Mapping[str, Session] = request.app[sessions_key]
@@ -178,42 +278,51 @@ def add_routes(app: web.Application, sessions_key: web.AppKey, store_key: web.Ap
         if name is None or not 0 < len(name) <= 64:
             raise web.HTTPBadRequest(text="machine must be a machine name (1 to 64 characters)")
         session = session_of(request, name, 404)
-        out, _ = _why_not(session, request.app[store_key])
+        out, _ = await asyncio.to_thread(views(request).get, session)
         return web.json_response(out)
 
     async def post_confirm(request: web.Request) -> web.Response:
         body = await _body(request, "machine", "run_id")
+        again = body.pop("again", False) is True
         session = session_of(request, body["machine"], 422)
         try:
             validate_run_id(body["run_id"])
         except StoreError:
             return _error(422, f"{body['run_id']!r} is not a run id")
-        store: Store = request.app[store_key]
+        journal: Path = request.app[store_key].path
         by = who(request)
-        async with request.app[LOCK_KEY]:  # one write at a time; no await below: no run starts
+        async with request.app[LOCK_KEY]:  # one HMI write at a time
             if session.busy:
                 return _error(409, f"{session.setup.name}: a run is active ({session.state}); "
                                    "confirm once it has ended")
-            state, p = _why_not(session, store)
+            state, p = await asyncio.to_thread(views(request).get, session)
             run = state["run"]
             if run is None or run["id"] != body["run_id"]:
                 return _error(409, f"run {body['run_id']} is not the last finished run of "
                                    f"{session.setup.name} (now: {run['id'] if run else 'none'})"
                                    ": reload the proposal", state=state)
-            if p is not None and p.refusals:  # journaled, as `rumba compensate --confirm`
-                row = cj.record(store, session.setup.name, p.run_id, p.spec.family, "refused",
-                                p.values, confirmed_by=by, reason=state["why"])
-                state["why"] += f" (journal #{row})"
             if p is None or p.refusals or not p.values:
+                if p is not None and p.refusals:  # journaled, as `rumba compensate --confirm`
+                    row = await asyncio.to_thread(_write_in_thread, journal, lambda st: cj.record(
+                        st, session.setup.name, p.run_id, p.spec.family, "refused", p.values,
+                        confirmed_by=by, reason=state["why"]))
+                    state["why"] += f" (journal #{row})"
                 return _error(409, state["why"], state=state)
+
+            def write(st: Store) -> Any:
+                try:
+                    return confirm(session.setup, st, session.reports_dir, p, by, again=again)
+                except CompensationRefused as e:
+                    row = cj.record(st, session.setup.name, p.run_id, p.spec.family,
+                                    "refused", p.values, confirmed_by=by, reason=str(e))
+                    return (row, str(e), "--again" in str(e))
+
             try:
-                w = confirm(session.setup, store, session.reports_dir, p, by)
-            except CompensationRefused as e:
-                row = cj.record(store, session.setup.name, p.run_id, p.spec.family, "refused",
-                                p.values, confirmed_by=by, reason=str(e))
-                return _error(409, f"refused (journal #{row}): {e}")
+                w = await asyncio.to_thread(_write_in_thread, journal, write)
             except ApplyError as e:  # journaled by confirm()
                 return _error(502, str(e))
+            if isinstance(w, tuple):
+                return _error(409, f"refused (journal #{w[0]}): {w[1]}", again=w[2])
         return web.json_response({"state": w.state, "journal": w.row_id, "by": by,
                                   "path": str(w.path) if w.path else None, "note": w.note,
                                   "values": [v.as_dict() for v in p.values]})
@@ -222,12 +331,14 @@ def add_routes(app: web.Application, sessions_key: web.AppKey, store_key: web.Ap
         body = await _body(request, "machine")
         session = session_of(request, body["machine"], 422)
         by = who(request)
+        journal: Path = request.app[store_key].path
         async with request.app[LOCK_KEY]:
             if session.busy:
                 return _error(409, f"{session.setup.name}: a run is active ({session.state}); "
                                    "roll back once it has ended")
             try:
-                w = rollback(session.setup, request.app[store_key], session.reports_dir, by)
+                w = await asyncio.to_thread(_write_in_thread, journal, lambda st: rollback(
+                    session.setup, st, session.reports_dir, by))
             except CompensationRefused as e:
                 return _error(409, f"refused: {e}")
             except ApplyError as e:  # journaled by rollback()
@@ -239,6 +350,16 @@ def add_routes(app: web.Application, sessions_key: web.AppKey, store_key: web.Ap
     app.router.add_get("/api/compensation", get_proposal)
     app.router.add_post("/api/compensation/confirm", post_confirm)
     app.router.add_post("/api/compensation/rollback", post_rollback)
+
+
+_BACKGROUND: set[asyncio.Task] = set()
+
+
+def _quiet_get(v: Views, session: Session) -> None:
+    try:
+        v.get(session)
+    except Exception:  # a warm-up only: the GET computes (and reports) it again
+        log.exception("compensation view of %s", session.setup.name)
 
 
 def _http(status: int, text: str) -> web.HTTPException:

@@ -24,9 +24,11 @@ from daemon.analysis.judge import Judgement, judge
 from daemon.analysis.result import Analysis
 from daemon.machines.setup import MachineSetup
 from daemon.reports.compensation import verification_of
+from daemon.run import lease as run_lease
 from daemon.run import reprobe
 from daemon.run.phases import Refused, RunFailed, RunStatus, State, new_run_id
 from daemon.store.journal import Store
+from daemon.store.machine_lock import Lease
 from drivers.base import CncLink, ControllerAlarm, LinkError
 from drivers.retry import with_backoff
 
@@ -52,6 +54,7 @@ class Session(RunStatus):
         self._prepare = prepare
         self._task: asyncio.Task | None = None
         self._abort_reason: str | None = None
+        self.lease: Lease | None = None  # the machine lock of the current run (run/lease.py)
 
     async def reconnect(self) -> None:
         """Close the link and connect it again with backoff; the status shows it up again."""
@@ -70,7 +73,10 @@ class Session(RunStatus):
             raise Refused(f"{self.setup.name}: run {self.run_id} in progress "
                           f"(state {self.state}, started by {self.trigger}); "
                           f"{trigger} request refused")
+        # a compensation being written refuses the run; the run holds the machine to its end
+        lease = self.lease = run_lease.take(self.lease, self.store.path, self.setup.name, trigger)
         self.run_id = new_run_id()
+        lease.describe(f"run {self.run_id} (started by {trigger})")
         self.trigger = trigger
         self.done, self.total = 0, 0
         self.started_at, self.first_hit_at, self.estimated_s = time.time(), None, None
@@ -80,6 +86,7 @@ class Session(RunStatus):
         self._enter(State.PREPARE, "")
         self._task = asyncio.get_running_loop().create_task(self._run(self.run_id),
                                                             name=f"run-{self.run_id}")
+        self._task.add_done_callback(lambda _t: lease.release())
         return self.run_id
 
     async def abort(self, source: str) -> bool:

@@ -53,7 +53,9 @@ def after_run(session: Session, run_id: str) -> str | None:
     if not p.values:
         return None  # nothing outside its own uncertainty: the machine stays as it is
     try:
-        w = confirm(setup, store, session.reports_dir, p, "unattended")
+        # inside the run's own task: the run's machine lock is this write's (no other writer
+        # can get in between the run and its compensation)
+        w = confirm(setup, store, session.reports_dir, p, "unattended", lease=session.lease)
     except (CompensationRefused, ApplyError) as e:
         log.error("%s %s: unattended compensation failed: %s", setup.name, run_id, e)
         return None

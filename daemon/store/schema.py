@@ -65,6 +65,16 @@ MIGRATIONS: list[list[str]] = [
             verify_run_id TEXT)""",
         "CREATE INDEX compensations_machine ON compensations(machine, id)",
     ],
+    [  # 5: a compensation is one decision (issue 20): the journal itself refuses a second
+        # applied row of a run (and one still being written, 'applying'), and numbers each
+        # decision to write a run's values (1, then 2 after a rollback and an explicit --again)
+        # so two concurrent writers of the same decision cannot both commit
+        "ALTER TABLE compensations ADD COLUMN decision INTEGER",
+        """CREATE UNIQUE INDEX compensations_one_applied ON compensations(run_id)
+            WHERE state IN ('applied', 'applying')""",
+        """CREATE UNIQUE INDEX compensations_decision ON compensations(run_id, decision)
+            WHERE decision IS NOT NULL""",
+    ],
 ]
 SCHEMA_VERSION = len(MIGRATIONS)
 

@@ -7,11 +7,15 @@ running configuration's HAL file found and replaced atomically (with a timestamp
 
 from __future__ import annotations
 
+import contextlib
+import errno
+import hashlib
 import os
 import re
+import secrets
 import shlex
+import stat
 import subprocess
-import tempfile
 import time
 from pathlib import Path
 
@@ -120,30 +124,103 @@ def hal_file_with(ini: Path, pins: list[str]) -> Path:
     raise HalError(f"no HAL file of {ini} sets {', '.join(pins)} (setp lines expected)")
 
 
-def replace_file(path: Path, text: str, stamp: str | None = None) -> Path:
-    """Keep ``path`` as ``path.rumba-<stamp>.bak`` next to it, then replace it atomically
-    with ``text`` (same mode). Returns the backup's path."""
-    stamp = stamp or time.strftime("%Y%m%dT%H%M%S")
-    backup = path.with_name(f"{path.name}.rumba-{stamp}.bak")
-    n = 1
-    while backup.exists():  # two writes within a second keep both backups
-        backup = path.with_name(f"{path.name}.rumba-{stamp}-{n}.bak")
-        n += 1
+class HalFileChanged(HalError):
+    """The HAL file is not what rumba read: someone edited it meanwhile; nothing was written."""
+
+
+def sha256(data: bytes) -> str:
+    return hashlib.sha256(data).hexdigest()
+
+
+def read_file(path: Path) -> bytes:
+    """The HAL file's bytes; a symbolic link is refused, not followed: rumba (often root) never
+    writes through a link it did not choose, and replacing the link by a regular file would
+    leave its target — what LinuxCNC may really load — stale."""
     try:
-        old = path.read_bytes()
-        mode = path.stat().st_mode & 0o7777
-        backup.write_bytes(old)
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
+        fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_CLOEXEC)
+    except OSError as e:
+        if e.errno == errno.ELOOP:
+            target = os.readlink(path) if path.is_symlink() else "?"
+            raise HalError(f"{path} is a symbolic link (to {target}): rumba does not write "
+                           "through links; point the INI's HALFILE at the real file") from None
+        raise HalError(f"cannot read {path}: {e.strerror or e}") from None
+    try:
+        if not stat.S_ISREG(os.fstat(fd).st_mode):
+            raise HalError(f"{path} is not a regular file")
+        with os.fdopen(os.dup(fd), "rb") as f:
+            return f.read()
+    finally:
+        os.close(fd)
+
+
+def _create(path: Path, data: bytes, mode: int) -> None:
+    """A new file with ``data``, fsynced; O_EXCL|O_NOFOLLOW: an existing name (a planted
+    symlink, dangling or not, included) is FileExistsError, never written through."""
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | os.O_CLOEXEC,
+                 0o600)
+    try:
+        view = memoryview(data)
+        while view:
+            view = view[os.write(fd, view):]
+        os.fchmod(fd, mode)
+        os.fsync(fd)
+    except BaseException:
+        os.close(fd)
+        path.unlink(missing_ok=True)
+        raise
+    os.close(fd)
+
+
+def _fsync_dir(directory: Path) -> None:
+    fd = os.open(directory, os.O_RDONLY | os.O_DIRECTORY | os.O_CLOEXEC)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def replace_file(path: Path, text: str, stamp: str | None = None, *,
+                 expect: bytes | None = None, backup: bool = True) -> Path | None:
+    """Replace ``path`` with ``text`` as one step: a temporary file beside it (same directory,
+    O_EXCL|O_NOFOLLOW, same mode and owner), fsync, compare-and-swap (the file must still hold
+    ``expect``, what the caller read and patched, else ``HalFileChanged`` and nothing
+    changes), rename, fsync of the directory. ``backup``: keep the old bytes as
+    ``path.rumba-<stamp>[-n].bak`` first (created exclusively: a name already taken, by a
+    file or a planted symlink, is skipped). Returns the backup's path."""
+    stamp = stamp or time.strftime("%Y%m%dT%H%M%S")
+    try:
+        old = read_file(path)
+        if expect is not None and sha256(old) != sha256(expect):
+            raise HalFileChanged(f"{path} changed since rumba read it (edited meanwhile?): "
+                                 "nothing written; run again to patch the new content")
+        st = os.lstat(path)
+        mode = st.st_mode & 0o7777
+        saved = None
+        if backup:
+            for n in range(100):
+                name = f"{path.name}.rumba-{stamp}{f'-{n}' if n else ''}.bak"
+                try:
+                    _create(path.with_name(name), old, mode)
+                except FileExistsError:
+                    continue  # two writes within a second keep both; a planted link is skipped
+                saved = path.with_name(name)
+                break
+            else:
+                raise HalError(f"no free backup name for {path} (100 taken)")
+        tmp = path.with_name(f".{path.name}.rumba-{secrets.token_hex(6)}.tmp")
+        _create(tmp, text.encode("utf-8"), mode)
         try:
-            with os.fdopen(fd, "w", encoding="utf-8") as f:
-                f.write(text)
-                f.flush()
-                os.fsync(f.fileno())
-            os.chmod(tmp, mode)
-            os.replace(tmp, path)
+            with contextlib.suppress(PermissionError):  # keep the owner when we are root
+                os.chown(tmp, st.st_uid, st.st_gid, follow_symlinks=False)
+            # the swap: still the bytes we read (the window left is this read to the rename)
+            if sha256(read_file(path)) != sha256(old):
+                raise HalFileChanged(f"{path} changed while rumba wrote it (edited "
+                                     "meanwhile?): nothing written; run again")
+            os.rename(tmp, path)
         except BaseException:
-            Path(tmp).unlink(missing_ok=True)
+            tmp.unlink(missing_ok=True)
             raise
+        _fsync_dir(path.parent)
     except OSError as e:
         raise HalError(f"cannot replace {path}: {e.strerror or e}") from None
-    return backup
+    return saved

@@ -19,6 +19,7 @@ from daemon.compensation.apply import (
     with_closing,
     write_program,
 )
+from daemon.compensation.names import BadName, validate_by
 from daemon.compensation.propose import (
     CompensationRefused,
     ControllerModelError,
@@ -48,6 +49,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "--machine and --by)")
     p.add_argument("--by", help="who confirms (recorded in the journal); 'unattended' only "
                                 "where the machine's guards allow it")
+    p.add_argument("--again", action="store_true",
+                   help="with --confirm: apply a run whose compensation was rolled back, as a "
+                        "new decision (refused without it)")
     p.add_argument("--verify", action="store_true",
                    help="with --confirm: when the values went live (LinuxCNC on this PC), run "
                         "the verification at once and print each link before and after")
@@ -154,6 +158,14 @@ def _verify_after(cfg: DaemonConfig, setup: MachineSetup, store: Store, p: Propo
 
 
 def _compensate(args: argparse.Namespace, cfg: DaemonConfig, store: Store) -> int:
+    if args.by is not None:  # before anything is journaled with it
+        try:
+            validate_by(args.by)
+        except BadName as e:
+            raise UserError(str(e)) from None
+    again = getattr(args, "again", False)
+    if again and not args.confirm:
+        raise UserError("--again is a new decision to apply: give it with --confirm")
     if args.rollback:
         if not args.machine or not args.by:
             raise UserError("--rollback needs --machine and --by")
@@ -197,7 +209,7 @@ def _compensate(args: argparse.Namespace, cfg: DaemonConfig, store: Store) -> in
         return 0
     if args.confirm:
         try:
-            w = confirm(setup, store, cfg.reports_dir, p, args.by)
+            w = confirm(setup, store, cfg.reports_dir, p, args.by, again=again)
         except CompensationRefused as e:
             return _refuse(store, setup, args.run, str(e), p.values, args.by)
         except ApplyError as e:

@@ -136,7 +136,10 @@ def _analyse(setup: MachineSetup, store: Store, hits: list[ProbeHit], run_id: st
     # judged and recorded like a live run: against the last good run before it
     ref = store.last_good(setup.name, before=run_id)
     try:
-        a = analyse(setup, hits, run_id, ref, controller=controller_model(setup, store))
+        # an import of old data never reads a live machine (issue 20): the journal's model,
+        # not the HAL pins of whatever LinuxCNC happens to run on this PC
+        model = controller_model(setup, store, check_hal=False)
+        a = analyse(setup, hits, run_id, ref, controller=model)
     except ControllerModelError as e:
         raise UserError(f"{path}: run {run_id}: {e}") from None
     except PipelineError as e:
