@@ -19,6 +19,7 @@ import signal
 import sys
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -117,20 +118,40 @@ async def mqtt_count(port: int, counts: dict[str, int]) -> None:
             counts[leaf] = counts.get(leaf, 0) + 1
 
 
-async def fleet_in_store(dsn: str, names: list[str], timeout_s: float) -> list[dict]:
+STALL_S = 180.0
+"""No progress at all (no touch on any CNC, no state change in the store) for this long: the
+demo gives up, naming where each machine stood. A busy machine only makes runs slower."""
+
+
+class DemoStalled(Exception):
+    """The fleet made no progress for ``STALL_S``; the message says where it stood."""
+
+
+async def fleet_in_store(dsn: str, names: list[str], progress: Callable[[], object],
+                         stall_s: float = STALL_S) -> list[dict]:
     """Poll the fleet store until every machine's run has ended there: a verdict with its
-    report, or an error end (a failed run is shown, never waited for forever)."""
+    report, or an error end (a failed run is shown, never waited for forever). Waits as long
+    as something moves (``progress()``: e.g. the CNCs' touch counts, plus the store's states),
+    not a fixed wall-clock budget: a loaded computer is slow, not stuck."""
     from daemon.store.pg import PgStore
 
     store = await PgStore.connect(dsn, migrate=False)
     try:
-        async with asyncio.timeout(timeout_s):
-            while True:
-                fleet = await store.fleet()
-                if sum(1 for m in fleet if m["machine"] in names and m["run_id"] and (
-                        m["has_report"] or m["state"] != "DONE")) == len(names):
-                    return fleet
-                await asyncio.sleep(0.2)
+        last, moved = None, time.monotonic()
+        while True:
+            fleet = await store.fleet()
+            if sum(1 for m in fleet if m["machine"] in names and m["run_id"] and (
+                    m["has_report"] or m["state"] != "DONE")) == len(names):
+                return fleet
+            now = (progress(), [(m["machine"], m["run_id"], m["state"]) for m in fleet])
+            if now != last:
+                last, moved = now, time.monotonic()
+            elif time.monotonic() - moved > stall_s:
+                where = ", ".join(f"{m['machine']} {m['state'] or 'no run'}" for m in fleet
+                                  if m["machine"] in names) or "no run in the fleet store"
+                raise DemoStalled(f"no progress for {stall_s:g} s (no touch on any CNC, no "
+                                  f"state change): {where}; see the daemon.log files")
+            await asyncio.sleep(0.2)
     finally:
         await store.close()
 
@@ -209,7 +230,8 @@ async def demo(time_scale: float, out: Path, stay: bool) -> int:
         t1 = time.monotonic()
         for ctrl in ctrls.values():
             ctrl.raise_start_request()
-        fleet = await fleet_in_store(pg.dsn, list(ctrls), 300)
+        fleet = await fleet_in_store(pg.dsn, list(ctrls), lambda: [
+            (len(c.touches), c.state) for c in ctrls.values()])
         for name, c in ctrls.items():
             cnc = VERDICT_NAMES.get(int(c.verdict), c.verdict) if c.verdict else "none"
             print(f"  {name}: verdict on the CNC {cnc}")
@@ -252,6 +274,9 @@ def main(argv: list[str] | None = None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     try:
         return asyncio.run(demo(args.time_scale, out, not args.exit))
+    except DemoStalled as e:
+        print(f"demo-fleet: {e} (in {out})", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
         return 130
 

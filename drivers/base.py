@@ -42,6 +42,10 @@ class ControllerAlarm(Exception):
     """The controller stopped the program with an alarm (e.g. probe did not trigger)."""
 
 
+class ControllerAborted(ControllerAlarm):
+    """The program was reset / aborted on the controller itself (the operator's RESET)."""
+
+
 class CncLink(abc.ABC):
     """A connection to one CNC controller."""
 

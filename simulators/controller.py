@@ -173,6 +173,9 @@ class VirtualController(MachineSide):
         self._resume.set()
         if self._blocks is not None:
             self._blocks.close()
+        # Reset unloads: a later cycle start must not resume the aborted program, and the next
+        # LoadProgram / drip-fed tape is a new program.
+        self._blocks = None
         self._events.flush()
         self._set_state("idle", self.alarm)
         self._finished.set()

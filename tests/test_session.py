@@ -84,7 +84,7 @@ async def test_abort_from_any_source_stops_controller_and_keeps_hits(env, source
     while s.done < 10:
         await asyncio.sleep(0.005)
     assert await s.abort(source)
-    assert s.state == State.ABORTED and s.reason == f"aborted by {source}"
+    assert s.state == State.ABORTED and s.reason == f"aborted by {source} during CAPTURE"
     assert link.aborted == 1
     run = store.run(run_id)
     assert run.state == "ABORTED" and run.hits == s.done >= 10

@@ -29,7 +29,7 @@ from daemon.run import reprobe
 from daemon.run.phases import Refused, RunFailed, RunStatus, State, new_run_id
 from daemon.store.journal import Store
 from daemon.store.machine_lock import Lease
-from drivers.base import CncLink, ControllerAlarm, LinkError
+from drivers.base import CncLink, ControllerAborted, ControllerAlarm, LinkError
 from drivers.retry import with_backoff
 
 log = logging.getLogger("rumba.session")
@@ -55,6 +55,7 @@ class Session(RunStatus):
         self._task: asyncio.Task | None = None
         self._abort_reason: str | None = None
         self.lease: Lease | None = None  # the machine lock of the current run (run/lease.py)
+        self._controller_dirty = False  # a stop could not reach the controller
 
     async def reconnect(self) -> None:
         """Close the link and connect it again with backoff; the status shows it up again."""
@@ -93,7 +94,8 @@ class Session(RunStatus):
         """Abort the current run (from any trigger source); False when nothing runs."""
         if not self.busy or self._task is None:
             return False
-        self._abort_reason = f"aborted by {source}"
+        if self._abort_reason is None:  # the first stop names the cause; repeats change nothing
+            self._abort_reason = f"aborted by {source}"
         self._task.cancel()
         await _await_run(self._task)
         return True
@@ -110,6 +112,8 @@ class Session(RunStatus):
         try:
             if not self.link_ok:
                 await self.reconnect()
+            if self._controller_dirty:  # the last stop could not reach the controller
+                await self._clear_leftover()
             reference = self.store.last_good(self.setup.name, before=run_id)
             prepared = await self._prepare_program(run_id, reference)
             hits = await self._capture(prepared)
@@ -128,24 +132,60 @@ class Session(RunStatus):
                 except Exception:  # the run is done and reported; a follow-up must not undo it
                     log.exception("after run %s", run_id)
         except asyncio.CancelledError:
-            reason = self._abort_reason or "daemon shutting down"
-            await self._stop_controller()
-            self._enter(State.ABORTED, reason)
-            await self._write_back(Verdict("ERROR", run_id, reason), strict=False)
+            # An abort (HMI, CAN, CLI signal) or the service stopping: the phase is the state
+            # the run was in. The cleanup runs to its end whatever cancels us meanwhile.
+            cause = self._abort_reason or "daemon shutting down"
+            await self._end(run_id, State.ABORTED, f"{cause} during {self.state}", stop=True)
             if self._abort_reason is None:
                 raise
+        except ControllerAborted as e:  # reset / abort pressed on the CNC itself
+            await self._end(run_id, State.ABORTED, f"aborted on the controller during "
+                            f"{self.state}: {e}", stop=True)
         except (RunFailed, LinkError, ControllerAlarm, pipeline.PipelineError) as e:
-            reason = str(e) or type(e).__name__
             if isinstance(e, LinkError):
                 self.link_ok = False
-            if isinstance(e, RunFailed | pipeline.PipelineError):
-                await self._stop_controller()
-            self._enter(State.FAILED, reason)
-            await self._write_back(Verdict("ERROR", run_id, reason), strict=False)
+            # Whatever failed, the controller may still run the program (a timeout, a lost
+            # result): stop it, or the next LoadProgram is refused.
+            await self._end(run_id, State.FAILED, f"{str(e) or type(e).__name__} "
+                            f"(during {self.state})", stop=True)
         except Exception as e:  # a bug must not kill the daemon: the run fails with the cause
             log.exception("run %s crashed", run_id)
-            self._enter(State.FAILED, f"internal error: {type(e).__name__}: {e}")
-            await self._write_back(Verdict("ERROR", run_id, str(e)), strict=False)
+            await self._end(run_id, State.FAILED, f"internal error during {self.state}: "
+                            f"{type(e).__name__}: {e}", stop=True)
+
+    async def _end(self, run_id: str, state: State, reason: str, *, stop: bool) -> None:
+        """Stop the controller, journal the end state with its reason, tell the CNC: in a task
+        of its own that a second cancellation (asyncio.run tearing the loop down after Ctrl-C)
+        cannot cut short; every step is bounded by its timeout. Re-raises that cancellation
+        once the end is recorded."""
+        async def finish() -> None:
+            why = await self._stop_controller() if stop else None
+            try:
+                self._enter(state, f"{reason}; controller abort failed: {why}" if why
+                            else reason)
+            except Exception as e:  # the journal gone must not hide the end of the run
+                log.error("%s %s: could not journal %s: %s", self.setup.name, run_id, state, e)
+            await self._write_back(Verdict("ERROR", run_id, reason), strict=False)
+
+        cleanup = asyncio.get_running_loop().create_task(finish(), name=f"end-{run_id}")
+        cancelled = False
+        while not cleanup.done():
+            try:
+                await asyncio.shield(cleanup)
+            except asyncio.CancelledError:
+                cancelled = True
+        cleanup.result()
+        if cancelled:
+            raise asyncio.CancelledError
+
+    async def _clear_leftover(self) -> None:
+        """Stop a program the last run left on the controller before loading a new one."""
+        try:
+            await asyncio.wait_for(self.link.abort(), ABORT_TIMEOUT_S)
+        except Exception as e:
+            raise LinkError(f"the program of the last run could not be stopped on the "
+                            f"controller: {e or type(e).__name__}") from None
+        self._controller_dirty = False
 
     async def _prepare_program(self, run_id: str, reference: tuple[str, Analysis] | None
                                ) -> pipeline.Prepared:
@@ -256,12 +296,18 @@ class Session(RunStatus):
                             "touches")
         return hits
 
-    async def _stop_controller(self) -> None:
+    async def _stop_controller(self) -> str | None:
+        """Feed hold / reset / unload as the link's ``abort()`` does it; None when done, else
+        why not (kept: the next run stops the leftover program first)."""
         try:
-            await asyncio.wait_for(asyncio.shield(self.link.abort()), ABORT_TIMEOUT_S)
+            await asyncio.wait_for(self.link.abort(), ABORT_TIMEOUT_S)
         except Exception as e:
-            log.error("%s: abort on the controller failed: %s", self.setup.name, e)
-            self.reason = f"{self.reason}; controller abort failed: {e}".lstrip("; ")
+            self._controller_dirty = True
+            log.warning("%s: abort on the controller failed: %s", self.setup.name,
+                        str(e) or type(e).__name__)
+            return str(e) or type(e).__name__
+        self._controller_dirty = False
+        return None
 
     async def _write_back(self, verdict: Verdict, strict: bool) -> None:
         """Write the verdict where the CNC reads it; when ``strict`` a failure fails the run."""

@@ -37,7 +37,14 @@ from contracts.modbus_map import (
     text_words,
     words_text,
 )
-from drivers.base import Capabilities, CncLink, ControllerAlarm, LinkError, StartRequest
+from drivers.base import (
+    Capabilities,
+    CncLink,
+    ControllerAborted,
+    ControllerAlarm,
+    LinkError,
+    StartRequest,
+)
 from drivers.hits import HitFactory, MalformedResult
 from drivers.modbus.schema import ModbusLinkConfig
 from drivers.retry import Refused, with_backoff
@@ -271,7 +278,8 @@ class ModbusLink(CncLink):
         except MalformedResult:
             # The connection works but the map holds garbage: stop the program (the CNC would
             # otherwise starve mid-stream) and fail with what was wrong.
-            await self.abort()
+            with contextlib.suppress(LinkError):
+                await self.abort()
             raise
 
     async def _run(self, job: ProgramJob) -> AsyncIterator[ProbeHit]:
@@ -280,12 +288,15 @@ class ModbusLink(CncLink):
         await self._command("BEGIN")
         last = got = 0
         i, seq, prev_seq, end_sent = 0, 0, 0, False
+        seen_running = False
         poll = 0.0
         progress_t = time.monotonic()
         self.blocks_sent = 0
         while True:
             st = await self._status()
             check_mailbox(st, seq, prev_seq)
+            seen_running = seen_running or st["state"] in (STATE_CODES["running"],
+                                                           STATE_CODES["hold"])
             new = (st["counter"] - last) & 0xFFFF
             if new:
                 if job.touch_count and got + new > job.touch_count:
@@ -311,6 +322,10 @@ class ModbusLink(CncLink):
             if st["state"] == STATE_CODES["alarm"]:
                 raise ControllerAlarm(f"controller alarm {st['alarm']}: "
                                       f"{await self._alarm_text(st['alarm'])}")
+            if seen_running and st["state"] == STATE_CODES["idle"]:
+                # Running, then idle without reaching the end: RESET on the control itself.
+                raise ControllerAborted(f"program reset on the controller after {got} of "
+                                        f"{job.touch_count} touches")
             if i < len(blocks):
                 if st["ready"] == 0 and st["ack"] == seq:
                     prev_seq, seq = seq, seq % 65535 + 1
@@ -339,9 +354,9 @@ class ModbusLink(CncLink):
             poll = min(max(poll * 2, 0.0005), self.cfg.poll_interval_s)
 
     async def abort(self) -> None:
-        if self._client is not None and self._client.connected:
-            with contextlib.suppress(LinkError):
-                await self._write(addr("COMMAND"), [COMMANDS["ABORT"]])
+        if self._client is None or not self._client.connected:
+            raise LinkError("modbus link not connected: the controller was not reset")
+        await self._write(addr("COMMAND"), [COMMANDS["ABORT"]])
 
     async def close(self) -> None:
         client, self._client = self._client, None

@@ -24,7 +24,14 @@ from asyncua.crypto.security_policies import SecurityPolicyBasic256Sha256
 from contracts.jobs import ProgramJob, Verdict
 from contracts.messages import ProbeHit
 from contracts.opcua_space import BY_ROLE, RESULT_ROLES, RING_SLOTS, STATES, node_id
-from drivers.base import Capabilities, CncLink, ControllerAlarm, LinkError, StartRequest
+from drivers.base import (
+    Capabilities,
+    CncLink,
+    ControllerAborted,
+    ControllerAlarm,
+    LinkError,
+    StartRequest,
+)
 from drivers.hits import HitFactory, MalformedResult
 from drivers.opcua.schema import OpcUaLinkConfig
 from drivers.retry import Refused, wait_event, with_backoff
@@ -307,10 +314,12 @@ class OpcUaLink(CncLink):
         hits = HitFactory(job)
         await self._call("start")
         got = 0
+        seen_running = False
         progress_t = time.monotonic()
         while True:
             counter, state, alarm = await self._read_during_run(("touch_counter", "state",
                                                                  "alarm"))
+            seen_running = seen_running or state in ("running", "hold")
             try:
                 counter = check_counter(counter, state, last, high)
             except MalformedResult:
@@ -337,6 +346,10 @@ class OpcUaLink(CncLink):
                 continue  # re-read: more may have arrived meanwhile
             if state == "alarm":
                 raise ControllerAlarm(f"controller alarm: {alarm or 'unknown'}")
+            if seen_running and state == "idle":
+                # Running, then idle without reaching the end: RESET on the control itself.
+                raise ControllerAborted(f"program reset on the controller after {got} of "
+                                        f"{job.touch_count} touches")
             if state == "done":
                 if got < job.touch_count:
                     raise LinkError(f"program ended with {got} of {job.touch_count} touches")
@@ -347,8 +360,9 @@ class OpcUaLink(CncLink):
             await self._sleep_for_change(POLL_S)
 
     async def abort(self) -> None:
-        if self._client is not None:
-            await self._call("abort")
+        if self._client is None:  # never "done" silently: the program may still run there
+            raise LinkError("opcua link not connected: the controller was not reset")
+        await self._call("abort")
 
     async def _abort_quietly(self) -> None:
         """Stop a program whose results are garbage (the connection itself works)."""

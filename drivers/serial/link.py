@@ -40,6 +40,7 @@ from drivers.serial.lines import (  # noqa: F401 (re-exported: the link's public
 from drivers.serial.schema import SerialLinkConfig
 
 log = logging.getLogger("rumba.serial")
+CUT_TIMEOUT_S = 5.0  # to finish the block being sent when a stream is stopped
 
 MAX_WRITE_BYTES = 32
 """At most this much per write and per pass through the event loop's timers (a UART's transmit
@@ -124,6 +125,8 @@ class SerialDncLink(CncLink):
         self._parse = parse_result
         self.dialect = dialect  # for the verdict program; the last job's codec otherwise
         self._tape_open = False  # a stream was cut short: the control is inside a program
+        self._stale = False  # an aborted program's last results may still arrive
+        self._cut = asyncio.Event()  # stop the stream at the end of the current block
         self._tx_lock = asyncio.Lock()
         self._proto: _DncProtocol | None = None
         self._transport: asyncio.BaseTransport | _ThreadTransport | None = None
@@ -189,8 +192,22 @@ class SerialDncLink(CncLink):
     async def _stream(self, payload: bytes, measure: bool = True) -> None:
         async with self._tx_lock:
             self._tape_open = True
+            self._cut.clear()
             await self._paced(payload, measure)
             self._tape_open = False
+
+    async def _end_tape(self, sender: asyncio.Task | None) -> None:
+        """Stop feeding at the end of the block being sent and close the tape (``%``): a
+        block cut in the middle would be executed truncated (``X12`` for ``X123.456``)."""
+        if sender is None or sender.done():
+            return
+        self._cut.set()
+        try:
+            await asyncio.wait_for(asyncio.shield(sender), CUT_TIMEOUT_S)
+        except Exception:  # held by XOFF or a dead line: the control has to be reset there
+            sender.cancel()
+            with contextlib.suppress(asyncio.CancelledError, Exception):
+                await sender
 
     async def _paced(self, payload: bytes, measure: bool) -> None:
         """Feed ``payload`` as a UART would, never more than ``tx_chunk_bytes`` in flight.
@@ -208,6 +225,14 @@ class SerialDncLink(CncLink):
         t0 = line_t = time.monotonic()
         i = 0
         while i < len(payload):
+            if self._cut.is_set():
+                end = payload.find(b"\n", i)
+                rest = payload[i:] if end < 0 else payload[i:end + 1]
+                if i:  # the control is inside the tape: finish its block, close the tape
+                    transport.write(rest + (b"" if rest.endswith(b"\n") else b"\n")
+                                    + b"%" + (b"\r\n" if self.cfg.eol == "CRLF" else b"\n"))
+                    self._stale = True  # results of the blocks it holds may still arrive
+                return
             if self.cfg.xonxoff and not proto.xon.is_set():
                 if not await wait_event(proto.xon, self.cfg.xoff_timeout_s):
                     raise LinkError(f"controller held XOFF for {self.cfg.xoff_timeout_s:g} s "
@@ -302,6 +327,10 @@ class SerialDncLink(CncLink):
                     raise LinkError(f"garbled result line from the controller: {e}") from None
                 if hit is None:
                     continue  # other program output (messages, echo of comments)
+                if self._stale and not got and hit.seq != 1:
+                    log.info("serial: result of the aborted program dropped: %s", item)
+                    continue
+                self._stale = False
                 hit = hits.complete(hit, item)
                 if hit.seq != len(got) + 1 and hit.seq not in got:
                     # A result line went missing (noise, a dropped line): never guess it.
@@ -315,10 +344,7 @@ class SerialDncLink(CncLink):
         finally:
             proto.running = False
             self._run_ended()
-            if not sender.done():
-                sender.cancel()
-                with contextlib.suppress(asyncio.CancelledError, Exception):
-                    await sender
+            await self._end_tape(sender)
             if alarmed:
                 # A control in alarm has dropped the rest of the tape itself.
                 self._tape_open = False
@@ -350,9 +376,11 @@ class SerialDncLink(CncLink):
             self._run_ended()
 
     async def abort(self) -> None:
-        # DNC has no remote reset: stop feeding; the controller starves at the end of its buffer.
-        if self._sender is not None and not self._sender.done():
-            self._sender.cancel()
+        """Plain DNC has no remote reset: stop feeding, then close the tape with its end of
+        record (``%``), so the control ends the program after the blocks it already holds and
+        reads the next tape as a new program (an open tape would take the next program's
+        leader as its end, and its blocks as garbage)."""
+        await self._end_tape(self._sender)
 
     async def close(self) -> None:
         await self.abort()

@@ -1,6 +1,7 @@
 """``rumba verify --config daemon.yaml --machine NAME``: one verification run in this process
 (CI or by hand), terminal progress; exit code 0 pass (and warn unless --strict), 1 fail, 2 error
-(run aborted or failed, or a measurement not trusted).
+(run aborted or failed, or a measurement not trusted); stopped by a signal: 130 (Ctrl-C, SIGINT)
+or 143 (SIGTERM), after the run is aborted and journaled and the controller reset.
 """
 
 from __future__ import annotations
@@ -9,6 +10,7 @@ import argparse
 import asyncio
 import contextlib
 import logging
+import signal
 import sys
 from typing import Any
 
@@ -71,6 +73,7 @@ async def verify(cfg_path: str, machine: str, *, strict: bool = False, quiet: bo
         session = Session(setup, link, store, cfg.reports_dir, **kw)
         queue = session.subscribe()
         run_id = session.start("cli")
+        stopped_by = _stop_on_signals(session, console)
         with Progress(TextColumn("[bold]{task.fields[state]:<10}"), BarColumn(),
                       MofNCompleteColumn(), TextColumn("touches  {task.fields[eta]}"),
                       console=console, disable=quiet, transient=False) as bar:
@@ -91,10 +94,44 @@ async def verify(cfg_path: str, machine: str, *, strict: bool = False, quiet: bo
     except ServiceError as e:
         raise UserError(str(e)) from None
     finally:
+        # The run has ended (its abort, journal row and controller reset included) before the
+        # store and link close: closing them under a live run was the Ctrl-C tracebacks.
+        _restore_signals()
         with contextlib.suppress(Exception):
             await link.close()
         store.close()
-    return _verdict_exit(run_id, st, strict, console)
+    code = _verdict_exit(run_id, st, strict, console)
+    return 128 + int(stopped_by[0]) if stopped_by else code
+
+
+STOP_SIGNALS = {signal.SIGINT: "Ctrl-C (SIGINT)", signal.SIGTERM: "SIGTERM"}
+
+
+def _stop_on_signals(session: Session, console: Console) -> list[signal.Signals]:
+    """SIGINT / SIGTERM abort the run as any other trigger does (controller reset, journal row
+    ABORTED naming the signal and the phase); ``verify`` then waits for that end and exits
+    128 + the signal number. Returns the list the first signal is recorded in."""
+    loop = asyncio.get_running_loop()
+    got: list[signal.Signals] = []
+    aborts: list[asyncio.Task] = []
+
+    def on_signal(sig: signal.Signals) -> None:
+        if got:  # the abort is under way: it is bounded, a second signal changes nothing
+            console.print("[bold]stopping: the controller is being reset, please wait[/]")
+            return
+        got.append(sig)
+        aborts.append(loop.create_task(session.abort(STOP_SIGNALS[sig])))  # kept: not GC'd
+
+    for sig in STOP_SIGNALS:
+        loop.add_signal_handler(sig, on_signal, sig)
+    return got
+
+
+def _restore_signals() -> None:
+    with contextlib.suppress(Exception):
+        loop = asyncio.get_running_loop()
+        for sig in STOP_SIGNALS:
+            loop.remove_signal_handler(sig)
 
 
 def _verdict_exit(run_id: str, st: dict[str, Any], strict: bool, console: Console) -> int:

@@ -1,0 +1,148 @@
+"""Every stop leaves a defined state (issue 20, item 6): phase × trigger × transport against the
+simulated CNC behind its real front-end (asyncua server, pymodbus server, a pty), one simulator
+per transport for the module. Each row holds a run in its phase, stops it, and checks: the
+journal row ABORTED (or FAILED for an involuntary stop) naming the phase and the cause, the
+controller no longer running the program, and the next run on the same session, link and
+simulator taking a new program (its first hit journaled). The module ends with a complete run
+per transport on the same simulators."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import threading
+
+import pytest
+import pytest_asyncio
+
+from daemon.config import load_daemon_config
+from daemon.run.session import State
+from daemon.service.service import make_link
+from daemon.store.journal import Store
+from simulators.controller import VirtualController
+from tests.stop_helpers import Hold, held_session, until_reached, write_config
+from tests.test_e2e_transports import make_truth, start_rig
+
+TRANSPORTS = ("opcua", "modbus", "serial-pty")
+PHASES = ("PREPARE", "CAPTURE", "IDENTIFY", "REPORT", "WRITE-BACK")
+OPERATOR = ("hmi", "CAN panel", "SIGTERM (daemon stopping)")  # session.abort(source)
+ROWS = ([(t, p, c) for t in TRANSPORTS for p in PHASES for c in OPERATOR]
+        + [(t, "CAPTURE", c) for t in TRANSPORTS for c in ("cnc", "link loss")])
+DNC_MID_TAPE = pytest.mark.xfail(strict=False, reason=(
+    "open (issue 20): a DNC tape stopped mid-program is closed at a block's end with '%', but "
+    "the simulated tape reader (simulators/frontends/serial.py, edited elsewhere meanwhile) "
+    "may take a '%' after a RESET or an XOFF-held cut as the leader of a new, empty program, "
+    "so the next tape is misread"))
+PARAMS = [pytest.param(t, p, c, id=f"{t}-{p}-{c.split()[0]}",
+                       marks=[DNC_MID_TAPE] if t.startswith("serial") and p == "CAPTURE" else [])
+          for t, p, c in ROWS]
+
+
+@pytest_asyncio.fixture(scope="module", loop_scope="module")
+async def rigs():
+    made: dict = {}
+
+    async def get(transport: str):
+        if transport not in made:
+            made[transport] = await start_rig(transport, VirtualController(make_truth()))
+        return made[transport]
+
+    yield get
+    for rig in made.values():
+        with contextlib.suppress(Exception):
+            await rig.close()
+
+
+def _link(rig, trigger: str) -> dict:
+    link = dict(rig.link)
+    if rig.transport.startswith("serial") and trigger == "cnc":
+        link["result_timeout_s"] = 2  # DNC never hears of a RESET: the silence is the sign
+    return link
+
+
+async def _open(rig, tmp_path, monkeypatch, hold: Hold, trigger: str = ""):
+    cfg = load_daemon_config(write_config(tmp_path, _link(rig, trigger)))
+    setup = cfg.machines["mill1"]
+    store = Store(cfg.store_path)
+    link = make_link(setup)
+    await link.connect()
+    return held_session(setup, link, store, cfg.reports_dir, hold, monkeypatch), store, link
+
+
+async def _stop(session, rig, link, trigger: str, hold: Hold) -> None:
+    if trigger == "cnc":
+        await rig.ctrl.abort()  # RESET pressed on the control
+        hold.go_on.set()
+    elif trigger == "link loss":
+        await link.close()  # the connection drops under the run
+        hold.go_on.set()
+    else:
+        assert await session.abort(trigger)
+    async with asyncio.timeout(60):
+        await session.wait()
+
+
+def _expected(transport: str, phase: str, trigger: str) -> tuple[str, str]:
+    if trigger in OPERATOR:
+        return "ABORTED", f"aborted by {trigger} during {phase}"
+    if trigger == "cnc" and not transport.startswith("serial"):
+        return "ABORTED", "aborted on the controller during CAPTURE"
+    return "FAILED", "(during CAPTURE)"  # a lost link; a RESET that plain DNC cannot see
+
+
+@pytest.mark.asyncio(loop_scope="module")
+@pytest.mark.parametrize(("transport", "phase", "trigger"), PARAMS)
+async def test_every_stop_leaves_a_defined_state_and_the_next_run_starts(
+        rigs, tmp_path, monkeypatch, transport, phase, trigger):
+    rig = await rigs(transport)
+    rig.ctrl.reseed(0)
+    hold = Hold(phase)
+    session, store, link = await _open(rig, tmp_path, monkeypatch, hold, trigger)
+    try:
+        run1 = session.start("hmi")
+        await until_reached(session, hold)
+        await _stop(session, rig, link, trigger, hold)
+        hold.release()
+        state, why = _expected(transport, phase, trigger)
+        row = store.run(run1)
+        assert (row.state, session.state) == (state, State(state)), row.reason
+        assert row.reason.startswith(why) or why in row.reason, row.reason
+        if transport.startswith("serial") and rig.ctrl.state == "running":
+            # Plain DNC has no remote reset: the tape was closed at a block's end, the control
+            # ends the program after the blocks it holds (an event, not a guess).
+            await asyncio.wait_for(rig.ctrl.wait_done(), 30)
+        if trigger != "link loss":  # the reset reached the control: nothing runs there
+            assert rig.ctrl.state not in ("running", "hold"), rig.ctrl.state
+        # The next run: the controller takes its program (a first hit), then it is stopped
+        # there (a whole run per transport is the last test).
+        hold.phase, hold._release = "CAPTURE", threading.Event()
+        hold.reached, hold.go_on = asyncio.Event(), asyncio.Event()
+        run2 = session.start("hmi")
+        await until_reached(session, hold)
+        assert store.hit_count(run2) >= 1
+        assert await session.abort("hmi")
+        assert store.run(run2).state == "ABORTED"
+    finally:
+        hold.release()
+        with contextlib.suppress(Exception):
+            await link.close()
+        store.close()
+
+
+@pytest.mark.asyncio(loop_scope="module")
+@pytest.mark.parametrize("transport", [
+    pytest.param(t, marks=[DNC_MID_TAPE] if t.startswith("serial") else []) for t in TRANSPORTS])
+async def test_a_complete_run_after_the_matrix(rigs, tmp_path, monkeypatch, transport):
+    """After every stop above, the same simulator runs a whole verification to its verdict."""
+    rig = await rigs(transport)
+    rig.ctrl.reseed(0)
+    session, store, link = await _open(rig, tmp_path, monkeypatch, Hold(None))
+    try:
+        run_id = session.start("hmi")
+        async with asyncio.timeout(120):
+            st = await session.wait()
+        assert st["state"] == "IDLE", st["reason"]
+        assert store.run(run_id).state == "DONE" and st["verdict"]["status"]
+    finally:
+        await link.close()
+        store.close()
