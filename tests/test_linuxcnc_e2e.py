@@ -3,8 +3,9 @@ kinematics cross-check; a verification run, a missed ball, an abort and a killed
 through linuxcncrsh (remote, MDI streaming) and through the ``linuxcnc`` module (local, AUTO run
 of a program file); local MDI streaming on one pose.
 
-One LinuxCNC for the module (only one can run per machine; simulators.linuxcnc_peer serialises
-with a flock and always stops it, cleaning shared memory). Run with ``pytest -m linuxcnc``.
+One LinuxCNC for the session (tests/conftest.py ``lcnc``; only one can run per machine:
+simulators.linuxcnc_peer serialises with a flock and always stops it, cleaning shared memory).
+Run with ``pytest -m linuxcnc``.
 """
 
 from __future__ import annotations
@@ -28,14 +29,10 @@ from drivers.registry import make_link
 from identification.estimate import coverage_factor
 from identification.kinematics import ChainState, frames, to_model
 from simulators import linuxcnc_peer
-from simulators.hal_probe import write_spec
-from simulators.truth import TruthModel
 from tests.linuxcnc_helpers import (
     ARTEFACT,
-    ERRORS,
     MACHINE,
     VARIANTS,
-    Lcnc,
     Rsh,
     _link,
     _overshoot_um,
@@ -49,20 +46,6 @@ pytestmark = [pytest.mark.linuxcnc,
               pytest.mark.skipif(shutil.which("linuxcnc", path="/usr/bin") is None,
                                  reason="LinuxCNC not installed (bash .ci/install-peers.sh "
                                         "linuxcnc)")]
-
-
-@pytest.fixture(scope="module")
-def lcnc(tmp_path_factory: pytest.TempPathFactory):
-    work = tmp_path_factory.mktemp("lcnc")
-    truth = TruthModel.from_files(MACHINE, ARTEFACT, ERRORS)
-    spec = work / "probe_spec.json"
-    write_spec(truth, spec)
-    state = Lcnc(linuxcnc_peer.up(spec, workdir=work / "peer"), truth, spec)
-    try:
-        yield state
-    finally:
-        linuxcnc_peer.down(state.peer.dir)
-        assert not linuxcnc_peer.lcnc_running(), "LinuxCNC processes left behind"
 
 
 def test_forward_kinematics_match_xyzbc_trt_kins(lcnc) -> None:
@@ -235,7 +218,8 @@ async def test_abort_stops_linuxcnc_mid_run(lcnc, tmp_path: Path, variant: str) 
             await asyncio.sleep(0.05)
         _xfail_on_race(variant, session.reason)
         assert await session.abort("hmi")
-        assert session.state == State.ABORTED and session.reason.startswith("aborted by hmi during ")
+        assert session.state == State.ABORTED
+        assert session.reason.startswith("aborted by hmi during "), session.reason
         rsh = Rsh(peer.port)
         try:
             first = rsh.floats("get joint_pos")
