@@ -14,7 +14,23 @@ import numpy as np
 
 from contracts.setup_files import load_machine
 from contracts.yaml_files import ConfigError
-from daemon.analysis.result import Analysis
+from daemon.analysis.result import (
+    Analysis,
+    Cluster,
+    Distance,
+    Estimation,
+    Health,
+    LinkError,
+    Offset,
+    Revisit,
+    Scale,
+    Setup,
+    Stability,
+    Validation,
+    VolumetricMax,
+    VolumetricPoint,
+    Where,
+)
 from daemon.analysis.touch_centres import CentreData, screen_centres, with_outliers
 from identification.analyses import (
     clusters,
@@ -80,10 +96,6 @@ def thesis_name(iso: str) -> str:
     return f"δ{kind.lower()}{axis}" if kind in "XYZ" else f"{_GREEK[kind]}{axis}"
 
 
-def _v(a: Any) -> list[float]:
-    return [round(float(x), 6) for x in np.asarray(a).ravel()]
-
-
 def analyse_centres(machine: Machine, artefact: Artefact, data: CentreData, *,
                     validate_poses: Sequence[int] = (), links: Sequence[str] | None = None,
                     repeatability_um: Sequence[float] | None = None,
@@ -146,7 +158,8 @@ def analyse_centres(machine: Machine, artefact: Artefact, data: CentreData, *,
 
 def _analyses(machine: Machine, artefact: Artefact, data: CentreData, est: Any, est_c: Any,
               held: np.ndarray, fixed_radius: bool) -> Analysis:
-    """Volumetric, clusters, distances, stability, validation → the typed result."""
+    """Volumetric, clusters, distances, stability, validation → the typed result, built once
+    with the JSON's rounding (``_vec``, ``round``) and NaN/inf → None (``_fin``)."""
     c = data.centres
     ids = artefact.ids
     vol = volumetric(machine, artefact, est, c)
@@ -158,88 +171,107 @@ def _analyses(machine: Machine, artefact: Artefact, data: CentreData, est: Any, 
     dist = distance_analysis(c, ids, group)
     balls_v, balls_s = est.balls_um
     probe_v, probe_s = est.probe_um
-    out: dict[str, Any] = {
-        "machine": machine.name, "topology": machine.topology, "artefact": artefact.name,
-        "links": {k: {"value": round(v, 4), "std": round(s, 4), "unit": u,
-                      "thesis_name": thesis_name(k)} for k, (v, s, u) in est.links_si().items()},
-        "setup": {"probe": {"value": _v(probe_v), "std": _v(probe_s)},
-                  "balls": {b: {"value": _v(balls_v[i]), "std": _v(balls_s[i])}
-                            for i, b in enumerate(ids)}},
-        "residual_rms_um": round(est.residual_rms_um, 4),
-        "condition_number": round(est.condition_number, 3),
-        "unobservable": list(est.unobservable),
-        "unobservable_absorbed_by": dict(est.absorbed_by),
-        "estimation": {"status": est.status, "iterations": est.iterations,
-                       "centres": len(est_c), "sigma_um": _v(est.sigma_um),
-                       "sigma_from": "given" if est.sigma_given else "residuals",
-                       "sigma_dof": est.sigma_dof,  # None (JSON) when given: infinite
-                       "fixed_radius": fixed_radius},
-        "volumetric": [
-            {"pose": int(c.pose[k]), "repeat": int(data.repeat[k]), "b_deg": float(c.b_deg[k]),
-             "c_deg": float(c.c_deg[k]), "ball": ids[c.ball[k]],
-             "role": "validate" if held[k] else "estimate", "held_out": bool(held[k]),
-             "error_um": _v(vol.before_um[k]), "error_after_links_um": _v(vol.after_um[k])}
-            for k in range(len(c))],
-        "volumetric_max_um": {"before_links": round(vol.max_before_um, 4),
-                              "after_links": round(vol.max_after_um, 4)},
-        "cluster": [
-            {"pose": x.pose, "repeat": int(data.repeat[first[int(g)]]),
-             "b_deg": float(c.b_deg[first[int(g)]]), "c_deg": float(c.c_deg[first[int(g)]]),
-             "linear_um": None if x.linear_um is None else _v(x.linear_um),
-             "angular_urad": None if x.angular_urad is None else _v(x.angular_urad),
-             "local_um": {b: _v(v) for b, v in x.local_um.items()}, "note": x.note}
-            for x, g in zip(cl, groups, strict=True)],
-        "distances": [{"pose": d.pose, "balls": [d.ball_a, d.ball_b],
-                       "distance_mm": round(d.distance_mm, 7),
-                       "deviation_um": round(d.deviation_um, 4)} for d in dist],
-        "health": [{"pose": h.pose, "repeat": h.repeat, "ball": h.ball,
-                    "radius_dev_um": round(h.radius_dev_um, 4),
-                    "form_rms_um": round(h.form_rms_um, 4)} for h in data.health],
-        "warnings": list(data.warnings) + list(est.warnings),
-        "conventions": {
-            "volumetric": "measured − predicted centre, controller X Y Z, µm (thesis Eq. 3.22)",
-            "cluster": "rigid motion predicted → measured: ε ≈ linear + angular × P (P: "
-                       "predicted centre, mm, controller origin); the thesis' D, R of Eq. 4.4 "
-                       "are the negatives; local = ε − rigid part",
-            "setup": "ball offsets in the last workpiece frame, probe offset in the last tool "
-                     "frame, µm",
-        },
-    }
+    pose = [int(x) for x in c.pose.tolist()]
+    repeat = [int(x) for x in np.asarray(data.repeat).tolist()]
+    b_deg = np.asarray(c.b_deg, dtype=float).tolist()
+    c_deg = np.asarray(c.c_deg, dtype=float).tolist()
+    ball = [ids[i] for i in c.ball.tolist()]
+    out = held.tolist()
+    before, after = _vecs(vol.before_um), _vecs(vol.after_um)
     rv = revisits(c, data.repeat, ids)
+    stability = None
     if rv:
         worst = max(rv, key=lambda r: r.norm_um)
-        out["stability"] = {
-            "convention": "ball centre at its last visit − at its first visit of the same "
-                          "pose, controller X Y Z, µm (thermal drift, loose ball, probe drift)",
-            "max_shift_um": round(worst.norm_um, 4),
-            "worst": {"pose": worst.pose, "ball": worst.ball},
-            "span_min": round(max(r.dt_s for r in rv) / 60.0, 3),
-            "revisits": [{"pose": r.pose, "ball": r.ball, "repeats": [r.repeat_first,
-                                                                       r.repeat_last],
-                          "dt_min": round(r.dt_s / 60.0, 3), "shift_um": _v(r.shift_um),
-                          "norm_um": round(r.norm_um, 4)} for r in rv]}
+        stability = Stability(
+            convention="ball centre at its last visit − at its first visit of the same "
+                       "pose, controller X Y Z, µm (thermal drift, loose ball, probe drift)",
+            max_shift_um=_fin(round(worst.norm_um, 4)),
+            worst=Where(pose=worst.pose, ball=worst.ball),
+            span_min=_fin(round(max(r.dt_s for r in rv) / 60.0, 3)),
+            revisits=tuple(Revisit(pose=r.pose, ball=r.ball,
+                                   repeats=(r.repeat_first, r.repeat_last),
+                                   dt_min=_fin(round(r.dt_s / 60.0, 3)), shift_um=_vec(r.shift_um),
+                                   norm_um=_fin(round(r.norm_um, 4))) for r in rv))
     sc = est.scale_um_per_m
-    if sc is not None:
-        out["scale_um_per_m"] = {"value": round(sc[0], 4), "std": round(sc[1], 4)}
+    validation = None
     if held.any():
         val = validate(machine, artefact, est, c.subset(held))
-        out["validation"] = {
-            "poses": val.poses, "rms_before_um": round(val.rms_before_um, 4),
-            "rms_after_um": round(val.rms_after_um, 4),
-            "max_before_um": round(val.max_before_um, 4),
-            "max_after_um": round(val.max_after_um, 4),
-            "explained_fraction": round(val.explained_fraction, 4),
-            "explained_fraction_rms": round(val.explained_fraction_rms, 4)}
-    # built as the JSON, then typed: rounding and NaN → None stay exactly those of the file
-    return Analysis.from_json(finite(out))
+        validation = Validation(
+            poses=tuple(_fin(p) for p in val.poses),
+            rms_before_um=_fin(round(val.rms_before_um, 4)),
+            rms_after_um=_fin(round(val.rms_after_um, 4)),
+            max_before_um=_fin(round(val.max_before_um, 4)),
+            max_after_um=_fin(round(val.max_after_um, 4)),
+            explained_fraction=_fin(round(val.explained_fraction, 4)),
+            explained_fraction_rms=_fin(round(val.explained_fraction_rms, 4)))
+    return Analysis(
+        machine=machine.name, topology=machine.topology, artefact=artefact.name,
+        links={k: LinkError(value=_fin(round(v, 4)), std=_fin(round(s, 4)), unit=u,
+                            thesis_name=thesis_name(k))
+               for k, (v, s, u) in est.links_si().items()},
+        setup=Setup(probe=Offset(value=_vec(probe_v), std=_vec(probe_s)),
+                    balls={b: Offset(value=_vec(balls_v[i]), std=_vec(balls_s[i]))
+                           for i, b in enumerate(ids)}),
+        residual_rms_um=_fin(round(est.residual_rms_um, 4)),
+        condition_number=_fin(round(est.condition_number, 3)),
+        unobservable=tuple(_fin(u) for u in est.unobservable),
+        unobservable_absorbed_by={k: _fin(v) for k, v in dict(est.absorbed_by).items()},
+        estimation=Estimation(
+            status=est.status, iterations=est.iterations, centres=len(est_c),
+            sigma_um=_vec(est.sigma_um),
+            sigma_from="given" if est.sigma_given else "residuals",
+            sigma_dof=_fin(est.sigma_dof),  # None (JSON) when given: infinite
+            fixed_radius=fixed_radius),
+        volumetric=tuple(
+            VolumetricPoint(pose=pose[k], repeat=repeat[k], b_deg=_fin(b_deg[k]),
+                            c_deg=_fin(c_deg[k]), ball=ball[k],
+                            role="validate" if out[k] else "estimate", held_out=out[k],
+                            error_um=before[k], error_after_links_um=after[k])
+            for k in range(len(c))),
+        volumetric_max_um=VolumetricMax(before_links=_fin(round(vol.max_before_um, 4)),
+                                        after_links=_fin(round(vol.max_after_um, 4))),
+        cluster=tuple(
+            Cluster(pose=x.pose, repeat=repeat[first[int(g)]], b_deg=_fin(b_deg[first[int(g)]]),
+                    c_deg=_fin(c_deg[first[int(g)]]),
+                    linear_um=None if x.linear_um is None else _vec(x.linear_um),
+                    angular_urad=None if x.angular_urad is None else _vec(x.angular_urad),
+                    local_um={b: _vec(v) for b, v in x.local_um.items()}, note=x.note)
+            for x, g in zip(cl, groups, strict=True)),
+        distances=tuple(Distance(pose=d.pose, balls=(d.ball_a, d.ball_b),
+                                 distance_mm=_fin(round(d.distance_mm, 7)),
+                                 deviation_um=_fin(round(d.deviation_um, 4))) for d in dist),
+        health=tuple(Health(pose=h.pose, repeat=h.repeat, ball=h.ball,
+                            radius_dev_um=_fin(round(h.radius_dev_um, 4)),
+                            form_rms_um=_fin(round(h.form_rms_um, 4))) for h in data.health),
+        warnings=(*data.warnings, *est.warnings),
+        conventions=dict(CONVENTIONS),
+        stability=stability,
+        scale_um_per_m=None if sc is None else Scale(value=_fin(round(sc[0], 4)),
+                                                    std=_fin(round(sc[1], 4))),
+        validation=validation)
 
 
-def finite(obj: Any) -> Any:
-    """JSON has no NaN/inf: replace them by None so reports never show a silent number."""
-    if isinstance(obj, float):
-        return obj if math.isfinite(obj) else None
-    if isinstance(obj, dict):
-        return {k: finite(v) for k, v in obj.items()}
-    if isinstance(obj, list | tuple):
-        return [finite(v) for v in obj]
-    return obj
+CONVENTIONS = {
+    "volumetric": "measured − predicted centre, controller X Y Z, µm (thesis Eq. 3.22)",
+    "cluster": "rigid motion predicted → measured: ε ≈ linear + angular × P (P: predicted "
+               "centre, mm, controller origin); the thesis' D, R of Eq. 4.4 are the negatives; "
+               "local = ε − rigid part",
+    "setup": "ball offsets in the last workpiece frame, probe offset in the last tool frame, µm",
+}
+"""What the numbers of an analysis mean (its JSON's ``conventions``)."""
+
+
+def _fin(x: Any) -> Any:
+    """A float that is NaN or inf → None (JSON has neither); anything else as it is."""
+    return None if isinstance(x, float) and not math.isfinite(x) else x
+
+
+def _vec(a: Any) -> tuple[float | None, ...]:
+    """A vector as the JSON holds it: each value rounded to 1e-6, None where not finite."""
+    return tuple(_fin(round(x, 6)) for x in np.asarray(a, dtype=float).ravel().tolist())
+
+
+def _vecs(a: np.ndarray) -> list[tuple[float | None, ...]]:
+    """``_vec`` of each row of ``a`` (one conversion to Python floats for the whole array)."""
+    rows = np.asarray(a, dtype=float).reshape(len(a), -1).tolist()
+    return [tuple(_fin(round(x, 6)) for x in row) for row in rows]

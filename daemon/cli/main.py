@@ -1,8 +1,11 @@
-"""The ``rumba`` command: subcommands are the modules of ``daemon.cli.commands`` (one file each).
+"""The ``rumba`` command: subcommands are the modules of ``daemon.cli.parsers`` (one file each).
 
-Every subcommand module defines ``register(subparsers) -> None`` which adds its parser and sets
-``func`` (returning an exit code). Expected failures (bad config, bad log, unreachable controller)
-raise ``UserError`` or ``ConfigError`` and end as one ``error: …`` line with exit code 2.
+Every parser module defines ``register(subparsers) -> None`` which adds its parser and sets
+``func`` (returning an exit code). The parsers are light (argument definitions only): ``func``
+imports the command's module of ``daemon.cli.commands`` when it runs, so ``rumba --help`` and
+argument errors import neither numpy, scipy, rich nor the network stacks (issue 19).
+Expected failures (bad config, bad log, unreachable controller) raise ``UserError`` or
+``ConfigError`` and end as one ``error: …`` line with exit code 2.
 Anything else is a defect of rumba-cnc, not of the input: it ends as one ``internal error`` line
 with exit code 70 (EX_SOFTWARE) and the traceback goes to a crash file the line names, so no
 exception type reaches an operator's terminal (RUMBA_DEBUG=1 lets it through for developers).
@@ -13,16 +16,12 @@ from __future__ import annotations
 import argparse
 import importlib
 import os
-import pkgutil
 import sys
-import tempfile
 import time
-import traceback
 from collections.abc import Sequence
 from pathlib import Path
 
-import daemon.cli.commands
-from contracts.yaml_files import ConfigError
+import daemon.cli.parsers
 
 
 class UserError(Exception):
@@ -34,10 +33,10 @@ def build_parser() -> argparse.ArgumentParser:
         prog="rumba",
         description="Five-axis machine verification with an uncalibrated ball artefact",
     )
-    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    for info in sorted(pkgutil.iter_modules(daemon.cli.commands.__path__), key=lambda i: i.name):
-        module = importlib.import_module(f"daemon.cli.commands.{info.name}")
-        module.register(sub)
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND",
+                                parser_class=daemon.cli.parsers.Parser)
+    for name in daemon.cli.parsers.names():
+        importlib.import_module(f"daemon.cli.parsers.{name}").register(sub)
     return parser
 
 
@@ -45,14 +44,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         return int(args.func(args) or 0)
-    except (UserError, ConfigError) as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 2
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return 130
-    except Exception as e:  # the last resort: a defect, reported without a traceback
-        if os.environ.get("RUMBA_DEBUG"):
+    except Exception as e:
+        if expected(e):
+            print(f"error: {e}", file=sys.stderr)
+            return 2
+        if os.environ.get("RUMBA_DEBUG"):  # the last resort: a defect, without a traceback
             raise
         crash = write_crash_file(e)
         print(f"error: internal error in rumba-cnc ({_one_line(e)}); this is a defect, "
@@ -63,6 +62,14 @@ def main(argv: Sequence[str] | None = None) -> int:
 EX_SOFTWARE = 70  # sysexits.h: an internal software error, distinct from bad input (2)
 
 
+def expected(e: BaseException) -> bool:
+    """A ``UserError`` or a ``contracts.yaml_files.ConfigError`` (looked up, not imported: a
+    ConfigError was raised only if its module is loaded, and the parser stays without pydantic)."""
+    yaml_files = sys.modules.get("contracts.yaml_files")
+    return isinstance(e, UserError) or (yaml_files is not None
+                                         and isinstance(e, yaml_files.ConfigError))
+
+
 def _one_line(e: BaseException) -> str:
     text = " ".join(str(e).split())
     return (text[:200] + "…") if len(text) > 200 else (text or "no message")
@@ -70,6 +77,9 @@ def _one_line(e: BaseException) -> str:
 
 def write_crash_file(e: BaseException) -> Path:
     """Write the traceback of ``e`` to a fresh file (RUMBA_CRASH_DIR or the temp dir)."""
+    import tempfile  # only on a defect: neither is needed by a command that works
+    import traceback
+
     directory = Path(os.environ.get("RUMBA_CRASH_DIR") or tempfile.gettempdir())
     stamp = time.strftime("%Y%m%dT%H%M%S")
     try:

@@ -1,1 +1,1 @@
-"""CLI subcommands: each module here defines ``register(subparsers)`` and is found automatically."""
+"""What the ``rumba`` subcommands do, one module each, imported by ``daemon.cli.parsers`` on use."""

@@ -1,5 +1,4 @@
-"""`rumba analyze`: identify setup + link errors from a probing log or measured centres, print a
-summary, write JSON."""
+"""`rumba analyze`: setup + link errors from a probing log or measured centres, printed and JSON."""
 
 from __future__ import annotations
 
@@ -9,19 +8,14 @@ import warnings
 from collections.abc import Sequence
 from dataclasses import replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from rich.console import Console
 from rich.table import Table
 
-from contracts.centres_file import FRAMES
-from contracts.importers import FORMATS
 from contracts.probing_log import ProbeLogError, read_log
 from contracts.setup_files import load_artefact, load_machine, load_plan
-from daemon.analysis import centres_input
-from daemon.analysis.centres_shape import OneIndexation
-from daemon.analysis.centres_shape import render as render_one_indexation
 from daemon.analysis.identify import (
     AnalysisError,
     ImplausibleFitError,
@@ -30,11 +24,15 @@ from daemon.analysis.identify import (
 )
 from daemon.analysis.result import Analysis
 from daemon.analysis.touch_centres import rows_to_centres
+from daemon.cli.choices import DEFAULT_STYLUS_DIAMETER_MM
+from daemon.cli.tables import print_long_table
 
-DEFAULT_STYLUS_DIAMETER_MM = 6.0  # the shipped plans' stylus; used for the radius health figure
+if TYPE_CHECKING:  # the centres path's modules are imported when it runs (issue 19)
+    from daemon.analysis.centres_shape import OneIndexation
+
 
 def _user_error(msg: str) -> Exception:
-    from daemon.cli.main import UserError  # late import: cli imports every command module
+    from daemon.cli.main import UserError  # late import: only on an error
 
     return UserError(msg)
 
@@ -122,6 +120,8 @@ def _taken_on(machine_path: Path | str, artefact: Any, centres: Any) -> str:
 
 def _centres(args: argparse.Namespace) -> Analysis | OneIndexation:
     """``--centres``: read or import the file, then ``daemon.analysis.centres_input.run``."""
+    from daemon.analysis import centres_input  # imports scipy (gap): only for centres
+
     if args.fixed_radius:
         raise _user_error("--fixed-radius: centres carry no touches to fit")
     machine, _ = load_machine(args.machine)
@@ -199,17 +199,17 @@ def render(r: Analysis, console: Console) -> None:
     for u in r.unobservable:
         t.add_row(u, r.unobservable_absorbed_by.get(u, ""))
     console.print(t)
-    t = Table(title="Cluster analysis per pose (setup-only prediction)")
-    for hd in ("pose", "b°", "c°", "|relocalisation| µm", "|rotation| µrad", "max local µm"):
-        t.add_column(hd, justify="right")
     bc = {(v.pose, v.repeat): (v.b_deg, v.c_deg) for v in r.volumetric}
+    cluster = []
     for x in r.cluster:
         b, c = bc[(x.pose, x.repeat)]
         loc = max(np.linalg.norm(v) for v in x.local_um.values())  # type: ignore[arg-type]
         pose = str(x.pose) + (f" r{x.repeat}" if x.repeat else "")
-        t.add_row(pose, f"{b:g}", f"{c:g}", _norm(x.linear_um), _norm(x.angular_urad),
-                  f"{loc:.2f}")
-    console.print(t)
+        cluster.append((pose, f"{b:g}", f"{c:g}", _norm(x.linear_um), _norm(x.angular_urad),
+                        f"{loc:.2f}"))
+    print_long_table(console, "Cluster analysis per pose (setup-only prediction)",
+                     [(hd, "right") for hd in ("pose", "b°", "c°", "|relocalisation| µm",
+                                               "|rotation| µrad", "max local µm")], cluster)
     v = r.validation
     if v is not None:
         ef, efr = v.explained_fraction or 0.0, v.explained_fraction_rms or 0.0
@@ -229,7 +229,8 @@ def render(r: Analysis, console: Console) -> None:
         console.print(f"{'[bold red]' if bad else '[yellow]'}warning:[/] {w}")
 
 
-def _cmd(args: argparse.Namespace) -> int:
+def cmd_analyze(args: argparse.Namespace) -> int:
+    """`rumba analyze` (``daemon.cli.parsers.analyze``): analyse, print, write the files."""
     if args.centres:
         result = _centres(args)
     else:
@@ -239,10 +240,14 @@ def _cmd(args: argparse.Namespace) -> int:
     if isinstance(result, Analysis):
         render(result, Console())
     else:
+        from daemon.analysis.centres_shape import render as render_one_indexation
+
         render_one_indexation(result, Console())
     if args.write_centres:
         if not args.log:
             raise _user_error("--write-centres: needs --log (the centres of its touches)")
+        from daemon.analysis import centres_input
+
         n = centres_input.export_log_centres(args.log, load_artefact(args.artefact),
                                              args.stylus_diameter / 2, args.fixed_radius,
                                              args.write_centres)
@@ -255,39 +260,3 @@ def _cmd(args: argparse.Namespace) -> int:
         except OSError as e:
             raise _user_error(f"--json {args.json}: cannot write: {e.strerror}") from None
     return 0
-
-
-def register(subparsers: Any) -> None:
-    p = subparsers.add_parser("analyze", help="identify setup and link errors from a probing log",
-                              description=__doc__)
-    src = p.add_mutually_exclusive_group(required=True)
-    src.add_argument("--log", help="probing-log CSV (rumba-probing-log v1)")
-    src.add_argument("--centres", metavar="FILE", help="measured ball centres: a centres CSV "
-                     "(rumba-centres v1) or an instrument's file (--format)")
-    p.add_argument("--format", default="auto", choices=FORMATS,
-                   help="--centres file format (default: told from the file)")
-    p.add_argument("--frame", default=None, choices=FRAMES,
-                   help="--centres: frame of the centres (default: the file's; instrument = "
-                        "a rigid motion of the machine axes, estimated with the setup)")
-    p.add_argument("--ball", default=None, help="--centres kinopt: the ball the program measured")
-    p.add_argument("--plan", default=None, metavar="PLAN.yaml",
-                   help="--centres dmis: the plan whose pose numbers the feature labels use")
-    p.add_argument("--machine", required=True, help="machine YAML")
-    p.add_argument("--artefact", required=True, help="artefact YAML")
-    p.add_argument("--validate-poses", default=None, metavar="LIST",
-                   help="comma list of pose numbers (log's pose column) held out for validation")
-    p.add_argument("--links", default="all", metavar="all|none|LIST",
-                   help="link errors to estimate: the identifiable set (all), none (setup only) "
-                        "or a comma list of ISO names")
-    p.add_argument("--fixed-radius", action="store_true",
-                   help="fit spheres with radius = ball + stylus radius (default: free radius)")
-    p.add_argument("--stylus-diameter", type=float, default=DEFAULT_STYLUS_DIAMETER_MM,
-                   metavar="MM", help="stylus diameter for the radius health figure and "
-                   f"--fixed-radius (default {DEFAULT_STYLUS_DIAMETER_MM})")
-    p.add_argument("--repeatability-um", default=None, metavar="S|SX,SY,SZ",
-                   help="probing repeatability of a centre (µm) for the uncertainties, e.g. "
-                        "0.66,0.98,0.44 (thesis §3.4); default: from the residuals")
-    p.add_argument("--json", default=None, metavar="OUT.json", help="write the results as JSON")
-    p.add_argument("--write-centres", default=None, metavar="OUT.csv",
-                   help="--log: also write its centres (sphere fits) as a centres CSV")
-    p.set_defaults(func=_cmd)

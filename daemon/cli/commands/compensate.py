@@ -35,29 +35,6 @@ from daemon.reports.compensation import verification_of
 from daemon.store.journal import Store, StoreError
 
 
-def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("compensate", help="write the identified link errors back into the "
-                       "controller's kinematic model (guarded, journaled, reversible)",
-                       description=__doc__)
-    p.add_argument("run", nargs="?", help="run id (a verification run in the journal)")
-    p.add_argument("--config", required=True, help="daemon.yaml")
-    p.add_argument("--machine", help="machine name in daemon.yaml (default: the run's)")
-    p.add_argument("--confirm", action="store_true",
-                   help="apply the proposal (operator confirmation; needs --by)")
-    p.add_argument("--rollback", action="store_true",
-                   help="restore the values before the last applied compensation (needs "
-                        "--machine and --by)")
-    p.add_argument("--by", help="who confirms (recorded in the journal); 'unattended' only "
-                                "where the machine's guards allow it")
-    p.add_argument("--again", action="store_true",
-                   help="with --confirm: apply a run whose compensation was rolled back, as a "
-                        "new decision (refused without it)")
-    p.add_argument("--verify", action="store_true",
-                   help="with --confirm: when the values went live (LinuxCNC on this PC), run "
-                        "the verification at once and print each link before and after")
-    p.set_defaults(func=cmd_compensate)
-
-
 def _fmt(kind: str, model_value: float) -> str:
     return f"{model_value * 1e3:+.2f} µm" if kind == "pivot" else f"{model_value * 1e6:+.2f} µrad"
 

@@ -6,7 +6,6 @@ from __future__ import annotations
 import argparse
 import asyncio
 import signal
-from pathlib import Path
 
 from aiohttp import web
 
@@ -14,27 +13,6 @@ from daemon.cli.main import UserError
 from daemon.config import read_token_file
 from daemon.hosts import is_loopback
 from daemon.store.url import parse_store_url
-
-
-def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("fleet", help="serve the read-only fleet page over the fleet store")
-    p.add_argument("--store", required=True, metavar="URL",
-                   help="postgresql://user@host/db?passfile=… (the daemons' store.url)")
-    p.add_argument("--listen", default="127.0.0.1:8090", metavar="HOST:PORT",
-                   help="address to serve on (default 127.0.0.1:8090; port 0: any free)")
-    p.add_argument("--token-file", required=True, type=Path,
-                   help="file with the access token (mode 600, ≥ 16 characters)")
-    p.add_argument("--stale-after-h", type=float, default=26.0,
-                   help="flag a machine whose last verdict is older (hours, default 26)")
-    p.add_argument("--reports-dir", action="append", type=Path, default=[],
-                   help="directory the page may serve reports from (repeatable)")
-    p.add_argument("--state-dir", type=Path,
-                   help="keeps the session secret so sign-ins survive a restart")
-    p.add_argument("--tls-cert", type=Path, help="PEM certificate (with --tls-key)")
-    p.add_argument("--tls-key", type=Path, help="PEM private key, mode 600")
-    p.add_argument("--public-origin", action="append", default=[],
-                   help="scheme://name[:port] users type, besides the listen address")
-    p.set_defaults(func=cmd_fleet)
 
 
 def _listen(value: str) -> tuple[str, int]:

@@ -11,21 +11,19 @@ from pathlib import Path
 
 import numpy as np
 
-from contracts.importers import FORMATS
 from contracts.probing_log import LogRow, ProbeLogError, read_log
 from contracts.setup_files import load_artefact, load_machine, load_plan
 from daemon.analysis import centres_input
 from daemon.analysis.touch_centres import columns, one_run_balls
+from daemon.cli.choices import DEFAULT_STYLUS_DIAMETER_MM
 from daemon.cli.commands.analyze import parse_repeatability
 from identification.effects import FAMILIES, Effect, library
 from identification.gap import Options, TouchData, diagnose
 from identification.gap.locate import shown_locations
 from identification.gap.outlier_visits import name as outlier_name
-from identification.gap.split import SPLITS
 from identification.kinematics import Machine
 from identification.model import Artefact
 
-DEFAULT_STYLUS_DIAMETER_MM = 6.0  # the shipped plans' stylus
 # the thesis machine, artefact and annex B plan of the self-check, shipped with the package
 # (copies of config/machines, config/artefacts, config/plans; tests/test_cli_defaults.py)
 DEFAULTS = ("thesis_wcbxfzyt.yaml", "thesis_4ball.yaml", "thesis_annexB_14poses.yaml")
@@ -40,7 +38,7 @@ def default_file(name: str) -> Path:
 
 
 def _user_error(msg: str) -> Exception:
-    from daemon.cli.main import UserError  # late import: cli imports every command module
+    from daemon.cli.main import UserError  # late import: only on an error
 
     return UserError(msg)
 
@@ -210,7 +208,8 @@ def _selfcheck(args: argparse.Namespace) -> int:
     return 0 if not failed else 1
 
 
-def _run(args: argparse.Namespace) -> int:
+def cmd_gap(args: argparse.Namespace) -> int:
+    """`rumba gap` (``daemon.cli.parsers.gap``): the self-check or one diagnosis."""
     if args.selfcheck:
         return _selfcheck(args)
     if not ((args.log or args.centres) and args.machine and args.artefact):
@@ -259,42 +258,3 @@ def _run(args: argparse.Namespace) -> int:
                                    encoding="utf-8")
         print(f"wrote {args.html}")
     return 0
-
-
-def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("gap", help="sim-to-real gap diagnosis: locate, attribute, quantify",
-                       description=__doc__)
-    p.add_argument("--log", help="probing log (CSV) the twin is fitted on")
-    p.add_argument("--centres", metavar="FILE", help="measured ball centres instead of --log: "
-                   "a centres CSV or an instrument's file (--format)")
-    p.add_argument("--format", default="auto", choices=FORMATS,
-                   help="--centres (and its --holdout) file format (default: told from the file)")
-    p.add_argument("--ball", default=None, help="--centres kinopt: the ball the program measured")
-    p.add_argument("--plan", default=None, metavar="PLAN.yaml",
-                   help="--centres dmis: the plan whose pose numbers the feature labels use")
-    p.add_argument("--repeatability-um", default=None, metavar="S|SX,SY,SZ",
-                   help="stated centre repeatability (µm): the noise floor of centres, and of "
-                        "touches whose form residual is zero (exact, simulated)")
-    p.add_argument("--holdout", help="separate probing log (or centres file, with --centres) to "
-                                     "judge on (default: leave-poses-out cross-validation)")
-    p.add_argument("--machine", help="machine YAML")
-    p.add_argument("--artefact", help="artefact YAML")
-    p.add_argument("--stylus-diameter-mm", type=float, default=None,
-                   help=f"stylus ball diameter (default {DEFAULT_STYLUS_DIAMETER_MM})")
-    p.add_argument("--families", help="comma list of effect families to try (default all)")
-    p.add_argument("--known", action="append", metavar="FAMILY[:AXIS]",
-                   help="an effect the twin already models, fitted with it on the training "
-                        "data (repeatable or a comma list; a family alone = all its axes), "
-                        "e.g. --known rotary_positioning:C")
-    p.add_argument("--split", choices=SPLITS, default="auto",
-                   help="internal held-out split without --holdout: pose (leave-one-pose-out), "
-                        "time (contiguous time blocks: the honest test of drift) or auto "
-                        "(time when the log's times allow it; default)")
-    p.add_argument("--json", help="write the report as JSON")
-    p.add_argument("--html", help="write the report as HTML")
-    p.add_argument("--selfcheck", action="store_true",
-                   help="simulate every library effect withheld from the twin and diagnose it")
-    p.add_argument("--seeds", type=int, default=None, help="self-check seeds per case")
-    p.add_argument("--full", action="store_true",
-                   help="self-check on the 14-pose plan and a 49-pose grid")
-    p.set_defaults(func=_run)

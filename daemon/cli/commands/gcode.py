@@ -5,31 +5,10 @@ from __future__ import annotations
 import argparse
 import sys
 import time
-from pathlib import Path
 
 from contracts.setup_files import check_touch_count, load_artefact, load_machine, load_plan
 from daemon.cli.main import UserError
 from daemon.safepath import contained_path
-from programs.dialects import DIALECTS
-
-
-def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser(
-        "gcode", help="generate a checked probing program for one controller dialect",
-        description="Generate the probing program of a plan (every pose: index, then five "
-                    "touches per ball), refuse it when it leaves the travel or enters a keep-out "
-                    "volume, and print the touch count, the estimated cycle time and its lower "
-                    "bound.")
-    p.add_argument("--machine", type=Path, required=True, metavar="M.yaml")
-    p.add_argument("--artefact", type=Path, required=True, metavar="A.yaml")
-    p.add_argument("--plan", type=Path, required=True, metavar="P.yaml")
-    p.add_argument("--dialect", required=True, choices=[*sorted(DIALECTS), "haas"])
-    p.add_argument("-o", "--output", type=Path, metavar="FILE",
-                   help="write the program here (auxiliary files next to it); default: stdout")
-    p.add_argument("--targets", type=Path, metavar="estimate.json",
-                   help="ball/stylus setup errors of the last run (`rumba analyze --json`): "
-                        "targets from the estimate, smaller standoff and overtravel")
-    p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -30,19 +30,6 @@ from daemon.store.probing_csv import export_csv, journal_import, read_import
 STYLE = {"PASS": "green", "WARN": "yellow", "FAIL": "red"}
 
 
-def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("history", help="list runs and trends; export/import probing logs")
-    p.add_argument("--config", required=True, help="daemon.yaml (names the journal)")
-    p.add_argument("--machine", help="only this machine (required with --import)")
-    p.add_argument("--limit", type=int, default=20, help="runs to list (default 20)")
-    g = p.add_mutually_exclusive_group()
-    g.add_argument("--export", metavar="RUN", help="export run RUN to --csv")
-    g.add_argument("--import", dest="import_csv", metavar="CSV", help="import a probing log")
-    p.add_argument("--csv", metavar="OUT", help="output file for --export")
-    p.add_argument("--no-analyse", action="store_true", help="--import: journal only")
-    p.set_defaults(func=cmd_history)
-
-
 def _open(cfg: DaemonConfig) -> Store:
     try:
         return Store(cfg.store_path, cfg.synchronous,  # type: ignore[arg-type]

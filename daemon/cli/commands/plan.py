@@ -9,7 +9,6 @@ import time
 from dataclasses import dataclass, replace
 from pathlib import Path
 
-from contracts.result_lines import DIALECT_NAMES
 from contracts.setup_files import (
     Plan,
     check_touch_count,
@@ -22,30 +21,6 @@ from programs.generate import GeneratedProgram, generate
 from programs.geometry import ProgramError
 from programs.optimise import Chosen
 from programs.safety import SafetyError
-
-
-def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser(
-        "plan", help="optimise the poses of a plan: target link uncertainties, least time",
-        description="Choose the B/C poses (a grid of the reachable indexations that pass the "
-                    "safety check) and their order so that every link of the target file "
-                    "reaches its standard uncertainty in the least estimated machine time; "
-                    "write the plan and print its predicted uncertainties and time beside "
-                    "the reference plan's. Exit 0; 1 when --max-time leaves targets missed "
-                    "(the plan is written and they are named); 2 on bad input.")
-    p.add_argument("--machine", type=Path, required=True, metavar="M.yaml")
-    p.add_argument("--artefact", type=Path, required=True, metavar="A.yaml")
-    p.add_argument("--target", type=Path, required=True, metavar="TARGETS.yaml",
-                   help="target file (example: config/plans/targets/shift_start.yaml)")
-    p.add_argument("--max-time", type=float, metavar="S",
-                   help="cap on the estimated machine time (seconds)")
-    p.add_argument("--dialect", default="fanuc", choices=[*sorted(DIALECT_NAMES)],
-                   help="the controller's dialect: it decides the two-speed touch and so the "
-                        "time (default: fanuc)")
-    p.add_argument("-o", "--output", type=Path, metavar="PLAN.yaml",
-                   help="plan file to write (default: <name>.yaml here)")
-    p.add_argument("--force", action="store_true", help="overwrite the output file")
-    p.set_defaults(func=run)
 
 
 @dataclass
@@ -172,7 +147,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _error(msg: str) -> Exception:
-    from daemon.cli.main import UserError  # late: cli imports every command module
+    from daemon.cli.main import UserError  # late import: only on an error
     return UserError(msg)
 
 

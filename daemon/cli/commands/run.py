@@ -15,15 +15,6 @@ from daemon.service.service import Service, ServiceError
 from daemon.store.journal import StoreError
 
 
-def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("run", help="run the verification service (sessions, triggers, HMI)")
-    p.add_argument("--config", required=True, help="daemon.yaml")
-    p.add_argument("--check", action="store_true",
-                   help="validate the configuration (and files it names) and exit")
-    p.add_argument("-v", "--verbose", action="store_true", help="debug logging")
-    p.set_defaults(func=cmd_run)
-
-
 async def serve(service: Service) -> None:
     loop = asyncio.get_running_loop()
     stop = asyncio.Event()

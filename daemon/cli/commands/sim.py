@@ -5,9 +5,7 @@ from __future__ import annotations
 
 import argparse
 import importlib.util
-from pathlib import Path
 
-from contracts.result_lines import DIALECT_NAMES
 from daemon.cli.main import UserError
 
 
@@ -17,29 +15,6 @@ def _serve_module():
     import simulators.serve as serve
 
     return serve
-
-
-def register(subparsers: argparse._SubParsersAction) -> None:
-    p = subparsers.add_parser(
-        "sim", help="software CNC with injected errors: run a program offline or serve it",
-        description="Simulated five-axis machine: true chain + link/setup errors + effects + "
-                    "probe physics, executing our G-code dialects.")
-    p.add_argument("--machine", required=True, type=Path, help="machine YAML")
-    p.add_argument("--artefact", required=True, type=Path, help="artefact YAML")
-    p.add_argument("--errors", type=Path, help="errors YAML (default: a perfect machine)")
-    p.add_argument("--seed", type=int, help="random seed (default: the errors file's seed)")
-    p.add_argument("--time-scale", type=float, default=0.0,
-                   help="0 = as fast as possible (default), 1 = real time")
-    p.add_argument("--faults", type=Path, help="faults YAML (simulators/faults.py)")
-    p.add_argument("--run", type=Path, metavar="PROGRAM", help="execute this program offline")
-    p.add_argument("--dialect", choices=DIALECT_NAMES,
-                   help="dialect of --run PROGRAM")
-    p.add_argument("--log", type=Path, metavar="OUT.csv", help="probing log to write (--run)")
-    p.add_argument("--run-id", help="run_id column of the log (default: program file stem)")
-    serve = _serve_module()
-    if serve is not None:
-        serve.add_arguments(p)
-    p.set_defaults(func=main)
 
 
 def main(args: argparse.Namespace) -> int:

@@ -29,18 +29,6 @@ COLOURS = {"PASS": "bold green", "WARN": "bold yellow", "FAIL": "bold red",
            "ERROR": "bold magenta"}
 
 
-def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("verify", help="run one verification now (exit 0 pass, 1 fail, 2 error)")
-    p.add_argument("--config", required=True, help="daemon.yaml")
-    p.add_argument("--machine", required=True, help="machine name in daemon.yaml")
-    p.add_argument("--strict", action="store_true", help="exit 1 on WARN too")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
-    p.add_argument("--daemon", action="store_true",
-                   help="ask the running daemon of this config (through its HMI API) instead "
-                        "of driving the link from this process")
-    p.set_defaults(func=cmd_verify)
-
-
 def _eta(st: dict[str, Any]) -> str:
     eta = st.get("eta_s")
     if eta is None:

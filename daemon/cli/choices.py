@@ -1,0 +1,19 @@
+"""Argument values the parsers and the commands share, kept light (no numpy): issue 19."""
+
+from __future__ import annotations
+
+DEFAULT_STYLUS_DIAMETER_MM = 6.0
+"""The shipped plans' stylus: the radius health figure of `rumba analyze` and `rumba gap`."""
+
+# copies of constants whose modules import numpy, pydantic or dataclasses (tests/test_cli_fast.py
+# holds them equal): the parser of `rumba --help` must not import those
+CENTRES_FORMATS = ("auto", "csv", "kinopt", "dmis")
+"""``contracts.importers.FORMATS``: the --centres file formats."""
+CENTRES_FRAMES = ("machine", "instrument")
+"""``contracts.centres_file.FRAMES``: the frames of a centres file."""
+GAP_SPLITS = ("auto", "pose", "time")
+"""``identification.gap.split.SPLITS``: the held-out splits of `rumba gap`."""
+DIALECT_NAMES = ("fanuc", "haas", "siemens", "heidenhain", "linuxcnc")
+"""``contracts.result_lines.DIALECT_NAMES``: every controller dialect, in its order."""
+GCODE_DIALECTS = ("fanuc", "heidenhain", "linuxcnc", "siemens")
+"""``sorted(programs.dialects.DIALECTS)``: the dialects `rumba gcode` generates itself."""

@@ -1,0 +1,24 @@
+"""The arguments of `rumba history`; the command is ``daemon.cli.commands.history``."""
+
+from __future__ import annotations
+
+import argparse
+
+
+def _run(args: argparse.Namespace) -> int:
+    from daemon.cli.commands.history import cmd_history  # looked up on each run (tests patch it)
+
+    return cmd_history(args)
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("history", help="list runs and trends; export/import probing logs")
+    p.add_argument("--config", required=True, help="daemon.yaml (names the journal)")
+    p.add_argument("--machine", help="only this machine (required with --import)")
+    p.add_argument("--limit", type=int, default=20, help="runs to list (default 20)")
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--export", metavar="RUN", help="export run RUN to --csv")
+    g.add_argument("--import", dest="import_csv", metavar="CSV", help="import a probing log")
+    p.add_argument("--csv", metavar="OUT", help="output file for --export")
+    p.add_argument("--no-analyse", action="store_true", help="--import: journal only")
+    p.set_defaults(func=_run)

@@ -1,0 +1,38 @@
+"""The arguments of `rumba plan`; the command is ``daemon.cli.commands.plan``."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from daemon.cli.choices import DIALECT_NAMES
+
+
+def _run(args: argparse.Namespace) -> int:
+    from daemon.cli.commands.plan import run
+
+    return run(args)
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "plan", help="optimise the poses of a plan: target link uncertainties, least time",
+        description="Choose the B/C poses (a grid of the reachable indexations that pass the "
+                    "safety check) and their order so that every link of the target file "
+                    "reaches its standard uncertainty in the least estimated machine time; "
+                    "write the plan and print its predicted uncertainties and time beside "
+                    "the reference plan's. Exit 0; 1 when --max-time leaves targets missed "
+                    "(the plan is written and they are named); 2 on bad input.")
+    p.add_argument("--machine", type=Path, required=True, metavar="M.yaml")
+    p.add_argument("--artefact", type=Path, required=True, metavar="A.yaml")
+    p.add_argument("--target", type=Path, required=True, metavar="TARGETS.yaml",
+                   help="target file (example: config/plans/targets/shift_start.yaml)")
+    p.add_argument("--max-time", type=float, metavar="S",
+                   help="cap on the estimated machine time (seconds)")
+    p.add_argument("--dialect", default="fanuc", choices=[*sorted(DIALECT_NAMES)],
+                   help="the controller's dialect: it decides the two-speed touch and so the "
+                        "time (default: fanuc)")
+    p.add_argument("-o", "--output", type=Path, metavar="PLAN.yaml",
+                   help="plan file to write (default: <name>.yaml here)")
+    p.add_argument("--force", action="store_true", help="overwrite the output file")
+    p.set_defaults(func=_run)
