@@ -10,7 +10,7 @@ from pydantic import AfterValidator, Field
 
 from contracts.result_lines import MAX_RESULT_MM
 
-SAFE_NAME = re.compile(r"\A[A-Za-z0-9_.-]{1,32}\Z")
+SAFE_NAME = re.compile(r"\A(?!\.+\Z)[A-Za-z0-9_.-]{1,32}\Z")  # not ".", ".."
 """Names that reach G-code (ball ids, machine and plan names) must match this: no spaces,
 parentheses, semicolons, quotes or line breaks, so nothing can be injected into a program.
 Use ``fullmatch``: with ``match`` and ``$`` a trailing newline would slip through (``\\Z`` also

@@ -178,3 +178,50 @@ def test_validation_poses_are_held_out_and_do_not_count_for_the_targets(tmp_path
     assert all(r.new_u[k] <= r.targets[k] * (1 + 1e-9) for k in r.targets)
     assert r.plan.model_copy(update={"poses": [p for i, p in enumerate(r.plan.poses)
                                                if i not in held]})  # estimate set alone
+
+
+@pytest.mark.parametrize("force", [False, True])
+def test_output_through_a_symlink_is_refused(tmp_path, force):
+    victim = tmp_path / "victim.txt"
+    victim.write_text("keep\n", encoding="utf-8")
+    link, dangling = tmp_path / "plan.yaml", tmp_path / "dangling.yaml"
+    link.symlink_to(victim)
+    dangling.symlink_to(tmp_path / "created-through-link.yaml")
+    for out in (link, dangling):
+        code, _, err = _rumba([*ARGS, "--target", str(TARGETS), "-o", str(out),
+                               *(["--force"] if force else [])])
+        assert code == 2 and "symbolic link" in err and len(err.strip().splitlines()) == 1
+    assert victim.read_text(encoding="utf-8") == "keep\n"
+    assert not (tmp_path / "created-through-link.yaml").exists()
+
+
+def test_write_new_never_follows_a_link_planted_after_the_check(tmp_path):
+    from daemon.cli.commands.plan import write_new
+    from daemon.safepath import UnsafePathError  # noqa: F401  (the CLI's error family)
+
+    victim, out = tmp_path / "victim.txt", tmp_path / "p.yaml"
+    victim.write_text("keep\n", encoding="utf-8")
+    out.symlink_to(victim)  # planted between the early check and the write
+    for force in (False, True):
+        with pytest.raises(Exception, match="symbolic link"):
+            write_new(out, "plan\n", force)
+    assert victim.read_text(encoding="utf-8") == "keep\n"
+
+
+@pytest.mark.parametrize("value", ["\uff11", "nan", "inf", "1_0", "1e3", "-5", "", " 5"])
+def test_max_time_takes_plain_ascii_seconds_only(tmp_path, value, capsys):
+    with pytest.raises(SystemExit) as e:  # argparse's usage error
+        main([*ARGS, "--target", str(TARGETS), "-o", str(tmp_path / "p.yaml"),
+              "--max-time", value])
+    err = capsys.readouterr().err
+    assert e.value.code == 2 and "--max-time" in err and "plain decimal" in err, err
+    assert not (tmp_path / "p.yaml").exists()
+
+
+@pytest.mark.parametrize("name", ["..", ".", "..."])
+def test_a_plan_name_of_dots_is_refused(tmp_path, name):
+    f = tmp_path / "t.yaml"
+    f.write_text(f"name: '{name}'\nreference_plan: {SHIPPED}\nlinks: {{EB0Z: 1}}\n",
+                 encoding="utf-8")
+    code, _, err = _rumba([*ARGS, "--target", str(f), "-o", str(tmp_path / "p.yaml")])
+    assert code == 2 and "name" in err and str(f) in err, err

@@ -4,6 +4,8 @@ the least machine time, write them as a plan, and compare with the reference pla
 from __future__ import annotations
 
 import argparse
+import errno
+import os
 import sys
 import time
 from dataclasses import dataclass, replace
@@ -123,20 +125,35 @@ def make_plan(machine_path: Path, artefact_path: Path, target_path: Path, dialec
                    chosen, opt_s)
 
 
+def write_new(out: Path, text: str, force: bool) -> None:
+    """Write the plan file itself, never through a symbolic link (a planted link would send a
+    root-run `rumba plan` anywhere): O_NOFOLLOW, and O_EXCL unless ``force``."""
+    flags = os.O_WRONLY | os.O_CREAT | os.O_NOFOLLOW | (os.O_TRUNC if force else os.O_EXCL)
+    try:
+        fd = os.open(out, flags, 0o644)
+    except OSError as e:
+        if out.is_symlink():
+            raise _error(f"{out}: is a symbolic link; refusing to write through it") from None
+        if e.errno == errno.EEXIST:
+            raise _error(f"{out}: exists; choose another --output or add --force") from None
+        raise _error(f"{out}: cannot write: {e.strerror}") from None
+    with os.fdopen(fd, "w", encoding="utf-8") as f:
+        f.write(text)
+
+
 def run(args: argparse.Namespace) -> int:
     from contracts.plan_targets import load_targets_file
     from daemon.safepath import plain_name
 
     out = args.output or Path(plain_name(f"{load_targets_file(args.target).name}.yaml",
                                          "name"))
+    if out.is_symlink():  # checked again when written (write_new): this saves the work
+        raise _error(f"{out}: is a symbolic link; refusing to write through it")
     if out.exists() and not args.force:
         raise _error(f"{out}: exists; choose another --output or add --force")
     r = make_plan(args.machine, args.artefact, args.target, args.dialect, args.max_time)
     _print(r, get_dialect(args.dialect), r.chosen.design.sigma_um if r.chosen.design else ())
-    try:
-        out.write_text(r.text, encoding="utf-8")
-    except OSError as e:
-        raise _error(f"{out}: cannot write: {e.strerror}") from None
+    write_new(out, r.text, args.force)
     print(f"wrote {out}")
     if r.chosen.missed:
         print(f"rumba plan: --max-time {args.max_time:g} s: targets missed: " + "; ".join(

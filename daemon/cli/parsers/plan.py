@@ -3,9 +3,19 @@
 from __future__ import annotations
 
 import argparse
+import re
 from pathlib import Path
 
 from daemon.cli.choices import DIALECT_NAMES
+
+
+def ascii_seconds(text: str) -> float:
+    """Seconds as plain ASCII decimals: Python's float() also reads '１' (fullwidth),
+    '1_0' or 'nan', which no operator means to type."""
+    if not re.fullmatch(r"[0-9]{1,7}(\.[0-9]*)?|\.[0-9]+", text):
+        raise argparse.ArgumentTypeError(f"{text!r}: expected seconds as a plain decimal "
+                                         "number such as 90 or 90.5")
+    return float(text)
 
 
 def _run(args: argparse.Namespace) -> int:
@@ -27,7 +37,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--artefact", type=Path, required=True, metavar="A.yaml")
     p.add_argument("--target", type=Path, required=True, metavar="TARGETS.yaml",
                    help="target file (example: config/plans/targets/shift_start.yaml)")
-    p.add_argument("--max-time", type=float, metavar="S",
+    p.add_argument("--max-time", type=ascii_seconds, metavar="S",
                    help="cap on the estimated machine time (seconds)")
     p.add_argument("--dialect", default="fanuc", choices=[*sorted(DIALECT_NAMES)],
                    help="the controller's dialect: it decides the two-speed touch and so the "
