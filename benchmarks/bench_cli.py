@@ -1,12 +1,11 @@
-"""Speed of the command line (issue 19), run by hand: ``rumba --help`` and the 175-pose analyze.
+"""Speed of the command line (issue 19), by hand: ``rumba --help`` and the 175-pose analyze."""
 
-    .venv/bin/python -m benchmarks.bench_cli [--runs 7] [--keep DIR]
-
-Both are timed from the shell (a fresh ``rumba`` process each run, the installed script of the
-venv or ``python -m daemon.cli`` without one), so the figures include interpreter start-up and
-imports; median and best of ``--runs`` runs. Targets: ``--help`` well under 0.5 s, analyze of
-4 balls × 175 poses (thesis plan ``thesis_ch4_175poses``, 3 500 touches) ≤ 1 s.
-"""
+# .venv/bin/python -m benchmarks.bench_cli [--runs 7] [--keep DIR]   (also in `make bench`)
+#
+# Both are timed from the shell (a fresh ``rumba`` process each run, the installed script of the
+# venv or ``python -m daemon.cli`` without one), so the figures include interpreter start-up and
+# imports; median and best of ``--runs`` runs. Targets: ``--help`` well under 0.5 s, analyze of
+# 4 balls × 175 poses (thesis plan ``thesis_ch4_175poses``, 3 500 touches) ≤ 1 s.
 
 from __future__ import annotations
 

@@ -1,5 +1,6 @@
-"""The command line stays light (issue 19): what the parser and `rumba analyze` import, and the
-fast table printing rich's bytes. Behavioural checks only; timings: benchmarks/bench_cli.py."""
+"""The command line stays light (issue 19): what parser, help and analyze import; the fast table."""
+
+# behavioural checks only, no timings: those are benchmarks/bench_cli.py
 
 from __future__ import annotations
 
