@@ -34,12 +34,15 @@ def _rumba(*argv: str, **kw) -> subprocess.Popen:
 
 @pytest.fixture(scope="module")
 def sim_url():
-    """One simulator process for the module; slow enough (time scale) to be caught probing."""
+    """One simulator process for the module, slow enough to be caught probing whatever the
+    load: at time scale 0.1 the 140 touches take ≈ 11 s, so a signal sent within seconds of the
+    first journaled hit lands in CAPTURE (at 0.02, ≈ 2 s, a loaded machine saw the run reach
+    IDENTIFY first)."""
     port = free_port()
     proc = _rumba("sim", "--machine", str(CONFIG / "machines/thesis_wcbxfzyt.yaml"),
                   "--artefact", str(CONFIG / "artefacts/thesis_4ball.yaml"),
                   "--serve", "opcua", "--security", "none", "--port", str(port),
-                  "--time-scale", "0.02")
+                  "--time-scale", "0.1")
     try:
         deadline = time.monotonic() + WAIT_S
         for line in proc.stdout:  # type: ignore[union-attr]

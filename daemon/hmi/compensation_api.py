@@ -230,11 +230,16 @@ def _write_in_thread(journal: Path, fn: Callable[[Store], Written]) -> Written:
         store.close()
 
 
+# at module level: aiohttp's AppKey looks for its module's frame on the stack, which a call
+# from a worker thread or hypothesis' runner does not have (UnboundLocalError in AppKey)
+VIEWS_KEY = web.AppKey("compensation_views", Views)
+
+
 def add_routes(app: web.Application, sessions_key: web.AppKey, store_key: web.AppKey) -> None:
     """GET /api/compensation?machine=, POST /api/compensation/confirm {machine, run_id[,
     again]} and /api/compensation/rollback {machine} on ``app`` (behind its access layer)."""
     app[LOCK_KEY] = asyncio.Lock()
-    views_key = web.AppKey("compensation_views", Views)
+    views_key = VIEWS_KEY
 
     def views(request: web.Request) -> Views:
         if views_key not in request.app:

@@ -50,6 +50,7 @@ class Drainer:
         self.store, self.dsn, self.app = store, dsn, app
         self.pg: PgStore | None = None
         self.wake = asyncio.Event()
+        self._draining = asyncio.Lock()  # drain() never overlaps itself (one connection)
         self.copied_hits = 0
         self.last_error = ""
         self.last_copy_at: float | None = None
@@ -139,13 +140,17 @@ class Drainer:
                 await asyncio.wait_for(pg.close(), 2.0)
 
     async def drain(self) -> int:
-        """Copy everything in the outbox now; returns the number of outbox rows copied."""
-        total = 0
-        while True:
-            n = await self._pass()
-            if n == 0:
-                return total
-            total += n
+        """Copy everything in the outbox now; returns the number of outbox rows copied. One
+        drain at a time: the background loop and a caller (shutdown, a test) share one
+        PostgreSQL connection, and two transactions interleaved on it end in psycopg's
+        OutOfOrderTransactionNesting (seen under load)."""
+        async with self._draining:
+            total = 0
+            while True:
+                n = await self._pass()
+                if n == 0:
+                    return total
+                total += n
 
     async def _pass(self) -> int:
         db = self.store.db
