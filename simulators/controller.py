@@ -76,6 +76,7 @@ class VirtualController(MachineSide):
         self.tnc_probe_feed_mm_min = tnc_probe_feed_mm_min
         self.state = "idle"
         self.alarm: str | None = None
+        self.resets = 0  # RESETs so far: a tape reader tells a tape read across one (DNC)
         self.machine_time_s = 0.0
         self._dialect_now = dialect
         self.variables: dict[str, float | str] = _Variables(self._variable_written)
@@ -165,6 +166,7 @@ class VirtualController(MachineSide):
 
     async def abort(self) -> None:
         """Reset: stop at once; state idle (the alarm text is kept until the next start)."""
+        self.resets += 1
         task = self._task
         if task is not None and not task.done():
             task.cancel()

@@ -28,14 +28,7 @@ PHASES = ("PREPARE", "CAPTURE", "IDENTIFY", "REPORT", "WRITE-BACK")
 OPERATOR = ("hmi", "CAN panel", "SIGTERM (daemon stopping)")  # session.abort(source)
 ROWS = ([(t, p, c) for t in TRANSPORTS for p in PHASES for c in OPERATOR]
         + [(t, "CAPTURE", c) for t in TRANSPORTS for c in ("cnc", "link loss")])
-DNC_MID_TAPE = pytest.mark.xfail(strict=False, reason=(
-    "open (issue 20): a DNC tape stopped mid-program is closed at a block's end with '%', but "
-    "the simulated tape reader (simulators/frontends/serial.py, edited elsewhere meanwhile) "
-    "may take a '%' after a RESET or an XOFF-held cut as the leader of a new, empty program, "
-    "so the next tape is misread"))
-PARAMS = [pytest.param(t, p, c, id=f"{t}-{p}-{c.split()[0]}",
-                       marks=[DNC_MID_TAPE] if t.startswith("serial") and p == "CAPTURE" else [])
-          for t, p, c in ROWS]
+PARAMS = [pytest.param(t, p, c, id=f"{t}-{p}-{c.split()[0]}") for t, p, c in ROWS]
 
 
 @pytest_asyncio.fixture(scope="module", loop_scope="module")
@@ -96,6 +89,7 @@ async def test_every_stop_leaves_a_defined_state_and_the_next_run_starts(
         rigs, tmp_path, monkeypatch, transport, phase, trigger):
     rig = await rigs(transport)
     rig.ctrl.reseed(0)
+    rig.ctrl.verdict = 0  # as the start-of-shift macro clears it
     hold = Hold(phase)
     session, store, link = await _open(rig, tmp_path, monkeypatch, hold, trigger)
     try:
@@ -107,10 +101,15 @@ async def test_every_stop_leaves_a_defined_state_and_the_next_run_starts(
         row = store.run(run1)
         assert (row.state, session.state) == (state, State(state)), row.reason
         assert row.reason.startswith(why) or why in row.reason, row.reason
-        if transport.startswith("serial") and rig.ctrl.state == "running":
+        if transport.startswith("serial"):
             # Plain DNC has no remote reset: the tape was closed at a block's end, the control
-            # ends the program after the blocks it holds (an event, not a guess).
-            await asyncio.wait_for(rig.ctrl.wait_done(), 30)
+            # ends the program after the blocks it holds (an event, not a guess), then reads
+            # the ERROR verdict tape the run's end sent (not after a RESET: the tape was open).
+            async with asyncio.timeout(30):
+                while rig.ctrl.state in ("running", "hold") or (
+                        trigger in OPERATOR and rig.ctrl.verdict == 0):
+                    await rig.ctrl.wait_done()
+                    await asyncio.sleep(0.05)
         if trigger != "link loss":  # the reset reached the control: nothing runs there
             assert rig.ctrl.state not in ("running", "hold"), rig.ctrl.state
         # The next run: the controller takes its program (a first hit), then it is stopped
@@ -130,8 +129,7 @@ async def test_every_stop_leaves_a_defined_state_and_the_next_run_starts(
 
 
 @pytest.mark.asyncio(loop_scope="module")
-@pytest.mark.parametrize("transport", [
-    pytest.param(t, marks=[DNC_MID_TAPE] if t.startswith("serial") else []) for t in TRANSPORTS])
+@pytest.mark.parametrize("transport", TRANSPORTS)
 async def test_a_complete_run_after_the_matrix(rigs, tmp_path, monkeypatch, transport):
     """After every stop above, the same simulator runs a whole verification to its verdict."""
     rig = await rigs(transport)

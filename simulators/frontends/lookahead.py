@@ -5,7 +5,7 @@ receive buffer fill up and a Modbus mailbox wait."""
 from __future__ import annotations
 
 import asyncio
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Callable
 from typing import Any
 
 RUNNING = ("running", "hold")
@@ -38,12 +38,17 @@ class Lookahead:
             self.on_event(ev)
             yield ev
 
-    async def feed(self, line: str) -> None:
-        """Wait for room in the look-ahead, then hand the block to the controller."""
+    async def feed(self, line: str, still: Callable[[], bool] | None = None) -> bool:
+        """Wait for room in the look-ahead, then hand the block to the controller; with
+        ``still``, only if it still holds after the wait (a RESET meanwhile drops the block
+        instead of starting a new program with it). Return whether the block was fed."""
         while self.fed - self.started >= self.blocks and self.ctrl.state in RUNNING:
             self._progress.clear()
             await self._progress.wait()  # set by every Block and StateChange event
+        if still is not None and not still():
+            return False
         if self.ctrl.state not in RUNNING:
             self.reset()  # the first block of a stream starts a new program
         await self.ctrl.feed_block(line)
         self.fed += 1
+        return True

@@ -80,6 +80,10 @@ class SerialFrontend:
         self._closing = False
         self._garble_lines = 0
         self._self_reset = False
+        # Tape framing: the control's RESET count when the reader took the current tape's
+        # leader, and how many blocks of that tape it has handed on (see _block).
+        self._leader_resets = 0
+        self._tape_blocks = 0
         self._last_state = "idle"
         self._unplugged_until = 0.0
         self._tcp_writer: asyncio.StreamWriter | None = None
@@ -267,15 +271,28 @@ class SerialFrontend:
                 chr(XOFF), "")
             await self._block(line)
 
+    def _reset_since_leader(self) -> bool:
+        return getattr(self.ctrl, "resets", 0) != self._leader_resets
+
     async def _block(self, line: str) -> None:
+        """The tape reader: a program is ``%`` … ``%``. After a RESET the control drops the
+        rest of the tape it was reading and waits for the next leading ``%``; a ``%`` with no
+        block since the last one is an empty record, not a program, so it leads the next tape
+        (the closing ``%`` of a tape cut after a RESET, then the next tape's own, are read as
+        one leader: never as an empty program that would take the next tape's leader as its
+        end). Both are decided here, in the order the bytes came, never by the controller's
+        events, which arrive later (a block read meanwhile would start a new program)."""
         stripped = line.strip()
+        if self._in_program and not self._discard and self._reset_since_leader():
+            self._in_program = False  # RESET at the control: the rest of this tape is dropped
         if stripped.startswith("%"):
-            if not self._in_program:
+            if not self._in_program or not self._tape_blocks:
                 if self.ctrl.state in ("running", "hold"):
                     # The next tape (a verdict program after the probing one) is read when
                     # the running program has ended, as at the control's next cycle start.
                     await self.ctrl.wait_done()
                 self._in_program, self._discard = True, False
+                self._leader_resets, self._tape_blocks = getattr(self.ctrl, "resets", 0), 0
                 self._look.reset()
             else:
                 self._in_program = False
@@ -283,7 +300,10 @@ class SerialFrontend:
             return
         if not self._in_program or self._discard or not stripped:
             return  # leader before the first '%' is skipped, as a tape reader does
-        await self._look.feed(stripped)
+        if await self._look.feed(stripped, still=lambda: not self._reset_since_leader()):
+            self._tape_blocks += 1
+        else:  # RESET while the block waited for the look-ahead: this tape is dropped
+            self._in_program = False
 
     # ------------------------------------------------------------------ controller → line
 
@@ -299,6 +319,8 @@ class SerialFrontend:
         else:
             self._self_reset = self._in_program
             await self.ctrl.abort()
+            # Our own reset: this tape is discarded to its end (``%``), not dropped at once.
+            self._leader_resets = getattr(self.ctrl, "resets", 0)
         self._line(f"ALARM: {text}")
 
     def _fault(self, fault: Any) -> None:
@@ -349,7 +371,7 @@ class SerialFrontend:
                   and was in ("running", "hold", "alarm")):
                 if self._self_reset:  # our own overflow alarm: keep discarding this tape
                     self._self_reset = False
-                else:
+                elif self._reset_since_leader():  # not yet seen by _block (a later tape's is)
                     # RESET at the control: the rest of the tape is dropped, the reader waits
                     # for the leader of a new one.
                     self._discard = self._in_program = False
