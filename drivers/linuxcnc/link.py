@@ -109,11 +109,15 @@ class LinuxCncLink(CncLink):
         self._ch = ch
 
     async def _ready(self) -> RshChannel:
-        """Connected, estop off, machine on, homed, MDI mode, no stale error."""
+        """Connected, estop off, machine on, homed, MDI mode, no stale error. linuxcncrsh obeys
+        the last client that sent ``set enable`` (an operator's client, a check, the link's own
+        abort): each run takes it back on its channel first (remote mode; the local helper
+        talks to LinuxCNC through its ``linuxcnc`` module, no enable there)."""
         await self.connect()
         ch = self._ch
         assert ch is not None
-        for cmd in ("set estop off", "set machine on"):
+        enable = [f"set enable {self.cfg.enable_password}"] if self.cfg.mode == "remote" else []
+        for cmd in (*enable, "set estop off", "set machine on"):
             await self._set(cmd)
         homed = await ch.ask("get joint_homed")
         if "NO" in homed.split()[1:1 + self.cfg.joints]:
