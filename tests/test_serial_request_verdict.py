@@ -156,6 +156,10 @@ async def test_other_lines_and_other_machines_never_start_a_run():
 
 
 async def test_after_an_aborted_stream_no_verdict_is_fed_into_the_old_program():
+    """Abort (issue 20): the link finishes the block it is sending and closes the tape (``%``),
+    so the control ends the old program at that block — never a truncated block, never the
+    rest of the program — and reads the verdict as a tape of its own; the next run needs no
+    RESET at the control."""
     # 115 200 baud: the 2-pose program (≈ 2 s on the line) still streams at the first touch.
     vc, job = real_setup("siemens", poses=((0.0, 0.0), (30.0, 0.0)))
     vc.raise_start_request()
@@ -165,15 +169,17 @@ async def test_after_an_aborted_stream_no_verdict_is_fed_into_the_old_program():
         assert (await asyncio.wait_for(anext(agen), 20)).seq == 1
         await link.abort()  # e.g. the operator pressed Abort on the HMI
         await agen.aclose()
-        assert vc.state == "running"  # starving inside the program: no remote reset on DNC
-        with pytest.raises(LinkError, match="still inside the interrupted program"):
-            await link.write_verdict(Verdict("ERROR", "r1", "aborted"))
-        await asyncio.sleep(0.2)
-        assert vc.variables["R4"] == 0.0 and vc.state == "running"  # production not released
-        await vc.abort()  # RESET at the control: the reader waits for a new tape
+        assert await vc.wait_done(10) == "done"  # the old program ended at the cut
+        assert len(vc.touches) < job.touch_count  # its tail was never sent
+        assert vc.variables["R4"] == 0.0  # nothing was released by the old program
+        await link.write_verdict(Verdict("ERROR", "r1", "aborted"))
+        async with asyncio.timeout(5):
+            while vc.verdict != 4:
+                await asyncio.sleep(0.01)
+        assert vc.variables["R4"] == 4.0  # ERROR, from the verdict's own tape
         _, job2 = real_setup("siemens")
         hits = [h async for h in link.run(job2)]
-        assert len(hits) == job2.touch_count
+        assert len(hits) == job2.touch_count and hits[0].seq == 1
         # the last result line comes before the control has run the closing blocks
         assert await vc.wait_done(10) == "done"
         await link.write_verdict(Verdict("PASS", "r2"))
