@@ -176,17 +176,18 @@ def test_seq_gaps_are_a_warning_listing_the_missing_ranges(setup, tmp_path) -> N
 
 
 def test_ceilings_on_bytes_rows_and_line_length(setup, tmp_path, monkeypatch) -> None:
+    import contracts.csv_lines as csv_lines  # the byte and line ceilings are read there
     import contracts.probing_log as pl
 
     _, a, _, rows = setup
     write_log(tmp_path / "log.csv", rows)
     size = (tmp_path / "log.csv").stat().st_size
-    monkeypatch.setattr(pl, "MAX_LOG_BYTES", size - 1)
+    monkeypatch.setattr(csv_lines, "MAX_LOG_BYTES", size - 1)
     with pytest.raises(ProbeLogError, match=rf"{size} bytes, more than the reader's ceiling"):
         read_log(tmp_path / "log.csv", a)
     with pytest.raises(ProbeLogError, match=r"line 62: the log is larger than"):
         read_log("text", a, text=(tmp_path / "log.csv").read_text())
-    monkeypatch.setattr(pl, "MAX_LOG_BYTES", 10 * size)
+    monkeypatch.setattr(csv_lines, "MAX_LOG_BYTES", 10 * size)
     monkeypatch.setattr(pl, "MAX_LOG_ROWS", 10)
     with pytest.raises(ProbeLogError, match=r"line 13: more than 10 touch rows"):
         read_log(tmp_path / "log.csv", a)
