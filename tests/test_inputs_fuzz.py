@@ -12,11 +12,9 @@ from __future__ import annotations
 import copy
 import os
 import re
-import signal
 import warnings
 from collections import Counter
-from collections.abc import Callable, Iterator
-from contextlib import contextmanager
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -28,126 +26,27 @@ from hypothesis import strategies as st
 
 import contracts.probing_log as pl
 from contracts.centres_file import read_centres, write_centres
-from contracts.importers import import_centres
-from contracts.probing_log import ProbeLogWarning, read_log
+from contracts.probing_log import read_log
 from contracts.setup_files import load_artefact, load_machine, load_plan, machine_from_dict
 from contracts.yaml_files import ConfigError, read_yaml
 from daemon.analysis.identify import AnalysisError, analyse_centres
 from daemon.analysis.touch_centres import rows_to_centres
 from identification.plausibility import MAX_LINK_ROTATION_RAD, MAX_LINK_TRANSLATION_MM
-from programs.model import load_targets
+from tests.input_fuzz_helpers import (
+    DATA,
+    EXAMPLE_LOG,
+    READERS,
+    SAMPLES,
+    Tally,
+    outcome,
+    special_file,
+)
 from tests.reader_helpers import ARTEFACT, CONFIG, centre_rows
 
-ROOT = Path(__file__).resolve().parents[1]
-DATA = ROOT / "tests/data/centres"
-EXAMPLE_LOG = CONFIG / "examples/thesis_annexB_14poses.csv"
-HANG_S = 10
 GEOMETRY_EXAMPLES = 30  # an analysis takes about 0.3 s
-BAD = ("traceback", "hang", "wrong acceptance", "wrong refusal")
 FUZZ = settings(max_examples=60, deadline=None, derandomize=True, database=None,
                 suppress_health_check=[HealthCheck.function_scoped_fixture,
                                        HealthCheck.too_slow])
-
-
-class _Hang(Exception):
-    pass
-
-
-@contextmanager
-def _deadline(seconds: int) -> Iterator[None]:
-    """SIGALRM after ``seconds``: a blocking open() of a FIFO or a runaway loop ends as _Hang."""
-    def fire(signum: int, frame: Any) -> None:
-        raise _Hang
-
-    old = signal.signal(signal.SIGALRM, fire)
-    signal.alarm(seconds)
-    try:
-        yield
-    finally:
-        signal.alarm(0)
-        signal.signal(signal.SIGALRM, old)
-
-
-def _outcome(call: Callable[[], Any], path: Path | str, valid: bool | None,
-             check: Callable[[Any], bool] = lambda _: True) -> tuple[str, str]:
-    """(class, detail) of one example: ``valid`` True: must be read (``check`` holds on the
-    result), False: must be refused, None: either."""
-    try:
-        with _deadline(HANG_S), warnings.catch_warnings():
-            warnings.simplefilter("ignore", ProbeLogWarning)
-            out = call()
-    except _Hang:
-        return "hang", str(path)
-    except ConfigError as e:
-        msg = str(e)
-        if "\n" in msg or not msg.startswith(str(path)) or len(msg) > 600:
-            return "traceback", f"not one line naming the file: {msg[:300]!r}"
-        return ("wrong refusal", msg[:300]) if valid else ("refused", "")
-    except Exception as e:  # the count of what must never happen
-        return "traceback", f"{type(e).__name__}: {e}"[:300]
-    if valid is False or not check(out):
-        return "wrong acceptance", str(path)
-    return "read", ""
-
-
-class Tally:
-    """Counts of one fuzz test; the first bad examples kept for the failure message."""
-
-    def __init__(self, name: str) -> None:
-        self.name, self.counts, self.bad = name, Counter[str](), []
-
-    def add(self, result: tuple[str, str], example: object) -> None:
-        self.counts[result[0]] += 1
-        if result[0] in BAD and len(self.bad) < 5:
-            self.bad.append(f"{result[0]}: {result[1]} ← {example!r}"[:500])
-
-    def verdict(self) -> None:
-        print(f"\n{self.name}: " + ", ".join(f"{k} {self.counts[k]}"
-                                           for k in ("read", "refused", *BAD)))
-        assert all(self.counts[k] == 0 for k in BAD), self.bad
-
-
-# ------------------------------------------------------------------- special files, ceilings
-
-READERS: dict[str, Callable[[Path | str], Any]] = {
-    "log": lambda p: read_log(p, ARTEFACT),
-    "centres": read_centres,
-    "kinopt": lambda p: import_centres(p, "kinopt", balls=ARTEFACT.ids, rotary=("B", "C"),
-                                       ball="B1"),
-    "dmis": lambda p: import_centres(p, "dmis", balls=ARTEFACT.ids, rotary=("B", "C"),
-                                     poses=[(0.0, 0.0)] * 14),
-    "auto": lambda p: import_centres(p, balls=ARTEFACT.ids, rotary=("B", "C"), ball="B1",
-                                     poses=[(0.0, 0.0)] * 14),
-    "yaml": read_yaml,
-    "targets": lambda p: load_targets(p, ARTEFACT),
-}
-SAMPLES = {"log": EXAMPLE_LOG, "kinopt": DATA / "kinopt_B1.nc", "dmis": DATA / "dmis_cmm.dmo",
-           "auto": DATA / "dmis_cmm.dmo", "yaml": CONFIG / "machines/thesis_wcbxfzyt.yaml"}
-
-
-def _special(tmp: Path, kind: str, sample: Path | None) -> tuple[Path | str, bool]:
-    """A path of ``kind`` and whether a reader may accept it (regular files only)."""
-    if kind.startswith("/dev/"):
-        return kind, False
-    p = tmp / f"special-{kind}"
-    if p.exists() or p.is_symlink():
-        p.unlink() if not p.is_dir() or p.is_symlink() else os.rmdir(p)
-    if kind in ("fifo", "link-to-fifo"):
-        fifo = tmp / "the-fifo"
-        if not fifo.exists():
-            os.mkfifo(fifo)
-        if kind == "fifo":
-            return fifo, False
-        p.symlink_to(fifo)
-        return p, False
-    if kind == "dir":
-        p.mkdir()
-        return p, False
-    if kind == "link-to-sample" and sample is not None:
-        p.symlink_to(sample)
-        return p, True
-    p.write_bytes(b"")
-    return p, True  # an empty regular file: refused by every reader but YAML's (None)
 
 
 def test_special_files_are_refused_without_hanging(tmp_path: Path) -> None:
@@ -160,8 +59,8 @@ def test_special_files_are_refused_without_hanging(tmp_path: Path) -> None:
     def run(reader: str, kind: str) -> None:
         if kind == "/dev/tty" and not os.path.exists(kind):
             kind = "/dev/null"
-        path, may = _special(tmp_path, kind, SAMPLES.get(reader))
-        tally.add(_outcome(lambda: READERS[reader](path), path, None if may else False),
+        path, may = special_file(tmp_path, kind, SAMPLES.get(reader))
+        tally.add(outcome(lambda: READERS[reader](path), path, None if may else False),
                   (reader, kind))
 
     run()
@@ -205,7 +104,7 @@ def test_row_ceiling_counts_rows_not_lines(tmp_path: Path, monkeypatch) -> None:
         path = tmp_path / "rows.csv"
         path.write_text("\n".join(head + body) + "\n")
         parsed.clear()
-        result = _outcome(lambda: read_log(path, ARTEFACT), path, None)
+        result = outcome(lambda: read_log(path, ARTEFACT), path, None)
         over = n > ceiling
         if over and result[0] == "refused" and parsed["rows"]:
             result = ("wrong acceptance", f"{parsed['rows']} rows parsed before the refusal")
@@ -278,7 +177,7 @@ def test_a_duplicated_key_is_never_accepted(tmp_path: Path) -> None:
             return
         path = tmp_path / Path(rel).name
         path.write_text(text)
-        result = _outcome(lambda: YAML_FILES[rel](path), path, False)
+        result = outcome(lambda: YAML_FILES[rel](path), path, False)
         if result[0] == "refused":
             try:
                 read_yaml(path)
@@ -319,7 +218,7 @@ def test_a_boolean_key_takes_only_true_or_false(tmp_path: Path) -> None:
         path = tmp_path / Path(rel).name
         path.write_text(text.replace(key_text, f"{site}: {value}"))
         valid = value.strip().removeprefix("!!bool ") in _YAML_BOOLS
-        tally.add(_outcome(lambda: YAML_FILES[rel](path), path, valid), (site, value))
+        tally.add(outcome(lambda: YAML_FILES[rel](path), path, valid), (site, value))
 
     run()
     tally.verdict()
@@ -358,7 +257,7 @@ def test_a_direction_is_refused_unless_it_is_one(tmp_path: Path) -> None:
             s = np.asarray(m.spindle_axis, float)
             return bool(np.isfinite(s).all() and abs(np.linalg.norm(s) - 1.0) < 1e-9)
 
-        tally.add(_outcome(lambda: load_machine(path), path, False if zero else None, check),
+        tally.add(outcome(lambda: load_machine(path), path, False if zero else None, check),
                   (site, v))
 
     run()
@@ -385,7 +284,7 @@ def test_a_control_character_in_an_instrument_file_is_never_accepted(tmp_path: P
         path = tmp_path / sample
         path.write_text("\n".join(lines), encoding="utf-8")
         reader = READERS["auto" if fmt == "auto" else sample.split("_")[0]]
-        tally.add(_outcome(lambda: reader(path), path, False), (sample, k, c, ch, fmt))
+        tally.add(outcome(lambda: reader(path), path, False), (sample, k, c, ch, fmt))
 
     run()
     tally.verdict()
@@ -425,7 +324,7 @@ def test_a_signed_counter_is_never_accepted(tmp_path: Path) -> None:
             path.write_text("\n".join(text))
             call = lambda: read_centres(path)  # noqa: E731
         signed = "-" in cell
-        tally.add(_outcome(call, path, False if signed else None), (kind, line, col, cell))
+        tally.add(outcome(call, path, False if signed else None), (kind, line, col, cell))
 
     run()
     tally.verdict()
@@ -485,7 +384,7 @@ def test_an_analysis_against_a_wrong_geometry_is_refused(tmp_path: Path,
                        abs(v.value) * 1e-3 <= MAX_LINK_TRANSLATION_MM
                        for v in out.links.values())
 
-        tally.add(_outcome(call, "m.yaml", False if gross else (True if small else None),
+        tally.add(outcome(call, "m.yaml", False if gross else (True if small else None),
                            check), (change, axis, round(mm, 3), [round(x, 3) for x in d]))
 
     run()

@@ -119,7 +119,8 @@ async def test_can_panel_start_abort_and_lamps(tmp_path):
         async with asyncio.timeout(10):
             while session.busy:
                 await asyncio.sleep(0.01)
-        assert session.state == "ABORTED" and session.reason.startswith("aborted by CAN panel during ")
+        assert session.state == "ABORTED"
+        assert session.reason.startswith("aborted by CAN panel during "), session.reason
         panel.send(button_frame(0x640, "start", 3))
         async with asyncio.timeout(60):
             while session.state != "IDLE" or session.busy:
