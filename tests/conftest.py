@@ -17,7 +17,9 @@ def pytest_runtest_makereport(item: pytest.Item, call: pytest.CallInfo):  # type
     report = outcome.get_result()
     required = os.environ.get("RUMBA_REQUIRE_PEERS") == "1"
     needs_peer = item.get_closest_marker("peer") or item.get_closest_marker("linuxcnc")
-    if required and needs_peer and report.skipped:
+    # an expected failure (xfail: a documented upstream race, an open issue) is reported as
+    # such; only a real skip means the peer is missing
+    if required and needs_peer and report.skipped and not hasattr(report, "wasxfail"):
         # .ci/run installed the peers: a skip here means the peer is broken, not absent.
         report.outcome = "failed"
         report.longrepr = f"peer test skipped in CI (RUMBA_REQUIRE_PEERS=1): {report.longrepr}"
