@@ -150,3 +150,19 @@ async def test_at_most_max_write_bytes_per_loop_pass_at_921600():
         counting[0] = False
     assert sum(per_pass.values()) == 4000
     assert max(per_pass.values()) <= MAX_WRITE_BYTES
+
+
+def test_a_cut_tape_never_ends_inside_a_multi_line_if() -> None:
+    """An aborted stream finishes its line and every Siemens IF / LinuxCNC o-if it opened: a
+    tape ending between IF and ENDIF is a syntax alarm at the control (seen: "no matching
+    ELSEIF/ELSE/ENDIF"), not a stop; a Fanuc IF … GOTO is one line."""
+    from drivers.serial.link import cut_point
+
+    siemens = b'%\nN1 G0 X1\nIF R105==0\nMSG("miss")\nENDIF\nN2 G1 X2\n%\n'
+    for i, last in ((3, b"N1 G0 X1\n"), (12, b"ENDIF\n"), (20, b"ENDIF\n"), (31, b"ENDIF\n"),
+                    (40, b"N2 G1 X2\n")):
+        assert siemens[:cut_point(siemens, i)].endswith(last), i
+    lcnc = b"N1 G38.2 X1\no10001 if [#5070 EQ 0]\n(abort,miss)\no10001 endif\nN2 G0 X0\n"
+    assert lcnc[:cut_point(lcnc, 14)].endswith(b"o10001 endif\n")
+    fanuc = b"N1 G31 X1\nIF [#5061 EQ 0] GOTO 9\nN2 G0 X0\n"
+    assert fanuc[:cut_point(fanuc, 12)] == b"N1 G31 X1\nIF [#5061 EQ 0] GOTO 9\n"

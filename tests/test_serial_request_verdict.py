@@ -169,7 +169,7 @@ async def test_after_an_aborted_stream_no_verdict_is_fed_into_the_old_program():
         assert (await asyncio.wait_for(anext(agen), 20)).seq == 1
         await link.abort()  # e.g. the operator pressed Abort on the HMI
         await agen.aclose()
-        assert await vc.wait_done(10) == "done"  # the old program ended at the cut
+        assert await vc.wait_done(10) == "done", vc.alarm  # the old program ended at the cut
         assert len(vc.touches) < job.touch_count  # its tail was never sent
         assert vc.variables["R4"] == 0.0  # nothing was released by the old program
         await link.write_verdict(Verdict("ERROR", "r1", "aborted"))

@@ -1,6 +1,7 @@
 """Every stop leaves a defined state (issue 20, item 6): phase × trigger × transport against the
 simulated CNC behind its real front-end (asyncua server, pymodbus server, a pty), one simulator
-per transport for the module (DNC: one per row, see SERIAL_OPEN). Each row holds a run in its phase, stops it, and checks: the
+per transport for the module (DNC: one per row, see SERIAL_OPEN). Each row holds a run in its
+phase, stops it, and checks: the
 journal row ABORTED (or FAILED for an involuntary stop) naming the phase and the cause, the
 controller no longer running the program, and the next run on the same session, link and
 simulator taking a new program (its first hit journaled). The module ends with a complete run

@@ -16,6 +16,7 @@ import concurrent.futures
 import contextlib
 import logging
 import os
+import re
 import termios
 import threading
 import time
@@ -110,6 +111,30 @@ class _ThreadTransport:
         self._writer.shutdown(wait=False, cancel_futures=True)
         with contextlib.suppress(Exception):
             self.ser.close()
+
+
+_OPENS = re.compile(rb"^\s*(?:N\d+\s+)?(?:IF\b(?!.*\bGOTO)|o\d+\s+if\b)", re.I)
+_CLOSES = re.compile(rb"^\s*(?:N\d+\s+)?(?:ENDIF\b|o\d+\s+endif\b)", re.I)
+
+
+def cut_point(payload: bytes, i: int) -> int:
+    """Where a stream stopped at byte ``i`` may end: after the line being sent, and after every
+    multi-line IF it opened is closed (Siemens ``IF … ENDIF``, LinuxCNC ``o… if/endif``): a tape
+    cut inside one is a syntax alarm at the control, not a stop (single-line Fanuc ``IF […]
+    GOTO`` and Heidenhain ``FN 9`` need no close)."""
+    depth, start = 0, 0
+    while True:
+        end = payload.find(b"\n", start)
+        line = payload[start:] if end < 0 else payload[start:end]
+        if _OPENS.match(line):
+            depth += 1
+        elif _CLOSES.match(line) and depth:
+            depth -= 1
+        if end < 0:
+            return len(payload)
+        start = end + 1
+        if start > i and depth == 0:
+            return start
 
 
 class SerialDncLink(CncLink):
@@ -223,16 +248,20 @@ class SerialDncLink(CncLink):
         proto, transport = self._proto, self._transport
         cps, budget = self.chars_per_s, self.cfg.tx_chunk_bytes
         t0 = line_t = time.monotonic()
-        i = 0
+        i, cut = 0, False
         while i < len(payload):
-            if self._cut.is_set():
-                end = payload.find(b"\n", i)
-                rest = payload[i:] if end < 0 else payload[i:end + 1]
-                if i:  # the control is inside the tape: finish its block, close the tape
-                    transport.write(rest + (b"" if rest.endswith(b"\n") else b"\n")
-                                    + b"%" + (b"\r\n" if self.cfg.eol == "CRLF" else b"\n"))
-                    self._stale = True  # results of the blocks it holds may still arrive
-                return
+            if self._cut.is_set() and not cut:
+                if not i:
+                    return  # nothing of this tape reached the control
+                # the control is inside the tape: the rest of its block, then the tape's end,
+                # fed like any other bytes (paced, and never while the control holds XOFF: a
+                # cut written at once overran a full receive buffer)
+                rest = payload[i:cut_point(payload, i)]
+                payload = (payload[:i] + rest + (b"" if rest.endswith(b"\n") else b"\n") + b"%"
+                           + (b"\r\n" if self.cfg.eol == "CRLF" else b"\n"))
+                self._stale = True  # results of the blocks it holds may still arrive
+                cut = True
+                continue
             if self.cfg.xonxoff and not proto.xon.is_set():
                 if not await wait_event(proto.xon, self.cfg.xoff_timeout_s):
                     raise LinkError(f"controller held XOFF for {self.cfg.xoff_timeout_s:g} s "

@@ -5,8 +5,19 @@ the start-of-shift macro's request line ``RUMBA REQUEST <machine>`` on ``raise_s
 Ptys and sockets deliver bytes instantly and enforce nothing, so the line is simulated here: bytes
 enter the receive buffer no faster than the baud rate (bits per character from the framing), the
 controller drains it one block at a time at its own execution pace, XOFF is sent at the high-water
-mark and XON at the low-water mark; a byte arriving into a full buffer is an overflow alarm, as on
-a Fanuc (alarm SR0001-like "overrun"). drivers/README.md documents the serial settings.
+mark and XON at the low-water mark; a byte the sender wrote after our XOFF could have reached it,
+arriving into a full buffer, is an overflow alarm, as on a Fanuc (alarm SR0001-like "overrun").
+drivers/README.md documents the serial settings.
+
+This receive side is only as timely as its event loop, a real control's UART is not: while the
+loop is late (the simulator's own computation, a loaded machine descheduling its process), the
+sender keeps writing at the line rate into the pty or socket, and the XOFF goes out only once the
+loop has caught up with that backlog. Bytes written before the XOFF went out are no protocol
+violation, however many there are: they are told apart from later ones by counting what the
+sender had written when the XOFF went out (``LineReader``), and those that do not fit wait on the
+line until the control makes room (``line_holds``) instead of overflowing the buffer. Only what
+the sender writes after the XOFF, beyond the slack above the high-water mark (the window it may
+have in flight until it reads the XOFF), is the sender ignoring XOFF.
 """
 
 from __future__ import annotations
@@ -17,44 +28,23 @@ import os
 import termios
 import time
 import tty
-from dataclasses import dataclass
-from typing import Any, Literal
+from typing import Any
 
 from simulators.frontends import cancel_tasks
 from simulators.frontends.lookahead import Lookahead
+from simulators.frontends.serial_line import (  # noqa: F401 (SerialSettings: public here)
+    FRAME_BITS,
+    LineReader,
+    SerialSettings,
+)
 
 XON, XOFF = 0x11, 0x13
-FRAME_BITS = {"7E1": 10, "8N1": 10, "7E2": 11, "8N2": 11}
-"""Bits on the line per character: start + data + parity + stop."""
-
-
-@dataclass
-class SerialSettings:
-    baudrate: int = 9600
-    framing: Literal["7E1", "8N1", "7E2", "8N2"] = "7E1"
-    eol: Literal["LF", "CRLF"] = "CRLF"  # end of line of what the controller sends back
-    rx_buffer_bytes: int = 256
-    high_water: int | None = None  # default: half the buffer (room for what is in flight)
-    low_water: int | None = None  # default: buffer / 4
-    xon_delay_s: float = 0.0  # fault: late XON
-    xon_missing: bool = False  # fault: XON never sent
-    disconnect_after_bytes: int | None = None  # fault: drop the line mid-stream
-    lookahead_blocks: int = 8  # blocks the control takes ahead of execution
-
-    @property
-    def chars_per_s(self) -> float:
-        return self.baudrate / FRAME_BITS[self.framing]
-
-    def marks(self) -> tuple[int, int]:
-        high = self.high_water if self.high_water is not None else self.rx_buffer_bytes // 2
-        low = self.low_water if self.low_water is not None else self.rx_buffer_bytes // 4
-        if not 0 <= low < high <= self.rx_buffer_bytes:
-            raise ValueError(f"need 0 <= low_water {low} < high_water {high} <= buffer")
-        return high, low
-
-
 class SerialFrontend:
-    """Serves one VirtualController over a pty (``open_pty``) and/or a TCP port (``open_tcp``)."""
+    """Serves one VirtualController over a pty (``open_pty``) and/or a TCP port (``open_tcp``).
+
+    Statistics: ``alarms``, ``max_fill`` (highest buffer level), ``rx_bytes`` (through the
+    line), ``xoff_sent``, ``line_holds`` (times bytes the sender wrote before our XOFF reached
+    it waited on the line for room: this event loop had fallen behind the line)."""
 
     def __init__(self, controller: Any, settings: SerialSettings | None = None) -> None:
         self.ctrl = controller
@@ -64,8 +54,14 @@ class SerialFrontend:
         self.max_fill = 0  # highest receive-buffer level seen (bytes)
         self.rx_bytes = 0
         self.xoff_sent = 0
+        self.line_holds = 0
         self._buf = bytearray()
         self._have_line = asyncio.Event()
+        # Set on every change a byte held on the line waits for: room in the buffer, the XOFF
+        # state, more bytes from the sender (see _admit).
+        self._wake = asyncio.Event()
+        self._reader: LineReader | None = None
+        self._rx_at_xoff = 0  # the sender's bytes received when our last XOFF went out
         self._xoff = False
         self._discard = False
         self._in_program = False
@@ -110,7 +106,9 @@ class SerialFrontend:
 
     async def _attach_fd(self, fd: int) -> None:
         loop = asyncio.get_running_loop()
-        reader = asyncio.StreamReader()
+        os.set_blocking(fd, False)  # LineReader.drain reads it too, and must never block
+        reader = LineReader(self._wake.set)
+        reader.fd = fd
         rt, _ = await loop.connect_read_pipe(lambda: asyncio.StreamReaderProtocol(reader),
                                              os.fdopen(os.dup(fd), "rb", 0))
         self._pipes.append(rt)
@@ -121,13 +119,19 @@ class SerialFrontend:
 
     async def open_tcp(self, host: str = "127.0.0.1", port: int = 0) -> int:
         """Listen for a ``socket://host:port`` sender (one at a time); return the bound port."""
-        self._server = await asyncio.start_server(self._on_client, host, port)
+        loop = asyncio.get_running_loop()
+        # asyncio.start_server, with our counting reader
+        self._server = await loop.create_server(
+            lambda: asyncio.StreamReaderProtocol(LineReader(self._wake.set), self._on_client),
+            host, port)
         return self._server.sockets[0].getsockname()[1]
 
     async def _on_client(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
         if self._session_lock.locked():
             writer.close()  # one DNC sender at a time, as on a real port
             return
+        assert isinstance(reader, LineReader)
+        reader.fd = writer.get_extra_info("socket").fileno()
         task = asyncio.current_task()
         assert task is not None
         self._tasks.append(task)  # close() cancels and awaits it with the other tasks
@@ -162,9 +166,10 @@ class SerialFrontend:
 
     # ------------------------------------------------------------------ one connection
 
-    async def _session(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+    async def _session(self, reader: LineReader, writer: asyncio.StreamWriter) -> None:
         async with self._session_lock:
             self._writer = writer
+            self._reader = reader
             self._buf.clear()
             self._xoff = self._discard = False
             consumer = asyncio.create_task(self._consume())
@@ -186,6 +191,7 @@ class SerialFrontend:
                 self._in_program = False
                 writer.close()
                 self._writer = None
+                self._reader = None
 
     async def _receive(self, reader: asyncio.StreamReader) -> None:
         cps = self.s.chars_per_s
@@ -220,10 +226,28 @@ class SerialFrontend:
         if self.s.framing.startswith("7") and any(b > 0x7F for b in piece):
             await self._alarm("parity error on the serial line (8-bit byte on a 7E1 port)")
             return
-        if len(self._buf) + len(piece) > self.s.rx_buffer_bytes:
-            await self._alarm(f"serial receive buffer overflow ({self.s.rx_buffer_bytes} bytes): "
-                              "the sender ignored XOFF")
-            return
+        held = False
+        while len(self._buf) + len(piece) > self.s.rx_buffer_bytes:
+            overflow = f"serial receive buffer overflow ({self.s.rx_buffer_bytes} bytes)"
+            if not self._xoff:
+                # No XOFF to ignore: the control asked for the rest of a block longer than
+                # the buffer (_consume), or the high-water mark is the buffer size.
+                await self._alarm(overflow)
+                return
+            if self._written_after_xoff() > self.s.rx_buffer_bytes - self.high:
+                await self._alarm(f"{overflow}: the sender ignored XOFF")
+                return
+            # Written before our XOFF could reach the sender: on a real line these bytes came
+            # in while the XOFF went out in time; here this loop was late. They wait on the line
+            # (in the pty or socket) until the control makes room; a sender that goes on writing
+            # is caught above as soon as its bytes after the XOFF exceed the slack.
+            if not held:
+                held = True
+                self.line_holds += 1
+            self._wake.clear()
+            await self._wake.wait()
+            if self._discard:
+                return
         self._buf.extend(piece)
         self.max_fill = max(self.max_fill, len(self._buf))
         if b"\n" in piece:
@@ -232,6 +256,22 @@ class SerialFrontend:
             self._xoff = True
             self.xoff_sent += 1
             self._put_flow(XOFF)
+            self._mark_xoff()
+
+    def _mark_xoff(self) -> None:
+        """Count what the sender had written when our XOFF went out: everything the OS holds
+        for us now is from before (it cannot have read the XOFF yet), whatever this loop had
+        not read so far; only bytes written later count against it."""
+        if self._reader is not None:
+            self._reader.drain()
+            self._rx_at_xoff = self._reader.received
+
+    def _written_after_xoff(self) -> int:
+        """Bytes the sender wrote after our XOFF went out (give or take those it wrote while
+        the XOFF was going out: ``_mark_xoff`` reads the OS just after sending it)."""
+        if self._writer is not None and self._writer.transport.get_write_buffer_size() > 0:
+            self._mark_xoff()  # the XOFF may still wait in our output buffer: not sent yet
+        return self._reader.received - self._rx_at_xoff if self._reader is not None else 0
 
     def _put_flow(self, byte: int) -> None:
         # Flow-control characters go out at once, ahead of any queued result line.
@@ -259,11 +299,13 @@ class SerialFrontend:
                     # or sender and control would wait for each other forever.
                     self._xoff = False
                     self._spawn(self._xon_later())
+                    self._wake.set()
                 self._have_line.clear()
                 await self._have_line.wait()
                 continue
             raw = bytes(self._buf[:nl + 1])
             del self._buf[:nl + 1]
+            self._wake.set()  # room for bytes held on the line
             if self._xoff and len(self._buf) <= self.low:
                 self._xoff = False
                 self._spawn(self._xon_later())
@@ -312,6 +354,7 @@ class SerialFrontend:
             return
         self._discard = True
         self._buf.clear()
+        self._wake.set()
         self.alarms.append(text)
         raise_alarm = getattr(self.ctrl, "raise_alarm", None)
         if callable(raise_alarm):
@@ -364,6 +407,7 @@ class SerialFrontend:
                 # The control stopped: what is still on the line is not executed.
                 self._discard = self._in_program
                 self._buf.clear()
+                self._wake.set()
                 if ev.alarm and ev.alarm not in self.alarms:
                     self.alarms.append(ev.alarm)
                     self._line(f"ALARM: {ev.alarm}")
@@ -376,6 +420,7 @@ class SerialFrontend:
                     # for the leader of a new one.
                     self._discard = self._in_program = False
                     self._buf.clear()
+                    self._wake.set()
 
     async def _send(self) -> None:
         cps = self.s.chars_per_s
