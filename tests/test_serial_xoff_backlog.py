@@ -18,7 +18,7 @@ import os
 import socket
 import threading
 import tty
-from collections.abc import Awaitable, Callable, Coroutine
+from collections.abc import Callable, Coroutine
 from typing import Any, TypeVar
 
 import pytest
@@ -68,6 +68,14 @@ class SimLoop:
 
     def close(self) -> None:
         self.thaw()
+
+        async def cancel_the_rest() -> None:  # nothing left pending for the loop's teardown
+            rest = [t for t in asyncio.all_tasks() if t is not asyncio.current_task()]
+            for t in rest:
+                t.cancel()
+            await asyncio.gather(*rest, return_exceptions=True)
+
+        asyncio.run_coroutine_threadsafe(cancel_the_rest(), self.loop).result(10)
         self.loop.call_soon_threadsafe(self.loop.stop)
         self.thread.join(10)
         self.loop.close()
@@ -100,9 +108,8 @@ async def _collect(link: SerialDncLink, job: Any) -> list:
     return [h async for h in link.run(job)]
 
 
-async def _cancelled(task: Awaitable[Any]) -> None:
-    if isinstance(task, asyncio.Task) and not task.done():
-        task.cancel()
+async def _cancelled(task: asyncio.Task) -> None:
+    task.cancel()  # no-op once done
     with contextlib.suppress(asyncio.CancelledError, Exception):
         await task
 
@@ -167,6 +174,7 @@ async def test_backlog_written_while_the_simulator_was_frozen_is_no_overflow(tra
             await sim.run(vc.start())  # cycle start: the control drains the line
             hits = await run
             latched_equal(hits, vc, job, tol_mm=0.5e-4 + 1e-9)
+            assert await sim.run(vc.wait_done(10)) == "done"
             assert fe.alarms == [] and fe.max_fill <= BUFFER
             assert link._proto is not None and link._proto.xoff_count >= 1
         finally:
