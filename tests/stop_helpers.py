@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import sqlite3
 import threading
 from collections.abc import Callable
 from pathlib import Path
@@ -137,3 +138,22 @@ async def until_first_hit(session: Session, timeout_s: float = 60.0) -> None:
                     raise AssertionError(f"next run {st['state']}: {st['reason']}")
     finally:
         session.unsubscribe(q)
+
+
+def latest_run(db: Path) -> tuple[str, str, str, int] | None:
+    """(run id, state, reason, hits) of the journal's latest run, read as ``rumba history``
+    does (a read-only WAL reader beside the writing process); None before there is one."""
+    if not db.exists():
+        return None
+    con = sqlite3.connect(f"file:{db}?mode=ro", uri=True)
+    try:
+        row = con.execute("SELECT id, state, COALESCE(reason, '') FROM runs "
+                          "ORDER BY started_at DESC LIMIT 1").fetchone()
+        if row is None:
+            return None
+        hits = con.execute("SELECT COUNT(*) FROM hits WHERE run_id=?", (row[0],)).fetchone()
+        return row[0], row[1], row[2], hits[0]
+    except sqlite3.OperationalError:  # the schema is being created
+        return None
+    finally:
+        con.close()

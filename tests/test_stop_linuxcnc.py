@@ -11,7 +11,6 @@ import asyncio
 import shutil
 import signal
 import socket
-import sqlite3
 import time
 from pathlib import Path
 
@@ -22,6 +21,7 @@ from contracts.setup_files import plan_from_dict
 from daemon.machines.setup import MachineSetup
 from daemon.run.session import State
 from tests.linuxcnc_helpers import ARTEFACT, MACHINE, Rsh, _link, _session, _setup
+from tests.stop_helpers import latest_run
 from tests.test_stop_signals import _rumba
 
 pytestmark = [pytest.mark.linuxcnc,
@@ -48,29 +48,11 @@ def _config(tmp: Path, link: dict) -> Path:
     return path
 
 
-def _latest(db: Path) -> tuple[str, str, str, int] | None:
-    """(run id, state, reason, hits) of the latest run, read as ``rumba history`` does."""
-    if not db.exists():
-        return None
-    con = sqlite3.connect(f"file:{db}?mode=ro", uri=True)
-    try:
-        row = con.execute("SELECT id, state, COALESCE(reason, '') FROM runs "
-                          "ORDER BY started_at DESC LIMIT 1").fetchone()
-        if row is None:
-            return None
-        hits = con.execute("SELECT COUNT(*) FROM hits WHERE run_id=?", (row[0],)).fetchone()
-        return row[0], row[1], row[2], hits[0]
-    except sqlite3.OperationalError:  # the schema is being created
-        return None
-    finally:
-        con.close()
-
-
 def _until_capturing(proc, db: Path, not_run: str | None = None) -> str:
     """Wait for a first journaled hit of a run other than ``not_run``; return its id."""
     deadline = time.monotonic() + WAIT_S
     while True:
-        row = _latest(db)
+        row = latest_run(db)
         if row and row[0] != not_run and row[3] >= 1:
             return row[0]
         if proc.poll() is not None:
@@ -107,7 +89,7 @@ def test_sigint_on_rumba_verify_against_linuxcnc_mid_capture(lcnc, tmp_path: Pat
     proc = _rumba(*argv)
     run1 = _until_capturing(proc, db)
     _interrupt(proc)
-    rid, state, reason, _ = _latest(db)  # type: ignore[misc]
+    rid, state, reason, _ = latest_run(db)  # type: ignore[misc]
     assert (rid, state) == (run1, "ABORTED"), reason
     assert reason.startswith("aborted by Ctrl-C (SIGINT) during CAPTURE"), reason
     _idle_and_still(port)
@@ -115,7 +97,7 @@ def test_sigint_on_rumba_verify_against_linuxcnc_mid_capture(lcnc, tmp_path: Pat
     again = _rumba(*argv)
     run2 = _until_capturing(again, db, not_run=run1)
     _interrupt(again)
-    assert _latest(db)[:2] == (run2, "ABORTED")  # type: ignore[index]
+    assert latest_run(db)[:2] == (run2, "ABORTED")  # type: ignore[index]
     _idle_and_still(port)
 
 

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import os
 import signal
-import sqlite3
 import subprocess
 import sys
 import time
@@ -19,7 +18,7 @@ import pytest
 
 from tests.cli_helpers import free_port
 from tests.daemon_helpers import CONFIG
-from tests.stop_helpers import write_config
+from tests.stop_helpers import latest_run, write_config
 
 ROOT = Path(__file__).resolve().parents[1]
 WAIT_S = 120.0  # a safety net for a loaded computer; every wait ends on an event before
@@ -59,21 +58,9 @@ def sim_url():
 
 
 def _journal_row(db: Path) -> tuple[str, str, int] | None:
-    """(state, reason, hits) of the latest run, read as ``rumba history`` does (WAL reader)."""
-    if not db.exists():
-        return None
-    con = sqlite3.connect(f"file:{db}?mode=ro", uri=True)
-    try:
-        row = con.execute("SELECT id, state, COALESCE(reason, '') FROM runs "
-                          "ORDER BY started_at DESC LIMIT 1").fetchone()
-        if row is None:
-            return None
-        hits = con.execute("SELECT COUNT(*) FROM hits WHERE run_id=?", (row[0],)).fetchone()
-        return row[1], row[2], hits[0]
-    except sqlite3.OperationalError:  # the schema is being created
-        return None
-    finally:
-        con.close()
+    """(state, reason, hits) of the latest run."""
+    row = latest_run(db)
+    return None if row is None else row[1:]
 
 
 @pytest.mark.parametrize(("sig", "code", "name"), [

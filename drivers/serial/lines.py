@@ -159,3 +159,27 @@ class _DncProtocol(asyncio.Protocol):
         self.lines.put_nowait(err)
         self.requests.put_nowait(err)
         self.xon.set()
+
+
+_OPENS = re.compile(rb"^\s*(?:N\d+\s+)?(?:IF\b(?!.*\bGOTO)|o\d+\s+if\b)", re.I)
+_CLOSES = re.compile(rb"^\s*(?:N\d+\s+)?(?:ENDIF\b|o\d+\s+endif\b)", re.I)
+
+
+def cut_point(payload: bytes, i: int) -> int:
+    """Where a stream stopped at byte ``i`` may end: after the line being sent, and after every
+    multi-line IF it opened is closed (Siemens ``IF … ENDIF``, LinuxCNC ``o… if/endif``): a tape
+    cut inside one is a syntax alarm at the control, not a stop (single-line Fanuc ``IF […]
+    GOTO`` and Heidenhain ``FN 9`` need no close)."""
+    depth, start = 0, 0
+    while True:
+        end = payload.find(b"\n", start)
+        line = payload[start:] if end < 0 else payload[start:end]
+        if _OPENS.match(line):
+            depth += 1
+        elif _CLOSES.match(line) and depth:
+            depth -= 1
+        if end < 0:
+            return len(payload)
+        start = end + 1
+        if start > i and depth == 0:
+            return start

@@ -16,7 +16,6 @@ import concurrent.futures
 import contextlib
 import logging
 import os
-import re
 import termios
 import threading
 import time
@@ -36,6 +35,7 @@ from drivers.serial.lines import (  # noqa: F401 (re-exported: the link's public
     XOFF,
     XON,
     _DncProtocol,
+    cut_point,
     parse_request,
 )
 from drivers.serial.schema import SerialLinkConfig
@@ -111,30 +111,6 @@ class _ThreadTransport:
         self._writer.shutdown(wait=False, cancel_futures=True)
         with contextlib.suppress(Exception):
             self.ser.close()
-
-
-_OPENS = re.compile(rb"^\s*(?:N\d+\s+)?(?:IF\b(?!.*\bGOTO)|o\d+\s+if\b)", re.I)
-_CLOSES = re.compile(rb"^\s*(?:N\d+\s+)?(?:ENDIF\b|o\d+\s+endif\b)", re.I)
-
-
-def cut_point(payload: bytes, i: int) -> int:
-    """Where a stream stopped at byte ``i`` may end: after the line being sent, and after every
-    multi-line IF it opened is closed (Siemens ``IF … ENDIF``, LinuxCNC ``o… if/endif``): a tape
-    cut inside one is a syntax alarm at the control, not a stop (single-line Fanuc ``IF […]
-    GOTO`` and Heidenhain ``FN 9`` need no close)."""
-    depth, start = 0, 0
-    while True:
-        end = payload.find(b"\n", start)
-        line = payload[start:] if end < 0 else payload[start:end]
-        if _OPENS.match(line):
-            depth += 1
-        elif _CLOSES.match(line) and depth:
-            depth -= 1
-        if end < 0:
-            return len(payload)
-        start = end + 1
-        if start > i and depth == 0:
-            return start
 
 
 class SerialDncLink(CncLink):
