@@ -31,6 +31,7 @@ from daemon.analysis.result import (
     VolumetricPoint,
     Where,
 )
+from daemon.analysis.thermal import corrected, thermal_block, with_thermal
 from daemon.analysis.touch_centres import CentreData, screen_centres, with_outliers
 from identification.analyses import (
     clusters,
@@ -39,6 +40,7 @@ from identification.analyses import (
     validate,
     volumetric,
 )
+from identification.drift import estimate_drift_aware
 from identification.estimate import RankDeficientError, estimate
 from identification.kinematics import Machine
 from identification.model import Artefact, Centres
@@ -126,11 +128,13 @@ def analyse_centres(machine: Machine, artefact: Artefact, data: CentreData, *,
         raise AnalysisError(f"{where}centre of ball {artefact.ids[c.ball[k]]} pose "
                             f"{int(c.pose[k])} is not a finite number")
     est_c = c.subset(~held)
+    drift = None  # a TCP drift fitted with the links where the timing separates it (issue 22)
     try:
         with np.errstate(all="ignore"):
             if estimator is None:
-                est, to_machine = estimate(machine, artefact, est_c, links,
-                                           sigma_um=repeatability_um), None
+                drift = estimate_drift_aware(machine, artefact, est_c, links,
+                                             sigma_um=repeatability_um)
+                est, to_machine = drift.estimate, None
             else:
                 est, to_machine = estimator(est_c)
     except RankDeficientError as e:
@@ -148,10 +152,15 @@ def analyse_centres(machine: Machine, artefact: Artefact, data: CentreData, *,
     if to_machine is not None:
         data = replace(data, centres=replace(c, xyz_mm=to_machine(c.xyz_mm)))
         est_c = data.centres.subset(~held)
+    if drift is not None and drift.fit is not None:
+        data = corrected(data, drift)
+        est_c = data.centres.subset(~held)
     try:
         with np.errstate(all="ignore"):
-            return with_outliers(_analyses(machine, artefact, data, est, est_c, held,
-                                           fixed_radius), screened)
+            result = _analyses(machine, artefact, data, est, est_c, held, fixed_radius)
+            if drift is not None:
+                result = with_thermal(result, thermal_block(drift))
+            return with_outliers(result, screened)
     except (np.linalg.LinAlgError, FloatingPointError) as e:
         raise AnalysisError(f"{where}analysis of the estimate failed: {e}") from None
 

@@ -164,6 +164,32 @@ class Validation(_Json):
 
 
 @dataclass(frozen=True)
+class DriftAxis(_Json):
+    value: float | None = None  # µm over the run
+    std: float | None = None
+
+
+@dataclass(frozen=True)
+class Thermal(_Json):
+    """A TCP drift during the run (a warming machine, issue 22; ``identification.drift``):
+    fitted with the links when the plan's timing separates it and BIC selects it, or why not.
+    ``over_run_um``: the drift at the end of the run relative to its start, controller X Y Z."""
+
+    status: str = ""  # selected | not_separable
+    message: str = ""
+    shape: str | None = None  # linear | exponential
+    span_min: float | None = None
+    over_run_um: dict[str, DriftAxis] = field(default_factory=dict)
+    tau_min: float | None = None
+    tau_std_min: float | None = None
+    tau_bounded: str | None = None
+    bic_gain: float | None = None
+    link_inflation: float | None = None  # largest u(link) with the drift / without
+    revisit_residual_um: float | None = None  # largest revisit shift the drift leaves
+    inseparable: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True)
 class InstrumentFrame(_Json):
     """Centres given in an instrument's frame: instrument ← machine rigid motion, m = R·q + t,
     estimated with the setup; ``std`` per direction (µm, µrad), None where held (``held``:
@@ -240,6 +266,7 @@ class Analysis(_Json):
     stability: Stability | None = field(default=None, metadata=_OMIT)
     scale_um_per_m: Scale | None = field(default=None, metadata=_OMIT)
     validation: Validation | None = field(default=None, metadata=_OMIT)
+    thermal: Thermal | None = field(default=None, metadata=_OMIT)  # issue 22
     # centres input (``rumba analyze --centres``): the file's frame, instrument and source
     measured_by: str | None = field(default=None, metadata=_OMIT)
     instrument_frame: InstrumentFrame | None = field(default=None, metadata=_OMIT)

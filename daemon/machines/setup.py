@@ -56,6 +56,7 @@ class TolerancesFile(StrictModel):
     sphere_form_um: float | None = Field(None, gt=0)
     coverage_k: float = Field(2.0, ge=0, le=5)
     run_drift_um: float | None = Field(None, gt=0)
+    thermal_drift_um: float | None = Field(None, gt=0)  # fitted TCP drift over a run (issue 22)
 
     def to_tolerances(self) -> Tolerances:
         conv = (lambda x: x.to_limit() if x is not None else None)  # noqa: E731
@@ -63,7 +64,7 @@ class TolerancesFile(StrictModel):
                           conv(self.default_translation_um), conv(self.default_rotation_urad),
                           conv(self.volumetric_max_um), self.residual_rms_um,
                           self.sphere_radius_spread_um, self.sphere_form_um, self.coverage_k,
-                          self.run_drift_um)
+                          self.run_drift_um, self.thermal_drift_um)
 
 
 class TriggersFile(StrictModel):

@@ -28,3 +28,6 @@ class Tolerances:
     sphere_form_um: float | None = None  # sphere-fit form residual RMS per ball-pose
     coverage_k: float = 2.0  # uncertainty guard band for the WARN-on-doubt rule
     run_drift_um: float | None = None  # ball centre shift between two visits of one pose
+    # Machine state (exceeded → WARN, the geometry still stated): the TCP drift over the run
+    # fitted with the links (identification.drift), per controller axis, µm
+    thermal_drift_um: float | None = None

@@ -112,7 +112,21 @@ volumetric distortion {{ '%.1f' % comp.distortion_before_um }} µm before,
 ball-centre shift between the first and last visit
 {{ '%.1f' % analysis.stability.max_shift_um }} µm (ball {{ analysis.stability.worst.ball }},
 pose {{ analysis.stability.worst.pose }}{% if stability_span %}, over
-{{ stability_span }}{% endif %}).</p>{% endif %}
+{{ stability_span }}{% endif %}){% if analysis.thermal and analysis.thermal.status == "selected"
+%}, after the fitted TCP drift was removed{% endif %}.</p>{% endif %}
+{% if analysis.thermal %}<h2>Thermal drift during the run</h2>
+{% if analysis.thermal.status == "selected" %}<p>A {{ analysis.thermal.shape }} drift of the
+tool centre point was fitted with the link errors (BIC gain
+{{ '%.1f' % analysis.thermal.bic_gain }}); the link errors above are estimated with it.</p>
+<table><tr><th>axis</th><th>drift over the run µm</th><th>u µm</th></tr>
+{% for a, d in analysis.thermal.over_run_um|dictsort %}<tr><td class="l">{{ a }}</td>
+<td>{{ '%+.2f' % d.value }}</td><td>{{ '%.2f' % d.std }}</td></tr>{% endfor %}</table>
+<p>Run {{ '%.1f' % analysis.thermal.span_min }} min{% if analysis.thermal.tau_min is not none
+%}; time constant τ {{ '%.1f' % analysis.thermal.tau_min }} min{% if analysis.thermal.tau_std_min
+is not none %} ± {{ '%.1f' % analysis.thermal.tau_std_min }}{% else %} (at its
+{{ analysis.thermal.tau_bounded }} bound){% endif %}{% endif %}; link uncertainties grow at most
+×{{ '%.2f' % analysis.thermal.link_inflation }} for it.</p>
+{% else %}<p>{{ analysis.thermal.message }}</p>{% endif %}{% endif %}
 {% if analysis.warnings %}<h2>Warnings</h2><ul>{% for w in analysis.warnings %}<li>{{ w }}</li>
 {% endfor %}</ul>{% endif %}
 <p><small>rumba-cnc report generated {{ generated }}; numbers also in {{ json_name }}, for

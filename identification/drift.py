@@ -1,0 +1,390 @@
+"""Slow TCP drift during a run (a warming machine) fitted with the links, chosen by BIC (issue 22).
+
+Model (seed 002 §3.3.4, ISO 230-3): a measured centre is the chain's prediction plus a drift
+δ(t) of the controller X Y Z common to every ball, per axis linear in time or a first-order
+warm-up A·(1 − e^(−t/τ)), t from the first centre of the run. It is parametrised by the drift
+over the run θ_a = δ_a(T) (µm, T the run's span), linear for a given τ; τ is profiled over
+``TAU_BOUNDS_S`` (one τ for every drifting axis: one thermal state).
+
+Separability. A drift common to every ball is, at one instant, a rigid translation of all the
+centres of a pose — exactly what a pose-dependent relocalisation does, and link translations
+(EX0C …) and the stylus setup produce such translations too, as functions of B and C. So geometry
+alone cannot tell a drift from links: only *time* can. Two visits of the same B/C at different
+times (the plan's revisit) see identical link effects and different drifts; balls probed one
+after the other within a pose see a drift that does not rotate with B/C as a setup error would;
+a time order not monotone in C keeps δ(t(C)) out of the span of the link responses. Whether a
+plan's timing achieves it is a rank question, answered on the augmented Jacobian
+[J_links,setup | D_drift] (``separation``): a drift column whose part orthogonal to the link and
+setup columns is below ``SEPARABLE_MIN`` of its norm is not separable, and is never fitted.
+
+Choice: every separable model (each non-empty set of axes × linear / exponential) is fitted by
+feasible weighted least squares in the linearisation at the plain estimate (the chain is affine
+in µm-size changes to < 1 nm) and ranked by BIC on the per-axis concentrated Gaussian
+likelihood, its parameter count k = links + setup + drifting axes (+ 1 for a fitted τ); the
+drift model is kept only when its BIC beats the plain estimate's by ``BIC_MARGIN``. Otherwise
+the plain estimate is returned untouched (today's numbers on a machine that stood still).
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+from scipy.optimize import minimize_scalar
+
+from identification.estimate import Estimate, a_posteriori, distance_rows, estimate
+from identification.identifiability import RANK_TOL
+from identification.kinematics import Machine
+from identification.model import Artefact, Centres, predict
+
+SHAPES = ("linear", "exponential")
+TAU_BOUNDS_S = (300.0, 3600.0)  # 5 to 60 min: the warm-up of a machining centre (ISO 230-3)
+MIN_SPAN_S = 120.0  # a shorter run shows no drift a probing repeatability could resolve
+SEPARABLE_MIN = 0.05  # orthogonal fraction of a drift column the links and setup leave
+BIC_MARGIN = 2.0  # "positive evidence" (Kass & Raftery 1995) before a drift model is kept
+_GRID = 9  # log-spaced τ values of the profile before its bounded refinement
+
+
+@dataclass(frozen=True)
+class DriftModel:
+    """Which drift: shape, drifting controller axes and (exponential) time constant."""
+
+    shape: str
+    axes: tuple[str, ...]
+    tau_s: float | None = None
+
+    def columns(self, t_s: np.ndarray) -> np.ndarray:
+        """(K, 3, m) change of the centres (mm) per µm of drift over the run, per axis."""
+        f = shape_values(self.shape, t_s, self.tau_s)
+        out = np.zeros((len(t_s), 3, len(self.axes)))
+        for j, a in enumerate(self.axes):
+            out[:, "XYZ".index(a), j] = f * 1e-3
+        return out
+
+
+def shape_values(shape: str, t_s: np.ndarray, tau_s: float | None) -> np.ndarray:
+    """f(t) / f(T): the drift's time course normalised to 1 at the run's end (T = max t)."""
+    t = np.asarray(t_s, float) - float(np.min(t_s))
+    span = float(t.max())
+    if shape == "linear":
+        return t / span
+    if shape == "exponential" and tau_s:
+        return -np.expm1(-t / tau_s) / -math.expm1(-span / tau_s)
+    raise ValueError(f"drift shape must be one of {SHAPES} (exponential with tau_s)")
+
+
+@dataclass
+class DriftFit:
+    """The fitted drift: per axis the drift over the run (µm) ± u; τ (s) ± u for a warm-up."""
+
+    model: DriftModel
+    span_s: float
+    over_run_um: dict[str, tuple[float, float]]
+    tau_s: tuple[float, float | None] | None  # (value, u); u None when τ sits on a bound
+    tau_bounded: str | None  # "lower" / "upper" bound reached, else None
+    bic_gain: float  # BIC(no drift) − BIC(this model)
+    link_inflation: float  # largest u(link) with the drift / u(link) without
+    start_t_s: float = 0.0
+
+    def drift_mm(self, t_s: np.ndarray) -> np.ndarray:
+        """(K, 3) the fitted drift at times ``t_s`` (absolute, same clock as the fit)."""
+        t = np.asarray(t_s, float) - self.start_t_s
+        f = shape_values(self.model.shape, np.r_[0.0, self.span_s, t], self.model.tau_s)[2:]
+        out = np.zeros((len(t), 3))
+        for a, (v, _) in self.over_run_um.items():
+            out[:, "XYZ".index(a)] = v * 1e-3 * f
+        return out
+
+    def as_dict(self) -> dict:
+        return {"shape": self.model.shape, "axes": list(self.model.axes),
+                "span_s": round(self.span_s, 3),
+                "over_run_um": {a: {"value": round(v, 4), "std": round(u, 4)}
+                                for a, (v, u) in self.over_run_um.items()},
+                "tau_s": None if self.tau_s is None else {
+                    "value": round(self.tau_s[0], 1),
+                    "std": None if self.tau_s[1] is None else round(self.tau_s[1], 1)},
+                "tau_bounded": self.tau_bounded, "bic_gain": round(self.bic_gain, 3),
+                "link_inflation": round(self.link_inflation, 4)}
+
+
+@dataclass
+class DriftOutcome:
+    """What the drift search concluded: the estimate to use and why."""
+
+    estimate: Estimate
+    fit: DriftFit | None
+    status: str  # selected | not_selected | not_separable | no_times | too_short
+    message: str
+    inseparable: list[str] = field(default_factory=list)  # "exponential Z" … the plan cannot see
+
+
+@dataclass
+class _Lin:
+    """The linearised problem at the plain estimate: residuals and Jacobian, distances apart."""
+
+    r: np.ndarray  # (K, 3) mm
+    j: np.ndarray  # (K, 3, P)
+    dist_r: np.ndarray  # (D,) weighted distance residuals
+    dist_j: np.ndarray  # (D, P) weighted
+
+
+def _lin(machine: Machine, artefact: Artefact, centres: Centres, est: Estimate) -> _Lin:
+    pred, jac = predict(machine, artefact, est.layout, est.p, centres, jacobian=True)
+    dr, dj = np.zeros(0), np.zeros((0, est.layout.size))
+    if est.layout.scale:
+        d, jd, std = distance_rows(artefact, est.layout, est.p)
+        cal = np.array([cd.distance_mm for cd in artefact.distances])
+        dr, dj = (cal - d) / std, jd / std[:, None]
+    return _Lin(centres.xyz_mm - pred, jac, dr, dj)
+
+
+def _solve(lin: _Lin, cols: np.ndarray, sigma_mm: np.ndarray
+           ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, float]:
+    """Weighted LS of r ≈ J δp + D θ: (step, residual (K,3), weighted residual, normalised
+    Jacobian, column norms, smallest/largest singular value)."""
+    a = np.concatenate([lin.j, cols], axis=2)
+    n_par = a.shape[2]
+    jw = (a / sigma_mm[None, :, None]).reshape(-1, n_par)
+    rw = (lin.r / sigma_mm).ravel()
+    if lin.dist_r.size:
+        jw = np.vstack([jw, np.hstack([lin.dist_j, np.zeros((lin.dist_j.shape[0],
+                                                               cols.shape[2]))])])
+        rw = np.concatenate([rw, lin.dist_r])
+    norms = np.linalg.norm(jw, axis=0)
+    norms[norms == 0] = 1.0
+    jn = jw / norms
+    u, s, vt = np.linalg.svd(jn, full_matrices=False)
+    step = (vt.T @ ((u.T @ rw) / s)) / norms
+    res = lin.r - np.einsum("kip,p->ki", a, step)
+    rw_res = rw - jw @ step
+    return step, res, rw_res, jn, norms, float(s[-1] / s[0])
+
+
+def _fwls(lin: _Lin, cols: np.ndarray, sigma_mm: np.ndarray, given: bool = False
+          ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray,
+                     float]:
+    """Two passes as ``estimate``: σ per axis from the first fit's residuals, then refit
+    (one pass with a given σ)."""
+    out = _solve(lin, cols, sigma_mm)
+    k = lin.r.shape[0]
+    dof = k - (lin.j.shape[2] + cols.shape[2]) / 3.0
+    if dof > 3 and not given:
+        sig = np.sqrt(np.sum(out[1] ** 2, axis=0) / dof)
+        if np.all(sig > 0):
+            sigma_mm = sig
+            out = _solve(lin, cols, sigma_mm)
+    return (*out[:5], sigma_mm, out[5])
+
+
+def _bic(res: np.ndarray, n_par: int) -> float:
+    """BIC of the per-axis concentrated Gaussian likelihood (σ_x, σ_y, σ_z free)."""
+    k = res.shape[0]
+    rss = np.maximum(np.sum(res**2, axis=0), 1e-30)
+    return float(np.sum(k * np.log(rss / k)) + (n_par + 3) * math.log(3 * k))
+
+
+@dataclass
+class _Projector:
+    """The link and setup columns, weighted with the plain estimate's σ, as an orthonormal
+    basis: every candidate drift is then fitted by projecting it out (a few µs each)."""
+
+    u: np.ndarray  # (3K + D, r)
+    rw: np.ndarray  # weighted residuals of the plain estimate
+    sigma_mm: np.ndarray
+    k: int
+
+    @classmethod
+    def of(cls, lin: _Lin, sigma_mm: np.ndarray) -> _Projector:
+        n_par = lin.j.shape[2]
+        jw = (lin.j / sigma_mm[None, :, None]).reshape(-1, n_par)
+        rw = (lin.r / sigma_mm).ravel()
+        if lin.dist_r.size:
+            jw, rw = np.vstack([jw, lin.dist_j]), np.concatenate([rw, lin.dist_r])
+        norms = np.linalg.norm(jw, axis=0)
+        norms[norms == 0] = 1.0
+        u, s, _ = np.linalg.svd(jw / norms, full_matrices=False)
+        u = u[:, s > RANK_TOL * s[0]]
+        rw = rw - u @ (u.T @ rw)  # ≈ 0 at the plain estimate; exact in the linearisation
+        return cls(u, rw, sigma_mm, lin.r.shape[0])
+
+    def perp(self, cols: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(drift columns with the link/setup part removed, their weighted norms)."""
+        dw = (cols / self.sigma_mm[None, :, None]).reshape(-1, cols.shape[2])
+        dw = np.vstack([dw, np.zeros((self.u.shape[0] - dw.shape[0], dw.shape[1]))])
+        return dw - self.u @ (self.u.T @ dw), np.linalg.norm(dw, axis=0)
+
+    def separation(self, cols: np.ndarray) -> np.ndarray:
+        """Per drift column, the fraction of its weighted norm the link and setup columns
+        cannot absorb: 0 = a combination of them (inseparable), 1 = orthogonal to them."""
+        perp, dn = self.perp(cols)
+        return np.linalg.norm(perp, axis=0) / np.where(dn > 0, dn, 1.0)
+
+    def residual(self, cols: np.ndarray) -> np.ndarray:
+        """(K, 3) centre residuals (mm) with the drift ``cols`` fitted alongside."""
+        e = self.rw
+        if cols.shape[2]:
+            perp, _ = self.perp(cols)
+            e = e - perp @ np.linalg.lstsq(perp, self.rw, rcond=None)[0]
+        e = e[: 3 * self.k].reshape(self.k, 3)
+        return e * self.sigma_mm
+
+
+def separation(lin_j: np.ndarray, sigma_mm: np.ndarray, cols: np.ndarray) -> np.ndarray:
+    """``_Projector.separation`` for a bare Jacobian (K, 3, P) (the plan's check)."""
+    lin = _Lin(np.zeros(lin_j.shape[:2]), lin_j, np.zeros(0), np.zeros((0, lin_j.shape[2])))
+    return _Projector.of(lin, sigma_mm).separation(cols)
+
+
+def _candidates() -> list[DriftModel]:
+    """Every axis set × shape; exponential ones at the lower τ bound (profiled later)."""
+    out = []
+    for n in (1, 2, 3):
+        for axes in itertools.combinations("XYZ", n):
+            out.append(DriftModel("linear", axes))
+            out.append(DriftModel("exponential", axes, TAU_BOUNDS_S[0]))
+    return out
+
+
+def fit_drift(machine: Machine, artefact: Artefact, centres: Centres, base: Estimate,
+              axes: str = "XYZ") -> DriftOutcome:
+    """Search the drift models for ``centres`` given their plain estimate ``base``."""
+    if centres.t_s.size != len(centres) or not np.all(np.isfinite(centres.t_s)):
+        return DriftOutcome(base, None, "no_times", "no probing times: drift not modelled")
+    t = np.asarray(centres.t_s, float)
+    span = float(t.max() - t.min())
+    if span < MIN_SPAN_S:
+        return DriftOutcome(base, None, "too_short",
+                            f"the run lasts {span:.0f} s (< {MIN_SPAN_S:.0f} s): drift not "
+                            "modelled")
+    lin = _lin(machine, artefact, centres, base)
+    proj = _Projector.of(lin, np.asarray(base.sigma_um, float) * 1e-3)
+    n_base = lin.j.shape[2]
+    bic0 = _bic(proj.residual(np.zeros((len(t), 3, 0))), n_base)
+    inseparable = []
+    best: tuple[float, DriftModel] | None = None
+    for model in _candidates():
+        if not set(model.axes) <= set(axes):
+            continue
+        sep = proj.separation(model.columns(t))
+        if np.any(sep < SEPARABLE_MIN):
+            inseparable += [f"{model.shape} {a}" for a, s in zip(model.axes, sep, strict=True)
+                            if s < SEPARABLE_MIN and len(model.axes) == 1]
+            continue
+        model, bic = _profile(proj, t, model, n_base)
+        if best is None or bic < best[0]:
+            best = (bic, model)
+    if best is None:
+        return DriftOutcome(base, None, "not_separable",
+                            "the plan cannot separate drift from links (no revisit, or a time "
+                            "order that follows the indexations): drift not modelled",
+                            sorted(set(inseparable)))
+    gain = bic0 - best[0]
+    if gain < BIC_MARGIN:
+        return DriftOutcome(base, None, "not_selected",
+                            f"no drift: BIC of the best drift model ({best[1].shape} "
+                            f"{''.join(best[1].axes)}) {gain:+.1f} against none",
+                            sorted(set(inseparable)))
+    est, fit = _final(machine, artefact, centres, base, best[1], span, gain)
+    return DriftOutcome(est, fit, "selected", _message(fit), sorted(set(inseparable)))
+
+
+def _profile(proj: _Projector, t: np.ndarray, model: DriftModel, n_base: int
+             ) -> tuple[DriftModel, float]:
+    """(model with its best τ, BIC): the exponential's τ profiled on a log grid, refined."""
+    m = len(model.axes)
+    if model.shape == "linear":
+        return model, _bic(proj.residual(model.columns(t)), n_base + m)
+
+    def bic_at(log_tau: float) -> float:
+        mod = replace(model, tau_s=float(math.exp(log_tau)))
+        return _bic(proj.residual(mod.columns(t)), n_base + m + 1)
+
+    lo, hi = math.log(TAU_BOUNDS_S[0]), math.log(TAU_BOUNDS_S[1])
+    grid = np.linspace(lo, hi, _GRID)
+    vals = [bic_at(g) for g in grid]
+    i = int(np.argmin(vals))
+    a, b = grid[max(i - 1, 0)], grid[min(i + 1, _GRID - 1)]
+    r = minimize_scalar(bic_at, bounds=(a, b), method="bounded", options={"xatol": 1e-3})
+    x, v = (float(r.x), float(r.fun)) if r.fun < vals[i] else (float(grid[i]), vals[i])
+    return replace(model, tau_s=float(math.exp(x))), v
+
+
+def _final(machine: Machine, artefact: Artefact, centres: Centres, base: Estimate,
+           model: DriftModel, span: float, gain: float) -> tuple[Estimate, DriftFit]:
+    """The selected model refitted on the exact chain (two linearisations), with covariance;
+    a free τ adds its column (the derivative of the drift by τ) so the drift's u carries it."""
+    t = np.asarray(centres.t_s, float)
+    est = base
+    theta = np.zeros(len(model.axes))
+    sig0 = np.asarray(base.sigma_um, float) * 1e-3
+    for _ in range(2):
+        lin = _lin(machine, artefact, centres, est)
+        lin.r = lin.r - np.einsum("kim,m->ki", model.columns(t), theta)
+        step, res, rw, jn, norms, sigma_mm, _ = _fwls(lin, model.columns(t), sig0,
+                                                      base.sigma_given)
+        p = est.p + step[: lin.j.shape[2]]
+        theta = theta + step[lin.j.shape[2]:]
+        est = replace(est, p=p)
+    n_par = lin.j.shape[2]
+    bounded = None
+    cols = model.columns(t)
+    if model.shape == "exponential":
+        tau = float(model.tau_s)
+        lo, hi = TAU_BOUNDS_S
+        if tau <= lo * 1.01:
+            bounded = "lower"
+        elif tau >= hi * 0.99:
+            bounded = "upper"
+        else:  # ∂δ/∂τ at θ: one more column, in mm per s of τ
+            h = tau * 1e-4
+            dcol = (replace(model, tau_s=tau + h).columns(t)
+                    - replace(model, tau_s=tau - h).columns(t)) / (2 * h)
+            cols = np.concatenate([cols, np.einsum("kim,m->ki", dcol, theta)[..., None]],
+                                  axis=2)
+    lin = _lin(machine, artefact, centres, est)
+    lin.r = lin.r - np.einsum("kim,m->ki", model.columns(t), theta)
+    _, res, rw, jn, norms, cond = _solve(lin, cols, sigma_mm)
+    _, s, vt = np.linalg.svd(jn, full_matrices=False)
+    cov = ((vt.T / s**2) @ vt) / np.outer(norms, norms)
+    n_all = cov.shape[0]
+    # the per-axis σ now rests on K − (P + m) / 3 residuals per axis (as ``estimate``)
+    dof_axis = len(t) - n_all / 3.0
+    dof0 = dof_axis if math.isfinite(base.sigma_dof) else math.inf
+    cov, sig_um, sig_dof, warns = a_posteriori(rw, n_all, cov, sigma_mm * 1e3, dof0,
+                                               base.sigma_given)
+    m = len(model.axes)
+    std = np.sqrt(np.diag(cov))
+    over = {a: (float(theta[j]), float(std[n_par + j])) for j, a in enumerate(model.axes)}
+    tau_out = None
+    if model.shape == "exponential":
+        tau_out = (float(model.tau_s), None if bounded else float(std[n_par + m]))
+    n_l = len(base.layout.links)
+    infl = float(np.max(std[:n_l] / np.maximum(base.std[:n_l], 1e-300))) if n_l else 1.0
+    fit = DriftFit(model, span, over, tau_out, bounded, gain, infl, float(t.min()))
+    out = replace(est, std=std[:n_par], cov=cov[:n_par, :n_par], residual_mm=res,
+                  residual_rms_um=float(np.sqrt(np.mean(res**2)) * 1e3),
+                  condition_number=float(1.0 / cond), sigma_um=sig_um, sigma_dof=sig_dof,
+                  warnings=[*base.warnings, *warns])
+    return out, fit
+
+
+def _message(fit: DriftFit) -> str:
+    parts = ", ".join(f"{a} {v:+.2f} ± {u:.2f} µm" for a, (v, u) in fit.over_run_um.items())
+    tau = ""
+    if fit.tau_s is not None:
+        v, u = fit.tau_s
+        tau = (f", τ {v / 60:.1f} min" + (f" ± {u / 60:.1f}" if u is not None else
+                                           f" (at its {fit.tau_bounded} bound)"))
+    return (f"{fit.model.shape} drift over the run ({fit.span_s / 60:.1f} min): {parts}{tau}; "
+            "the links are estimated with it")
+
+
+def estimate_drift_aware(machine: Machine, artefact: Artefact, centres: Centres,
+                         links=None, *, sigma_um=None, use_distances: bool = True
+                         ) -> DriftOutcome:
+    """``estimate`` and, where the plan's timing separates it and BIC wants it, a drift."""
+    base = estimate(machine, artefact, centres, links, sigma_um=sigma_um,
+                    use_distances=use_distances)
+    return fit_drift(machine, artefact, centres, base)

@@ -1,0 +1,128 @@
+"""Drift-aware identification (issue 22, identification/drift.py): a TCP warm-up during the run
+fitted with the links where the timing separates it, chosen by BIC, the links then unbiased."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from contracts.setup_files import load_artefact, load_machine, load_plan
+from identification.drift import (
+    DriftModel,
+    estimate_drift_aware,
+    separation,
+    shape_values,
+)
+from identification.estimate import estimate
+from identification.identifiability import nominal_centres
+from identification.model import Centres, Layout, predict
+from tests.synth import THESIS_LINKS_UM_URAD, Truth, to_internal, true_centres
+
+SIGMA = np.array([0.66, 0.98, 0.44])  # thesis §3.4 centre repeatability, µm
+
+
+@pytest.fixture(scope="module")
+def shift():
+    """The estimate visits of the shift plan (7 poses + the revisit of the first) at the
+    times of the 223 s run (15 visits; 3.7 s between balls)."""
+    m, _ = load_machine("config/machines/thesis_wcbxfzyt.yaml")
+    a = load_artefact("config/artefacts/thesis_4ball.yaml")
+    plan = load_plan("config/plans/shift_start_14poses.yaml")
+    est = [i for i, p in enumerate(plan.poses) if p.role == "estimate"]
+    visits = [(plan.poses[i].b_deg, plan.poses[i].c_deg) for i in est]
+    visits.append(visits[0])
+    truth = Truth(to_internal(THESIS_LINKS_UM_URAD), np.full((4, 3), 0.02),
+                  np.array([0.01, -0.01, 0.02]))
+    xyz = true_centres(m, a, visits, truth).reshape(-1, 3)
+    n = len(a.balls)
+    pose = np.repeat([*est, est[0]], n)
+    t = np.repeat(np.array([*est, len(plan.poses)]) * 223.0 / 15, n) \
+        + np.tile(np.arange(n) * 3.7, len(visits))
+    bc = np.repeat(np.array(visits), n, axis=0)
+    return m, a, pose, np.tile(np.arange(n), len(visits)), bc, xyz, t
+
+
+def _centres(shift, seed: int, warmup_um: float, tau_s: float = 900.0) -> Centres:
+    _, _, pose, ball, bc, xyz, t = shift
+    rng = np.random.default_rng(seed)
+    f = shape_values("exponential", t, tau_s)
+    drift = np.zeros_like(xyz)
+    drift[:, 2] = warmup_um * 1e-3 * f
+    return Centres(pose, ball, bc[:, 0], bc[:, 1],
+                   xyz + rng.normal(size=xyz.shape) * SIGMA * 1e-3 + drift, t)
+
+
+def _covered(est) -> float:
+    """Share of the links within 2u of the truth."""
+    ok = [abs(v - THESIS_LINKS_UM_URAD[k]) <= 2 * u for k, (v, u, _) in est.links_si().items()]
+    return float(np.mean(ok))
+
+
+def test_no_drift_keeps_the_plain_estimate_bit_for_bit(shift):
+    m, a = shift[:2]
+    for seed in range(4):
+        c = _centres(shift, seed, 0.0)
+        out = estimate_drift_aware(m, a, c)
+        assert out.status == "not_selected" and out.fit is None, out.message
+        assert np.array_equal(out.estimate.p, estimate(m, a, c).p)
+
+
+def test_a_warm_up_is_fitted_and_the_links_are_unbiased(shift):
+    m, a = shift[:2]
+    plain, aware = [], []
+    for seed in range(6):
+        c = _centres(shift, seed, 10.0)
+        out = estimate_drift_aware(m, a, c)
+        assert out.status == "selected", out.message
+        v, u = out.fit.over_run_um["Z"]
+        assert abs(v - 10.0) <= 2.5 * u and u < 1.0  # the drift over the run, ± its u
+        assert all(abs(x) <= 3 * ux for ax, (x, ux) in out.fit.over_run_um.items() if ax != "Z")
+        assert out.fit.link_inflation < 2.0
+        plain.append(_covered(estimate(m, a, c)))
+        aware.append(_covered(out.estimate))
+    # without the drift model a 10 µm warm-up puts a link outside 2u in every run
+    assert max(plain) < 1.0 and np.mean(aware) >= 0.9
+
+
+def test_the_message_states_the_drift_and_tau(shift):
+    m, a = shift[:2]
+    out = estimate_drift_aware(m, a, _centres(shift, 1, 20.0))
+    assert out.status == "selected"
+    assert "Z +" in out.message and "µm" in out.message and "links are estimated" in out.message
+    d = out.fit.as_dict()
+    assert d["over_run_um"]["Z"]["value"] == pytest.approx(20.0, abs=2.0)
+    assert d["span_s"] == pytest.approx(223.0 * 14 / 15 + 3 * 3.7, abs=1e-3)
+
+
+def test_short_runs_and_missing_times_are_not_modelled(shift):
+    m, a, pose, ball, bc, xyz, t = shift
+    c = Centres(pose, ball, bc[:, 0], bc[:, 1], xyz)
+    assert estimate_drift_aware(m, a, c).status == "no_times"
+    c = Centres(pose, ball, bc[:, 0], bc[:, 1], xyz, t * 0.4)  # 90 s
+    assert estimate_drift_aware(m, a, c).status == "too_short"
+
+
+def test_separability_comes_from_time_not_geometry(shift):
+    # A drift common to every ball is a rigid translation of each pose's centres. Give every
+    # pose a free translation (a relocalisation, the most a pose-dependent link error can do)
+    # and probe all balls of a pose at one instant: the drift is a combination of those
+    # translations — inseparable, whatever the geometry. Visit one pose again later: the two
+    # visits share the translation but not the time, and the drift separates.
+    m, a = shift[:2]
+    poses = [(0.0, 0.0), (45.0, 0.0), (45.0, 30.0), (15.0, 150.0), (-15.0, 210.0)]
+
+    def sep(visits, t_visit):
+        c = nominal_centres(m, a, visits)
+        lay = Layout((), len(a.balls))
+        _, j = predict(m, a, lay, np.zeros(lay.size), c, jacobian=True)
+        keys = sorted(set(visits))
+        reloc = np.zeros((len(c), 3, 3 * len(keys)))
+        for k, v in enumerate(np.repeat(visits, len(a.balls), axis=0)):
+            i = keys.index(tuple(v))
+            reloc[k, :, 3 * i:3 * i + 3] = np.eye(3)
+        t = np.repeat(t_visit, len(a.balls))
+        cols = DriftModel("linear", ("X", "Y", "Z")).columns(t)
+        return separation(np.concatenate([j, reloc], axis=2), SIGMA * 1e-3, cols)
+
+    assert np.all(sep(poses, np.arange(5) * 30.0) < 1e-6)
+    assert np.all(sep([*poses, poses[0]], np.arange(6) * 30.0) > 0.2)
