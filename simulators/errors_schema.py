@@ -69,6 +69,32 @@ class EffectFile(StrictModel):
     options: dict[str, Any] = {}
 
 
+class AxisWarmupFile(StrictModel):
+    """Warm-up of one controller axis (simulators/thermal.py): TCP drift when fully warm (µm),
+    time constant (s), rise of the structure temperature a sensor on it reads (°C)."""
+
+    amplitude_um: float = Field(ge=-500, le=500)
+    tau_s: float = Field(gt=0, le=86400)
+    rise_c: float = Field(0.0, ge=-50, le=50)
+
+
+class ThermalFile(StrictModel):
+    """The machine's thermal state during the run (issue 22): per axis X Y Z a first-order
+    warm-up from ``start_state`` (0 cold, 1 warm) at the program start."""
+
+    axes: dict[str, AxisWarmupFile] = {}
+    start_state: float = Field(0.0, ge=0, le=1)
+    ambient_c: float = Field(20.0, ge=-20, le=60)
+
+    @field_validator("axes")
+    @classmethod
+    def _xyz(cls, v: dict[str, AxisWarmupFile]) -> dict[str, AxisWarmupFile]:
+        bad = sorted(set(v) - set("XYZ"))
+        if bad:
+            raise ValueError(f"axes {bad}: the warm-up moves the TCP along X, Y or Z")
+        return v
+
+
 class ErrorsFile(StrictModel):
     machine: str | None = None  # name of the machine file these errors belong to (checked)
     seed: int = Field(0, ge=0, lt=2**63)  # default random seed (``--seed`` overrides)
@@ -78,6 +104,7 @@ class ErrorsFile(StrictModel):
     absent_balls: list[str] = []  # balls not on the table: their touches do not trigger
     obstacles: list[ObstacleFile] = []
     effects: list[EffectFile] = []
+    thermal: ThermalFile | None = None  # warm-up during the run (simulators/thermal.py)
 
     @field_validator("links")
     @classmethod

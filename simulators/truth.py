@@ -20,6 +20,7 @@ from identification.effects import EffectContext, combine_motion_errors
 from identification.kinematics import ChainState, Machine, frames, to_model
 from identification.model import Artefact
 from simulators.errors_schema import ErrorsFile, errors_from_dict, link_to_model, load_errors
+from simulators.thermal import ThermalState
 
 
 @dataclass
@@ -47,6 +48,7 @@ class TruthModel:
     obstacle_centres_mm: np.ndarray  # (m, 3) last workpiece frame
     obstacle_radii_mm: np.ndarray  # (m,)
     effects: list[ActiveEffect] = field(default_factory=list)
+    thermal: ThermalState | None = None  # warm-up during the run (issue 22)
     state: ChainState = field(init=False)
     _affine: dict = field(default_factory=dict, init=False, repr=False)
 
@@ -108,6 +110,7 @@ class TruthModel:
             obstacle_centres_mm=np.array([o.centre_mm for o in obs], float).reshape(-1, 3),
             obstacle_radii_mm=np.array([o.radius_mm for o in obs], float),
             effects=effects,
+            thermal=ThermalState.from_file(errors.thermal) if errors.thermal else None,
         )
 
     # ------------------------------------------------------------------------- evaluation
@@ -187,7 +190,7 @@ class TruthModel:
     def touch_offset_mm(self, t_s: float, b_deg: float, c_deg: float, ball: int, touch: int,
                         direction: np.ndarray, xyz_mm: np.ndarray) -> np.ndarray:
         """Additive offset (3,) of a latched controller X Y Z (thermal drift, pre-travel …)."""
-        out = np.zeros(3)
+        out = np.zeros(3) if self.thermal is None else self.thermal.drift_mm(t_s)
         if not self.effects:
             return out
         ctx = self.context(t_s=np.array([t_s]), b_deg=b_deg, c_deg=c_deg, ball=[ball],
