@@ -99,10 +99,28 @@ async def run_program(truth: TruthModel, text: str, dialect: str, *,
                          wall, peak)
 
 
-def aux_files(program: Path) -> dict[str, str]:
-    """Files that travel with a program: Heidenhain F-PRINT format files (``*.A``) beside it."""
-    return {p.name: p.read_text(encoding="utf-8") for p in sorted(program.parent.glob("*.A"))
-            if p.is_file()}
+MAX_AUX_BYTES = 1 << 20  # an F-PRINT format file is a few lines
+MAX_AUX_FILES = 32
+
+
+def aux_files(program: Path, error: type[Exception] = ValueError) -> dict[str, str]:
+    """Files that travel with a program: Heidenhain F-PRINT format files (``*.A``) beside it;
+    regular files only (a FIFO or device named ``*.A`` is no format file), each bounded and
+    UTF-8, else one ``error`` line naming the file."""
+    from contracts.input_files import read_bounded
+
+    names = [p for p in sorted(program.parent.glob("*.A")) if p.is_file()]
+    if len(names) > MAX_AUX_FILES:
+        raise error(f"{program.parent}: {len(names)} *.A files beside {program.name}: more "
+                    f"than {MAX_AUX_FILES} format files travel with no program")
+    out = {}
+    for p in names:
+        raw = read_bounded(p, error, MAX_AUX_BYTES, "Heidenhain format file")
+        try:
+            out[p.name] = raw.decode("utf-8")
+        except UnicodeDecodeError as e:
+            raise error(f"{p}: byte {e.start}: not UTF-8 text") from None
+    return out
 
 
 def run_sync(*args, **kw) -> OfflineResult:

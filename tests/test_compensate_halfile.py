@@ -83,6 +83,24 @@ def test_a_symlinked_hal_file_is_refused_and_left_alone(tmp_path, capsys, monkey
     assert [r.state for r in _journal(cfg)] == ["refused"]
 
 
+def test_a_hal_file_over_the_size_limit_is_refused_naming_it(tmp_path, capsys, monkeypatch):
+    cfg = _world(tmp_path, capsys, host="127.0.0.1")
+    pins, hal = fake_linuxcnc(tmp_path, monkeypatch)
+    # the pins' setp lines first (found by hal_file_with), then comments past the limit
+    big = hal.read_text() + ("# " + "x" * 98 + "\n") * (halkins.MAX_HAL_BYTES // 100 + 1)
+    hal.write_text(big)
+    code, out, _ = run_cli(["compensate", "--config", cfg, *CONFIRM], capsys)
+    assert code == 2 and f"{hal}: larger than {halkins.MAX_HAL_BYTES} bytes" in out, out
+    assert "nothing set" in out and "Traceback" not in out
+    assert hal.read_text() == big and json.loads(pins.read_text())["setp"] == 0
+    assert [r.state for r in _journal(cfg)] == ["refused"]
+    # found through the INI, an oversized HAL file is refused too, never read whole nor skipped
+    with pytest.raises(halkins.HalError, match="larger than"):
+        halkins.hal_file_with(halkins.running_ini(), [X])
+    hal.write_text(big[:halkins.MAX_HAL_BYTES])  # at the limit: read
+    assert halkins.read_file(hal) == big[:halkins.MAX_HAL_BYTES].encode()
+
+
 def test_an_edit_between_read_and_replace_is_refused_not_lost(tmp_path, capsys, monkeypatch):
     cfg = _world(tmp_path, capsys, host="127.0.0.1")
     pins, hal = fake_linuxcnc(tmp_path, monkeypatch)

@@ -56,6 +56,31 @@ def test_sim_run_reports_an_alarm_with_exit_code(tmp_path, capsys):
     assert "controller alarm: OVERTRAVEL X+900.0000" in capsys.readouterr().out
 
 
+def test_format_files_beside_the_program_are_bounded(tmp_path, capsys):
+    """The simulator's aux files (Heidenhain ``*.A`` beside the program, issue 20): an
+    oversized, non-UTF-8 or FIFO one is one error line naming it, never a traceback, a hang
+    or the whole file in memory."""
+    import os
+
+    from simulators.offline import MAX_AUX_BYTES, aux_files
+
+    prog = tmp_path / "bad.nc"
+    prog.write_text("%\nG00 X900.\nM30\n%\n")
+    args = ["sim", "--machine", M, "--artefact", A, "--run", str(prog), "--dialect", "fanuc",
+            "--log", str(tmp_path / "o.csv")]
+    fmt = tmp_path / "FMT.A"
+    fmt.write_bytes(b"x" * (MAX_AUX_BYTES + 1))
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert f"{fmt}: larger than {MAX_AUX_BYTES} bytes" in err and "Traceback" not in err
+    fmt.write_bytes(b"P01 \xff\n")
+    assert main(args) == 2 and f"{fmt}: byte 4: not UTF-8" in capsys.readouterr().err
+    fmt.unlink()
+    os.mkfifo(tmp_path / "PIPE.A")  # no writer: reading it would block forever
+    (tmp_path / "OK.A").write_text("F-PRINT\n")
+    assert aux_files(prog) == {"OK.A": "F-PRINT\n"}
+
+
 def test_errors_file_errors_are_one_line(tmp_path, capsys):
     bad = tmp_path / "e.yaml"
     bad.write_text("links: {EB0Z: -12, EQ0Z: 3}\n")

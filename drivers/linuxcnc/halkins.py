@@ -19,7 +19,13 @@ import subprocess
 import time
 from pathlib import Path
 
+from contracts.input_files import read_bounded
+
 HALCMD = "/usr/bin/halcmd"
+MAX_HAL_BYTES = 1 << 20
+"""A HAL file or INI rumba reads (and a HAL file it rewrites) is refused beyond 1 MiB: a
+machine's are a few kB (the largest LinuxCNC sample configurations ~40 kB); a larger one is a
+wrong path (a log, a device) whose reading would only fill the memory."""
 READBACK_REL = 1e-6
 """A read-back equals the value set when within this × max(1, |value|): ``halcmd getp``
 prints 7 significant digits (10 nm at 12.6 mm)."""
@@ -96,7 +102,8 @@ def running_ini() -> Path | None:
 def hal_files(ini: Path) -> list[Path]:
     """The ``[HAL] HALFILE`` entries of ``ini`` that are plain files (not ``LIB:`` or .tcl)."""
     out, section = [], ""
-    for line in ini.read_text(errors="replace").splitlines():
+    text = read_bounded(ini, HalError, MAX_HAL_BYTES, "LinuxCNC INI file")
+    for line in text.decode("utf-8", "replace").splitlines():
         s = line.strip()
         m = re.match(r"\[(\w+)\]", s)
         if m:
@@ -115,10 +122,10 @@ def hal_files(ini: Path) -> list[Path]:
 def hal_file_with(ini: Path, pins: list[str]) -> Path:
     """The HAL file of ``ini`` that sets the kinematics pins (``setp PIN value``)."""
     for f in hal_files(ini):
-        try:
-            text = f.read_text(errors="replace")
-        except OSError:
+        if not f.is_file():  # absent (or a FIFO, a device …): not the file with the pins
             continue
+        # a file too large or unreadable is refused, never skipped: it may hold the pins
+        text = read_bounded(f, HalError, MAX_HAL_BYTES, "HAL file").decode("utf-8", "replace")
         if any(re.search(rf"^\s*setp\s+{re.escape(p)}\s", text, re.M) for p in pins):
             return f
     raise HalError(f"no HAL file of {ini} sets {', '.join(pins)} (setp lines expected)")
@@ -148,9 +155,13 @@ def read_file(path: Path) -> bytes:
         if not stat.S_ISREG(os.fstat(fd).st_mode):
             raise HalError(f"{path} is not a regular file")
         with os.fdopen(os.dup(fd), "rb") as f:
-            return f.read()
+            data = f.read(MAX_HAL_BYTES + 1)
     finally:
         os.close(fd)
+    if len(data) > MAX_HAL_BYTES:
+        raise HalError(f"{path}: larger than {MAX_HAL_BYTES} bytes: not a HAL file rumba "
+                       "rewrites (check the INI's HALFILE)")
+    return data
 
 
 def _create(path: Path, data: bytes, mode: int) -> None:

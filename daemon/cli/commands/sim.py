@@ -56,7 +56,7 @@ def _offline(args: argparse.Namespace, truth, faults) -> int:
     except UnicodeDecodeError as e:
         raise UserError(f"{args.run}: byte {e.start}: not UTF-8 text") from None
     run_id = args.run_id or args.run.stem
-    res = run_sync(truth, text, args.dialect, files=aux_files(args.run),
+    res = run_sync(truth, text, args.dialect, files=aux_files(args.run, UserError),
                    seed=truth.seed if args.seed is None else args.seed,
                    time_scale=args.time_scale, faults=faults, run_id=run_id)
     try:
