@@ -185,6 +185,33 @@ async def test_import_is_all_or_nothing_and_interrupted_runs_reach_the_fleet(pg,
 
 
 @peer
+async def test_a_runs_link_estimate_reaches_the_fleet_with_its_analysis(pg, tmp_path):
+    """Migration 6 (issue 20): the run's estimate for its compensation view is written by the
+    run's worker thread on a connection of its own (no capture trigger there), just before
+    the analysis; it is copied with the analysis, and when written on the daemon's own
+    connection later (a run journaled before the migration), by its own trigger."""
+    dsn = fresh_db(pg)
+    store = Store(tmp_path / "j.sqlite")
+    drainer = Drainer(store, dsn)
+    worker = Store(tmp_path / "j.sqlite")
+    for rid in ("R1", "R2"):
+        store.new_run(rid, "mill1", "cnc")
+    worker.db.execute("INSERT INTO link_estimates VALUES ('R1', 'k1', '{\"p\": 1}', '{}', 1.5)")
+    store.db.execute("INSERT INTO estimates VALUES ('R1', '{\"links\": {}}')")
+    await drainer.drain()
+    assert pg_rows(dsn, "SELECT run_id, model_key, estimate, plan, created_at FROM"
+                   " link_estimates") == [("R1", "k1", '{"p": 1}', "{}", 1.5)]
+    store.db.execute("INSERT INTO link_estimates VALUES ('R2', 'k2', '{\"p\": 2}', '{}', 2.5)")
+    store.db.execute("UPDATE link_estimates SET model_key='k1b' WHERE run_id='R1'")
+    await drainer.drain()
+    assert pg_rows(dsn, "SELECT run_id, model_key FROM link_estimates ORDER BY run_id") == [
+        ("R1", "k1b"), ("R2", "k2")]
+    await drainer.stop()
+    worker.close()
+    store.close()
+
+
+@peer
 async def test_a_run_id_taken_by_another_machine_is_refused_not_merged(pg, tmp_path):
     dsn = fresh_db(pg)
     a, b = Store(tmp_path / "a.sqlite"), Store(tmp_path / "b.sqlite")

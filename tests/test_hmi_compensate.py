@@ -316,10 +316,15 @@ async def click_and_answer(cdp, sid: str, button: str, accept: bool) -> str:
     return ev["params"]["message"]
 
 
-async def test_a_run_passes_while_its_page_is_refreshed_10_times_a_second(tmp_path):
-    """Issue 20: the compensation view is computed off the event loop, once per run end and
-    journal state; before, each GET re-identified on the loop (≈ 0.4 s) and a page refreshing
-    it starved /api/status and the run's own touch timeout."""
+async def test_a_run_passes_while_its_page_is_refreshed_10_times_a_second(tmp_path,
+                                                                          monkeypatch):
+    """Issue 20: the compensation view is computed off the event loop from the estimate the
+    run stored when it ended (identified once, in the run's worker thread); before, each GET
+    re-identified on the loop (≈ 0.4 s) and a page refreshing it starved /api/status and the
+    run's own touch timeout."""
+    from tests.test_compensate_stored import _counting
+
+    calls = _counting(monkeypatch)
     async with world(tmp_path) as svc, aiohttp.ClientSession() as http:
         await run_once(svc)  # a finished run: the page has a proposal to show
         session = svc.sessions["mill1"]
@@ -346,3 +351,7 @@ async def test_a_run_passes_while_its_page_is_refreshed_10_times_a_second(tmp_pa
         assert gets > 20 and slowest < 1.0, (gets, slowest)
         st = await get_state(http, svc)  # the view follows the run that just ended
         assert st["run"]["id"] == run_id and not st["busy"]
+        # every GET served from the stored estimates: one identification per run, each in
+        # the run's worker thread, none for the page
+        assert len(calls) == 2 and "MainThread" not in calls, calls
+        assert svc.store.db.execute("SELECT COUNT(*) FROM link_estimates").fetchone()[0] == 2

@@ -1,21 +1,25 @@
-"""Compensation write-back, the planning half: a stored run re-identified against the
-controller's current model, the plan of changes, guards and refusals, and that controller model
-(machine file + the compensations the journal says were written)."""
+"""Compensation write-back, the planning half: a run's estimate against the controller model
+it ran on (stored at run end, ``daemon.compensation.identified``), the plan of changes, guards
+and refusals, and that controller model (machine file + the compensations the journal says were
+written)."""
 
 from __future__ import annotations
 
+import logging
+import sqlite3
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from contracts.controller_kinematics import ControllerKinematics, controller_kinematics
 from contracts.messages import ProbeHit
-from daemon.analysis import pipeline
-from daemon.analysis.pipeline import PipelineError, RunAnalysis
-from daemon.analysis.result import Analysis
+from contracts.yaml_files import ConfigError
+from daemon.compensation import identified
 from daemon.compensation import journal as cj
+from daemon.compensation.identified import CompensationRefused, run_centres
 from daemon.machines.setup import MachineSetup
 from daemon.store.journal import Store, StoreError
 from identification.compensation import (
@@ -25,15 +29,17 @@ from identification.compensation import (
     ParamChange,
     apply_changes,
     check_guards,
-    plan_compensation,
 )
-from identification.estimate import Estimate, RankDeficientError, estimate
+from identification.estimate import Estimate
 from identification.kinematics import Machine
 from identification.model import Centres
 
+if TYPE_CHECKING:  # the analysis pipeline (scipy …) only where a run is analysed
+    from daemon.analysis.pipeline import RunAnalysis
+    from daemon.analysis.result import Analysis
 
-class CompensationRefused(Exception):
-    """A compensation the guards or the run's quality forbid; one line, exit 2, journaled."""
+__all__ = ["CompensationRefused", "run_centres"]  # re-exported: their home is ``identified``
+log = logging.getLogger("rumba.compensate")
 
 
 class ControllerModelError(Exception):
@@ -161,32 +167,12 @@ class Proposal:
     current: dict[str, float] = field(default_factory=dict)  # name → value the control holds
 
 
-def run_centres(setup: MachineSetup, store: Store, run_id: str) -> Centres:
-    rows = store.centres(run_id)
-    if not rows:
-        raise CompensationRefused(f"run {run_id} has no stored centres (not identified)")
-    ids = setup.artefact.ids
-    unknown = sorted({r[1] for r in rows} - set(ids))
-    if unknown:
-        raise CompensationRefused(f"run {run_id}: balls {unknown} are not on artefact "
-                                  f"{setup.artefact.name}")
-    return Centres(np.array([r[0] for r in rows]), np.array([ids.index(r[1]) for r in rows]),
-                   np.array([r[2] for r in rows], float), np.array([r[3] for r in rows], float),
-                   np.array([r[4:7] for r in rows], float))
-
-
 def reidentify(setup: MachineSetup, store: Store, run_id: str, machine: Machine
                ) -> tuple[Estimate, Centres]:
-    """The run's stored centres (validation poses held out, as the run did) → estimate."""
-    c = run_centres(setup, store, run_id)
-    held = np.isin(c.pose, list(setup.validate_poses))
-    est_c = c.subset(~held)
-    try:
-        with np.errstate(all="ignore"):
-            est = estimate(machine, setup.artefact, est_c, None)
-    except (RankDeficientError, np.linalg.LinAlgError, ValueError) as e:
-        raise CompensationRefused(f"run {run_id}: identification failed: {e}") from None
-    return est, est_c
+    """The run's stored centres (validation poses held out, as the run did) → estimate,
+    identified now (what the stored estimate must equal; tests and benchmarks)."""
+    c = identified.estimation_centres(setup, run_centres(setup, store, run_id))
+    return identified.identify(setup, c, run_id, machine), c
 
 
 def quality_refusals(store: Store, run_id: str, est: Estimate, compensated: list[str]
@@ -242,10 +228,8 @@ def propose(setup: MachineSetup, store: Store, run_id: str) -> Proposal:
         raise CompensationRefused(f"run {run_id} is of machine {run.machine}, not "
                                   f"{setup.name}")
     model = controller_model(setup, store, before=run.started_at, check_hal=False)
-    est, c = reidentify(setup, store, run_id, model)
     k = setup.tolerances.coverage_k
-    plan = plan_compensation(model, setup.artefact, est, spec.to_math(), c.b_deg, c.c_deg,
-                             coverage_k=k)
+    est, plan = identified.stored_or_computed(setup, store, run_id, model, spec.to_math(), k)
     guard = check_guards(plan, guards_of(spec))
     compensated = [n for n, v in plan.links_compensable.items() if abs(v) > 1e-12]
     refusals = quality_refusals(store, run_id, est, compensated) + list(guard.refused)
@@ -276,9 +260,8 @@ def _held(setup: MachineSetup, store: Store, spec: ControllerKinematics,
     try:
         v = store.run(row.verify_run_id)
         model = controller_model(setup, store, before=v.started_at, check_hal=False)
-        est, c = reidentify(setup, store, v.id, model)
-        plan = plan_compensation(model, setup.artefact, est, spec.to_math(), c.b_deg,
-                                 c.c_deg, coverage_k=setup.tolerances.coverage_k)
+        _, plan = identified.stored_or_computed(setup, store, v.id, model, spec.to_math(),
+                                                setup.tolerances.coverage_k)
     except (CompensationRefused, StoreError, ValueError):
         return False
     names = {x.name for x in row.values}
@@ -331,17 +314,41 @@ def cumulative_refusals(setup: MachineSetup, store: Store, spec: ControllerKinem
 def journal_analyse(journal: Path) -> Callable[..., RunAnalysis]:
     """``pipeline.analyse`` identifying against the controller model of the journal at
     ``journal`` (its own connection: it runs in the session's worker thread); for
-    ``Session(analyse=…)``. A controller changed outside rumba fails the run."""
+    ``Session(analyse=…)``. A controller changed outside rumba fails the run. For a machine
+    rumba may compensate, the run's estimate for its compensation view is identified and
+    stored here too, once, off the event loop (``identified.at_run_end``)."""
 
     def analyse(setup: MachineSetup, hits: Sequence[ProbeHit], run_id: str = "run",
                 reference: tuple[str, Analysis] | None = None) -> RunAnalysis:
+        from daemon.analysis import pipeline
+
         store = Store(journal)
         try:
-            machine = controller_model(setup, store)
-        except ControllerModelError as e:
-            raise PipelineError(str(e)) from None
+            try:
+                machine = controller_model(setup, store)
+            except ControllerModelError as e:
+                raise pipeline.PipelineError(str(e)) from None
+            out = pipeline.analyse(setup, hits, run_id, reference, controller=machine)
+            _store_estimate(setup, store, run_id, out)
+            return out
         finally:
             store.close()
-        return pipeline.analyse(setup, hits, run_id, reference, controller=machine)
 
     return analyse
+
+
+def _store_estimate(setup: MachineSetup, store: Store, run_id: str, out: RunAnalysis) -> None:
+    """The compensation view's estimate of a run just analysed (machines with a
+    ``controller_kinematics`` section); a failure here costs the view a later computation,
+    never the run."""
+    try:
+        spec = spec_of(setup)
+        if spec is None:
+            return
+        model = controller_model(setup, store, before=store.run(run_id).started_at,
+                                 check_hal=False)
+        identified.at_run_end(setup, store, run_id, out.centre_rows, model, spec.to_math(),
+                              setup.tolerances.coverage_k)
+    except (CompensationRefused, ConfigError, StoreError, sqlite3.Error) as e:
+        log.warning("%s %s: compensation estimate not stored (computed when asked): %s",
+                    setup.name, run_id, e)

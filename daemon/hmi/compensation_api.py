@@ -176,13 +176,14 @@ async def script(request: web.Request) -> web.Response:
 
 
 class Views:
-    """The compensation view of each machine, computed off the event loop (issue 20: a
-    re-identification takes ≈ 0.4 s; on the loop, a page refreshing it stalled the run) and
-    kept per machine, last finished run and journal state: computed once per run end (the
-    session's status listener warms it) and served from here until the journal changes. One
-    connection of its own, used by one worker thread at a time (the lock also makes
-    concurrent requests for the same view wait for one computation instead of each doing
-    it)."""
+    """The compensation view of each machine, computed off the event loop (issue 20: on the
+    loop, a page refreshing a re-identification stalled the run) from the estimate the run
+    stored when it ended (``daemon.compensation.identified``; a run journaled before that is
+    identified here once and stored), and kept per machine, last finished run and journal
+    state: warmed when a run ends (the session's status listener) and served from here until
+    the journal changes. One connection of its own, used by one worker thread at a time (the
+    lock also makes concurrent requests for the same view wait for one computation instead of
+    each doing it)."""
 
     def __init__(self, journal: Path) -> None:
         self.journal = journal

@@ -216,6 +216,12 @@ class Drainer:
         if "estimates" in kinds:
             r = db.execute("SELECT analysis FROM estimates WHERE run_id=?", (run_id,)).fetchone()
             b.analysis = r[0] if r else None
+        if "estimates" in kinds or "link_estimates" in kinds:
+            # the link estimate goes with its analysis: written by the run's worker thread on
+            # a connection of its own (no capture trigger there), just before the analysis
+            b.link_estimate = db.execute("SELECT model_key, estimate, plan, created_at FROM"
+                                         " link_estimates WHERE run_id=?",
+                                         (run_id,)).fetchone()
         if "verdicts" in kinds:
             b.verdict = db.execute("SELECT status, reasons, checks, written_back FROM verdicts"
                                    " WHERE run_id=?", (run_id,)).fetchone()

@@ -46,6 +46,7 @@ class RunBatch:
     hits: list[tuple] = field(default_factory=list)
     centres: list[tuple] | None = None  # None: unchanged since the last copy
     analysis: str | None = None
+    link_estimate: tuple | None = None  # (model_key, estimate, plan, created_at)
     verdict: tuple | None = None  # (status, reasons, checks, written_back)
     report: tuple | None = None  # (html_path, json_path)
 
@@ -134,6 +135,12 @@ class PgStore:
                 await cur.execute(
                     "INSERT INTO estimates VALUES (%s, %s) ON CONFLICT (run_id) DO UPDATE SET"
                     " analysis=EXCLUDED.analysis", (b.run[0], b.analysis))
+            if b.link_estimate is not None:
+                await cur.execute(
+                    "INSERT INTO link_estimates VALUES (%s, %s, %s, %s, %s) ON CONFLICT"
+                    " (run_id) DO UPDATE SET model_key=EXCLUDED.model_key, estimate="
+                    "EXCLUDED.estimate, plan=EXCLUDED.plan, created_at=EXCLUDED.created_at",
+                    (b.run[0], *b.link_estimate))
             if b.verdict is not None:
                 await cur.execute(
                     "INSERT INTO verdicts VALUES (%s,%s,%s,%s,%s) ON CONFLICT (run_id) DO UPDATE"

@@ -75,6 +75,15 @@ MIGRATIONS: list[list[str]] = [
         """CREATE UNIQUE INDEX compensations_decision ON compensations(run_id, decision)
             WHERE decision IS NOT NULL""",
     ],
+    [  # 6: the run's compensation view (daemon/compensation/identified.py): its estimate,
+        # every parameter with the whole covariance, and the plan of controller changes, as
+        # JSON, computed once when the run ends (issue 20: the view never identifies on the
+        # event loop); model_key says which controller model, artefact, held-out poses,
+        # controller values and coverage factor they were computed for
+        """CREATE TABLE link_estimates (
+            run_id TEXT PRIMARY KEY REFERENCES runs(id), model_key TEXT NOT NULL,
+            estimate TEXT NOT NULL, plan TEXT NOT NULL, created_at REAL NOT NULL)""",
+    ],
 ]
 SCHEMA_VERSION = len(MIGRATIONS)
 
@@ -103,7 +112,8 @@ CAPTURE_TRIGGERS: list[str] = [
           BEGIN INSERT INTO outbox(kind, key) VALUES ('{t}', NEW.{k});
           SELECT rumba_outbox_wake(); END"""
       for t, k in (("runs", "id"), ("centres", "run_id"), ("estimates", "run_id"),
-                   ("verdicts", "run_id"), ("reports", "run_id"), ("machines", "name"))
+                   ("link_estimates", "run_id"), ("verdicts", "run_id"),
+                   ("reports", "run_id"), ("machines", "name"))
       for op in ("INSERT", "UPDATE")),
     """CREATE TEMP TRIGGER IF NOT EXISTS outbox_hits_insert AFTER INSERT ON main.hits
        BEGIN INSERT INTO outbox(kind, key, hit_seq) VALUES ('hits', NEW.run_id, NEW.seq);

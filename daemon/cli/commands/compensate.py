@@ -8,7 +8,6 @@ import argparse
 import asyncio
 
 from contracts.yaml_files import ConfigError
-from daemon.cli.commands.verify import verify
 from daemon.cli.main import UserError
 from daemon.compensation import journal as cj
 from daemon.compensation.apply import (
@@ -119,6 +118,8 @@ def _verify_after(cfg: DaemonConfig, setup: MachineSetup, store: Store, p: Propo
         print(f"verify: load the program on the control first, then: rumba verify --config "
               f"{cfg.path} --machine {setup.name}")
         return 0
+    from daemon.cli.commands.verify import verify  # the run's daemon machinery, when needed
+
     code = asyncio.run(verify(str(cfg.path), setup.name, quiet=True))
     run = store.runs(setup.name, 1)[0]
     analysis = store.analysis(run.id)
