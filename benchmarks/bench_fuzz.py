@@ -13,9 +13,9 @@ from benchmarks.fuzz.common import BAD, ROOT, Tally
 
 # Share of the total case count per target (protocol is split three ways inside).
 WEIGHTS = {"probelog": 0.22, "yamls": 0.22, "gcode": 0.10, "cli": 0.06, "hmi": 0.15,
-           "protocol": 0.25}
+           "protocol": 0.25, "inputs": 0.20}
 DEFAULT_CASES = 2500
-TARGETS = ("probelog", "yamls", "gcode", "cli", "hmi", "protocol")
+TARGETS = ("probelog", "yamls", "gcode", "cli", "hmi", "protocol", "inputs")
 
 
 def _arg(name: str, env: str, default: int | None) -> int | None:
@@ -50,13 +50,13 @@ def _runner(name: str) -> Callable[[random.Random, int], Tally | list[Tally]]:
 def report(tallies: list[Tally], seed: int, wall_s: float, targets: str = "") -> int:
     """Print the table and the reproducers; the number of bad outcomes in all."""
     head = (f"{'target':<22}{'cases':>7}{'accepted':>9}{'clean':>7}{'traceb.':>8}{'hangs':>6}"
-            f"{'wrong':>6}{'time s':>8}")
+            f"{'wrong':>6}{'w.ref':>6}{'time s':>8}")
     print(head)
     print("-" * len(head))
     total = Tally("TOTAL")
     for t in tallies:
         print(f"{t.target:<22}{t.tried:>7}{t.accepted:>9}{t.clean:>7}{t.bad['traceback']:>8}"
-              f"{t.bad['hang']:>6}{t.bad['wrong']:>6}{t.seconds:>8.1f}")
+              f"{t.bad['hang']:>6}{t.bad['wrong']:>6}{t.bad['refusal']:>6}{t.seconds:>8.1f}")
         total.tried += t.tried
         total.accepted += t.accepted
         total.clean += t.clean
@@ -65,8 +65,9 @@ def report(tallies: list[Tally], seed: int, wall_s: float, targets: str = "") ->
     print("-" * len(head))
     print(f"{'TOTAL':<22}{total.tried:>7}{total.accepted:>9}{total.clean:>7}"
           f"{total.bad['traceback']:>8}{total.bad['hang']:>6}{total.bad['wrong']:>6}"
-          f"{wall_s:>8.1f}")
-    print(f"targets: tracebacks 0, hangs 0, wrong acceptances 0; seed {seed} "
+          f"{total.bad['refusal']:>6}{wall_s:>8.1f}")
+    print(f"targets: tracebacks 0, hangs 0, wrong acceptances 0 (wrong), wrong refusals 0 "
+          f"(w.ref); seed {seed} "
           f"(rerun: python -m benchmarks.bench_fuzz --seed {seed} --cases {total.tried}"
           f"{f' --targets {targets}' if targets else ''})")
     for t in tallies:

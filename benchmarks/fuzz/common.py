@@ -13,7 +13,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
 CONFIG = ROOT / "config"
-BAD = ("traceback", "hang", "wrong")
+BAD = ("traceback", "hang", "wrong", "refusal")  # wrong: acceptance; refusal: of a valid input
 KEEP = 3  # reproducers kept per bad class
 KIND = re.compile(r"(?:['\"].*|\d+|=.*|offset.*)")
 EXC_NAME = re.compile(r"Traceback|\b[A-Z]\w*(?:Error|Exception)\b")
