@@ -131,6 +131,11 @@ class MachineFile(StrictModel):
     serial: Record | None = None  # the machine's serial number, printed on every report (audit)
     # What the control keeps of its kinematic model and where (compensation write-back, issue 13)
     controller_kinematics: ControllerKinematicsFile | None = None
+    # Rotary positioning repeatability (µrad 1σ per indexation, by rotary axis letter), e.g.
+    # from the builder's ISO 230-2 test: the gap diagnosis uses it as given for the per-visit
+    # index scatter instead of estimating it from the run (issue 21).
+    rotary_repeatability_urad: dict[Literal["A", "B", "C"],
+                                    Annotated[float, Field(ge=0, le=1000)]] | None = None
     _n = field_validator("name")(safe_name)
 
     @field_validator("gravity")
@@ -210,6 +215,10 @@ def machine_from_dict(data: Any, path: Path | str = "<machine>") -> tuple[Machin
         raise ConfigError(f"{path}: axes: {sorted(extra)} not in topology {mf.topology}")
     if mf.controller_kinematics is not None:
         controller_kinematics(mf.controller_kinematics, m, path)  # checked against the machine
+    for letter in mf.rotary_repeatability_urad or {}:
+        if letter not in m.rotary_axes:
+            raise ConfigError(f"{path}: rotary_repeatability_urad.{letter}: not a rotary axis "
+                              f"of this machine ({m.rotary_axes})")
     return m, mf
 
 

@@ -60,6 +60,22 @@ class ObstacleFile(StrictModel):
     radius_mm: float = Field(gt=0, le=500)
 
 
+class IndexingFile(StrictModel):
+    """Non-repeatable positioning of the rotary axes (issue 21): every indexation stops at the
+    command + δ, δ ~ N(0, σ) drawn per indexation and axis (µrad 1σ by axis letter)."""
+
+    repeatability_urad: dict[str, Annotated[float, Field(ge=0, le=1000)]] = {}
+
+
+class BallStepFile(StrictModel):
+    """A ball knocked during the run (issue 21): from ``t_s`` (machine time, s) on it sits
+    ``vector_um`` away (last workpiece frame)."""
+
+    ball: str
+    t_s: float = Field(ge=0)
+    vector_um: Vec3
+
+
 class EffectFile(StrictModel):
     """One effect family instance, e.g. ``{family: straightness, axis: X, params: {...}}``."""
 
@@ -103,6 +119,8 @@ class ErrorsFile(StrictModel):
     probe: ProbeFile = ProbeFile()
     absent_balls: list[str] = []  # balls not on the table: their touches do not trigger
     obstacles: list[ObstacleFile] = []
+    indexing: IndexingFile = IndexingFile()  # per-indexation scatter of the rotary axes
+    ball_steps: list[BallStepFile] = []  # balls knocked during the run
     effects: list[EffectFile] = []
     thermal: ThermalFile | None = None  # warm-up during the run (simulators/thermal.py)
 

@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from contracts.messages import TOUCH_DIRECTIONS
+from simulators import visit_errors
 from simulators.faults import Fault
 from simulators.gcode import Alarm
 from simulators.probe import first_contact
@@ -91,7 +92,11 @@ class ProbeLatch:
         touch, direction = self._touch_number(u)
         ball = self._aimed_ball(p1, b, c)
         kinds = {f.kind for f in faults}
-        contact = None if "no_trigger" in kinds else first_contact(truth, p0, p1, b, c, t)
+        # Where the rotary axes really stopped at this indexation (issue 21: index scatter).
+        db, dc = visit_errors.index_error_deg(truth.errors, truth.rotary_letters, truth.seed,
+                                              rotary_moves)
+        contact = None if "no_trigger" in kinds else first_contact(truth, p0, p1, b + db,
+                                                                   c + dc, t)
         s_latch = None
         target_id = None
         if "early_trigger" in kinds:

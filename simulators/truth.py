@@ -19,6 +19,7 @@ from contracts.yaml_files import ConfigError
 from identification.effects import EffectContext, combine_motion_errors
 from identification.kinematics import ChainState, Machine, frames, to_model
 from identification.model import Artefact
+from simulators import visit_errors
 from simulators.errors_schema import ErrorsFile, errors_from_dict, link_to_model, load_errors
 from simulators.thermal import ThermalState
 
@@ -100,6 +101,7 @@ class TruthModel:
             if bid not in ids:
                 raise ConfigError(f"{where}: absent_balls: unknown ball {bid!r} (artefact {ids})")
             absent.add(ids.index(bid))
+        visit_errors.check(errors, machine.rotary_axes, ids, where)  # issue 21
         obs = errors.obstacles
         effects = [_make_effect(machine, e, where, i, machine_file.gravity)
                    for i, e in enumerate(errors.effects)]
@@ -180,6 +182,8 @@ class TruthModel:
     def ball_centres_mm(self, t_s: float, b_deg: float, c_deg: float) -> np.ndarray:
         """True ball centres (n, 3) in the last workpiece frame at time t and this indexation."""
         w = self.artefact.nominal_mm + self.ball_setup_mm
+        if self.errors.ball_steps:  # knocked balls (issue 21)
+            w = w + visit_errors.step_offsets_mm(self.errors, self.artefact.ids, t_s)
         if self.effects:
             n = len(self.artefact.balls)
             ctx = self.context(t_s=np.full(n, t_s), b_deg=b_deg, c_deg=c_deg, ball=np.arange(n))

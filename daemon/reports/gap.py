@@ -34,6 +34,8 @@ th{background:#f3f3f3}td.n{text-align:right;font-variant-numeric:tabular-nums}
 <p>Noise: {{ r.noise.source }}{% if touches %}; trigger repeatability
 {{ "%.3f"|format(r.noise.sigma_touch_um) }} µm{% endif %}.
 {% if r.dropped_groups %}{{ r.dropped_groups }} incomplete ball-pose(s) left out.{% endif %}</p>
+{% if r.scatter %}<p>Per-visit scatter: {{ r.scatter.message }}.</p>{% endif %}
+{% if r.ball_step %}<p><b>Ball moved:</b> {{ r.ball_step.message }}.</p>{% endif %}
 {% for a in r.absorbed %}<p>Absorbed: {{ a.effect }} — {{ a.what }}
 ({{ "%.2f"|format(a.value_um) }} ± {{ "%.2f"|format(a.std_um) }} µm).</p>{% endfor %}
 <p>Judged on: {{ r.split }}. Twin: {{ r.twin.n_params }} parameters (setup + links

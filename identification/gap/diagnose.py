@@ -18,7 +18,7 @@ verdict:
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -40,7 +40,9 @@ from identification.gap.linear import FullFit, Problem, columns, fit, held_out, 
 from identification.gap.locate import breakdowns
 from identification.gap.outlier_visits import exclude_outliers, outlier_verdict
 from identification.gap.split import TIME_BLOCKS, TIME_FAMILIES, folds
+from identification.gap.scatter import confounded, link_report, model_visits, rescatter
 from identification.gap.twin import Twin, effect_columns, fit_twin, touch_context
+from identification.gap.step_ball import step_report, step_verdict
 from identification.kinematics import Machine
 from identification.model import Artefact, predict
 
@@ -73,6 +75,11 @@ class Options:
     # stated centre repeatability (x, y, z µm): the floor where touches are exact (or absent)
     repeatability_um: Sequence[float] | None = None
 
+    # Per-visit scatter (issue 21, gap/scatter.py): index errors of the rotary axes and centre
+    # scatter per ball visit as REML variance components; a stated rotary repeatability
+    # (machine file ``rotary_repeatability_urad``, µrad 1σ per axis letter) is used as given.
+    visit_scatter: bool = True
+    rotary_repeatability_urad: dict[str, float] | None = None
 
 def _merge(train: TouchData, holdout: TouchData | None) -> tuple[TouchData, np.ndarray]:
     if holdout is None:
@@ -125,7 +132,9 @@ def diagnose_groups(machine: Machine, artefact: Artefact, data: TouchData, group
         rep, _ = _analyse(machine, artefact, data, floored, is_ho, opt)
         rep["noise"]["source"] += (f"; re-estimated without the selected effects (first pass "
                                    f"{groups.sigma_touch_um:.3f} µm){note}")
-    return rep
+    return step_verdict(rescatter(rep, lambda w: _analyse(machine, artefact, data, floored,
+                                                          is_ho, opt, w)[0],
+                                  machine, artefact.ids, opt.gravity_dir))
 
 
 def _add_known(problem: Problem, known: Sequence[tuple[Effect, np.ndarray | None]], twin: Twin,
@@ -190,7 +199,8 @@ def _time_check(problem: Problem, groups: Groups, is_ho: np.ndarray, selected: l
 
 
 def _analyse(machine: Machine, artefact: Artefact, data: TouchData, groups: Groups,
-             is_ho: np.ndarray, opt: Options) -> tuple[dict, tuple[float, int] | None]:
+             is_ho: np.ndarray, opt: Options, scatter_with: Sequence[Effect] = ()
+             ) -> tuple[dict, tuple[float, int] | None]:
     whiten = whiteners(groups)
     train = ~is_ho
     twin = fit_twin(machine, artefact, groups.centres.subset(train), whiten[train, :3, :3])
@@ -205,7 +215,17 @@ def _analyse(machine: Machine, artefact: Artefact, data: TouchData, groups: Grou
     known = {e.label for e, _ in opt.known}
 
     rep_floor = repeat_floor_um(groups)
-    noise_floor = noise_floor_um(groups)
+    lib = [(e, effect_columns(e, twin, groups, ctx, ball_jac, base_pred_mm))
+           for e in library(machine, artefact.ids, gravity_dir=opt.gravity_dir)
+           if e.family in opt.families and e.label not in known]
+    vs, step, n_step = model_visits(machine, artefact, problem, groups, twin, ctx, ball_jac,
+                                    base_pred_mm, opt.visit_scatter,
+                                    opt.rotary_repeatability_urad, scatter_with,
+                                    [c for _, c in lib])
+    base = problem.base  # with a moved ball's step (gap/step_ball.py)
+    if vs is not None:  # the floor's dof now include the estimated components'
+        groups = replace(groups, sigma_dof=max(int(vs.dof), 1))
+    noise_floor = vs.floor_um if vs is not None else noise_floor_um(groups)
     base_full = fit(problem, base)
     base_ho = held_out(problem, base)
     cells = breakdowns(groups, base_ho, artefact.ids)
@@ -218,10 +238,7 @@ def _analyse(machine: Machine, artefact: Artefact, data: TouchData, groups: Grou
 
     cands: list[Candidate] = []
     invisible: list[dict] = []
-    for eff in library(machine, artefact.ids, gravity_dir=opt.gravity_dir):
-        if eff.family not in opt.families or eff.label in known:
-            continue
-        cols = effect_columns(eff, twin, groups, ctx, ball_jac, base_pred_mm)
+    for eff, cols in lib:
         _, r, basis = projected(problem, base, cols, typical_size(eff))
         if r == 0:
             invisible.append({"effect": eff.family, "axis": eff.axis,
@@ -236,6 +253,7 @@ def _analyse(machine: Machine, artefact: Artefact, data: TouchData, groups: Grou
         c.significant = bool(c.p_value < ALPHA / n_try and c.delta_bic < 0
                              and c.ho.ss_w < base_ho.ss_w)
     contributions(problem, visible)
+    suspect = None if scatter_with else confounded(vs, problem, groups, visible, ALPHA)
     visible.sort(key=lambda c: (c.ho.ss_w, c.effect.n_params))
     selected, final_ho = [], base_ho
     if p_gap < ALPHA:  # only a significant gap is attributed
@@ -303,7 +321,7 @@ def _analyse(machine: Machine, artefact: Artefact, data: TouchData, groups: Grou
                         f"{100 * time_check['explained_fraction']:.0f} % of held-out stretches "
                         "of the run (time blocks): its time course does not extrapolate — a "
                         "drift of another shape (a thermal cycle, a step)?")
-        elif rep_floor is None:
+        elif rep_floor is None and vs is None:
             message += ("; without repeats the floor knows only the trigger noise — a "
                         "non-repeatable centre scatter (indexing, clamping) looks like this: "
                         "run the plan with repeats ≥ 2 to measure it")
@@ -342,6 +360,9 @@ def _analyse(machine: Machine, artefact: Artefact, data: TouchData, groups: Grou
                     "holdout_rms_after_um": round(after_ho.rms_um, 4),
                     "holdout_max_before_um": round(base_ho.max_um, 4),
                     "holdout_max_after_um": round(after_ho.max_um, 4),
+        "scatter": vs.finding() | {"confounded_with": suspect} if vs is not None else None,
+        "ball_step": step_report(step, problem, artefact.ids, n_step) if step else None,
+        "links": link_report(problem, twin, selected, n_base),
                     "selected": [{"effect": c.effect.family, "axis": c.effect.axis}
                                  for c in selected],
                     "explained_fraction": round(frac, 4), "message": message},

@@ -28,6 +28,10 @@ class Problem:
     whiten: np.ndarray  # (G, 4, 4) inverse Cholesky factors of the noise covariance
     fold: np.ndarray  # (G,) CV fold id; -1 = always training (separate hold-out mode)
     _base_u: tuple | None = None  # cached orthonormal basis of the twin's whitened columns
+    # Per-visit whitening (issue 21, ``identification.visit_scatter``): (groups (V, K) with −1
+    # pads, inverse Cholesky factors (V, 4K, 4K)); replaces ``whiten`` where set. Folds and
+    # training sets are unions of whole visits, so a visit is never split by it.
+    visit: tuple[np.ndarray, np.ndarray] | None = None
 
     @property
     def folds(self) -> list[int]:
@@ -76,9 +80,28 @@ class FullFit:
     e_um: np.ndarray  # (G', 4) residuals on the training groups
 
 
+def whitened(p: Problem, a: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray:
+    """``a`` (G, 4) or (G, 4, k) whitened — per group, or per visit where ``p.visit`` is
+    set — at ``rows`` (default all; with visits, ``rows`` must hold whole visits)."""
+    rows = np.arange(len(p.fold)) if rows is None else rows
+    if p.visit is None:
+        spec = "gij,gj->gi" if a.ndim == 2 else "gij,gjk->gik"
+        return np.einsum(spec, p.whiten[rows], a[rows])
+    groups, w = p.visit
+    tail = a.shape[2:]
+    padded = np.concatenate([a, np.zeros((1, *a.shape[1:]))])[groups]  # (V, K, 4, …)
+    flat = padded.reshape(len(groups), -1, *tail)
+    out = np.einsum("vij,vj...->vi...", w, flat).reshape(padded.shape)
+    full = np.zeros_like(a, dtype=float)
+    ok = groups >= 0
+    full[groups[ok]] = out[ok]
+    full *= live(p)[(...,) + (None,) * len(tail)]
+    return full[rows]
+
+
 def _w(p: Problem, cols: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    x = np.einsum("gij,gjk->gik", p.whiten[rows], cols[rows]).reshape(-1, cols.shape[2])
-    y = np.einsum("gij,gj->gi", p.whiten[rows], p.y_um[rows]).reshape(-1)
+    x = whitened(p, cols, rows).reshape(-1, cols.shape[2])
+    y = whitened(p, p.y_um, rows).reshape(-1)
     return x, y
 
 
@@ -151,7 +174,12 @@ def held_out(p: Problem, cols: np.ndarray) -> HeldOut:
         expd.append(obs[te] * (1.0 + np.einsum("ij,jk,ik->i", xf, pinv, xf).reshape(-1, 4)))
         idx.append(te)
         e_um.append(e)
-        e_w.append(np.einsum("gij,gj->gi", p.whiten[te], e))
+        if p.visit is None:
+            e_w.append(np.einsum("gij,gj->gi", p.whiten[te], e))
+        else:
+            e_all = np.zeros_like(p.y_um)
+            e_all[te] = e
+            e_w.append(whitened(p, e_all, te))
     ix = np.concatenate(idx)
     return HeldOut(ix, np.concatenate(e_um), np.concatenate(e_w), np.concatenate(expd),
                    int(obs[ix].sum()))

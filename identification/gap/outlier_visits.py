@@ -10,6 +10,7 @@ from typing import Any
 
 import numpy as np
 
+from identification.gap.chip_floor import min_chip_um
 from identification.gap.data import Groups, TouchData, group_touches
 from identification.kinematics import Machine
 from identification.model import Artefact
@@ -38,7 +39,10 @@ def exclude_outliers(machine: Machine, artefact: Artefact, data: TouchData,
                          "min_size_um": MIN_SIZE_UM,
                          "radius_scale_um": _r(scr.radius_scale_um),
                          "form_scale_um": _r(scr.form_scale_um),
-                         "centre_scale_um": _r(scr.centre_scale_um), "note": scr.note},
+                         "centre_scale_um": _r(scr.centre_scale_um), "note": scr.note,
+                         # issue 21: the smallest chip this run names, by touch
+                         "min_chip_um": min_chip_um(scr.radius_scale_um, scr.form_scale_um,
+                                                    scr.centre_scale_um)},
         "outliers": []}
     if not scr.outliers:
         return data, hold_rows, groups, parts

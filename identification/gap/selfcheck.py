@@ -24,6 +24,16 @@ from identification.axis_effects import ERROR_MOTION_COMPONENTS, fixed_error_mot
 from identification.effects import FAMILIES, Effect, library, make_effect
 from identification.gap.data import group_touches
 from identification.gap.diagnose import TYPICAL, Options, diagnose
+from identification.gap.selfcheck_scatter import (
+    AFTER_LIMIT_SCATTER,
+    SCATTER_URAD,
+    STEP,
+    index_rms_um,
+    knock,
+    scatter_scenarios,
+    split_scatter,
+    step_named,
+)
 from identification.gap.simlog import Truth, simulate
 from identification.gap.twin import fit_twin
 from identification.kinematics import Machine
@@ -35,6 +45,10 @@ VARIANTS: dict[str, tuple[str, dict]] = {
     "radial2_fixed": ("rotary_error_motion", {"orders": (2,), "components": ("radial",)}),
 }
 SCENARIOS = (*FAMILIES, *VARIANTS, *CONTROLS)  # what ``run`` injects by default, in order
+# Issue 21 (selfcheck_scatter.py): every library effect and the null run again under indexing
+# scatter of the rotary axes, and a knocked ball.
+BASE_SCENARIOS = SCENARIOS
+SCENARIOS = (*BASE_SCENARIOS, *scatter_scenarios((*FAMILIES, *VARIANTS, "null")))
 ABSORBED_SIZE = 50.0  # µm / µrad of the absorbed error motion: 5× typical, still invisible
 AFTER_LIMIT = 1.3  # held-out RMS with the injected family added, over the noise floor
 MIN_VISIBLE = 0.3  # an injected draw must be at least this visible (RMS ratio) to the twin
@@ -119,6 +133,7 @@ def visible_rms(machine: Machine, artefact: Artefact, poses: Sequence[tuple[floa
 
 def expected_family(scenario: str) -> str | None:
     """The family a scenario must be attributed to (None for a control)."""
+    scenario = split_scatter(scenario)[0]
     if scenario in VARIANTS:
         return VARIANTS[scenario][0]
     return scenario if scenario in FAMILIES else None
@@ -158,8 +173,9 @@ def run_case(machine: Machine, artefact: Artefact, poses: Sequence[tuple[float, 
     rng = np.random.default_rng(seed)
     base = base_truth(machine, artefact, rng)
     truth = Truth(base.links, base.ball_setup_mm, base.tip_setup_mm)
-    displaced = None
+    displaced = knocked = None
     family = expected_family(scenario)
+    name, (scenario, scattered) = scenario, split_scatter(scenario)
     if family is not None:
         eff = _effect_for(scenario, axis, machine, artefact, gravity_dir)
         typical = np.array([TYPICAL.get(u, 1.0) for u in eff.units])
@@ -181,11 +197,18 @@ def run_case(machine: Machine, artefact: Artefact, poses: Sequence[tuple[float, 
         truth.effects = [(eff, np.full(5, factor * noise_um))]
     elif scenario == "absorbed_motion":
         truth.effects = absorbed_motion(machine, rng)
+    elif scenario == STEP:
+        knocked = knock(rng, len(artefact.balls), len(poses))
+        truth.ball_steps = [(knocked.ball, knocked.t_s, knocked.vector_mm)]
     if family is not None or scenario == "outside":
         vis, _, unit_floor = visible_rms(machine, artefact, poses, base, truth, stylus_r)
-        k = factor * unit_floor * noise_um / max(vis, 1e-12)
+        floor = np.hypot(unit_floor * noise_um, index_rms_um(machine, artefact, poses,
+                                                            SCATTER_URAD if scattered else 0.0))
+        k = factor * floor / max(vis, 1e-12)
         truth.effects = [(e, p * k) for e, p in truth.effects]
         truth.pose_offsets_mm = {i: o * k for i, o in truth.pose_offsets_mm.items()}
+    if scattered:  # after the scaling: visible_rms compares runs without it
+        truth.index_std_urad = {a: SCATTER_URAD for a in machine.rotary_axes}
     data = simulate(machine, artefact, poses, truth, stylus_r, noise_um, seed=seed + 7919)
     rep = diagnose(machine, artefact, data, stylus_r,
                    options=Options(split=split, gravity_dir=gravity_dir))
@@ -200,14 +223,17 @@ def run_case(machine: Machine, artefact: Artefact, poses: Sequence[tuple[float, 
         located = any(x["by"] == "pose" and x["key"] == key for x in rep["location"])
     if family is not None:
         ok = (top is not None and top["effect"] == family and top["axis"] == axis
-              and v["effect"] == family and after <= AFTER_LIMIT)
+              and v["effect"] == family
+              and after <= (AFTER_LIMIT_SCATTER if scattered else AFTER_LIMIT))
+    elif knocked is not None:
+        ok = step_named(rep, knocked, artefact.ids)
     elif scenario in ("null", "absorbed_motion"):
         ok = v["effect"] == "none"
     elif scenario == "uniform_pretravel":
         ok = v["effect"] in ("none", "absorbed")
     else:
         ok = v["effect"] == "unexplained" and located
-    return Case(scenario, axis, plan, seed, v["effect"], v["axis"],
+    return Case(name, axis, plan, seed, v["effect"], v["axis"],
                 top["effect"] if top else None, top["axis"] if top else None, after, located, ok,
                 family)
 
@@ -228,6 +254,7 @@ def visible(machine: Machine, artefact: Artefact, poses: Sequence[tuple[float, f
 def axes_of(scenario: str, machine: Machine, artefact: Artefact) -> list[str | None]:
     """The scenario's instances in the library (axes or ball ids; [None] without an axis); a
     variant of the rotary error motion on the full-turn axes only (its orders need the turn)."""
+    scenario = split_scatter(scenario)[0]
     if scenario in VARIANTS:
         return [a for a in machine.rotary_axes
                 if np.ptp(machine.axes[a].travel) >= 360.0]
@@ -247,8 +274,9 @@ def run(machine: Machine, artefact: Artefact, plans: dict[str, Sequence[tuple[fl
         for sc in scenarios:
             fam = expected_family(sc)
             axes = axes_of(sc, machine, artefact) if fam is not None else [None]
-            axes = [a for a in axes if (sc, a) not in skip
-                    and (fam is None or visible(machine, artefact, poses, stylus_r, sc, a,
+            bare = split_scatter(sc)[0]
+            axes = [a for a in axes if (bare, a) not in skip
+                    and (fam is None or visible(machine, artefact, poses, stylus_r, bare, a,
                                                    gravity_dir))]
             axes = axes or [None]
             for s in range(seeds):

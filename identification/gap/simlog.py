@@ -43,6 +43,11 @@ class Truth:
     tip_setup_mm: np.ndarray = field(default_factory=lambda: np.zeros(3))
     effects: list[tuple[Effect, np.ndarray]] = field(default_factory=list)
     pose_offsets_mm: dict[int, np.ndarray] = field(default_factory=dict)  # outside the library
+    # Issue 21: per-visit index errors of the rotary axes, drawn N(0, σ) per pose (µrad 1σ by
+    # axis letter; the true axis stops at command + δ), and ball steps — (ball index, time s,
+    # displacement mm in the last workpiece frame): the ball sits there from that time on.
+    index_std_urad: dict[str, float] = field(default_factory=dict)
+    ball_steps: list[tuple[int, float, np.ndarray]] = field(default_factory=list)
 
 
 @dataclass(frozen=True)
@@ -56,6 +61,18 @@ def approach_directions(machine: Machine) -> np.ndarray:
     """(5, 3): four diagonals in the machine X-Y plane, then the pole along −spindle axis."""
     pole = -np.asarray(machine.spindle_axis, float)
     return np.vstack([DIAGONALS, pole / np.linalg.norm(pole)])
+
+
+def index_errors_deg(machine: Machine, truth: Truth, n_poses: int, rng: np.random.Generator
+                     ) -> np.ndarray:
+    """(n_poses, 2) per-visit index errors (deg) of the two rotary axes, N(0, σ) each; zeros
+    (and no draw) without ``index_std_urad``."""
+    out = np.zeros((n_poses, 2))
+    for k, a in enumerate(machine.rotary_axes[:2]):
+        s = truth.index_std_urad.get(a, 0.0)
+        if s > 0:
+            out[:, k] = np.rad2deg(rng.normal(0.0, s * 1e-6, n_poses))
+    return out
 
 
 def simulate(machine: Machine, artefact: Artefact, poses: Sequence[tuple[float, float]],
@@ -73,6 +90,7 @@ def simulate(machine: Machine, artefact: Artefact, poses: Sequence[tuple[float, 
          + (pose * n_b + ball) * timing.ball_s)
     d = dirs[touch - 1]
     rot = rotary_columns(machine, bc[:, 0], bc[:, 1])
+    true_bc = bc + index_errors_deg(machine, truth, len(poses), rng)[pose]
     nominal = artefact.nominal_mm[ball]
     centre_prog = solve_centre(machine, rot, nominal, ChainState())
     setup = np.zeros((n_b, 3)) if truth.ball_setup_mm is None else truth.ball_setup_mm
@@ -81,12 +99,14 @@ def simulate(machine: Machine, artefact: Artefact, poses: Sequence[tuple[float, 
     ctx = EffectContext(t, bc[:, 0], bc[:, 1], ball, touch, d, centre_prog, w_true, rods)
     for eff, p in truth.effects:
         w_true = w_true + eff.ball_offset_mm(p, ctx)
+    for b, t_step, v in truth.ball_steps:
+        w_true = w_true + np.where(((ball == b) & (t >= t_step))[:, None], np.asarray(v), 0.0)
     state = ChainState(links=dict(truth.links), tip_offset_mm=np.asarray(truth.tip_setup_mm),
                        motion_errors=combine_motion_errors(
                            *[eff.motion_errors(p) for eff, p in truth.effects]))
     radius = np.array([b.diameter_mm / 2 for b in artefact.balls])[ball] + stylus_radius_mm
     start = centre_prog - (radius + standoff_mm)[:, None] * d
-    rot_model = to_model(machine, rot)
+    rot_model = to_model(machine, rotary_columns(machine, true_bc[:, 0], true_bc[:, 1]))
 
     def gap(s: np.ndarray) -> np.ndarray:
         q = start + s[:, None] * d

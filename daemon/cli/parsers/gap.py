@@ -45,6 +45,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="internal held-out split without --holdout: pose (leave-one-pose-out), "
                         "time (contiguous time blocks: the honest test of drift) or auto "
                         "(time when the log's times allow it; default)")
+    p.add_argument("--no-visit-scatter", action="store_true",
+                   help="judge against the trigger noise (and repeats) only, without the "
+                        "per-visit index and centre scatter estimated from the run")
     p.add_argument("--json", help="write the report as JSON")
     p.add_argument("--html", help="write the report as HTML")
     p.add_argument("--selfcheck", action="store_true",

@@ -1,0 +1,167 @@
+"""Monte Carlo of the scatter-aware gap diagnosis (issue 21), run by hand; prints the table:
+
+    OMP_NUM_THREADS=1 nice .venv/bin/python benchmarks/bench_scatter.py [--seeds 50]
+
+Thesis machine (Table B.2 links, random setup), 4-ball artefact, 0.5 µm touch noise, per-visit
+index errors of B and C (1σ each) drawn by ``simlog.simulate``; two plans: the 14-pose shift
+plan without repeats (annex-B indexations + the drift-check revisit of the first pose, one log,
+leave-one-pose-out) and the annex-B plan with a hold-out (seven estimate poses, the seven
+validate poses as a separate log). Per condition and plan, over ``--seeds`` seeds:
+
+* null runs at 5 / 10 / 15 µrad: share not ``unexplained``; share whose estimated B and C index
+  repeatability are within 30 % of the truth (each axis, and their RMS); the bias of the
+  estimate; coverage of the link errors' stated 2u (GLS under the estimated components);
+* a 40 µrad 2nd-harmonic C positioning error (random phase) under 8 µrad: share named
+  ``rotary_positioning:C`` with the held-out RMS after it ≤ 1.5 × the scatter-aware held-out
+  floor;
+* a 5-20 µm step of one ball (random ball, moment, direction) under 10 µrad: share named with
+  ball, moment (± one pose) and size (± 2 µm);
+The shipped example log's verdict is checked by tests/test_gap_scatter.py.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from collections import defaultdict
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from contracts.setup_files import load_artefact, load_machine, load_plan  # noqa: E402
+from identification.effects import make_effect  # noqa: E402
+from identification.gap import diagnose  # noqa: E402
+from identification.gap.selfcheck_scatter import knock, step_named  # noqa: E402
+from identification.gap.simlog import Truth, simulate  # noqa: E402
+
+TABLE_B2 = {"EB0Z": -12e-6, "EA0Y": -24e-6, "EC0Y": 17e-6, "EC0B": -23e-6, "EA0B": 2e-6,
+            "EA0C": -19e-6, "EB0C": 26e-6, "EX0C": -0.106}
+NOISE_UM = 0.5
+STYLUS_R = 3.0
+
+
+def _truth(artefact, seed: int, sigma: float) -> Truth:
+    rng = np.random.default_rng(seed)
+    base = base_truth_setup(artefact, rng)
+    return Truth(dict(TABLE_B2), base[0], base[1], index_std_urad={"B": sigma, "C": sigma})
+
+
+def base_truth_setup(artefact, rng):
+    return rng.normal(0.0, 0.2, (len(artefact.balls), 3)), rng.normal(0.0, 0.05, 3)
+
+
+def _run(machine, artefact, plans, name, truth, seed):
+    poses, hold = plans[name]
+    data = simulate(machine, artefact, poses, truth, STYLUS_R, NOISE_UM, seed=seed + 7919)
+    hdata = None if hold is None else simulate(machine, artefact, hold, truth, STYLUS_R,
+                                               NOISE_UM, seed=seed + 104729)
+    return data, diagnose(machine, artefact, data, STYLUS_R, holdout=hdata)
+
+
+def _links_covered(rep, truth) -> tuple[int, int]:
+    ok = n = 0
+    for name, v in rep["links"].items():
+        k = 1e6 if name[1] in "ABC" else 1e3
+        n += 1
+        ok += abs(v["value"] - truth.links.get(name, 0.0) * k) <= 2 * v["std"]
+    return ok, n
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seeds", type=int, default=50)
+    ap.add_argument("--only", default="", help="comma list: null,harmonic,step")
+    args = ap.parse_args()
+    only = set(filter(None, args.only.split(","))) or {"null", "harmonic", "step"}
+    machine, _ = load_machine(ROOT / "config/machines/thesis_wcbxfzyt.yaml")
+    artefact = load_artefact(ROOT / "config/artefacts/thesis_4ball.yaml")
+    annex = load_plan(ROOT / "config/plans/thesis_annexB_14poses.yaml")
+    all_p = [(p.b_deg, p.c_deg) for p in annex.poses]
+    est = [(p.b_deg, p.c_deg) for p in annex.poses if p.role == "estimate"]
+    val = [(p.b_deg, p.c_deg) for p in annex.poses if p.role == "validate"]
+    plans = {"shift-14": ([*all_p, all_p[0]], None), "holdout-7+7": (est, val)}
+    n = args.seeds
+    t0 = time.perf_counter()
+    runs = 0
+    print(f"N = {n} seeds per condition and plan; touch noise {NOISE_UM} µm; index errors "
+          f"drawn per visit for B and C")
+    if "null" in only:
+        print("\nnull runs: per-visit B/C index scatter only")
+        print(f"{'plan':12s} {'σ µrad':>6s} {'not unexpl.':>11s} {'B ±30%':>7s} {'C ±30%':>7s} "
+              f"{'RMS ±30%':>8s} {'bias B':>7s} {'bias C':>7s} {'2u cover':>8s}")
+        for name in plans:
+            for sigma in (5.0, 10.0, 15.0):
+                acc = defaultdict(list)
+                cov_ok = cov_n = 0
+                for s in range(n):
+                    truth = _truth(artefact, 1000 * s + 3, sigma)
+                    _, rep = _run(machine, artefact, plans, name, truth, 1000 * s + 3)
+                    runs += 1
+                    sc = {c["component"]: c["sigma"] for c in (rep["scatter"] or {}).get(
+                        "components", [])}
+                    b, c = sc.get("index B", 0.0), sc.get("index C", 0.0)
+                    acc["ok"].append(rep["verdict"]["effect"] != "unexplained")
+                    acc["b"].append(abs(b - sigma) <= 0.3 * sigma)
+                    acc["c"].append(abs(c - sigma) <= 0.3 * sigma)
+                    acc["rms"].append(abs(np.hypot(b, c) / np.sqrt(2) - sigma) <= 0.3 * sigma)
+                    acc["bb"].append(b / sigma - 1)
+                    acc["bc"].append(c / sigma - 1)
+                    o, k = _links_covered(rep, truth)
+                    cov_ok, cov_n = cov_ok + o, cov_n + k
+                print(f"{name:12s} {sigma:6.0f} {100 * np.mean(acc['ok']):10.0f}% "
+                      f"{100 * np.mean(acc['b']):6.0f}% {100 * np.mean(acc['c']):6.0f}% "
+                      f"{100 * np.mean(acc['rms']):7.0f}% {100 * np.mean(acc['bb']):+6.0f}% "
+                      f"{100 * np.mean(acc['bc']):+6.0f}% {100 * cov_ok / cov_n:7.1f}%",
+                      flush=True)
+    if "harmonic" in only:
+        print("\n40 µrad 2nd-harmonic C positioning error under 8 µrad B/C index scatter")
+        print(f"{'plan':12s} {'named':>6s} {'≤1.5 floor':>10s} {'both':>6s} "
+              f"{'after/floor median':>18s} {'max':>6s}")
+        eff = make_effect("rotary_positioning", "C", machine)
+        for name in plans:
+            named, under, both, ratio = [], [], [], []
+            for s in range(n):
+                truth = _truth(artefact, 1000 * s + 5, 8.0)
+                ph = np.random.default_rng(s).uniform(0, 2 * np.pi)
+                truth.effects = [(eff, np.array([0, 0, 0, 40 * np.cos(ph), 40 * np.sin(ph)]))]
+                _, rep = _run(machine, artefact, plans, name, truth, 1000 * s + 5)
+                runs += 1
+                v = rep["verdict"]
+                r = v["holdout_rms_after_um"] / rep["noise"]["holdout_floor_um"]
+                nm = (v["effect"], v["axis"]) == ("rotary_positioning", "C")
+                named.append(nm)
+                under.append(r <= 1.5)
+                both.append(nm and r <= 1.5)
+                ratio.append(r)
+            print(f"{name:12s} {100 * np.mean(named):5.0f}% {100 * np.mean(under):9.0f}% "
+                  f"{100 * np.mean(both):5.0f}% {np.median(ratio):18.2f} {np.max(ratio):6.2f}",
+                  flush=True)
+    if "step" in only:
+        print("\n5-20 µm step of one ball under 10 µrad B/C index scatter")
+        print(f"{'plan':12s} {'named':>6s} {'size err median µm':>18s} {'max':>6s}")
+        for name in ("shift-14",):
+            named, err = [], []
+            for s in range(n):
+                truth = _truth(artefact, 1000 * s + 7, 10.0)
+                poses = plans[name][0]
+                kb = knock(np.random.default_rng(s + 77), len(artefact.balls), len(poses))
+                truth.ball_steps = [(kb.ball, kb.t_s, kb.vector_mm)]
+                _, rep = _run(machine, artefact, plans, name, truth, 1000 * s + 7)
+                runs += 1
+                named.append(step_named(rep, kb, artefact.ids))
+                if rep.get("ball_step"):
+                    err.append(abs(rep["ball_step"]["size_um"] - kb.size_um))
+            print(f"{name:12s} {100 * np.mean(named):5.0f}% "
+                  f"{np.median(err) if err else float('nan'):18.2f} "
+                  f"{max(err) if err else float('nan'):6.2f}", flush=True)
+    dt = time.perf_counter() - t0
+    print(f"\n{runs} diagnoses in {dt:.0f} s ({dt / max(runs, 1):.2f} s each)")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

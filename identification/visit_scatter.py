@@ -1,0 +1,236 @@
+"""Per-visit scatter (issue 21) by REML: rotary index errors and centre scatter per ball visit.
+
+Every indexation of B/C stops a few µrad from where it stopped last time (rotary positioning
+repeatability, clamping): all balls of one visit move together, along the visit's
+d(centre)/d(B) and d(centre)/d(C). On top of the sphere fit's own covariance (trigger noise)
+each ball visit may scatter on its own (thesis §3.4: the measured centre repeatability,
+0.66 / 0.98 / 0.44 µm, exceeds what the trigger noise explains). The observations of one visit
+then have the covariance
+
+    V_v = blockdiag_g(R_g + diag(s_x², s_y², s_z², 0)) + Z_v diag(σ_B², σ_C²) Z_vᵀ
+
+(R_g: the sphere fit's covariance of group g; Z_v: the index columns of the visit's groups),
+blocks independent between visits. The components θ = (σ_B, σ_C, s_x, s_y, s_z) are estimated
+by restricted maximum likelihood (Patterson & Thompson; the fixed effects — setup, links,
+selected effects — integrated out, so their dof are not taken from the scatter): repeats and
+revisits inform them directly, and without repeats the pattern across the balls of one visit
+tells a rigid index error from independent centre scatter. The same blocks give the
+generalised-least-squares whitening the gap diagnosis and the link uncertainties use.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import optimize, stats
+
+EIG_RCOND = 1e-12  # relative eigenvalue cut-off of XᵀV⁻¹X (unobservable fixed directions)
+LR_ALPHA = 0.01  # a component is "detected" when its boundary LR test is below this level
+MAX_SIGMA = 1e4  # µrad / µm: an upper bound for the optimiser only
+ZERO = 1e-2  # µrad / µm: a component this small is none (the optimiser's floor is 1e-3)
+
+
+@dataclass
+class VisitBlocks:
+    """Observations arranged by visit: (V, n) slots of n = K groups × c channels, padded.
+
+    ``y`` (V, n), ``x`` (V, n, P) fixed-effect columns, ``r0`` (V, n, n) the covariance known
+    without the components (pads: identity), ``z`` (V, n, q) index columns per µrad,
+    ``centre`` (V, n, 3) selector of each slot's centre axis (1 where slot is channel x/y/z of
+    a real group), ``groups`` (V, K) group index per slot group (−1: pad)."""
+
+    y: np.ndarray
+    x: np.ndarray
+    r0: np.ndarray
+    z: np.ndarray
+    centre: np.ndarray
+    groups: np.ndarray
+    channels: int
+
+
+def arrange(y: np.ndarray, x: np.ndarray, r0: np.ndarray, z: np.ndarray, visit: np.ndarray,
+            live: np.ndarray | None = None) -> VisitBlocks:
+    """Blocks from per-group arrays: ``y`` (G, c), ``x`` (G, c, P), ``r0`` (G, c, c),
+    ``z`` (G, c, q), ``visit`` (G,) ids, ``live`` (G, c) observations that exist (a dead
+    channel gets unit variance and zero data: it adds nothing to the likelihood)."""
+    g_n, c = y.shape
+    live = np.ones((g_n, c), bool) if live is None else np.asarray(live, bool)
+    ids, inv = np.unique(visit, return_inverse=True)
+    k = int(np.bincount(inv).max())
+    groups = np.full((len(ids), k), -1)
+    slot = np.zeros(len(ids), int)
+    for g, v in enumerate(inv):
+        groups[v, slot[v]] = g
+        slot[v] += 1
+    n = k * c
+    p, q = x.shape[2], z.shape[2]
+    yb = np.zeros((len(ids), n))
+    xb = np.zeros((len(ids), n, p))
+    zb = np.zeros((len(ids), n, q))
+    rb = np.broadcast_to(np.eye(n), (len(ids), n, n)).copy()
+    cb = np.zeros((len(ids), n, 3))
+    lv = live[..., None]
+    r_live = np.where(live[:, :, None] & live[:, None, :], r0, 0.0)
+    r_live[:, np.arange(c), np.arange(c)] = np.where(live, np.diagonal(r0, axis1=1, axis2=2), 1)
+    for j in range(k):
+        g = groups[:, j]
+        ok = g >= 0
+        s = slice(j * c, (j + 1) * c)
+        yb[ok, s] = np.where(live[g[ok]], y[g[ok]], 0.0)
+        xb[ok, s] = np.where(lv[g[ok]], x[g[ok]], 0.0)
+        zb[ok, s] = np.where(lv[g[ok]], z[g[ok]], 0.0)
+        rb[ok, s, s] = r_live[g[ok]]
+        for a in range(min(3, c)):
+            cb[ok, j * c + a, a] = live[g[ok], a]
+    return VisitBlocks(yb, xb, rb, zb, cb, groups, c)
+
+
+def covariance(b: VisitBlocks, theta: np.ndarray) -> np.ndarray:
+    """(V, n, n) the visits' covariances for components θ = (σ index per z column …,
+    s_x, s_y, s_z) in µrad and µm."""
+    q = b.z.shape[2]
+    idx, cen = np.asarray(theta[:q], float), np.asarray(theta[q:], float)
+    zs = b.z * idx[None, None, :]
+    v = b.r0 + zs @ np.swapaxes(zs, 1, 2)
+    d = np.einsum("vna,a->vn", b.centre, cen**2)
+    v[:, np.arange(v.shape[1]), np.arange(v.shape[1])] += d
+    return v
+
+
+def _whitened(b: VisitBlocks, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+    chol = np.linalg.cholesky(covariance(b, theta))
+    logdet = 2.0 * float(np.sum(np.log(np.diagonal(chol, axis1=1, axis2=2))))
+    xw = np.linalg.solve(chol, b.x)
+    yw = np.linalg.solve(chol, b.y[..., None])[..., 0]
+    return xw.reshape(-1, b.x.shape[2]), yw.reshape(-1), logdet
+
+
+def restricted_nll(b: VisitBlocks, theta: np.ndarray, rank: int | None = None,
+                   restricted: bool = True) -> float:
+    """−2 × the restricted log-likelihood (constants dropped) at θ; ``rank`` the fixed
+    columns' rank (their near-null directions are integrated out of neither term). With
+    ``restricted`` False: −2 × the profile (ML) log-likelihood, the one that compares models
+    with different fixed effects (a likelihood-ratio test of a candidate effect)."""
+    xw, yw, logdet = _whitened(b, theta)
+    norms = np.linalg.norm(xw, axis=0)
+    norms[norms == 0] = 1.0
+    xn = xw / norms
+    w, vec = np.linalg.eigh(xn.T @ xn)
+    keep = np.argsort(w)[::-1][: rank if rank is not None else int(np.sum(w > EIG_RCOND * w[-1]))]
+    proj = vec[:, keep].T @ (xn.T @ yw)
+    rss = float(yw @ yw - np.sum(proj**2 / w[keep]))
+    return logdet + (float(np.sum(np.log(w[keep]))) if restricted else 0.0) + rss
+
+
+@dataclass
+class ScatterFit:
+    """The estimated components (µrad, µm) with standard uncertainties and their tests."""
+
+    names: tuple[str, ...]
+    sigma: np.ndarray
+    std: np.ndarray
+    p_value: np.ndarray  # boundary LR test σ = 0 (½χ²₁ mixture)
+    fixed: np.ndarray  # stated, not estimated
+    n_visits: int
+    nll: float
+
+    def value(self, name: str) -> float:
+        return float(self.sigma[self.names.index(name)])
+
+
+def estimate_components(b: VisitBlocks, names: Sequence[str], start: Sequence[float],
+                        fixed: dict[int, float] | None = None, test: bool = True,
+                        restricted: bool = True) -> ScatterFit:
+    """REML estimate of the components (``fixed``: index → stated value, not estimated).
+    Each free component gets its boundary likelihood-ratio p-value (refit with it at zero)
+    when ``test``, and a standard uncertainty from the curvature of −2ℓ (σ ≥ 0)."""
+    fixed = dict(fixed or {})
+    m = len(names)
+    free = [i for i in range(m) if i not in fixed]
+    xw, _, _ = _whitened(b, np.asarray(start, float))
+    xn = xw / np.where(np.linalg.norm(xw, axis=0) == 0, 1, np.linalg.norm(xw, axis=0))
+    w = np.linalg.eigvalsh(xn.T @ xn)
+    rank = int(np.sum(w > EIG_RCOND * w[-1]))
+
+    def full(t: np.ndarray, zero: int | None = None) -> np.ndarray:
+        out = np.array([fixed.get(i, 0.0) for i in range(m)], float)
+        out[[i for i in free if i != zero]] = t
+        return out
+
+    def solve(zero: int | None = None, x0: np.ndarray | None = None
+              ) -> tuple[np.ndarray, float]:
+        idx = [i for i in free if i != zero]
+        if not idx:
+            return np.zeros(0), restricted_nll(b, full(np.zeros(0), zero), rank, restricted)
+        x0 = np.maximum([start[i] for i in idx] if x0 is None else x0[idx], 1e-3)
+        res = optimize.minimize(lambda t: restricted_nll(b, full(t, zero), rank, restricted),
+                                x0, method="L-BFGS-B", bounds=[(0.0, MAX_SIGMA)] * len(idx),
+                                options={"maxiter": 200})
+        return res.x, float(res.fun)
+
+    # The likelihood is not convex in σ: a local optimum far out (one component taking up a
+    # systematic residual) can hide a better one with that component at zero. Two starts,
+    # and every boundary fit of the tests that beats the optimum restarts it from there.
+    cands = [solve(), solve(x0=10.0 * np.asarray(start, float))]
+    t_hat, nll = min(cands, key=lambda r: r[1])
+    sigma = full(t_hat)
+    for _ in range(len(free) + 1):
+        p_val = np.full(m, np.nan)
+        better = None
+        for i in free if test else ():
+            if sigma[i] <= ZERO:
+                p_val[i] = 1.0
+                continue
+            t0, nll0 = solve(i, sigma)
+            if nll0 < nll - 1e-3:
+                better = full(t0, i)
+                break
+            p_val[i] = 0.5 * float(stats.chi2.sf(max(nll0 - nll, 0.0), 1))
+        if better is None:
+            break
+        t_hat, nll = solve(x0=np.where(better > 0, better, 1e-3))
+        sigma = full(t_hat)
+    std = np.full(m, np.nan)
+    for i in free:
+        h = max(1e-3, 1e-2 * sigma[i])
+        if sigma[i] > h:
+            f = [restricted_nll(b, sigma + dv * h * np.eye(m)[i], rank, restricted)
+                 for dv in (-1, 0, 1)]
+            curv = (f[0] - 2 * f[1] + f[2]) / h**2  # d²(−2ℓ)/dσ²: var σ ≈ 2 / curv
+            std[i] = np.sqrt(2.0 / curv) if curv > 0 else np.inf
+    return ScatterFit(tuple(names), sigma, std, p_val,
+                      np.array([i in fixed for i in range(m)]), len(b.groups), nll)
+
+
+def whiteners(b: VisitBlocks, theta: np.ndarray) -> np.ndarray:
+    """(V, n, n) inverse Cholesky factors of the visits' covariances: GLS whitening."""
+    chol = np.linalg.cholesky(covariance(b, theta))
+    eye = np.broadcast_to(np.eye(chol.shape[1]), chol.shape)
+    return np.linalg.solve(chol, eye)
+
+
+def effective_dof(b: VisitBlocks, theta: np.ndarray, fit: ScatterFit, base_dof: float
+                  ) -> float:
+    """Welch–Satterthwaite dof of the floor's mean variance: the trigger-noise part with
+    ``base_dof``, each estimated component with 2 (σ/u(σ))² (its relative uncertainty)."""
+    q = b.z.shape[2]
+    parts = [float(np.sum(np.diagonal(b.r0, axis1=1, axis2=2)))]
+    dofs = [max(base_dof, 1.0)]
+    for i in range(len(theta)):
+        if i < q:
+            share = float(np.sum(b.z[:, :, i] ** 2)) * theta[i] ** 2
+        else:
+            share = float(np.sum(b.centre[:, :, i - q])) * theta[i] ** 2
+        if share <= 0:
+            continue
+        rel = fit.std[i] / theta[i] if np.isfinite(fit.std[i]) and theta[i] > 0 else np.inf
+        if fit.fixed[i]:
+            dof = 1e6
+        else:
+            dof = max(0.5 / rel**2, 1.0) if np.isfinite(rel) else max(fit.n_visits - 1, 1)
+        parts.append(share)
+        dofs.append(dof)
+    tot = sum(parts)
+    return float(tot**2 / sum(p**2 / d for p, d in zip(parts, dofs, strict=True)))
