@@ -21,19 +21,31 @@ def _e(x: Any) -> str:
     return escape("" if x is None else str(x), quote=True)
 
 
-def finite(x: Any) -> float | None:
-    """A stored number as a float, or None when it is missing, not a number, NaN or infinite:
-    the store is written by daemons of other versions and by hand, and one bad cell must
-    cost its chart a point or a line, never the page (a 500)."""
+MAX_CHART = 1e12  # µm or µrad (1000 km): beyond, a stored value is garbage, not a deviation
+MAX_TIME_S = 32503680000.0  # year 3000: dates and the chart's time axis stay defined
+
+
+def finite(x: Any, bound: float = math.inf) -> float | None:
+    """A stored number as a float, or None when it is missing, not a number, NaN, infinite,
+    an integer too large for a float or beyond ``bound``: the store is written by daemons of
+    other versions and by hand, and one bad cell must cost its chart a point or a line, never
+    the page (a 500; the fuzz found 1e16 s and 1e16 µm dividing by zero, issue 20)."""
     if isinstance(x, bool) or not isinstance(x, int | float):
         return None
-    return float(x) if math.isfinite(x) else None
+    try:
+        v = float(x)
+    except OverflowError:  # an int beyond 1.8e308
+        return None
+    return v if math.isfinite(v) and abs(v) <= bound else None
 
 
 def when(t: Any) -> str:
     """A date the shop reads: local time with its zone."""
-    t = finite(t)
-    return "—" if t is None else time.strftime("%Y-%m-%d %H:%M %Z", time.localtime(t))
+    t = finite(t, MAX_TIME_S)
+    try:
+        return "—" if t is None else time.strftime("%Y-%m-%d %H:%M %Z", time.localtime(t))
+    except (OverflowError, ValueError, OSError):  # a date the platform cannot show
+        return "—"
 
 
 def age_text(age_s: float | None) -> str:
@@ -119,7 +131,7 @@ def _limit(name: str, unit: str, limits: Any) -> dict[str, float] | None:
     lim = own or limits.get("default_urad" if unit == "urad" else "default_um")
     if not isinstance(lim, Mapping):
         return None
-    out = {k: v for k in ("warn", "fail") if (v := finite(lim.get(k))) is not None}
+    out = {k: v for k in ("warn", "fail") if (v := finite(lim.get(k), MAX_CHART)) is not None}
     return out or None
 
 
@@ -191,8 +203,8 @@ def trend_charts(trend: Sequence[Mapping[str, Any]], limits: Mapping[str, Any]) 
     for run in trend:
         links = run.get("links")
         for name, link in (links.items() if isinstance(links, Mapping) else ()):
-            v = finite(link.get("value")) if isinstance(link, Mapping) else None
-            t = finite(run.get("started_at"))
+            v = finite(link.get("value"), MAX_CHART) if isinstance(link, Mapping) else None
+            t = finite(run.get("started_at"), MAX_TIME_S)
             if v is None or t is None:
                 continue
             s = series.setdefault(name, {"unit": link.get("unit", ""), "points": []})
