@@ -188,3 +188,31 @@ def test_the_stored_form_reads_back_bit_for_bit(tmp_path, capsys):
         assert identified.plan_from_json(identified.plan_to_json(plan)) == plan
     finally:
         store.close()
+
+
+async def test_a_view_that_cannot_be_computed_never_fails_the_run(tmp_path, capsys,
+                                                                   monkeypatch):
+    cfg = _world(tmp_path, capsys)
+    conf = load_daemon_config(cfg)
+    setup = conf.machines["lcnc"]
+    rows = _rows(LINKS, "live")
+
+    def broken(*a, **kw):
+        raise np.linalg.LinAlgError("SVD did not converge")
+
+    monkeypatch.setattr(identified, "plan_compensation", broken)
+    store = Store(conf.store_path)
+    try:
+        session = Session(setup, ReplayLink(rows, setup.machine), store, conf.reports_dir,
+                          prepare=prepare_from_rows(rows),
+                          analyse=journal_analyse(conf.store_path))
+        run_id = session.start("cli")
+        async with asyncio.timeout(120):
+            await session.wait()
+        assert store.run(run_id).state == "DONE", store.run(run_id)
+        assert store.db.execute("SELECT COUNT(*) FROM link_estimates").fetchone()[0] == 0
+        monkeypatch.undo()  # the view is computed when asked, and stored then
+        assert propose(setup, store, run_id).values
+        assert store.db.execute("SELECT run_id FROM link_estimates").fetchall() == [(run_id,)]
+    finally:
+        store.close()

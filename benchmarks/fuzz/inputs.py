@@ -1,6 +1,8 @@
-"""Target 7: the issue-20 input surfaces, by the property tests of tests/test_inputs_fuzz.py and
-tests/test_inputs_fuzz_surfaces.py run longer (``n`` examples shared out, hypothesis
-derandomized: the same ``--cases`` gives the same examples), plus logs of real size timed."""
+"""Target 7: the issue-20 input surfaces, by their property tests run longer, and real-size logs."""
+
+# The tests of tests/test_inputs_fuzz.py and tests/test_inputs_fuzz_surfaces.py with their
+# example counts raised (``n`` shared out; hypothesis derandomized: the same ``--cases`` gives
+# the same examples) and their tallies collected instead of asserted, plus logs of real size.
 
 from __future__ import annotations
 

@@ -1,15 +1,14 @@
-"""A run's compensation view, computed once and stored with its analysis (table
-``link_estimates``, migration 6): the run's stored centres (validation poses held out, as the
-run did) estimated against the controller model the run ran on, with the whole covariance of
-the links and the setup, and the plan of controller changes holding those links (issue 20:
-heavy work never on the event loop; each is ≈ 0.1 s for 14 poses).
+"""A run's compensation view (estimate with its covariance, plan), computed once at run end."""
 
-A stored view is keyed by what it depends on besides the run's centres (the model, the
-artefact, the held-out poses, the controller values and the coverage factor): a machine or
-artefact file edited since, or a journal whose earlier compensations read otherwise, gives
-another key and the view is computed again and replaced. Runs journaled before migration 6
-(no row) are computed on first use and stored.
-"""
+# Stored with the run's analysis (table ``link_estimates``, migration 6): the run's stored
+# centres (validation poses held out, as the run did) estimated against the controller model
+# the run ran on, with the whole covariance of the links and the setup, and the plan of
+# controller changes holding those links (issue 20: heavy work never on the event loop; each
+# is ≈ 0.1 s for 14 poses). A stored view is keyed by what it depends on besides the run's
+# centres (the model, the artefact, the held-out poses, the controller values and the coverage
+# factor): a machine or artefact file edited since, or a journal whose earlier compensations
+# read otherwise, gives another key and the view is computed again and replaced. Runs
+# journaled before migration 6 (no row) are computed on first use and stored.
 
 from __future__ import annotations
 
