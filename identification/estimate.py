@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from identification.estimate_scatter import visit_sandwich
 from identification.identifiability import RANK_TOL, identifiable_links
 from identification.kinematics import Machine
 from identification.model import Artefact, Centres, Layout, predict
@@ -54,6 +55,9 @@ class Estimate:
     # degrees of freedom behind sigma_um (inf when given): the per-axis σ of the weighted fit
     # rests on (centres − parameters / 3) residuals each (GUM G.3: widen k with few dof)
     sigma_dof: float = math.inf
+    # per-visit scatter behind a sandwich covariance (issue 21, estimate_scatter.py): component
+    # → (σ, u(σ), p-value) in µrad / µm; None when the run shows no rotary index scatter
+    visit_scatter: dict[str, tuple[float, float, float]] | None = None
 
     @property
     def names(self) -> list[str]:
@@ -162,6 +166,7 @@ def estimate(
     use_distances: bool = True,
     sigma_um: float | Sequence[float] | None = None,
     max_iter: int = MAX_ITER,
+    visit_scatter: bool = True,
 ) -> Estimate:
     """Estimate setup errors and ``links`` (None: the identifiable set; () : setup only).
 
@@ -169,6 +174,8 @@ def estimate(
     the weights and the covariance; omitted, σ is estimated per axis from the residuals of a
     first fit, the fit is repeated with those weights and the covariance is a posteriori.
     Raises ``RankDeficientError`` naming the inseparable combination for a poor pose set.
+    ``visit_scatter``: where the run shows rotary index scatter (every ball of a visit moving
+    together), the covariance is the sandwich that holds it (``estimate_scatter``).
     """
     if len(centres) == 0:
         raise RankDeficientError("no ball centre to estimate from")
@@ -252,6 +259,11 @@ def estimate(
     cov_n = (vt.T / s**2) @ vt
     cov = cov_n / np.outer(norms, norms)
     cov, sig_um, sigma_dof, warns = a_posteriori(rw, layout.size, cov, sig_um, sigma_dof, given)
+    scatter = None
+    if visit_scatter:
+        dj = distance_rows(artefact, layout, p) if use_dist else (None, None, None)
+        scatter = visit_sandwich(machine, artefact, layout, p, centres, sigma_mm, dj[1], dj[2])
+        cov = cov if scatter is None else scatter.cov
     status, more = fit_status(cond, converged, max_iter)
     unobs, absorbed = unobservable(layout, ident.dropped if ident else {})
     return Estimate(
@@ -260,6 +272,7 @@ def estimate(
         residual_rms_um=float(np.sqrt(np.mean(res**2)) * 1e3), condition_number=cond,
         sigma_um=sig_um, sigma_given=given, iterations=it, converged=converged, status=status,
         unobservable=unobs, absorbed_by=absorbed, warnings=warns + more, sigma_dof=sigma_dof,
+        visit_scatter=None if scatter is None else scatter.components,
     )
 
 

@@ -141,11 +141,13 @@ class ScatterFit:
 
 
 def estimate_components(b: VisitBlocks, names: Sequence[str], start: Sequence[float],
-                        fixed: dict[int, float] | None = None, test: bool = True,
+                        fixed: dict[int, float] | None = None,
+                        test: bool | Sequence[int] = True,
                         restricted: bool = True) -> ScatterFit:
     """REML estimate of the components (``fixed``: index → stated value, not estimated).
     Each free component gets its boundary likelihood-ratio p-value (refit with it at zero)
-    when ``test``, and a standard uncertainty from the curvature of −2ℓ (σ ≥ 0)."""
+    when ``test`` (True, or the indices to test), and a standard uncertainty from the
+    curvature of −2ℓ (σ ≥ 0)."""
     fixed = dict(fixed or {})
     m = len(names)
     free = [i for i in range(m) if i not in fixed]
@@ -179,7 +181,7 @@ def estimate_components(b: VisitBlocks, names: Sequence[str], start: Sequence[fl
     for _ in range(len(free) + 1):
         p_val = np.full(m, np.nan)
         better = None
-        for i in free if test else ():
+        for i in [i for i in free if test is True or (test and i in test)]:
             if sigma[i] <= ZERO:
                 p_val[i] = 1.0
                 continue

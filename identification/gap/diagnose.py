@@ -39,11 +39,11 @@ from identification.gap.floor import noise_floor_um, repeat_floor, whiteners
 from identification.gap.linear import FullFit, Problem, columns, fit, held_out, projected
 from identification.gap.locate import breakdowns
 from identification.gap.outlier_visits import exclude_outliers, outlier_verdict
-from identification.gap.split import TIME_BLOCKS, TIME_FAMILIES, folds
 from identification.gap.scatter import confounded, link_report, model_visits, rescatter
-from identification.gap.twin import Twin, effect_columns, fit_twin, touch_context
+from identification.gap.split import TIME_BLOCKS, TIME_FAMILIES, folds
 from identification.gap.step_ball import step_report, step_verdict
 from identification.kinematics import Machine
+from identification.gap.twin import Twin, effect_columns, fit_twin, touch_context
 from identification.model import Artefact, predict
 
 DEFAULT_FOLDS = 0  # 0: the split's default (leave-one-pose-out, or split.TIME_BLOCKS blocks)
@@ -74,7 +74,6 @@ class Options:
     gravity_dir: Sequence[float] | None = None  # machine file ``gravity``; None: heuristic
     # stated centre repeatability (x, y, z µm): the floor where touches are exact (or absent)
     repeatability_um: Sequence[float] | None = None
-
     # Per-visit scatter (issue 21, gap/scatter.py): index errors of the rotary axes and centre
     # scatter per ball visit as REML variance components; a stated rotary repeatability
     # (machine file ``rotary_repeatability_urad``, µrad 1σ per axis letter) is used as given.
@@ -82,6 +81,7 @@ class Options:
     rotary_repeatability_urad: dict[str, float] | None = None
 
 def _merge(train: TouchData, holdout: TouchData | None) -> tuple[TouchData, np.ndarray]:
+
     if holdout is None:
         return train, np.zeros(len(train), bool)
     cat = {k: np.concatenate([getattr(train, k), getattr(holdout, k)])
@@ -253,7 +253,7 @@ def _analyse(machine: Machine, artefact: Artefact, data: TouchData, groups: Grou
         c.significant = bool(c.p_value < ALPHA / n_try and c.delta_bic < 0
                              and c.ho.ss_w < base_ho.ss_w)
     contributions(problem, visible)
-    suspect = None if scatter_with else confounded(vs, problem, groups, visible, ALPHA)
+    suspect = confounded(vs, problem, groups, visible, ALPHA)  # inflating the components?
     visible.sort(key=lambda c: (c.ho.ss_w, c.effect.n_params))
     selected, final_ho = [], base_ho
     if p_gap < ALPHA:  # only a significant gap is attributed
@@ -360,6 +360,9 @@ def _analyse(machine: Machine, artefact: Artefact, data: TouchData, groups: Grou
                     "holdout_rms_after_um": round(after_ho.rms_um, 4),
                     "holdout_max_before_um": round(base_ho.max_um, 4),
                     "holdout_max_after_um": round(after_ho.max_um, 4),
+        "scatter": vs.finding() | {"confounded_with": suspect} if vs is not None else None,
+        "ball_step": step_report(step, problem, artefact.ids, n_step) if step else None,
+        "links": link_report(problem, twin, selected, n_base),
         "scatter": vs.finding() | {"confounded_with": suspect} if vs is not None else None,
         "ball_step": step_report(step, problem, artefact.ids, n_step) if step else None,
         "links": link_report(problem, twin, selected, n_base),

@@ -32,6 +32,7 @@ from identification.visit_scatter import (
 H_DEG = 1e-3  # finite-difference step of the index columns (the chain is smooth in the angle)
 START_URAD = 5.0
 START_UM = 0.2
+MAX_PASSES = 3  # diagnoses redone with the components re-estimated (``rescatter``)
 SCREEN_P = 0.01  # F-test level (sphere-fit whitening) to be profiled by ``confounded``
 
 
@@ -46,6 +47,8 @@ class VisitScatter:
     dof: float  # effective dof of that floor (Welch–Satterthwaite)
     source: str
     z: np.ndarray  # (G, 4, q) the index columns per group
+    extra: list  # columns of the effects estimated with the components as fixed effects
+    labels: frozenset  # their labels
 
     def finding(self) -> dict:
         """The report's ``scatter`` part: each component with u, its test and a sentence."""
@@ -134,7 +137,8 @@ def estimate_scatter(problem: Problem, groups: Groups, z: np.ndarray, axes: tupl
               + (f" ({revisits} revisits of a pose)" if revisits else
                  ", the pattern across the balls of each visit (no repeats)")
               + (f", {len(np.unique(rep))} passes" if len(np.unique(rep)) > 1 else ""))
-    return VisitScatter(fit, blocks, axes, floor, dof, source, z)
+    return VisitScatter(fit, blocks, axes, floor, dof, source, z, list(extra or []),
+                        frozenset())
 
 
 def apply(problem: Problem, vs: VisitScatter) -> None:
@@ -157,33 +161,41 @@ def scatter_floor(machine: Machine, artefact: Artefact, problem: Problem, groups
     z, axes = index_columns(machine, artefact, twin.layout, twin.p, groups.centres, groups)
     extra = [effect_columns(e, twin, groups, ctx, ball_jac, base_pred_mm) for e in with_effects]
     vs = estimate_scatter(problem, groups, z, axes, extra, stated_urad)
+    vs.labels = frozenset(e.label for e in with_effects)
     apply(problem, vs)
     return vs
 
 
 def rescatter(rep: dict, again: Callable[[list], dict], machine: Machine, ball_ids: list[str],
               gravity_dir: Sequence[float] | None) -> dict:
-    """The components were first estimated with the twin alone, so a systematic effect of the
-    rotary axes inflated them (a 2nd harmonic of C looks like C index scatter): estimate them
-    again with the selected effects as fixed effects and redo the diagnosis once."""
+    """The components were first estimated with the twin alone, so a systematic effect
+    inflated them (a 2nd harmonic of C looks like C index scatter, a sag like centre scatter):
+    estimate them again with the selected effects and the confounded one as fixed effects and
+    redo the diagnosis — again while a pass finds another (at most ``MAX_PASSES``; each one
+    hidden under the last can only show once the one above it is a fixed effect)."""
     from identification.effects import library
 
-    if not rep.get("scatter"):
-        return rep
-    sel = {(s["effect"], s["axis"]) for s in rep["verdict"].get("selected", [])}
-    if rep["scatter"].get("confounded_with"):
-        sel.add((rep["scatter"]["confounded_with"]["effect"],
-                 rep["scatter"]["confounded_with"]["axis"]))
-    if not sel:
-        return rep
-    effects = [e for e in library(machine, ball_ids, gravity_dir=gravity_dir)
-               if (e.family, e.axis) in sel]
-    out = again(effects)
-    out["noise"]["source"] = rep["noise"]["source"]  # the first pass' floor notes hold
-    out["scatter"]["source"] += (" — with " + ", ".join(sorted(e.label for e in effects))
-                                 + " as fixed effects (first pass without them: "
-                                 + rep["scatter"]["message"] + ")")
-    return out
+    first, used = rep, set()
+    for _ in range(MAX_PASSES):
+        if not rep.get("scatter"):
+            return rep
+        sel = set(used) | {(s["effect"], s["axis"])
+                           for s in rep["verdict"].get("selected", [])}
+        if rep["scatter"].get("confounded_with"):
+            sel.add((rep["scatter"]["confounded_with"]["effect"],
+                     rep["scatter"]["confounded_with"]["axis"]))
+        if sel <= used:
+            break
+        used = sel
+        effects = [e for e in library(machine, ball_ids, gravity_dir=gravity_dir)
+                   if (e.family, e.axis) in sel]
+        rep = again(effects)
+    if rep is not first:
+        rep["noise"]["source"] = first["noise"]["source"]  # the first pass' floor notes hold
+        rep["scatter"]["source"] += (" — with " + ", ".join(sorted(
+            f"{f}:{a}" if a else f for f, a in used)) + " as fixed effects (first pass "
+            "without them: " + first["scatter"]["message"] + ")")
+    return rep
 
 
 def link_report(problem: Problem, twin, selected: Sequence, n_base: int) -> dict[str, dict]:
@@ -252,16 +264,18 @@ def confounded(vs: VisitScatter | None, problem: Problem, groups: Groups, cands:
     from identification.gap.attribute import f_test
     from identification.gap.linear import fit
 
-    plain = Problem(problem.y_um, problem.base, problem.whiten, problem.fold)
+    cands = [c for c in cands if c.effect.label not in vs.labels]
+    fixed_base = np.concatenate([problem.base, *vs.extra], axis=2)
+    plain = Problem(problem.y_um, fixed_base, problem.whiten, problem.fold)
     plain_base = fit(plain, plain.base)
     screened = [c for c in cands if f_test(plain_base, fit(plain, np.concatenate(
         [plain.base, c.cols], axis=2)))[0] < SCREEN_P]
     if not screened:
         return None
-    nll0 = ml(problem.base)
+    nll0 = ml(fixed_base)
     best = None
     for c in screened:
-        lr = max(nll0 - ml(np.concatenate([problem.base, c.cols], axis=2)), 0.0)
+        lr = max(nll0 - ml(np.concatenate([fixed_base, c.cols], axis=2)), 0.0)
         p = float(stats.chi2.sf(lr, c.visible_dof)) * len(cands)
         if p < alpha and (best is None or p < best["p_value"]):
             best = {"effect": c.effect.family, "axis": c.effect.axis, "p_value": p}
