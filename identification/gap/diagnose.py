@@ -42,8 +42,8 @@ from identification.gap.outlier_visits import exclude_outliers, outlier_verdict
 from identification.gap.scatter import confounded, link_report, model_visits, rescatter
 from identification.gap.split import TIME_BLOCKS, TIME_FAMILIES, folds
 from identification.gap.step_ball import step_report, step_verdict
-from identification.kinematics import Machine
 from identification.gap.twin import Twin, effect_columns, fit_twin, touch_context
+from identification.kinematics import Machine
 from identification.model import Artefact, predict
 
 DEFAULT_FOLDS = 0  # 0: the split's default (leave-one-pose-out, or split.TIME_BLOCKS blocks)
@@ -80,8 +80,8 @@ class Options:
     visit_scatter: bool = True
     rotary_repeatability_urad: dict[str, float] | None = None
 
-def _merge(train: TouchData, holdout: TouchData | None) -> tuple[TouchData, np.ndarray]:
 
+def _merge(train: TouchData, holdout: TouchData | None) -> tuple[TouchData, np.ndarray]:
     if holdout is None:
         return train, np.zeros(len(train), bool)
     cat = {k: np.concatenate([getattr(train, k), getattr(holdout, k)])
@@ -248,12 +248,12 @@ def _analyse(machine: Machine, artefact: Artefact, data: TouchData, groups: Grou
         cands.append(Candidate(eff, np.einsum("gom,mr->gor", cols, basis), r, basis))
     visible = [c for c in cands if c.visible_dof > 0]
     score(problem, visible, [], base_full)
+    suspect = confounded(vs, problem, groups, visible, ALPHA)  # inflating the components?
     n_try = max(len(visible), 1)
     for c in visible:
         c.significant = bool(c.p_value < ALPHA / n_try and c.delta_bic < 0
                              and c.ho.ss_w < base_ho.ss_w)
     contributions(problem, visible)
-    suspect = confounded(vs, problem, groups, visible, ALPHA)  # inflating the components?
     visible.sort(key=lambda c: (c.ho.ss_w, c.effect.n_params))
     selected, final_ho = [], base_ho
     if p_gap < ALPHA:  # only a significant gap is attributed
@@ -354,18 +354,15 @@ def _analyse(machine: Machine, artefact: Artefact, data: TouchData, groups: Grou
         "candidates": cand_out,
         "invisible": invisible,
         "absorbed": absorbed,
+        "scatter": vs.finding() | {"confounded_with": suspect} if vs is not None else None,
+        "ball_step": step_report(step, problem, artefact.ids, n_step) if step else None,
+        "links": link_report(problem, twin, selected, n_base),
         "dropped_groups": groups.dropped,
         "verdict": {"effect": effect, "axis": axis,
                     "holdout_rms_before_um": round(base_ho.rms_um, 4),
                     "holdout_rms_after_um": round(after_ho.rms_um, 4),
                     "holdout_max_before_um": round(base_ho.max_um, 4),
                     "holdout_max_after_um": round(after_ho.max_um, 4),
-        "scatter": vs.finding() | {"confounded_with": suspect} if vs is not None else None,
-        "ball_step": step_report(step, problem, artefact.ids, n_step) if step else None,
-        "links": link_report(problem, twin, selected, n_base),
-        "scatter": vs.finding() | {"confounded_with": suspect} if vs is not None else None,
-        "ball_step": step_report(step, problem, artefact.ids, n_step) if step else None,
-        "links": link_report(problem, twin, selected, n_base),
                     "selected": [{"effect": c.effect.family, "axis": c.effect.axis}
                                  for c in selected],
                     "explained_fraction": round(frac, 4), "message": message},
