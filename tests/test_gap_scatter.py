@@ -106,3 +106,27 @@ def test_machine_file_rotary_repeatability_key_is_checked():
         machine_from_dict(data | {"rotary_repeatability_urad": {"A": 9}}, "m.yaml")
     with pytest.raises(ConfigError):
         machine_from_dict(data | {"rotary_repeatability_urad": {"C": -1}}, "m.yaml")
+
+
+def test_estimate_covariance_holds_index_scatter(setup):
+    # rumba analyze / every run: with index scatter the links' covariance is the sandwich under
+    # the visit covariance; without it, bit for bit as before.
+    from identification.estimate import estimate
+    from identification.gap.data import group_touches
+
+    machine, artefact, poses = setup
+    for sigma, seed in ((10.0, 2), (0.0, 1)):
+        truth = gap_truth(artefact, seed=seed, index_std_urad={"B": sigma, "C": sigma})
+        g = group_touches(simulate(machine, artefact, poses, truth, STYLUS_R, 0.5,
+                                   seed=100 + seed), artefact, STYLUS_R)
+        est = estimate(machine, artefact, g.centres)
+        plain = estimate(machine, artefact, g.centres, visit_scatter=False)
+        nl = len(est.layout.links)
+        if sigma:
+            assert est.visit_scatter is not None and est.visit_scatter["index C"][2] < 0.01
+            assert 5.0 < est.visit_scatter["index C"][0] < 15.0
+            # the independent covariance spreads the scatter over every link alike (one
+            # variance factor); the sandwich puts it where the index errors act
+            assert np.max(est.std[:nl] / plain.std[:nl]) > 1.3
+        else:
+            assert est.visit_scatter is None and np.array_equal(est.cov, plain.cov)
