@@ -1,13 +1,17 @@
-"""Helpers of the stop matrix (tests/test_stop_matrix.py, tests/test_stop_signals.py): a short
-plan, a daemon.yaml for one simulated CNC, a session whose steps can be held in a chosen phase,
-and waits on events (never on a clock guess) that fail at once with the run's reason."""
+"""Helpers of the stop tests (tests/test_stop_*.py): a short plan, a daemon.yaml for one
+simulated CNC, a session whose steps can be held in a chosen phase, a ``rumba`` process, and
+waits on events (never on a clock guess) that fail at once with the run's reason."""
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
+import os
 import sqlite3
+import subprocess
+import sys
 import threading
+import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -15,6 +19,7 @@ from typing import Any
 import yaml
 
 from daemon.analysis import pipeline
+from daemon.run.phases import STOPPED_STATES
 from daemon.run.session import Session, State
 from tests.daemon_helpers import CONFIG
 
@@ -25,6 +30,18 @@ SHORT_PLAN = {  # 4 poses × 4 balls × 5 touches: the fewest that still identif
     "overtravel_mm": 2, "clearance_mm": 10,
 }
 HELD = 30.0  # the longest a held step waits for its release (a safety net, never reached)
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def rumba_process(*argv: str, **kw: Any) -> subprocess.Popen:
+    """``rumba ARGV`` as its own process (text pipes unless ``kw`` says otherwise, unbuffered),
+    the way a shell starts it."""
+    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+    env.pop("RUMBA_DEBUG", None)
+    opts: dict[str, Any] = {"stdout": subprocess.PIPE, "stderr": subprocess.PIPE, "text": True,
+                            **kw}
+    return subprocess.Popen([sys.executable, "-m", "daemon.cli", *argv], cwd=ROOT, env=env,
+                            **opts)
 
 
 def write_config(tmp: Path, link: dict[str, Any], *, plan: dict | None = None,
@@ -75,9 +92,12 @@ class Hold:
             return fn(*a, **kw)
         return held
 
-    def write_back(self, fn: Callable[..., Any]) -> Callable[..., Any]:
+    def write_back(self, fn: Callable[..., Any], in_phase: Callable[[], bool]
+                   ) -> Callable[..., Any]:
+        """``in_phase``: the run is in WRITE-BACK (the ERROR a stopped run writes back at its
+        end is not that phase)."""
         async def held(verdict: Any) -> None:
-            if self.phase == "WRITE-BACK" and not self.reached.is_set():
+            if self.phase == "WRITE-BACK" and in_phase() and not self.reached.is_set():
                 self.reached.set()
                 await asyncio.sleep(HELD)  # cancelled by the stop
             await fn(verdict)
@@ -107,13 +127,16 @@ def held_session(setup: Any, link: Any, store: Any, reports: Path, hold: Hold,
     s = Session(setup, link, store, reports,
                 prepare=hold.in_thread("PREPARE", pipeline.prepare),
                 analyse=hold.in_thread("IDENTIFY", pipeline.analyse))
-    link.write_verdict = hold.write_back(link.write_verdict)
+    link.write_verdict = hold.write_back(link.write_verdict,
+                                         lambda: s.state == State.WRITE_BACK)
     link.run = hold.capture(link.run)
     return s
 
 
-async def until_reached(session: Session, hold: Hold, timeout_s: float = 60.0) -> None:
-    """Wait until the run is held in its phase; fail at once with the reason if it ended."""
+async def until_reached(session: Session, hold: Hold, timeout_s: float = 60.0,
+                        diagnose: Callable[[], str] = str) -> None:
+    """Wait until the run is held in its phase; fail at once with the reason if it ended
+    (and what ``diagnose`` says of the controller)."""
     async with asyncio.timeout(timeout_s):
         ended = asyncio.ensure_future(session.wait())
         reached = asyncio.ensure_future(hold.reached.wait())
@@ -121,7 +144,7 @@ async def until_reached(session: Session, hold: Hold, timeout_s: float = 60.0) -
         if reached not in done:
             reached.cancel()
             raise AssertionError(f"run {session.run_id} ended {session.state} before "
-                                 f"{hold.phase}: {session.reason}")
+                                 f"{hold.phase}: {session.reason} ({diagnose()})")
         ended.cancel()
 
 
@@ -134,7 +157,7 @@ async def until_first_hit(session: Session, timeout_s: float = 60.0) -> None:
                 st = await q.get()
                 if st["done"] >= 1 and st["run_id"] == session.run_id:
                     return
-                if st["state"] in (State.FAILED, State.ABORTED):
+                if st["state"] in STOPPED_STATES:
                     raise AssertionError(f"next run {st['state']}: {st['reason']}")
     finally:
         session.unsubscribe(q)
@@ -157,3 +180,64 @@ def latest_run(db: Path) -> tuple[str, str, str, int] | None:
         return None
     finally:
         con.close()
+
+
+def until_capturing(proc: subprocess.Popen, db: Path, not_run: str | None = None,
+                    timeout_s: float = 120.0) -> str:
+    """Wait for a first journaled hit of a run other than ``not_run`` (the run is capturing);
+    return its id. Fails at once, with its stderr, if ``proc`` ends first."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        row = latest_run(db)
+        if row and row[0] != not_run and row[3] >= 1:
+            return row[0]
+        if proc.poll() is not None:
+            err = proc.stderr.read() if proc.stderr else ""
+            raise AssertionError(f"rumba {proc.args[3]} ended ({proc.returncode}) before "
+                                 f"capturing: {err}")
+        assert time.monotonic() < deadline, f"no hit journaled in {timeout_s:g} s"
+        time.sleep(0.05)
+
+
+class TcpCut:
+    """A TCP relay between rumba and a controller whose cable can be pulled: ``cut`` resets
+    every connection and stops listening (the network gone: a new connection is refused),
+    ``restore`` listens again on the same port."""
+
+    def __init__(self, target_port: int, host: str = "127.0.0.1") -> None:
+        self.host, self.target_port, self.port = host, target_port, 0
+        self._server: asyncio.Server | None = None
+        self._writers: set[asyncio.StreamWriter] = set()
+
+    async def start(self) -> int:
+        self._server = await asyncio.start_server(self._serve, self.host, self.port)
+        self.port = self._server.sockets[0].getsockname()[1]
+        return self.port
+
+    async def _serve(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        try:
+            up_r, up_w = await asyncio.open_connection(self.host, self.target_port)
+        except OSError:
+            writer.transport.abort()
+            return
+        self._writers |= {writer, up_w}
+
+        async def pump(r: asyncio.StreamReader, w: asyncio.StreamWriter) -> None:
+            with contextlib.suppress(OSError, asyncio.CancelledError):
+                while data := await r.read(65536):
+                    w.write(data)
+                    await w.drain()
+            w.transport.abort()
+
+        await asyncio.gather(pump(reader, up_w), pump(up_r, writer))
+        self._writers -= {writer, up_w}
+
+    async def cut(self) -> None:
+        assert self._server is not None
+        self._server.close()
+        for w in list(self._writers):
+            w.transport.abort()
+        await self._server.wait_closed()
+
+    async def restore(self) -> None:
+        await self.start()

@@ -26,7 +26,6 @@ import asyncio
 import contextlib
 import math
 import time
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -43,60 +42,15 @@ from daemon.service.service import Service
 from identification.estimate import coverage_factor
 from programs.dialects import get_dialect
 from simulators.controller import VERDICT_VARIABLE, VirtualController
-from simulators.truth import TruthModel
 from tests.daemon_helpers import CONFIG
+from tests.rig_helpers import ERRORS, Rig, make_truth, start_rig
 from tests.transport_sim import MACRO_VERDICT_VARIABLE
 
-ERRORS = CONFIG / "errors/thesis_tableB2.yaml"
 PLAN = "thesis_ch3_7poses"  # 7 B/C poses × 4 balls × 5 touches: all 8 links identifiable
 TRANSPORTS = ("serial-pty", "serial-socket", "opcua", "modbus")
 DIALECTS = DIALECT_NAMES
-BAUD = 921_600  # the highest rate a DNC link accepts (drivers/serial/schema.py)
 RUN_TIMEOUT_S = 60.0
 NOISE_SEED = 0
-
-
-@dataclass
-class Rig:
-    """One simulated CNC behind one front-end; ``link`` is the daemon.yaml link section."""
-
-    transport: str
-    ctrl: VirtualController
-    link: dict[str, Any]
-    close: Any
-    extra: dict[str, Any] = field(default_factory=dict)
-
-
-def make_truth() -> TruthModel:
-    return TruthModel.from_files(CONFIG / "machines/thesis_wcbxfzyt.yaml",
-                                 CONFIG / "artefacts/thesis_4ball.yaml", ERRORS)
-
-
-async def start_rig(transport: str, ctrl: VirtualController) -> Rig:
-    if transport.startswith("serial"):
-        from simulators.frontends.serial import SerialFrontend, SerialSettings
-
-        fe = SerialFrontend(ctrl, SerialSettings(baudrate=BAUD, framing="7E1"))
-        if transport == "serial-pty":
-            url = await fe.open_pty()
-        else:
-            url = f"socket://127.0.0.1:{await fe.open_tcp('127.0.0.1', 0)}"
-        link = {"transport": "serial", "url": url, "baudrate": BAUD, "framing": "7E1",
-                "request_machine": ctrl.machine_id, "tx_chunk_bytes": 64}
-        return Rig(transport, ctrl, link, fe.close, {"frontend": fe})
-    if transport == "opcua":
-        from simulators.frontends.opcua import OpcUaFrontend
-
-        fe = OpcUaFrontend(ctrl, security="none")  # security: tests/test_transport_opcua.py
-        url = await fe.start()
-        return Rig(transport, ctrl, {"transport": "opcua", "url": url, "security": "none"},
-                   fe.stop)
-    from simulators.frontends.modbus import ModbusFrontend
-
-    fe = ModbusFrontend(ctrl)
-    port = await fe.start("127.0.0.1", 0)
-    return Rig(transport, ctrl, {"transport": "modbus", "host": "127.0.0.1", "port": port},
-               fe.stop)
 
 
 @pytest_asyncio.fixture(scope="module", loop_scope="module")
@@ -157,7 +111,7 @@ async def wait_verdict_on_cnc(session: Any, ctrl: VirtualController, timeout_s: 
             await asyncio.sleep(0.01)
         run_id = session.run_id
         await session.wait()
-        if session.state in (State.FAILED, State.ABORTED):
+        if session.state in (State.FAILED, State.ABORTED, State.INTERRUPTED):
             raise AssertionError(f"run {session.run_id} {session.state}: {session.reason}")
         while not (ctrl.verdict and ctrl.done):
             if session.run_id != run_id:  # e.g. a queued repeat of the request

@@ -127,7 +127,8 @@ async def run_once(tmp_path, notify: str, *, fail: bool) -> tuple[Service, dict]
 
     def ended() -> bool:
         st = session.status()
-        return st["run_id"] == run_id and st["state"] in ("IDLE", "FAILED", "ABORTED")
+        return st["run_id"] == run_id and st["state"] in ("IDLE", "FAILED", "ABORTED",
+                                                           "INTERRUPTED")
 
     await until(ended, 120, "the run's end")
     return svc, session.status()

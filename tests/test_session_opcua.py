@@ -67,7 +67,7 @@ async def test_start_of_shift_verdict_on_cnc_and_links_match_truth(cnc, tmp_path
     (Fault(kind="no_trigger", at_touch=30), "FAILED", "trigger"),
     (Fault(kind="alarm", at_time_s=40, message="SPINDLE PROBE LOW BATTERY"), "FAILED",
      "LOW BATTERY"),
-    (Fault(kind="feed_hold", at_time_s=40, duration_s=3600), "FAILED", "no probe result"),
+    (Fault(kind="feed_hold", at_time_s=40, duration_s=3600), "INTERRUPTED", "no probe result"),
     (Fault(kind="early_trigger", at_touch=30, fraction=0.3), None, ""),
 ])
 async def test_simulator_faults_end_clearly_and_next_run_succeeds(cnc, tmp_path, fault, state,

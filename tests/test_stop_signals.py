@@ -7,28 +7,23 @@ its verdict (its program was accepted: the first one was reset and unloaded)."""
 
 from __future__ import annotations
 
-import os
+import json
 import signal
 import subprocess
-import sys
 import time
+import urllib.request
+from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
+import yaml
 
 from tests.cli_helpers import free_port
 from tests.daemon_helpers import CONFIG
-from tests.stop_helpers import latest_run, write_config
+from tests.stop_helpers import latest_run, rumba_process, until_capturing, write_config
 
 ROOT = Path(__file__).resolve().parents[1]
 WAIT_S = 120.0  # a safety net for a loaded computer; every wait ends on an event before
-
-
-def _rumba(*argv: str, **kw) -> subprocess.Popen:
-    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
-    env.pop("RUMBA_DEBUG", None)
-    return subprocess.Popen([sys.executable, "-m", "daemon.cli", *argv], cwd=ROOT, env=env,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, **kw)
 
 
 @pytest.fixture(scope="module")
@@ -38,10 +33,10 @@ def sim_url():
     first journaled hit lands in CAPTURE (at 0.02, ≈ 2 s, a loaded machine saw the run reach
     IDENTIFY first)."""
     port = free_port()
-    proc = _rumba("sim", "--machine", str(CONFIG / "machines/thesis_wcbxfzyt.yaml"),
-                  "--artefact", str(CONFIG / "artefacts/thesis_4ball.yaml"),
-                  "--serve", "opcua", "--security", "none", "--port", str(port),
-                  "--time-scale", "0.1")
+    proc = rumba_process("sim", "--machine", str(CONFIG / "machines/thesis_wcbxfzyt.yaml"),
+                         "--artefact", str(CONFIG / "artefacts/thesis_4ball.yaml"),
+                         "--serve", "opcua", "--security", "none", "--port", str(port),
+                         "--time-scale", "0.1")
     try:
         deadline = time.monotonic() + WAIT_S
         for line in proc.stdout:  # type: ignore[union-attr]
@@ -69,7 +64,7 @@ def test_signal_on_rumba_verify_aborts_resets_and_the_next_run_passes(
         sim_url, tmp_path, sig, code, name):
     cfg = write_config(tmp_path, {"transport": "opcua", "url": sim_url, "security": "none"})
     db = tmp_path / "journal.sqlite"
-    proc = _rumba("verify", "--config", str(cfg), "--machine", "mill1", "--quiet")
+    proc = rumba_process("verify", "--config", str(cfg), "--machine", "mill1", "--quiet")
     deadline = time.monotonic() + WAIT_S
     while True:  # the journal is the event: hits are in, the run is capturing
         row = _journal_row(db)
@@ -88,8 +83,123 @@ def test_signal_on_rumba_verify_aborts_resets_and_the_next_run_passes(
     assert state == "ABORTED" and reason.startswith(f"aborted by {name} during "), reason
     assert reason.split(" during ")[1].split(";")[0] in ("STREAM", "CAPTURE"), reason
     assert f"ABORTED: aborted by {name}" in err or "ABORTED" in err, err
-    again = _rumba("verify", "--config", str(cfg), "--machine", "mill1", "--quiet")
+    again = rumba_process("verify", "--config", str(cfg), "--machine", "mill1", "--quiet")
     out2, err2 = again.communicate(timeout=WAIT_S * 3)
     assert again.returncode in (0, 1), err2  # a verdict (PASS/WARN or FAIL), not an error
     assert "Traceback" not in err2 and "report:" in out2, err2
     assert _journal_row(db)[0] == "DONE"  # type: ignore[index]
+
+
+# ------------------------------------------------------------------ `rumba verify --daemon`
+TOKEN = "t0k3n-for-tests-0123456789"  # tests.stop_helpers.write_config's HMI token
+
+
+@dataclass
+class Daemon:
+    """A ``rumba run`` process with its HMI on a loopback port (its log in a file: a pipe
+    nobody reads would stall it)."""
+
+    cfg: Path
+    db: Path
+    log: Path
+    port: int
+    proc: subprocess.Popen | None = None
+
+    def start(self) -> None:
+        with open(self.log, "a") as fh:
+            self.proc = rumba_process("run", "--config", str(self.cfg), stdout=fh,
+                                      stderr=subprocess.STDOUT)
+        deadline = time.monotonic() + WAIT_S
+        while "rumba: HMI at" not in self.log.read_text():
+            assert self.proc.poll() is None, f"rumba run ended: {self.log.read_text()}"
+            assert time.monotonic() < deadline, self.log.read_text()
+            time.sleep(0.05)
+
+    def status(self) -> dict:
+        req = urllib.request.Request(f"http://127.0.0.1:{self.port}/api/status",
+                                     headers={"Authorization": f"Bearer {TOKEN}"})
+        with urllib.request.urlopen(req, timeout=30) as r:
+            return json.load(r)["mill1"]
+
+    def stop(self) -> int:
+        assert self.proc is not None
+        self.proc.send_signal(signal.SIGTERM)
+        return self.proc.wait(WAIT_S)
+
+
+@pytest.fixture(scope="module")
+def daemon(sim_url, tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("daemon")
+    port = free_port()
+    cfg = write_config(tmp, {"transport": "opcua", "url": sim_url, "security": "none"},
+                       hmi_port=port)
+    d = Daemon(cfg, tmp / "journal.sqlite", tmp / "daemon.log", port)
+    d.start()
+    try:
+        yield d
+    finally:
+        if d.proc is not None and d.proc.poll() is None:
+            d.stop()
+
+
+def _verify_daemon(d: Daemon) -> subprocess.Popen:
+    return rumba_process("verify", "--config", str(d.cfg), "--machine", "mill1", "--daemon",
+                         "--quiet")
+
+
+@pytest.mark.parametrize(("sig", "code", "name"), [
+    (signal.SIGINT, 130, "Ctrl-C (SIGINT)"), (signal.SIGTERM, 143, "SIGTERM")])
+def test_signal_on_rumba_verify_daemon_aborts_the_daemons_run(daemon, sig, code, name):
+    """The signal aborts the run on the daemon (HMI API, the same bearer token); verify exits
+    once the daemon reports the run ended; the daemon serves on, ready for the next run."""
+    before = latest_run(daemon.db)
+    proc = _verify_daemon(daemon)
+    run_id = until_capturing(proc, daemon.db, not_run=before[0] if before else None)
+    proc.send_signal(sig)
+    _out, err = proc.communicate(timeout=WAIT_S)
+    assert proc.returncode == code, err
+    assert "Traceback" not in err and "internal error" not in err, err
+    rid, state, reason, _ = latest_run(daemon.db)  # type: ignore[misc]
+    assert (rid, state) == (run_id, "ABORTED"), reason
+    assert reason.startswith(f"aborted by {name} on rumba verify --daemon during "), reason
+    assert reason.split(" during ")[1].split(";")[0] in ("STREAM", "CAPTURE"), reason
+    assert f"run {run_id} ABORTED: aborted by {name}" in " ".join(err.split()), err
+    st = daemon.status()  # the run had ended when verify returned: nothing runs there
+    assert (st["run_id"], st["state"], st["busy"]) == (run_id, "ABORTED", False), st
+    assert daemon.proc is not None and daemon.proc.poll() is None  # the daemon serves on
+
+
+def test_after_the_aborts_a_run_through_the_daemon_reaches_its_verdict(daemon):
+    proc = _verify_daemon(daemon)
+    out, err = proc.communicate(timeout=WAIT_S * 3)
+    assert proc.returncode in (0, 1), err  # a verdict (PASS/WARN or FAIL), not an error
+    assert "Traceback" not in err and "report:" in out, err
+    assert latest_run(daemon.db)[1] == "DONE"  # type: ignore[index]
+
+
+def test_sigterm_on_the_daemon_interrupts_its_run_and_the_restart_reruns_it(daemon):
+    """The daemon stopping under a run (SIGTERM, as systemd stops it): the run ends
+    INTERRUPTED with its phase, the controller reset; ``rumba verify --daemon`` following it
+    ends with that state (exit 2, no traceback); started again with ``rerun_interrupted``, the
+    daemon runs the machine again and the controller takes the new program."""
+    before = latest_run(daemon.db)
+    proc = _verify_daemon(daemon)
+    run_id = until_capturing(proc, daemon.db, not_run=before[0] if before else None)
+    assert daemon.stop() == 0, daemon.log.read_text()
+    _out, err = proc.communicate(timeout=WAIT_S)
+    assert proc.returncode == 2 and "Traceback" not in err, err
+    rid, state, reason, _ = latest_run(daemon.db)  # type: ignore[misc]
+    assert (rid, state) == (run_id, "INTERRUPTED"), reason
+    assert reason.startswith("interrupted by the daemon stopping during "), reason
+    assert "controller abort failed" not in reason, reason  # the reset reached the CNC
+    log = daemon.log.read_text()
+    assert "Traceback" not in log and "rumba: stopped" in log, log
+    doc = yaml.safe_load(daemon.cfg.read_text())
+    doc["machines"][0]["rerun_interrupted"] = True
+    daemon.cfg.write_text(yaml.safe_dump(doc), encoding="utf-8")
+    daemon.start()
+    rerun = until_capturing(daemon.proc, daemon.db, not_run=run_id)  # type: ignore[arg-type]
+    assert latest_run(daemon.db)[0] == rerun  # type: ignore[index]
+    assert daemon.status()["trigger"] == "rerun"
+    assert daemon.stop() == 0
+    assert latest_run(daemon.db)[1] == "INTERRUPTED"  # type: ignore[index]

@@ -104,9 +104,24 @@ async def start(request: web.Request) -> web.Response:
     return web.json_response({"run_id": run_id}, status=202)
 
 
+# `rumba verify --daemon` stopped by a signal names it (bearer scripts only); a fixed text per
+# value, so nothing a client sends reaches the journal's reason
+ABORT_BY = {"SIGINT": "Ctrl-C (SIGINT) on rumba verify --daemon",
+            "SIGTERM": "SIGTERM on rumba verify --daemon"}
+
+
 async def abort(request: web.Request) -> web.Response:
+    """Abort the machine's run; answers once it has ended (controller reset, journal row) with
+    the final status. ``run_id``: only that run (a script never stops a run it did not start)."""
     s = _session(request)
-    if not await s.abort("hmi"):
+    by, run_id = request.query.get("by"), request.query.get("run_id")
+    if by is not None and (by not in ABORT_BY or request.get(VIA_KEY) != "bearer"):
+        return web.json_response({"error": f"by: expected one of {', '.join(ABORT_BY)} "
+                                           "(scripts with the bearer token only)"}, status=400)
+    if run_id is not None and (run_id != s.run_id or not s.busy):
+        return web.json_response({"error": f"{s.setup.name}: run {run_id[:64]!r} is not "
+                                           "running", **s.status()}, status=409)
+    if not await s.abort(ABORT_BY[by] if by else "hmi"):
         return web.json_response({"error": f"{s.setup.name}: nothing to abort"}, status=409)
     return web.json_response(s.status())
 

@@ -12,6 +12,7 @@ const MEANING = {
   "IDENTIFY": "identifying setup and link errors", "JUDGE": "comparing with the tolerances",
   "REPORT": "writing the report", "WRITE-BACK": "sending the verdict to the CNC",
   "ABORTED": "run aborted", "FAILED": "run failed",
+  "INTERRUPTED": "run interrupted (link lost, controller silent or daemon stopped)",
 };
 const COLUMNS = ["Started", "Machine", "Trigger", "State", "Verdict", "Touches", "Details", "Report"];
 const SVG = "http://www.w3.org/2000/svg";

@@ -7,7 +7,7 @@ subscribers):
     rumba/<site>/<machine>/online    retained  {"online": bool, "time_unix_s"}  (will: false)
     rumba/<site>/<machine>/state     retained  every state change (+ OPC 40001 item state)
     rumba/<site>/<machine>/progress            touches done / total during a run (QoS 0)
-    rumba/<site>/<machine>/verdict   retained  the last verdict (FAILED/ABORTED → ERROR)
+    rumba/<site>/<machine>/verdict   retained  the last verdict (ABORTED/INTERRUPTED/FAILED → ERROR)
     rumba/<site>/<machine>/links     retained  identified ISO 230-1 link errors, µm / µrad
     rumba/<site>/<machine>/health    retained  measurement health and daemon figures
 
@@ -40,7 +40,9 @@ log = logging.getLogger("rumba.mqtt")
 
 BACKOFF_S = (0.5, 1.0, 2.0, 5.0, 10.0, 30.0)
 # OPC 40001-1 (umati machinery) MachineryItemState for a verification cell
-_ITEM_STATE = {"IDLE": "NotExecuting", "ABORTED": "NotExecuting", "FAILED": "NotExecuting"}
+_ITEM_STATE = {"IDLE": "NotExecuting", "ABORTED": "NotExecuting",
+               "INTERRUPTED": "NotExecuting", "FAILED": "NotExecuting"}
+_ENDED = tuple(_ITEM_STATE)  # a session in one of these runs nothing (run/phases READY_STATES)
 
 
 def link_payload(analysis: Analysis) -> dict[str, Any]:
@@ -111,8 +113,8 @@ class MachinePublisher:
                 "reason": st["reason"], "machinery_item_state": item,
                 "link_ok": st["link_ok"], "done_touches": st["done"],
                 "total_touches": st["total"]}, retain=True)
-            ended = previous is not None and previous[0] not in ("IDLE", "ABORTED", "FAILED")
-            if st["run_id"] and ended and st["state"] in ("IDLE", "ABORTED", "FAILED"):
+            ended = previous is not None and previous[0] not in _ENDED
+            if st["run_id"] and ended and st["state"] in _ENDED:
                 self._run_end(st)
         elif st["state"] == "CAPTURE":
             self.publish("progress", {"run_id": st["run_id"], "done_touches": st["done"],

@@ -28,7 +28,7 @@ from daemon.notify.config import NotifyConfig
 from daemon.store.journal import Store
 
 log = logging.getLogger("rumba.notify")
-_ENDED = ("IDLE", "ABORTED", "FAILED")
+_ENDED = ("IDLE", "ABORTED", "INTERRUPTED", "FAILED")  # run/phases READY_STATES
 
 
 @dataclass(frozen=True)

@@ -28,11 +28,22 @@ class State(StrEnum):
     REPORT = "REPORT"
     WRITE_BACK = "WRITE-BACK"
     ABORTED = "ABORTED"
+    INTERRUPTED = "INTERRUPTED"
     FAILED = "FAILED"
 
 
-READY_STATES = (State.IDLE, State.ABORTED, State.FAILED)
-"""States in which a new run may start (the last outcome stays visible until then)."""
+READY_STATES = (State.IDLE, State.ABORTED, State.INTERRUPTED, State.FAILED)
+"""States in which a new run may start (the last outcome stays visible until then).
+
+How a run that did not reach its verdict ended (issue 20), each with its phase and cause:
+ABORTED, a person (HMI, CAN panel, a signal to ``rumba verify``) or the controller (a RESET the
+link reports) stopped it; INTERRUPTED, rumba lost the run: the link dropped, the controller fell
+silent (plain DNC cannot tell a RESET from a cut cable), the daemon stopped or crashed; FAILED,
+the run went on but could not measure (probe did not trigger, a result not matching the program
+or malformed, an alarm, an identification refused, a bug)."""
+
+STOPPED_STATES = (State.ABORTED, State.INTERRUPTED, State.FAILED)
+"""The end states without a verdict of the machine (ERROR is written back to the CNC)."""
 
 
 class Refused(Exception):
@@ -41,6 +52,11 @@ class Refused(Exception):
 
 class RunFailed(Exception):
     """The run cannot continue; the message is the reason stored with the run."""
+
+
+class ControllerSilent(Exception):
+    """No result came for the touch timeout: the run is lost (INTERRUPTED), not failed; the
+    message is the reason stored with the run."""
 
 
 def new_run_id() -> str:

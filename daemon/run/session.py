@@ -1,7 +1,8 @@
 """One verification session per machine: the run state machine of DESIGN.md.
 
 IDLE → PREPARE → STREAM → CAPTURE → IDENTIFY → JUDGE → REPORT → WRITE-BACK → IDLE, or ABORTED /
-FAILED with a reason. Each step is handed the previous step's result and the journal records it
+INTERRUPTED / FAILED with the phase and the cause (their meaning: run/phases.py READY_STATES).
+Each step is handed the previous step's result and the journal records it
 (raw hits before anything else looks at them); a probe that does not trigger, a hit that does not
 match the program, a silent controller or a lost link stop the run, and the next run reconnects
 first; a second trigger during a run is refused with a reason; abort works from any source.
@@ -26,10 +27,11 @@ from daemon.machines.setup import MachineSetup
 from daemon.reports.compensation import verification_of
 from daemon.run import lease as run_lease
 from daemon.run import reprobe
-from daemon.run.phases import Refused, RunFailed, RunStatus, State, new_run_id
+from daemon.run.phases import ControllerSilent, Refused, RunFailed, RunStatus, State, new_run_id
 from daemon.store.journal import Store
 from daemon.store.machine_lock import Lease
 from drivers.base import CncLink, ControllerAborted, ControllerAlarm, LinkError
+from drivers.hits import MalformedResult
 from drivers.retry import with_backoff
 
 log = logging.getLogger("rumba.session")
@@ -54,6 +56,7 @@ class Session(RunStatus):
         self._prepare = prepare
         self._task: asyncio.Task | None = None
         self._abort_reason: str | None = None
+        self._abort_state = State.ABORTED  # INTERRUPTED when the daemon stops under the run
         self.lease: Lease | None = None  # the machine lock of the current run (run/lease.py)
         self._controller_dirty = False  # a stop could not reach the controller
 
@@ -82,6 +85,7 @@ class Session(RunStatus):
         self.done, self.total = 0, 0
         self.started_at, self.first_hit_at, self.estimated_s = time.time(), None, None
         self.verdict, self.reason, self._abort_reason = None, "", None
+        self._abort_state = State.ABORTED
         self.store.new_run(self.run_id, self.setup.name, trigger, plan=self.setup.plan.name,
                            artefact=self.setup.artefact.name, dialect=self.setup.dialect)
         self._enter(State.PREPARE, "")
@@ -91,11 +95,20 @@ class Session(RunStatus):
         return self.run_id
 
     async def abort(self, source: str) -> bool:
-        """Abort the current run (from any trigger source); False when nothing runs."""
+        """Abort the current run (a person: HMI, CAN panel, a signal to ``rumba verify``):
+        ABORTED; False when nothing runs. Returns once the run has ended, cleanup included."""
+        return await self._cancel(State.ABORTED, f"aborted by {source}")
+
+    async def interrupt(self, cause: str) -> bool:
+        """Stop the current run because the daemon stops (``cause``): INTERRUPTED, as a crash
+        would leave it (``rerun_interrupted`` runs it again at the next start)."""
+        return await self._cancel(State.INTERRUPTED, f"interrupted by {cause}")
+
+    async def _cancel(self, state: State, reason: str) -> bool:
         if not self.busy or self._task is None:
             return False
         if self._abort_reason is None:  # the first stop names the cause; repeats change nothing
-            self._abort_reason = f"aborted by {source}"
+            self._abort_reason, self._abort_state = reason, state
         self._task.cancel()
         await _await_run(self._task)
         return True
@@ -118,12 +131,16 @@ class Session(RunStatus):
             prepared = await self._prepare_program(run_id, reference)
             hits = await self._capture(prepared)
             hits = await self._reprobe(run_id, hits, reference)
+            self._raise_if_stopped()
             analysis = await self._identify(run_id, hits, reference)
+            self._raise_if_stopped()
             judgement = self._judge(run_id, analysis, reference)
             await self._report(run_id, analysis, judgement)
+            self._raise_if_stopped()
             self._enter(State.WRITE_BACK)
             await self._write_back(Verdict(judgement.status, run_id, judgement.summary,
                                            judgement.reasons), strict=True)
+            self._raise_if_stopped()
             self.store.mark_written_back(run_id)
             self._enter(State.IDLE, "")
             if self.after_run is not None:
@@ -134,16 +151,26 @@ class Session(RunStatus):
         except asyncio.CancelledError:
             # An abort (HMI, CAN, CLI signal) or the service stopping: the phase is the state
             # the run was in. The cleanup runs to its end whatever cancels us meanwhile.
-            cause = self._abort_reason or "daemon shutting down"
-            await self._end(run_id, State.ABORTED, f"{cause} during {self.state}", stop=True)
-            if self._abort_reason is None:
+            unasked = self._abort_reason is None  # the event loop ending: the daemon stops
+            if unasked:
+                self._abort_reason = "interrupted by the daemon stopping"
+                self._abort_state = State.INTERRUPTED
+            await self._end(run_id, self._abort_state, f"{self._abort_reason} during "
+                            f"{self.state}", stop=True)
+            if unasked:
                 raise
         except ControllerAborted as e:  # reset / abort pressed on the CNC itself
             await self._end(run_id, State.ABORTED, f"aborted on the controller during "
                             f"{self.state}: {e}", stop=True)
-        except (RunFailed, LinkError, ControllerAlarm, pipeline.PipelineError) as e:
+        except (ControllerSilent, LinkError) as e:
+            # rumba lost the run (a link down, no results any more): INTERRUPTED, unless the
+            # link delivered data that fails validation (a malformed result: FAILED)
+            state = State.FAILED if isinstance(e, MalformedResult) else State.INTERRUPTED
             if isinstance(e, LinkError):
                 self.link_ok = False
+            await self._end(run_id, state, f"{str(e) or type(e).__name__} "
+                            f"(during {self.state})", stop=True)
+        except (RunFailed, ControllerAlarm, pipeline.PipelineError) as e:
             # Whatever failed, the controller may still run the program (a timeout, a lost
             # result): stop it, or the next LoadProgram is refused.
             await self._end(run_id, State.FAILED, f"{str(e) or type(e).__name__} "
@@ -152,6 +179,14 @@ class Session(RunStatus):
             log.exception("run %s crashed", run_id)
             await self._end(run_id, State.FAILED, f"internal error during {self.state}: "
                             f"{type(e).__name__}: {e}", stop=True)
+
+    def _raise_if_stopped(self) -> None:
+        """Stop here if a stop was asked whose cancellation a library swallowed: Python 3.11's
+        ``asyncio.wait_for`` returns a result that completed together with the cancel
+        (gh-86296), and the run went on to DONE after a SIGTERM on ``rumba verify``."""
+        task = asyncio.current_task()
+        if self._abort_reason is not None or (task is not None and task.cancelling()):
+            raise asyncio.CancelledError
 
     async def _end(self, run_id: str, state: State, reason: str, *, stop: bool) -> None:
         """Stop the controller, journal the end state with its reason, tell the CNC: in a task
@@ -192,6 +227,7 @@ class Session(RunStatus):
         """PREPARE: the checked program and its touch table (targets from the last good run)."""
         prepared = await asyncio.to_thread(self._prepare, self.setup, run_id,
                                            reference[1] if reference else None)
+        self._raise_if_stopped()
         self.total, self.estimated_s = prepared.job.touch_count, prepared.estimated_s
         self.store.set_state(run_id, "PREPARE", touch_total=self.total)
         self._enter(State.STREAM)
@@ -268,12 +304,14 @@ class Session(RunStatus):
                 except StopAsyncIteration:
                     break
                 except TimeoutError:
-                    raise RunFailed(f"no probe result for {self.setup.touch_timeout_s:g} s after "
-                                    f"touch {self.done} of {self.total}: controller silent "
-                                    "(feed hold, alarm or lost results)") from None
+                    raise ControllerSilent(
+                        f"no probe result for {self.setup.touch_timeout_s:g} s after touch "
+                        f"{self.done} of {self.total}: controller silent (feed hold, RESET, "
+                        "alarm or lost results)") from None
                 own = prepared.complete(hit, time.time() - self.started_at)
                 hit = own if remap is None else remap(own)
                 self.store.journal_hit(run_id, hit)  # raw data first, always
+                self._raise_if_stopped()  # journaled, then stopped: nothing lost
                 hits.append(hit)
                 self.done = done0 + len(hits)
                 if self.first_hit_at is None:

@@ -3,7 +3,8 @@ triggers (CNC start-of-shift request, HMI button, CAN panel button, ``rumba veri
 
 Startup is strict (a bad config, an unreachable controller or a busy port is a one-line
 ``ServiceError``); afterwards a lost link is reconnected with backoff by its session and the
-service keeps serving. Runs that a crash left half-done are marked INTERRUPTED, hits kept.
+service keeps serving. Runs that a crash left half-done are marked INTERRUPTED, hits kept; a
+run under way when the service stops ends INTERRUPTED too (``rerun_interrupted``).
 """
 
 from __future__ import annotations
@@ -101,8 +102,10 @@ class Service:
             if setup.triggers.cnc and session.link.capabilities.start_request:
                 self._tasks.append(asyncio.create_task(self._cnc_trigger(name),
                                                        name=f"cnc-trigger-{name}"))
-            if setup.rerun_interrupted and any(
-                    self.store.run(r).machine == name for r in self.interrupted):
+            last = self.store.runs(name, limit=1)
+            # INTERRUPTED: a crash (marked above), the daemon stopped under the run, a lost
+            # link; never a run a person aborted or one that failed
+            if setup.rerun_interrupted and last and last[0].state == "INTERRUPTED":
                 log.info("%s: starting a new run after the interrupted one", name)
                 session.start("rerun")
 
@@ -205,7 +208,7 @@ class Service:
                 await t
         for s in self.sessions.values():
             with contextlib.suppress(Exception):
-                await s.abort("daemon shutdown")
+                await s.interrupt("the daemon stopping")
         if self.panel is not None:
             with contextlib.suppress(Exception):
                 await self.panel.close()

@@ -42,7 +42,7 @@ def lamp_for(status: dict[str, Any]) -> tuple[str, int | None, int]:
         total, done = status.get("total") or 0, status.get("done") or 0
         return "running", (100 * done // total) if total else None, flags | FLAG_BLINK
     state = str(status.get("state", "IDLE"))
-    if state in ("FAILED", "ABORTED"):
+    if state in ("FAILED", "ABORTED", "INTERRUPTED"):
         return "error", None, flags
     verdict = (status.get("verdict") or {}).get("status")
     lamp = {"PASS": "pass", "WARN": "warn", "FAIL": "fail", "ERROR": "error"}.get(verdict, "idle")

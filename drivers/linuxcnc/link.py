@@ -65,7 +65,14 @@ from pathlib import Path
 
 from contracts.jobs import ProgramJob, Verdict
 from contracts.messages import ProbeHit
-from drivers.base import Capabilities, CncLink, ControllerAlarm, LinkError, StartRequest
+from drivers.base import (
+    Capabilities,
+    CncLink,
+    ControllerAborted,
+    ControllerAlarm,
+    LinkError,
+    StartRequest,
+)
 from drivers.linuxcnc.channel import LocalChannel, RshChannel
 from drivers.linuxcnc.program import Step, auto_program, name_error, plan_steps, where
 from drivers.linuxcnc.schema import LinuxCncLinkConfig
@@ -172,8 +179,13 @@ class LinuxCncLink(CncLink):
         errs = await self._errors()
         if rep != "SET MDI ACK":
             errs += await self._errors()
-            raise ControllerAlarm(f"LinuxCNC: {'; '.join(errs) or 'block refused (' + rep + ')'}"
-                                  f" at {where(step)}")
+            why = f"{'; '.join(errs) or 'block refused (' + rep + ')'} at {where(step)}"
+            if self.cfg.mode == "remote" and await self._ch.ask("get enable") == "ENABLE OFF":
+                # linuxcncrsh obeys the last client that sent 'set enable': an operator's
+                # client took the control (to abort it, as the pendant's abort does)
+                raise ControllerAborted(f"another linuxcncrsh client took the control "
+                                        f"(set enable); LinuxCNC: {why}")
+            raise ControllerAlarm(f"LinuxCNC: {why}")
         if errs:  # remote: found when the next block was taken; local: this block's own
             raise self._alarm(errs, step if self.cfg.mode == "local" else prev or step)
 
@@ -314,9 +326,9 @@ class LinuxCncLink(CncLink):
                                         f"{self.cfg.command_timeout_s:g} s after touch {n}")
                 else:
                     raise LinkError(f"local LinuxCNC helper: unexpected reply {rep!r}")
-            if n != job.touch_count:
-                raise ControllerAlarm(f"LinuxCNC program stopped after {n} of {job.touch_count}"
-                                      " touches without an error (aborted on the controller?)")
+            if n != job.touch_count:  # idle, no error: stopped there (abort, Esc in AXIS)
+                raise ControllerAborted(f"LinuxCNC program stopped after {n} of "
+                                        f"{job.touch_count} touches without an error")
             await self._set("set plan_init")  # unload the file before deleting it (helper doc)
         finally:
             shutil.rmtree(folder, ignore_errors=True)

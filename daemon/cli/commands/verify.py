@@ -12,11 +12,13 @@ import contextlib
 import logging
 import signal
 import sys
+from collections.abc import Callable
 from typing import Any
 
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
 
+from daemon.cli.commands.verify_daemon import abort_on_daemon, eta_text, follow_run
 from daemon.cli.main import UserError
 from daemon.compensation.propose import journal_analyse
 from daemon.config import load_daemon_config
@@ -27,14 +29,6 @@ from drivers.base import LinkError
 
 COLOURS = {"PASS": "bold green", "WARN": "bold yellow", "FAIL": "bold red",
            "ERROR": "bold magenta"}
-
-
-def _eta(st: dict[str, Any]) -> str:
-    eta = st.get("eta_s")
-    if eta is None:
-        return "time left: —"
-    m, s = divmod(int(eta), 60)
-    return f"time left: {m} min {s:02d} s" if m else f"time left: {s} s"
 
 
 async def verify(cfg_path: str, machine: str, *, strict: bool = False, quiet: bool = False,
@@ -74,7 +68,7 @@ async def verify(cfg_path: str, machine: str, *, strict: bool = False, quiet: bo
                 if getter in done:
                     st = getter.result()
                     bar.update(task, total=st["total"] or None, completed=st["done"],
-                               state=st["state"], eta=_eta(st))
+                               state=st["state"], eta=eta_text(st))
                 else:
                     getter.cancel()
             st = session.status()
@@ -99,16 +93,26 @@ def _stop_on_signals(session: Session, console: Console) -> list[signal.Signals]
     """SIGINT / SIGTERM abort the run as any other trigger does (controller reset, journal row
     ABORTED naming the signal and the phase); ``verify`` then waits for that end and exits
     128 + the signal number. Returns the list the first signal is recorded in."""
+    aborts: list[asyncio.Task] = []
+    loop = asyncio.get_running_loop()
+    return _catch_signals(console, lambda sig: aborts.append(  # kept: not GC'd
+        loop.create_task(session.abort(STOP_SIGNALS[sig]))))
+
+
+def _catch_signals(console: Console, first: Callable[[signal.Signals], None]
+                   ) -> list[signal.Signals]:
+    """SIGINT / SIGTERM call ``first`` once (the stop is bounded: a second signal only says
+    so); returns the list the first signal is recorded in."""
     loop = asyncio.get_running_loop()
     got: list[signal.Signals] = []
-    aborts: list[asyncio.Task] = []
 
     def on_signal(sig: signal.Signals) -> None:
-        if got:  # the abort is under way: it is bounded, a second signal changes nothing
-            console.print("[bold]stopping: the controller is being reset, please wait[/]")
+        if got:
+            console.print("[bold]stopping: the run is being aborted and the controller reset, "
+                          "please wait[/]")
             return
         got.append(sig)
-        aborts.append(loop.create_task(session.abort(STOP_SIGNALS[sig])))  # kept: not GC'd
+        first(sig)
 
     for sig in STOP_SIGNALS:
         loop.add_signal_handler(sig, on_signal, sig)
@@ -141,8 +145,9 @@ def _verdict_exit(run_id: str, st: dict[str, Any], strict: bool, console: Consol
 
 async def verify_via_daemon(cfg_path: str, machine: str, *, strict: bool = False,
                             quiet: bool = False, console: Console | None = None) -> int:
-    """Trigger the running daemon through its HMI API (bearer token) and follow its events."""
-    import json
+    """Trigger the running daemon through its HMI API (bearer token) and follow its events.
+    SIGINT / SIGTERM abort that run on the daemon (HMI abort, same token, naming the signal)
+    and return 128 + the signal number once the daemon reports the run ended."""
     import ssl
 
     import aiohttp
@@ -158,9 +163,13 @@ async def verify_via_daemon(cfg_path: str, machine: str, *, strict: bool = False
     base = f"{scheme}://{cfg.hmi.host}:{cfg.hmi.port}/"
     ctx = ssl.create_default_context(cafile=str(cfg.hmi_tls[0])) if cfg.hmi_tls else None
     headers = {"Authorization": f"Bearer {cfg.hmi_token}"}
+    stop = asyncio.Event()
+    stopped_by = _catch_signals(console, lambda _sig: stop.set())
     try:
         async with aiohttp.ClientSession(headers=headers) as http:
             events = await http.get(base + "api/events", ssl=ctx)
+            if stopped_by:  # stopped before anything was started on the daemon
+                return 128 + int(stopped_by[0])
             r = await http.post(base + f"api/machines/{machine}/start?trigger=cli", ssl=ctx)
             body = await r.json()
             if r.status != 202:
@@ -170,20 +179,22 @@ async def verify_via_daemon(cfg_path: str, machine: str, *, strict: bool = False
                           MofNCompleteColumn(), TextColumn("touches  {task.fields[eta]}"),
                           console=console, disable=quiet) as bar:
                 task = bar.add_task(run_id, total=None, state="PREPARE", eta="")
-                async for line in events.content:
-                    if not line.startswith(b"data: "):
-                        continue
-                    st = json.loads(line[6:])
-                    if st["machine"] != machine or st["run_id"] != run_id:
-                        continue
-                    bar.update(task, total=st["total"] or None, completed=st["done"],
-                               state=st["state"], eta=_eta(st))
-                    if not st["busy"]:
-                        break
+                follow = asyncio.create_task(follow_run(events, machine, run_id, bar, task))
+                stopping = asyncio.create_task(stop.wait())
+                await asyncio.wait({follow, stopping}, return_when=asyncio.FIRST_COMPLETED)
+                stopping.cancel()
+                if stopped_by and not follow.done():
+                    st = await abort_on_daemon(http, base, machine, run_id, stopped_by[0],
+                                               follow, ctx)
+                else:
+                    st = await follow
             events.close()
     except aiohttp.ClientError as e:
         raise UserError(f"daemon at {base} unreachable: {e}") from None
-    return _verdict_exit(run_id, st, strict, console)
+    finally:
+        _restore_signals()
+    code = _verdict_exit(run_id, st, strict, console)
+    return 128 + int(stopped_by[0]) if stopped_by else code
 
 
 def cmd_verify(args: argparse.Namespace) -> int:
