@@ -53,3 +53,42 @@ async def test_a_stopped_run_is_an_error_for_mqtt_notifications_and_the_panel(tm
         assert lamp_for(_status(state, False))[0] == "error"
     finally:
         store.close()
+
+
+async def test_the_hmi_abort_names_a_scripts_signal_and_stops_only_its_run(tmp_path):
+    """``rumba verify --daemon``'s abort: ``by`` only from a bearer script and only a known
+    signal (the journal's text is fixed, never the client's), ``run_id`` only that run."""
+    import aiohttp
+
+    from daemon.config import load_daemon_config
+    from daemon.service.service import Service
+    from tests.daemon_helpers import thesis_rows, thesis_setup, write_daemon_yaml
+    from tests.replay_link import ReplayLink, prepare_from_rows
+
+    token = "t0k3n-for-tests-0123456789"
+    rows = thesis_rows(thesis_setup())
+    svc = Service(load_daemon_config(write_daemon_yaml(tmp_path, token=token)),
+                  lambda s: ReplayLink(rows, s.machine, delay_s=0.01),
+                  prepare=prepare_from_rows(rows))
+    await svc.start()
+    try:
+        url = svc.hmi_url + "api/machines/mill1/abort"
+        async with aiohttp.ClientSession(headers={"Authorization": f"Bearer {token}"}) as http:
+            run_id = svc.trigger("mill1", "cli")
+            for by in ("SIGKILL", "x\nFORGED", ""):
+                r = await http.post(url, params={"by": by, "run_id": run_id})
+                assert r.status == 400 and "by: expected one of SIGINT" in \
+                    (await r.json())["error"]
+            r = await http.post(url, params={"by": "SIGINT", "run_id": "20260101T000000Z-0"})
+            assert r.status == 409 and "is not running" in (await r.json())["error"]
+            assert svc.sessions["mill1"].busy  # another run's id stops nothing
+            r = await http.post(url, params={"by": "SIGTERM", "run_id": run_id})
+            st = await r.json()
+            assert r.status == 200 and (st["run_id"], st["state"], st["busy"]) == (
+                run_id, "ABORTED", False)
+            assert st["reason"].startswith("aborted by SIGTERM on rumba verify --daemon during ")
+            assert svc.store.run(run_id).state == "ABORTED"
+            r = await http.post(url, params={"run_id": run_id})  # ended: nothing to stop
+            assert r.status == 409
+    finally:
+        await svc.stop()
