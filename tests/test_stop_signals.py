@@ -3,7 +3,11 @@ is its own process (``rumba sim --serve opcua``), ``rumba verify`` another; the 
 while the run captures (seen in the journal: the first hits are in). Each row checks the exit
 code (130 SIGINT, 143 SIGTERM), no traceback on stderr, the journal row ABORTED naming the
 signal and the phase, and a second ``rumba verify`` against the same simulator process reaching
-its verdict (its program was accepted: the first one was reset and unloaded)."""
+its verdict (its program was accepted: the first one was reset and unloaded). Then the same
+against a real ``rumba run`` daemon: a signal on ``rumba verify --daemon`` aborts the daemon's
+run (HMI API, same bearer token) and exits once the daemon reports it ended, the daemon serving
+on; SIGTERM on the daemon ends its run INTERRUPTED and, restarted with ``rerun_interrupted``,
+it runs the machine again."""
 
 from __future__ import annotations
 
