@@ -118,7 +118,9 @@ def to_json(est: Estimate) -> str:
         "sigma_given": bool(est.sigma_given), "iterations": int(est.iterations),
         "converged": bool(est.converged), "status": est.status,
         "unobservable": list(est.unobservable), "absorbed_by": dict(est.absorbed_by),
-        "warnings": list(est.warnings), "sigma_dof": float(est.sigma_dof)})
+        "warnings": list(est.warnings), "sigma_dof": float(est.sigma_dof),
+        "visit_scatter": None if est.visit_scatter is None else
+        {k: [float(x) for x in v] for k, v in est.visit_scatter.items()}})
 
 
 def from_json(text: str) -> Estimate:
@@ -136,8 +138,11 @@ def from_json(text: str) -> Estimate:
                        bool(d["sigma_given"]), int(d["iterations"]), bool(d["converged"]),
                        str(d["status"]), [str(x) for x in d["unobservable"]],
                        {str(k): str(v) for k, v in d["absorbed_by"].items()},
-                       [str(x) for x in d["warnings"]], float(d["sigma_dof"]))
-    except (TypeError, KeyError, AttributeError) as e:
+                       [str(x) for x in d["warnings"]], float(d["sigma_dof"]),
+                       visit_scatter=None if d["visit_scatter"] is None else
+                       {str(k): (float(a), float(b), float(c))
+                        for k, (a, b, c) in d["visit_scatter"].items()})
+    except (TypeError, KeyError, AttributeError, ValueError) as e:
         raise ValueError(f"not a stored estimate: {e!r}") from None
     n = layout.size
     if est.p.shape != (n,) or est.std.shape != (n,) or est.cov.shape != (n, n) \
