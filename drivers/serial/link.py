@@ -41,7 +41,6 @@ from drivers.serial.lines import (  # noqa: F401 (re-exported: the link's public
 from drivers.serial.schema import SerialLinkConfig
 
 log = logging.getLogger("rumba.serial")
-CUT_TIMEOUT_S = 5.0  # to finish the block being sent when a stream is stopped
 
 MAX_WRITE_BYTES = 32
 """At most this much per write and per pass through the event loop's timers (a UART's transmit
@@ -199,16 +198,19 @@ class SerialDncLink(CncLink):
 
     async def _end_tape(self, sender: asyncio.Task | None) -> None:
         """Stop feeding at the end of the block being sent and close the tape (``%``): a
-        block cut in the middle would be executed truncated (``X12`` for ``X123.456``)."""
+        block cut in the middle would be executed truncated (``X12`` for ``X123.456``).
+
+        The cut is a few bytes, paced and flow-controlled like any others: it ends, or the
+        sender fails on its own (XOFF held past ``xoff_timeout_s``: the control has to be reset
+        there, the tape stays open). Never cancelled on a clock: a cut given up after 5 s under
+        load left half a block on the tape, and the next tape's leader was read as the rest of
+        it (``N336 G01 X-166.7855 Y%``, an alarm at the control). A caller that stops waiting
+        (a bounded abort) leaves it running; the next tape waits for it (``_tx_lock``)."""
         if sender is None or sender.done():
             return
         self._cut.set()
-        try:
-            await asyncio.wait_for(asyncio.shield(sender), CUT_TIMEOUT_S)
-        except Exception:  # held by XOFF or a dead line: the control has to be reset there
-            sender.cancel()
-            with contextlib.suppress(asyncio.CancelledError, Exception):
-                await sender
+        with contextlib.suppress(Exception):  # its failure is the open tape (_tape_open)
+            await asyncio.shield(sender)
 
     async def _paced(self, payload: bytes, measure: bool) -> None:
         """Feed ``payload`` as a UART would, never more than ``tx_chunk_bytes`` in flight.
@@ -363,6 +365,7 @@ class SerialDncLink(CncLink):
         if self.dialect is None:
             raise LinkError("no dialect known for the verdict program (serial link created "
                             "without dialect= and no program run yet)")
+        await self._end_tape(self._sender)  # a stopped program's cut ends first
         try:
             text = self.dialect.verdict_program(verdict.code)
         except ValueError as e:  # the dialect refuses anything but a verdict code

@@ -288,7 +288,12 @@ class SerialFrontend:
             return
         if self.s.xon_delay_s:
             await asyncio.sleep(self.s.xon_delay_s)
-        self._put_flow(XON)
+        # Only if no XOFF was sent since this XON was decided: bytes held on the line, woken by
+        # the room that decided it, can refill the buffer past the high mark first, and an XON
+        # sent after that XOFF freed the sender while we counted its bytes as written after
+        # XOFF ("the sender ignored XOFF" under load, issue 20).
+        if not self._xoff:
+            self._put_flow(XON)
 
     async def _consume(self) -> None:
         while True:
