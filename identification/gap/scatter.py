@@ -166,30 +166,34 @@ def scatter_floor(machine: Machine, artefact: Artefact, problem: Problem, groups
     return vs
 
 
-def rescatter(rep: dict, again: Callable[[list], dict], machine: Machine, ball_ids: list[str],
+def rescatter(rep: dict, again: Callable[[list, frozenset], dict], machine: Machine,
+              ball_ids: list[str],
               gravity_dir: Sequence[float] | None) -> dict:
     """The components were first estimated with the twin alone, so a systematic effect
     inflated them (a 2nd harmonic of C looks like C index scatter, a sag like centre scatter):
     estimate them again with the selected effects and the confounded one as fixed effects and
     redo the diagnosis — again while a pass finds another (at most ``MAX_PASSES``; each one
-    hidden under the last can only show once the one above it is a fixed effect)."""
+    hidden under the last can only show once the one above it is a fixed effect). The
+    confounded ones (their likelihood-ratio test) may be attributed even where the held-out
+    test of the gap, resting on a floor of few visits, is weak."""
     from identification.effects import library
 
-    first, used = rep, set()
+    first, used, lr = rep, set(), set()
     for _ in range(MAX_PASSES):
         if not rep.get("scatter"):
             return rep
         sel = set(used) | {(s["effect"], s["axis"])
                            for s in rep["verdict"].get("selected", [])}
-        if rep["scatter"].get("confounded_with"):
-            sel.add((rep["scatter"]["confounded_with"]["effect"],
-                     rep["scatter"]["confounded_with"]["axis"]))
+        conf = rep["scatter"].get("confounded_with")
+        if conf:
+            sel.add((conf["effect"], conf["axis"]))
+            lr.add(f"{conf['effect']}:{conf['axis']}" if conf["axis"] else conf["effect"])
         if sel <= used:
             break
         used = sel
         effects = [e for e in library(machine, ball_ids, gravity_dir=gravity_dir)
                    if (e.family, e.axis) in sel]
-        rep = again(effects)
+        rep = again(effects, frozenset(lr))
     if rep is not first:
         rep["noise"]["source"] = first["noise"]["source"]  # the first pass' floor notes hold
         rep["scatter"]["source"] += (" — with " + ", ".join(sorted(
