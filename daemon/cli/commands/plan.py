@@ -22,6 +22,7 @@ from programs.dialects import get_dialect
 from programs.generate import GeneratedProgram, generate
 from programs.geometry import ProgramError
 from programs.optimise import Chosen
+from programs.plan_drift import DriftPlan
 from programs.safety import SafetyError
 
 
@@ -41,6 +42,7 @@ class Outcome:
     drift_u: dict[str, float] | None
     chosen: Chosen
     optimiser_s: float
+    drift: tuple[DriftPlan, DriftPlan] | None = None  # reference, optimised (issue 22)
 
 
 def make_plan(machine_path: Path, artefact_path: Path, target_path: Path, dialect: str,
@@ -49,7 +51,15 @@ def make_plan(machine_path: Path, artefact_path: Path, target_path: Path, dialec
     from contracts.plan_targets import load_targets_file, reference_path
     from programs.design import max_links
     from programs.optimise import Problem, candidate_poses, optimise
-    from programs.plan_report import plan_links, plan_yaml, predicted_u, to_plan, to_plan_dict
+    from programs.plan_drift import drift_plan, plan_times_s
+    from programs.plan_report import (
+        estimate_visits,
+        plan_links,
+        plan_yaml,
+        predicted_u,
+        to_plan,
+        to_plan_dict,
+    )
 
     if max_time_s is not None and not 0 < max_time_s <= 1e6:
         raise _error(f"--max-time {max_time_s:g}: expected seconds in (0, 1e6]")
@@ -121,8 +131,12 @@ def make_plan(machine_path: Path, artefact_path: Path, target_path: Path, dialec
               "predicted link u (µrad / µm, σ = " + "/".join(f"{s:g}" for s in sigma)
               + " µm): " + ", ".join(f"{k} {new_u[k]:.3g}" for k in grid_links)]
     text = plan_yaml(to_plan_dict(chosen, probing, tf.name), header)
+    drift = (drift_plan(machine, artefact, estimate_visits(ref),
+                        plan_times_s(ref, old.estimated_s), ref_links, sigma),
+             drift_plan(machine, artefact, estimate_visits(plan),
+                        [h * 3600.0 for h in chosen.visit_times_h], grid_links, sigma))
     return Outcome(plan, text, ref, new, old, grid_links, targets, new_u, ref_u, new_du,
-                   chosen, opt_s)
+                   chosen, opt_s, drift)
 
 
 def write_new(out: Path, text: str, force: bool) -> None:
@@ -210,6 +224,10 @@ def _print(r: Outcome, dialect: object, sigma: object) -> None:
         print(f"drift: the first pose is probed again at the end and the time order is not "
               f"monotone in C; with a linear drift estimated too, u grows at most ×"
               f"{r.drift_u[worst] / r.new_u[worst]:.2f} ({worst})")
+    if r.drift is not None:
+        for name, d in zip((ref.name, plan.name), r.drift, strict=True):
+            for line in d.lines(name):
+                print(line)
     c = r.chosen
     print(f"optimiser {r.optimiser_s:.1f} s: {c.builds} one-pose programs built and checked, "
           f"{len(c.excluded)} candidate poses refused by the safety check"

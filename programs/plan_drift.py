@@ -1,0 +1,109 @@
+"""What a plan's timing lets the estimator say about a warm-up (issue 22): per axis and shape,
+whether a TCP drift separates from the links (``identification.drift.separation``), the
+predicted uncertainty of the drift over the run and what estimating it costs the links.
+
+Every ball of a visit is given the visit's time (the plan knows visits, not touches): the
+within-visit spread in time, which helps a little, is left out, so the answer is conservative.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from contracts.setup_files import Plan
+from identification.drift import SEPARABLE_MIN, DriftModel, separation
+from identification.identifiability import nominal_centres
+from identification.kinematics import Machine
+from identification.model import Artefact, Layout, predict
+
+TAU_S = 900.0  # a typical warm-up time constant (ISO 230-3: 10-60 min on a machining centre)
+
+
+@dataclass(frozen=True)
+class DriftPlan:
+    """Per shape (linear, exponential at ``TAU_S``): separable fraction and u of the drift over
+    the run (µm) per axis X Y Z, and the largest link-u growth when all three are estimated."""
+
+    separation: dict[str, tuple[float, float, float]]
+    over_run_u_um: dict[str, tuple[float, float, float]]
+    link_growth: dict[str, float]
+    span_s: float
+
+    def inseparable(self) -> list[str]:
+        """"<shape> <axis>" the plan cannot separate from the links."""
+        return [f"{shape} {a}" for shape, sep in self.separation.items()
+                for a, s in zip("XYZ", sep, strict=True) if s < SEPARABLE_MIN]
+
+    def lines(self, name: str) -> list[str]:
+        """What ``rumba plan`` prints about it."""
+        out = []
+        for shape in self.separation:
+            u = self.over_run_u_um[shape]
+            what = "linear drift" if shape == "linear" else f"warm-up (τ {TAU_S / 60:.0f} min)"
+            out.append(f"{name}: {what} over the run ({self.span_s / 60:.1f} min) separable "
+                       f"from the links, u X/Y/Z {'/'.join(f'{x:.2g}' for x in u)} µm; link u "
+                       f"grows at most ×{self.link_growth[shape]:.2f} when it is estimated")
+        bad = self.inseparable()
+        if bad:
+            out = [f"{name}: the plan cannot separate drift from links: {', '.join(bad)} "
+                   "(add a revisit of a pose later in the run, or interleave the order)"]
+        return out
+
+
+def drift_plan(machine: Machine, artefact: Artefact, visits: Sequence[tuple[float, float]],
+               times_s: Sequence[float], links: Sequence[str], sigma_um: Sequence[float]
+               ) -> DriftPlan:
+    """The drift ``visits`` (estimate visits in run order, each at ``times_s``) can resolve."""
+    n = len(artefact.balls)
+    c = nominal_centres(machine, artefact, list(visits))
+    layout = Layout(tuple(links), n, scale=bool(artefact.distances))
+    _, j = predict(machine, artefact, layout, np.zeros(layout.size), c, jacobian=True)
+    t = np.repeat(np.asarray(times_s, float), n)
+    sig = np.asarray(sigma_um, float) * 1e-3
+    nl = len(links)
+    span = float(t.max() - t.min()) if t.size else 0.0
+    if span <= 0.0:  # no time between the visits: a drift is one more relocalisation
+        zero = (0.0, 0.0, 0.0)
+        inf = (float("inf"),) * 3
+        return DriftPlan({"linear": zero, "exponential": zero},
+                         {"linear": inf, "exponential": inf},
+                         {"linear": float("inf"), "exponential": float("inf")}, 0.0)
+    seps, us, growth = {}, {}, {}
+    base = _cov(j, np.zeros((len(t), 3, 0)), sig)
+    for shape in ("linear", "exponential"):
+        cols = DriftModel(shape, ("X", "Y", "Z"), TAU_S if shape == "exponential"
+                          else None).columns(t)
+        seps[shape] = tuple(float(x) for x in separation(j, sig, cols))
+        cov = _cov(j, cols, sig)
+        us[shape] = tuple(float(np.sqrt(cov[layout.size + k, layout.size + k]))
+                          for k in range(3))
+        g = np.sqrt(np.diag(cov)[:nl] / np.maximum(np.diag(base)[:nl], 1e-300))
+        growth[shape] = float(g.max()) if nl else 1.0
+    return DriftPlan(seps, us, growth, span)
+
+
+def _cov(j: np.ndarray, cols: np.ndarray, sig: np.ndarray) -> np.ndarray:
+    """(JᵀWJ)⁻¹ of the links, setup and drift (pseudo-inverse: an inseparable drift gives
+    huge, not infinite, numbers)."""
+    a = np.concatenate([j, cols], axis=2)
+    w = (a / sig[None, :, None]).reshape(-1, a.shape[2])
+    norms = np.linalg.norm(w, axis=0)
+    norms[norms == 0] = 1.0
+    return np.linalg.pinv((w / norms).T @ (w / norms)) / np.outer(norms, norms)
+
+
+def plan_times_s(plan: Plan, total_s: float) -> list[float]:
+    """Mid times of the estimate visits of ``plan`` when its ``total_s`` seconds are spread
+    evenly over all its visits (validation poses and the revisit included)."""
+    order = [(p.b_deg, p.c_deg, p.role) for p in plan.poses] * plan.repeats
+    if plan.drift_check:
+        p0 = plan.poses[0]
+        order.append((p0.b_deg, p0.c_deg, p0.role))
+    step = total_s / len(order)
+    return [(i + 0.5) * step for i, v in enumerate(order) if v[2] == "estimate"]
+
+
+__all__ = ["TAU_S", "DriftPlan", "drift_plan", "plan_times_s"]
