@@ -189,7 +189,7 @@ def read_centres(path: Path | str, artefact: Artefact | None = None,
 
 
 def _read(raw: Iterable[bytes], name: str, artefact: Artefact | None) -> CentresFile:
-    lines = decoded(raw, name, CentresFileError)
+    lines = decoded(raw, name, CentresFileError, printable=True)
     cf = CentresFile(name, [])
     first = next(lines, "")
     if first.strip() != MAGIC:

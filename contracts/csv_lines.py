@@ -17,6 +17,8 @@ from contracts.yaml_files import ConfigError
 MAX_LOG_BYTES = 64 * 2**20
 MAX_LINE_BYTES = 4096
 CONTROL_RE = re.compile(r"[\x00-\x1f\x7f]")
+# the control characters Python's str.strip() removes as if they were spaces
+STRIPPED_CONTROL_RE = re.compile(r"[\x0b\x0c\x1c-\x1f]")
 
 
 class ProbeLogError(ConfigError):
@@ -29,8 +31,13 @@ class ProbeLogWarning(UserWarning):
 
 
 def decoded(raw_lines: Iterable[bytes], name: str,
-            error: type[ProbeLogError] | None = None) -> Iterator[str]:
-    """Bytes lines (bounded: ``byte_lines``) → text lines, refusing non-UTF-8."""
+            error: type[ProbeLogError] | None = None, *, printable: bool = False
+            ) -> Iterator[str]:
+    """Bytes lines (bounded: ``byte_lines``) → text lines, refusing non-UTF-8; ``printable``:
+    and the control characters str.strip() takes away (\\x0b, \\x0c, \\x1c-\\x1f) anywhere
+    on the line: the checks after strip cells, keys and the first line, and would read such a
+    character as if it were not there (issue 20, found by tests/test_inputs_fuzz_surfaces.py;
+    the other control characters are refused by those checks, naming the column)."""
     err = error or ProbeLogError
     for n, raw in enumerate(raw_lines, start=1):
         try:
@@ -38,6 +45,10 @@ def decoded(raw_lines: Iterable[bytes], name: str,
         except UnicodeDecodeError as e:
             raise err(f"{name}: line {n}: not UTF-8 text (byte {e.start + 1} of the "
                       f"line is {raw[e.start:e.start + 1]!r})") from None
+        if printable and (bad := STRIPPED_CONTROL_RE.search(text)):
+            where = " in a comment" if text.startswith("##") else ""
+            raise err(f"{name}: line {n}: a control character (U+{ord(bad.group()):04X})"
+                      f"{where}: expected printable text")
         yield text[1:] if n == 1 and text.startswith("\ufeff") else text
 
 

@@ -252,7 +252,7 @@ def read_log(path: Path | str, artefact: Artefact | None = None,
 
 
 def _read(raw: Iterable[bytes], name: str, artefact: Artefact | None) -> ProbeLog:
-    reader = csv.reader(decoded(raw, name))
+    reader = csv.reader(decoded(raw, name, printable=True))
     try:
         first = next(reader, [])
         if len(first) != 1 or first[0].strip() != MAGIC:

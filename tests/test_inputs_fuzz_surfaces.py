@@ -112,6 +112,43 @@ def test_who_confirms_is_printable_and_never_the_marker() -> None:
     tally.verdict()
 
 
+# ------------------------------------------------------- control characters, centres, log
+
+
+def test_a_control_character_in_a_centres_file_or_log_is_never_accepted(tmp_path: Path
+                                                                         ) -> None:
+    """The centres CSV (``rumba-centres v1``: a comment, a header value, a cell) and the
+    probing log — never read as if the character were not there (Python's strip() takes
+    \\x0b, \\x0c, \\x1c-\\x1f away); tests/test_inputs_fuzz.py does KinOpt and DMIS."""
+    from contracts.centres_file import read_centres, write_centres
+    from tests.input_fuzz_helpers import EXAMPLE_LOG, READERS
+    from tests.reader_helpers import centre_rows
+
+    tally = Tally("centres/log control chars")
+    base = tmp_path / "base.csv"
+    write_centres(base, centre_rows(), instrument="CMM PMM-C 700", source="lab run 7",
+                  comments=["provenance: ball bar check"])
+    texts = {"centres": base.read_text().split("\n"), "log": EXAMPLE_LOG.read_text().split("\n")}
+    control = [chr(c) for c in [*range(0, 9), 11, 12, *range(14, 32), 127]]
+
+    @FUZZ
+    @given(kind=st.sampled_from(["centres", "log"]), line=st.integers(0, 10_000),
+           col=st.integers(0, 200), ch=st.sampled_from(control))
+    def run(kind: str, line: int, col: int, ch: str) -> None:
+        body = list(texts[kind])
+        k = line % (len(body) - 1)  # not the empty string after the last newline
+        c = col % (len(body[k]) + 1)
+        body[k] = body[k][:c] + ch + body[k][c:]
+        path = tmp_path / f"{kind}.csv"
+        path.write_text("\n".join(body), encoding="utf-8")
+        reader = read_centres if kind == "centres" else READERS["log"]
+        tally.add(outcome(lambda: reader(path), path, False),
+                  (kind, body[k][:60], c, hex(ord(ch))))
+
+    run()
+    tally.verdict()
+
+
 # ----------------------------------------------------------------------- rumba plan inputs
 
 _PLAN_NAMES = st.one_of(st.text(max_size=40),
