@@ -95,3 +95,23 @@ def test_example_log_verdict_is_true_of_how_it_was_made(tmp_path, capsys):
     assert 0.4 < comp["centre x"]["sigma"] < 0.85 and 0.7 < comp["centre y"]["sigma"] < 1.3
     assert not comp["index B"]["detected"] and not comp["index C"]["detected"]
     assert "centre scatter y per ball visit ≈" in capsys.readouterr().out
+
+
+def test_selfcheck_gains_the_scatter_conditions(setup):
+    # rumba gap --selfcheck: every library effect and the null run again under indexing
+    # scatter, and a knocked ball; an effect under scatter is scaled to the floor *with* it.
+    from identification.effects import FAMILIES
+    from identification.gap import selfcheck
+    from identification.gap.selfcheck_scatter import SCATTER_URAD, index_rms_um, split_scatter
+
+    machine, artefact, poses = setup
+    added = set(selfcheck.SCENARIOS) - set(selfcheck.BASE_SCENARIOS)
+    assert added == {f"{f}+scatter" for f in (*FAMILIES, *selfcheck.VARIANTS, "null")} | {
+        "ball_step"}
+    assert split_scatter("gravity_sag+scatter") == ("gravity_sag", True)
+    assert selfcheck.expected_family("radial2_fixed+scatter") == "rotary_error_motion"
+    assert selfcheck.axes_of("rotary_positioning+scatter", machine, artefact) == ["B", "C"]
+    one = index_rms_um(machine, artefact, poses, 1.0)
+    assert index_rms_um(machine, artefact, poses, SCATTER_URAD) == pytest.approx(
+        SCATTER_URAD * one)
+    assert 0.02 < one < 0.5  # µm per µrad: balls 100-300 mm from the rotary axes
