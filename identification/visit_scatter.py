@@ -30,6 +30,7 @@ EIG_RCOND = 1e-12  # relative eigenvalue cut-off of XᵀV⁻¹X (unobservable fi
 LR_ALPHA = 0.01  # a component is "detected" when its boundary LR test is below this level
 MAX_SIGMA = 1e4  # µrad / µm: an upper bound for the optimiser only
 ZERO = 1e-2  # µrad / µm: a component this small is none (the optimiser's floor is 1e-3)
+FTOL = 1e-7  # relative change of −2ℓ (hundreds) at which L-BFGS-B stops: ~1e-4 absolute
 
 
 @dataclass
@@ -169,7 +170,7 @@ def estimate_components(b: VisitBlocks, names: Sequence[str], start: Sequence[fl
         x0 = np.maximum([start[i] for i in idx] if x0 is None else x0[idx], 1e-3)
         res = optimize.minimize(lambda t: restricted_nll(b, full(t, zero), rank, restricted),
                                 x0, method="L-BFGS-B", bounds=[(0.0, MAX_SIGMA)] * len(idx),
-                                options={"maxiter": 200})
+                                options={"maxiter": 200, "ftol": FTOL})
         return res.x, float(res.fun)
 
     # The likelihood is not convex in σ: a local optimum far out (one component taking up a
