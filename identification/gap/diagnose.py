@@ -23,6 +23,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from identification.effects import FAMILIES, Effect, EffectContext, library
+from identification.gap import warmup
 from identification.gap.attribute import (
     ALPHA,
     Candidate,
@@ -246,6 +247,10 @@ def _analyse(machine: Machine, artefact: Artefact, data: TouchData, groups: Grou
                                         "probing pattern (absorbed by the setup and link "
                                         "errors, or not excited)"})
         cands.append(Candidate(eff, np.einsum("gom,mr->gor", cols, basis), r, basis))
+    cands += warmup.candidates(  # the exponential warm-up, τ profiled (issue 22)
+        machine, problem, base,
+        lambda e: effect_columns(e, twin, groups, ctx, ball_jac, base_pred_mm), typical_size,
+        opt.families, known)
     visible = [c for c in cands if c.visible_dof > 0]
     score(problem, visible, [], base_full)
     suspect = confounded(vs, problem, groups, visible, ALPHA)  # inflating the components?
@@ -269,7 +274,8 @@ def _analyse(machine: Machine, artefact: Artefact, data: TouchData, groups: Grou
     cand_out = []
     for c in visible:
         cand_out.append({
-            "effect": c.effect.family, "axis": c.effect.axis, "params": c.params(n_base),
+            "effect": c.effect.family, "axis": c.effect.axis,
+            "params": c.params(n_base) | warmup.tau_param(c.effect), **warmup.model_of(c.effect),
             "holdout_rms_um": round(c.ho.rms_um, 4), "holdout_max_um": round(c.ho.max_um, 4),
             "explained_fraction": round(explained(base_ho, c.ho), 4),
             "significant": c.significant, "p_value": float(f"{c.p_value:.3g}"),
@@ -366,7 +372,9 @@ def _analyse(machine: Machine, artefact: Artefact, data: TouchData, groups: Grou
                     "holdout_rms_after_um": round(after_ho.rms_um, 4),
                     "holdout_max_before_um": round(base_ho.max_um, 4),
                     "holdout_max_after_um": round(after_ho.max_um, 4),
-                    "selected": [{"effect": c.effect.family, "axis": c.effect.axis}
+                    "selected": [{"effect": c.effect.family, "axis": c.effect.axis,
+                                  **warmup.model_of(c.effect),
+                                  "params": c.params(n_base) | warmup.tau_param(c.effect)}
                                  for c in selected],
                     "explained_fraction": round(frac, 4), "message": message},
         "location": location,
