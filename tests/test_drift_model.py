@@ -98,7 +98,7 @@ def test_short_runs_and_missing_times_are_not_modelled(shift):
     m, a, pose, ball, bc, xyz, t = shift
     c = Centres(pose, ball, bc[:, 0], bc[:, 1], xyz)
     assert estimate_drift_aware(m, a, c).status == "no_times"
-    c = Centres(pose, ball, bc[:, 0], bc[:, 1], xyz, t * 0.4)  # 90 s
+    c = Centres(pose, ball, bc[:, 0], bc[:, 1], xyz, t * 0.1)  # 22 s
     assert estimate_drift_aware(m, a, c).status == "too_short"
 
 
