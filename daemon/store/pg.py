@@ -38,6 +38,13 @@ class RunIdCollision(StoreError):
     """A run id in the fleet store belongs to another machine or start (never merged)."""
 
 
+# the tables with one row per run (after run_id, in their column order)
+_RUN_ROW_COLS = {"estimates": ("analysis",),
+                 "link_estimates": ("model_key", "estimate", "plan", "created_at"),
+                 "verdicts": ("status", "reasons", "checks", "written_back"),
+                 "reports": ("html_path", "json_path")}
+
+
 @dataclass
 class RunBatch:
     """One run's rows to copy in one PostgreSQL transaction (an import is all or nothing)."""
@@ -131,27 +138,15 @@ class PgStore:
                     await cur.executemany(
                         f"INSERT INTO centres ({', '.join(CENTRE_COLS)}) VALUES "
                         f"({', '.join(['%s'] * len(CENTRE_COLS))})", b.centres)
-            if b.analysis is not None:
-                await cur.execute(
-                    "INSERT INTO estimates VALUES (%s, %s) ON CONFLICT (run_id) DO UPDATE SET"
-                    " analysis=EXCLUDED.analysis", (b.run[0], b.analysis))
-            if b.link_estimate is not None:
-                await cur.execute(
-                    "INSERT INTO link_estimates VALUES (%s, %s, %s, %s, %s) ON CONFLICT"
-                    " (run_id) DO UPDATE SET model_key=EXCLUDED.model_key, estimate="
-                    "EXCLUDED.estimate, plan=EXCLUDED.plan, created_at=EXCLUDED.created_at",
-                    (b.run[0], *b.link_estimate))
-            if b.verdict is not None:
-                await cur.execute(
-                    "INSERT INTO verdicts VALUES (%s,%s,%s,%s,%s) ON CONFLICT (run_id) DO UPDATE"
-                    " SET status=EXCLUDED.status, reasons=EXCLUDED.reasons,"
-                    " checks=EXCLUDED.checks, written_back=EXCLUDED.written_back",
-                    (b.run[0], *b.verdict))
-            if b.report is not None:
-                await cur.execute(
-                    "INSERT INTO reports VALUES (%s,%s,%s) ON CONFLICT (run_id) DO UPDATE SET"
-                    " html_path=EXCLUDED.html_path, json_path=EXCLUDED.json_path",
-                    (b.run[0], *b.report))
+            for table, row in (("estimates", (b.analysis,) if b.analysis is not None else None),
+                               ("link_estimates", b.link_estimate), ("verdicts", b.verdict),
+                               ("reports", b.report)):
+                if row is not None:  # one row per run, replaced by a newer copy
+                    cols = _RUN_ROW_COLS[table]
+                    await cur.execute(
+                        f"INSERT INTO {table} VALUES ({', '.join(['%s'] * (len(cols) + 1))})"
+                        f" ON CONFLICT (run_id) DO UPDATE SET "
+                        f"{', '.join(f'{c}=EXCLUDED.{c}' for c in cols)}", (b.run[0], *row))
 
     async def write_machine(self, row: tuple) -> None:
         sets = ", ".join(f"{c}=EXCLUDED.{c}" for c in MACHINE_COLS[1:])
