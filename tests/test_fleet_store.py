@@ -206,6 +206,16 @@ async def test_a_runs_link_estimate_reaches_the_fleet_with_its_analysis(pg, tmp_
     await drainer.drain()
     assert pg_rows(dsn, "SELECT run_id, model_key FROM link_estimates ORDER BY run_id") == [
         ("R1", "k1b"), ("R2", "k2")]
+    # the other one-row-per-run tables go the same way (one upsert for all four)
+    store.save_verdict("R1", "PASS", ["ok"], [{"name": "EX0C"}], "all within")
+    store.save_report("R1", tmp_path / "R1.html", tmp_path / "R1.json")
+    store.save_verdict("R1", "WARN", ["drift"], [], "again")
+    await drainer.drain()
+    assert pg_rows(dsn, "SELECT run_id, status, reasons, checks, written_back FROM verdicts") \
+        == [("R1", "WARN", '["drift"]', "[]", 0)]
+    assert pg_rows(dsn, "SELECT run_id, html_path, json_path FROM reports") == [
+        ("R1", str(tmp_path / "R1.html"), str(tmp_path / "R1.json"))]
+    assert pg_rows(dsn, "SELECT analysis FROM estimates") == [('{"links": {}}',)]
     await drainer.stop()
     worker.close()
     store.close()
