@@ -283,7 +283,12 @@ def _warm_then_cool(machine, artefact, poses, amp_um: float):
 
 
 def test_a_drift_that_only_interpolates_is_not_confirmed_on_time_blocks(setup, monkeypatch):
-    from identification.gap import Options, warmup
+    import importlib
+
+    from identification.gap import Options
+
+    # the module (the package re-exports its function under the same name)
+    gap_diagnose = importlib.import_module("identification.gap.diagnose")
 
     machine, artefact, poses = setup
     rng = np.random.default_rng(0)
@@ -297,7 +302,7 @@ def test_a_drift_that_only_interpolates_is_not_confirmed_on_time_blocks(setup, m
     assert (warm["verdict"]["effect"], warm["verdict"]["axis"]) == ("thermal_drift", "X")
     assert warm["verdict"]["selected"][0]["model"] == "exponential"
     assert warm["time_check"]["confirmed"]
-    monkeypatch.setattr(warmup, "candidates", lambda *a, **k: [])
+    monkeypatch.setattr(gap_diagnose, "warmup_candidates", lambda *a, **k: [])
     by_pose = diagnose(machine, artefact, data, STYLUS_R, options=Options(split="pose"))
     assert (by_pose["verdict"]["effect"], by_pose["verdict"]["axis"]) == ("thermal_drift", "X")
     assert by_pose["time_check"] is None

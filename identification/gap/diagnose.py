@@ -23,7 +23,6 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from identification.effects import FAMILIES, Effect, EffectContext, library
-from identification.gap import warmup
 from identification.gap.attribute import (
     ALPHA,
     Candidate,
@@ -44,6 +43,8 @@ from identification.gap.scatter import confounded, link_report, model_visits, re
 from identification.gap.split import TIME_BLOCKS, TIME_FAMILIES, folds
 from identification.gap.step_ball import step_report, step_verdict
 from identification.gap.twin import Twin, effect_columns, fit_twin, touch_context
+from identification.gap.warmup import candidates as warmup_candidates
+from identification.gap.warmup import model_of, tau_param
 from identification.kinematics import Machine
 from identification.model import Artefact, predict
 
@@ -247,7 +248,7 @@ def _analyse(machine: Machine, artefact: Artefact, data: TouchData, groups: Grou
                                         "probing pattern (absorbed by the setup and link "
                                         "errors, or not excited)"})
         cands.append(Candidate(eff, np.einsum("gom,mr->gor", cols, basis), r, basis))
-    cands += warmup.candidates(  # the exponential warm-up, τ profiled (issue 22)
+    cands += warmup_candidates(  # the exponential warm-up, τ profiled (issue 22)
         machine, problem, base,
         lambda e: effect_columns(e, twin, groups, ctx, ball_jac, base_pred_mm), typical_size,
         opt.families, known)
@@ -275,7 +276,7 @@ def _analyse(machine: Machine, artefact: Artefact, data: TouchData, groups: Grou
     for c in visible:
         cand_out.append({
             "effect": c.effect.family, "axis": c.effect.axis,
-            "params": c.params(n_base) | warmup.tau_param(c.effect), **warmup.model_of(c.effect),
+            "params": c.params(n_base) | tau_param(c.effect), **model_of(c.effect),
             "holdout_rms_um": round(c.ho.rms_um, 4), "holdout_max_um": round(c.ho.max_um, 4),
             "explained_fraction": round(explained(base_ho, c.ho), 4),
             "significant": c.significant, "p_value": float(f"{c.p_value:.3g}"),
@@ -373,8 +374,8 @@ def _analyse(machine: Machine, artefact: Artefact, data: TouchData, groups: Grou
                     "holdout_max_before_um": round(base_ho.max_um, 4),
                     "holdout_max_after_um": round(after_ho.max_um, 4),
                     "selected": [{"effect": c.effect.family, "axis": c.effect.axis,
-                                  **warmup.model_of(c.effect),
-                                  "params": c.params(n_base) | warmup.tau_param(c.effect)}
+                                  **model_of(c.effect),
+                                  "params": c.params(n_base) | tau_param(c.effect)}
                                  for c in selected],
                     "explained_fraction": round(frac, 4), "message": message},
         "location": location,
