@@ -110,6 +110,22 @@ def test_a_thermal_drift_during_the_run_is_fitted_and_warned_not_blamed_on_links
     assert any(c.quantity.startswith("revisit shift") for c in j0.checks)
 
 
+@pytest.mark.peer
+def test_the_pdf_states_the_fitted_drift(setup, tmp_path):
+    from tests.test_report_pdf import text_of
+
+    drifting = _run(setup, [{"family": "thermal_drift", "axis": "Z",
+                             "params": {"drift_Z_rate": 240}}])
+    tol = Tolerances(thermal_drift_um=5.0)
+    run = RunRow("R1", "m", "manual", "DONE", "", "p", "a", "fanuc", 300, 0.0, 1.0, "WARN", "",
+                 False)
+    html, _ = report.write_report(tmp_path, run, drifting, judge(drifting, tol), [], [], tol)
+    text = text_of(report.pdf_path(html))
+    z = drifting.thermal.over_run_um["Z"]
+    assert f"Thermal drift over the run ({drifting.thermal.shape}" in text
+    assert f"Z {z.value:+.2f} ± {z.std:.2f} µm" in text and "not thermally stable" in text
+
+
 def test_without_drift_check_there_is_no_stability_block(setup):
     m, mf, a, _, _ = setup
     plan = load_plan("config/plans/thesis_annexB_14poses.yaml")

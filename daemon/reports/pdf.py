@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import datetime
 import io
+import logging
 import textwrap
 from collections.abc import Sequence
 from pathlib import Path
@@ -27,6 +28,10 @@ from daemon.analysis.result import Analysis
 from daemon.reports.audit import audit_rows, local_time
 from daemon.reports.plots import VERDICT_COLOURS
 from daemon.store.journal import RunRow
+
+# matplotlib subsets the embedded fonts with fontTools, which logs every table it prunes at
+# INFO (~200 lines per PDF): its loggers only, so the daemon's own INFO log stays as it is
+logging.getLogger("fontTools").setLevel(logging.WARNING)
 
 A4_IN = (8.27, 11.69)
 MARGIN_IN = 0.5
@@ -107,6 +112,14 @@ def _page1(fig: Figure, run: RunRow, analysis: Analysis, doc: dict[str, Any],
            f"condition number {analysis.condition_number or 0:.3g}"
            + (f"; drift reference run {analysis.reference_run}" if analysis.reference_run
               else ""), color="#444444")
+    th = analysis.thermal
+    if th is not None:  # issue 22: the TCP drift fitted with the links, or why it was not
+        p.wrapped(("Thermal drift over the run (" + (th.shape or "") + (
+            f", τ {th.tau_min:.0f} min" if th.tau_min is not None else "") + "): " + ", ".join(
+            f"{a} {d.value:+.2f} ± {d.std:.2f} µm" for a, d in sorted(th.over_run_um.items())
+            if d.value is not None and d.std is not None)
+            + "; link errors estimated with it") if th.status == "selected" else th.message,
+            width=125, color="#444444")
     p.rule()
     if verdict and verdict["reasons"]:
         p.line("Reasons", size=10, weight="bold", gap=1.2)
