@@ -20,6 +20,7 @@ import numpy as np
 from matplotlib.axes import Axes
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure, SubFigure
+from matplotlib.gridspec import GridSpec
 from matplotlib.lines import Line2D
 
 from daemon.analysis.result import Analysis
@@ -99,8 +100,12 @@ def draw_distortion(fig: Canvas, analysis: Analysis,
     colours = [colour[v.pose] for v in vol]
     planes = [(0, 1, "XY"), (1, 2, "YZ"), (0, 2, "XZ")]
     grid = (2, 2) if with_3d else (1, 3)
+    legend_rows = math.ceil(len(poses) / 5)
+    gs = _fixed_margins(fig, grid, top_in=0.6, bottom_in=0.55 + 0.16 * legend_rows,
+                        wspace=0.3, hspace=0.45, right_in=0.35)
+    cells = [gs[k // grid[1], k % grid[1]] for k in range(grid[0] * grid[1])]
     for k, (i, j, name) in enumerate(planes):
-        ax = fig.add_subplot(*grid, k + 1)
+        ax = fig.add_subplot(cells[k])
         ax.scatter(pts[:, i], pts[:, j], s=6, c=colours)
         q = ax.quiver(pts[:, i], pts[:, j], vec[:, i], vec[:, j], color=colours, angles="xy",
                       scale_units="xy", scale=1, width=0.005)
@@ -113,7 +118,7 @@ def draw_distortion(fig: Canvas, analysis: Analysis,
         ax.set_aspect("equal", adjustable="datalim")
         ax.grid(alpha=0.3)
     if with_3d:
-        ax3 = fig.add_subplot(2, 2, 4, projection="3d")
+        ax3 = fig.add_subplot(cells[3], projection="3d")
         ax3.quiver(pts[:, 0], pts[:, 1], pts[:, 2], vec[:, 0], vec[:, 1], vec[:, 2],
                    colors=colours, arrow_length_ratio=0.2)
         ax3.scatter(pts[:, 0], pts[:, 1], pts[:, 2], s=6, c=colours)
@@ -126,8 +131,9 @@ def draw_distortion(fig: Canvas, analysis: Analysis,
     handles = [Line2D([], [], marker="o", ls="", color=colour[p],
                       label=f"pose {p} (B{pose_deg[p][0]:g} C{pose_deg[p][1]:g})")
                for p in poses]
-    fig.legend(handles=handles, loc="outside lower center", ncols=min(len(handles), 5),
-               title="arrow and dot colour = pose (B, C in °)", title_fontsize=7)
+    fig.legend(handles=handles, loc="lower center", ncols=min(len(handles), 5),
+               title="arrow and dot colour = pose (B, C in °)", title_fontsize=7,
+               borderaxespad=0.2)
     fig.suptitle(f"Volumetric distortion per pose (setup errors removed): arrows ×{mag:.0f}, "
                  f"largest {emax:.1f} µm")
     return True
@@ -207,6 +213,34 @@ def draw_links(fig: Canvas, analysis: Analysis, tol: Tolerances | None) -> bool:
     return True
 
 
+def _fixed_margins(fig: Canvas, grid: tuple[int, int], top_in: float, bottom_in: float,
+                   wspace: float, hspace: float, left_in: float = 0.6,
+                   right_in: float = 0.1) -> GridSpec:
+    """A grid with its margins fixed in inches, the layout engine off (see ``_fixed_grid``)."""
+    w_in, h_in = (fig.get_size_inches() if isinstance(fig, Figure)
+                  else fig.figure.get_size_inches())
+    if isinstance(fig, Figure):
+        fig.set_layout_engine("none")
+    return fig.add_gridspec(*grid, left=left_in / w_in, right=1 - right_in / w_in,
+                            top=1 - top_in / h_in, bottom=bottom_in / h_in, wspace=wspace,
+                            hspace=hspace)
+
+
+def _fixed_grid(fig: Canvas, nrows: int) -> dict[str, float]:
+    """The trend's panel grid in fixed margins (inches → figure fractions), its layout engine
+    switched off: constrained layout over ~20 panels costs as much as drawing them twice over
+    (issue 23: the report in ≤ 2 s). Room for the title on top, a two-line panel title per
+    row, the date ticks and the legend at the bottom."""
+    w_in, h_in = (fig.get_size_inches() if isinstance(fig, Figure)
+                  else fig.figure.get_size_inches())
+    if isinstance(fig, Figure):
+        fig.set_layout_engine("none")
+    top_in, bottom_in, gap_in = 0.62, 0.62, 0.5  # title; ticks + legend; between rows
+    axes_in = max((h_in - top_in - bottom_in - gap_in * (nrows - 1)) / nrows, 0.3)
+    return {"left": 0.6 / w_in, "right": 1 - 0.08 / w_in, "top": 1 - top_in / h_in,
+            "bottom": bottom_in / h_in, "wspace": 0.42, "hspace": gap_in / axes_in}
+
+
 def draw_trend(fig: Canvas, trend: Sequence[TrendPoint], tol: Tolerances | None,
                ncols: int = 3) -> bool:
     """One panel per link error (and the largest volumetric distortion), each on its own unit
@@ -220,7 +254,8 @@ def draw_trend(fig: Canvas, trend: Sequence[TrendPoint], tol: Tolerances | None,
     x = np.arange(len(trend))
     dots = [VERDICT_COLOURS.get(t.verdict, "grey") for t in trend]
     nrows = math.ceil(len(series) / ncols)
-    axes = fig.subplots(nrows, ncols, sharex=True, squeeze=False).ravel()
+    axes = fig.subplots(nrows, ncols, sharex=True, squeeze=False,
+                        gridspec_kw=_fixed_grid(fig, nrows)).ravel()
     for ax, s in zip(axes, series, strict=False):
         ys = np.array([np.nan if v is None else v for v in s["values"]], float)
         us = np.array([0.0 if v is None else 2 * v for v in s["std"]], float)
@@ -243,7 +278,7 @@ def draw_trend(fig: Canvas, trend: Sequence[TrendPoint], tol: Tolerances | None,
         _plain(ax)
     for ax in axes[len(series):]:
         ax.set_visible(False)
-    step = max(1, len(trend) // 6)
+    step = math.ceil(len(trend) / 6)  # at most 6 date labels: more overlap at 7.2 in
     ticks = x[::step]
     for ax in axes[-ncols:]:
         ax.set_xticks(ticks, [time.strftime("%m-%d\n%H:%M", time.localtime(trend[i].started_at))
@@ -252,7 +287,7 @@ def draw_trend(fig: Canvas, trend: Sequence[TrendPoint], tol: Tolerances | None,
                for v, c in VERDICT_COLOURS.items()]
     handles += [Line2D([], [], **WARN_STYLE, label="warn limit"),
                 Line2D([], [], **FAIL_STYLE, label="fail limit")]
-    fig.legend(handles=handles, loc="outside lower center", ncols=6)
+    fig.legend(handles=handles, loc="lower center", ncols=6, borderaxespad=0.2)
     fig.suptitle(f"Trend, last {len(trend)} runs — dot colour: verdict; bars: ± 2u; "
                  "top right: last value, Δ since the run before")
     return True
