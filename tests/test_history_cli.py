@@ -105,6 +105,8 @@ def test_bad_row_at_the_end_imports_nothing_then_the_corrected_file_imports(
     assert journal_runs(tmp_path) == [("synth", "DONE"), ("hits", 140)]
     assert (tmp_path / "reports" / "synth.html").is_file()
     assert (tmp_path / "reports" / "synth.json").is_file()
+    for name in ("synth.json", "synth.pdf", "synth.html"):  # every file written is named
+        assert (tmp_path / "reports" / name).is_file() and name in out
 
 
 def test_failed_analysis_journals_nothing_so_the_complete_file_imports(tmp_path, capsys, rows):

@@ -110,6 +110,12 @@ class Dialect:
     def __init__(self) -> None:
         self._template = _env().get_template(f"{self.name}/program.j2")
 
+    @property
+    def label(self) -> str:
+        """The dialect as the user named it (``--dialect``, daemon.yaml): what the program's
+        header and the command's summary say; ``name`` is the template family."""
+        return self.name
+
     # ---------------------------------------------------------------- capture
     def slot_address(self, seq: int, field: int | str) -> str:
         """Variable holding ``field`` (index or name in RESULT_FIELDS) of touch ``seq``'s slot."""
@@ -222,9 +228,9 @@ class Dialect:
             if not isinstance(name, str) or not SAFE_NAME.fullmatch(name):  # a bypass
                 raise ProgramError(f"{what} name {name!r} is not a safe name: not allowed in a "
                                    "program")
-        info = [f"PLAN {plan.name}", f"MACHINE {program.machine.name}",
-                f"ARTEFACT {program.artefact.name}", f"TOUCHES {len(program.touches)}",
-                f"TARGETS {program.targets.source}",
+        info = [f"DIALECT {self.label}", f"PLAN {plan.name}",
+                f"MACHINE {program.machine.name}", f"ARTEFACT {program.artefact.name}",
+                f"TOUCHES {len(program.touches)}", f"TARGETS {program.targets.source}",
                 f"STANDOFF {program.standoff_mm:g} OVERTRAVEL {program.overtravel_mm:g}",
                 f"STYLUS DIAMETER {plan.stylus_diameter_mm:g}",
                 f"CYCLE TIME {cycle_time.summary().replace('(', '').replace(')', '')}"]

@@ -27,6 +27,10 @@ class Fanuc(Dialect):
         super().__init__()
         self.haas = haas
 
+    @property
+    def label(self) -> str:
+        return "haas" if self.haas else self.name
+
     def check_ball_id(self, ball: str) -> None:
         if not re.fullmatch(r"[A-Z0-9]{1,12}", ball):
             raise ProgramError(f"ball id {ball!r}: the fanuc dialect needs [A-Z0-9]{{1,12}} "

@@ -259,4 +259,5 @@ def cmd_analyze(args: argparse.Namespace) -> int:
                 encoding="utf-8")
         except OSError as e:
             raise _user_error(f"--json {args.json}: cannot write: {e.strerror}") from None
+        print(f"wrote {args.json}")
     return 0

@@ -30,18 +30,22 @@ def run(args: argparse.Namespace) -> int:
     except ProgramError as e:
         raise UserError(f"cannot generate the program: {e}") from None
     gen_s = time.perf_counter() - t0
+    written = []
     if args.output:
         try:
             args.output.write_text(g.text, encoding="ascii")
+            written.append(args.output)
             for name, body in g.aux_files.items():
-                contained_path(args.output.parent, name).write_text(body, encoding="ascii")
+                aux = contained_path(args.output.parent, name)
+                aux.write_text(body, encoding="ascii")
+                written.append(aux)
         except OSError as e:
             raise UserError(f"{args.output}: cannot write: {e.strerror}") from None
     else:
         sys.stdout.write(g.text)
     out = sys.stderr if not args.output else sys.stdout
     report = g.safety
-    print(f"{g.dialect.name}: {len(g.touches)} touches, {len(plan.poses)} poses × "
+    print(f"{g.dialect.label}: {len(g.touches)} touches, {len(plan.poses)} poses × "
           f"{len(artefact.balls)} balls × {plan.repeats} repeat(s)"
           f"{' + first pose again (drift check)' if plan.drift_check else ''}, targets "
           f"{g.program.targets.source}"
@@ -49,4 +53,6 @@ def run(args: argparse.Namespace) -> int:
           f"non-probing move passes {report.min_slack_mm:.3f} mm beyond the required "
           f"standoff/clearance of a ball, rod or keep-out it does not probe; generated in "
           f"{gen_s:.2f} s", file=out)
+    for path in written:  # every file the command wrote, by the path it was given
+        print(f"wrote {path}", file=out)
     return 0

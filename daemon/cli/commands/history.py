@@ -114,7 +114,8 @@ def _import(cfg: DaemonConfig, store: Store, args: argparse.Namespace) -> int:
     except OSError as e:
         raise UserError(f"run {run_id} imported ({j.summary}), but its report cannot be "
                         f"written in {cfg.reports_dir}: {e.strerror or e}") from None
-    print(f"{j.summary}\nreport: {html}")
+    # every file written, the HTML last on its own "report:" line (scripts read it from there)
+    print(f"{j.summary}\nwrote {json_path}\nwrote {report.pdf_path(html)}\nreport: {html}")
     return 0
 
 

@@ -199,7 +199,7 @@ def _print(r: Outcome, dialect: object, sigma: object) -> None:
     plan, ref, old, new = r.plan, r.reference, r.old, r.new
     two = getattr(dialect, "two_speed", False) and plan.feeds.fast_probe_mm_min
     print(f"{new.program.machine.name} x {new.program.artefact.name}, dialect "
-          f"{getattr(dialect, 'name', '')} ({'two-speed' if two else 'one-speed'} touch); "
+          f"{getattr(dialect, 'label', '')} ({'two-speed' if two else 'one-speed'} touch); "
           f"predicted with centre repeatability {'/'.join(f'{s:g}' for s in sigma)} µm "
           "(x/y/z)")
     w = max(len(ref.name), len(plan.name), 12)
