@@ -36,6 +36,8 @@ async def test_verify_exit_codes(tmp_path, capsys, faults, tol, code, word):
     if code < 2:
         report = out.strip().split("report: ")[1]
         assert Path(report).is_file()
+        for written in (Path(report).with_suffix(".pdf"), Path(report).with_suffix(".json")):
+            assert written.is_file() and str(written) in out  # every file written is named
 
 
 def test_verify_unknown_machine(tmp_path, capsys):

@@ -13,6 +13,7 @@ import logging
 import signal
 import sys
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 from rich.console import Console
@@ -137,6 +138,8 @@ def _verdict_exit(run_id: str, st: dict[str, Any], strict: bool, console: Consol
         console.print(f"  - {r}")
     if v.get("pdf"):
         print(f"for filing (PDF, A4): {v['pdf']}")
+    if v.get("report"):  # the report's JSON is written beside its HTML (report.write_report)
+        print(f"numbers (JSON): {Path(v['report']).with_suffix('.json')}")
     print(f"report: {v.get('report')}")  # the last line: scripts read the path from it
     if v["status"] == "ERROR":
         return 2
