@@ -22,14 +22,15 @@ import numpy as np
 from scipy.optimize import minimize_scalar
 
 from identification.effects import Effect, make_effect
-from identification.gap.attribute import Candidate
+from identification.gap.attribute import Candidate, effect_params
 from identification.gap.linear import Problem, columns, fit, held_out, projected
 from identification.kinematics import Machine
 
 TAU_BOUNDS_H = (5.0 / 60.0, 1.0)  # 5 to 60 min, the warm-up of a machining centre
 _GRID = 7
 CHI2_1_95 = 3.84  # one parameter's worth of whitened squares (τ)
-_REGISTRY: dict[Effect, tuple[float, float | None]] = {}  # profiled warm-up → (τ h, u τ h)
+# profiled warm-up → (τ h, u τ h, amplitude entry with τ's share in its u, or None)
+_REGISTRY: dict[Effect, tuple[float, float | None, dict | None]] = {}
 
 
 def warmup_effect(machine: Machine, axis: str, tau_h: float) -> Effect:
@@ -104,26 +105,46 @@ def _profiled(machine: Machine, axis: str, problem: Problem, base: np.ndarray,
     cand = cache[best][1]
     assert cand is not None
     tau = math.exp(best)
-    u = None
+    u, amp = None, None
     if 0 < i < _GRID - 1:  # curvature of the whitened RSS in log τ: Δχ² = 1 ↔ 1 σ
         h = 0.05
         curv = (at(best + h) - 2 * cache[best][0] + at(best - h)) / h**2
         if curv > 0:
             u = tau * math.sqrt(2.0 / curv)
+            # the amplitude moves with τ along the profile: its u at fixed τ widened by
+            # dA/d(ln τ) · u(ln τ) (first-order propagation, GUM 5.1.2)
+            a0, a_hi, a_lo = (_amplitude(problem, cache[x][1]) for x in (best, best + h,
+                                                                         best - h))
+            slope = (a_hi["value"] - a_lo["value"]) / (2 * h)
+            amp = dict(a0, std=math.hypot(a0["std"], slope * u / tau))
     if len(_REGISTRY) > 4096:  # a long-lived process diagnosing many logs
         _REGISTRY.clear()
-    _REGISTRY[cand.effect] = (tau, u)
+    _REGISTRY[cand.effect] = (tau, u, amp)
     return cand
 
 
+def _amplitude(problem: Problem, cand: Candidate | None) -> dict:
+    """{value, std, unit} of the warm-up's amplitude fitted with the twin at the candidate's τ."""
+    assert cand is not None
+    full = fit(problem, columns(problem, [cand.cols]))
+    n = problem.base.shape[2]
+    r = cand.cols.shape[2]
+    params = effect_params(cand.effect, cand.basis, full.beta[n:n + r],
+                           full.cov[n:n + r, n:n + r])
+    return next(iter(params.values()))
+
+
 def tau_param(effect: Effect) -> dict[str, dict]:
-    """The profiled τ of a warm-up candidate as a report parameter (h), else nothing."""
+    """The profiled τ of a warm-up candidate as a report parameter (h) and its amplitude with
+    τ's share in its u (it replaces the fit's own at fixed τ), else nothing."""
     if effect not in _REGISTRY:
         return {}
-    tau, u = _REGISTRY[effect]
-    return {f"drift_{effect.axis}_tau": {"value": round(tau, 5),
-                                         "std": None if u is None else round(u, 5),
-                                         "unit": "h"}}
+    tau, u, amp = _REGISTRY[effect]
+    out = {f"drift_{effect.axis}_tau": {"value": round(tau, 5),
+                                        "std": None if u is None else round(u, 5), "unit": "h"}}
+    if amp is not None:  # the amplitude's u with τ's share (merged over the fit's own)
+        out = {f"drift_{effect.axis}_amplitude": amp} | out
+    return out
 
 
 def model_of(effect: Effect) -> dict[str, str]:
