@@ -151,7 +151,11 @@ def draw_cluster(fig: Canvas, analysis: Analysis) -> bool:
     ang = [math.hypot(*c.angular_urad) for c in cl]  # type: ignore[misc]
     loc = [max((math.hypot(*v) for v in c.local_um.values()), default=0.0)  # type: ignore[misc]
            for c in cl]
-    top, bottom = fig.subplots(2, 1, sharex=True, height_ratios=[3, 2])
+    gs = _fixed_margins(fig, (2, 1), top_in=0.4, bottom_in=0.75, wspace=0.0, hspace=0.12,
+                        right_in=1.75, height_ratios=[3, 2])  # legends right of the bars
+    top = fig.add_subplot(gs[0])
+    bottom = fig.add_subplot(gs[1], sharex=top)
+    top.tick_params(labelbottom=False)
     w = 0.38
     top.bar(x - w / 2, lin, w, label="linear relocalisation |D|", color="#1565c0")
     top.bar(x + w / 2, loc, w, label="local distortion, largest", color="#ef6c00")
@@ -185,8 +189,9 @@ def draw_links(fig: Canvas, analysis: Analysis, tol: Tolerances | None) -> bool:
         return False
     groups = [(u, [n for n in sorted(links) if links[n].unit == u]) for u in ("urad", "um")]
     groups = [(u, names) for u, names in groups if names]
-    axes = fig.subplots(1, len(groups), squeeze=False,
-                        width_ratios=[max(len(n), 2) for _, n in groups])[0]
+    gs = _fixed_margins(fig, (1, len(groups)), top_in=0.55, bottom_in=0.55, wspace=0.25,
+                        hspace=0.0, width_ratios=[max(len(n), 2) for _, n in groups])
+    axes = [fig.add_subplot(gs[0, k]) for k in range(len(groups))]
     for ax, (unit, names) in zip(axes, groups, strict=True):
         x = np.arange(len(names))
         ax.errorbar(x, [links[n].value for n in names],
@@ -208,14 +213,14 @@ def draw_links(fig: Canvas, analysis: Analysis, tol: Tolerances | None) -> bool:
     fig.legend(handles=[Line2D([], [], marker="o", color="#0d47a1", label="estimate ± 2u"),
                         Line2D([], [], **WARN_STYLE, label="warn limit"),
                         Line2D([], [], **FAIL_STYLE, label="fail limit")],
-               loc="outside lower center", ncols=3)
+               loc="lower center", ncols=3, borderaxespad=0.2)
     fig.suptitle("Identified link errors (ISO 230-1)")
     return True
 
 
 def _fixed_margins(fig: Canvas, grid: tuple[int, int], top_in: float, bottom_in: float,
                    wspace: float, hspace: float, left_in: float = 0.6,
-                   right_in: float = 0.1) -> GridSpec:
+                   right_in: float = 0.1, **ratios: Any) -> GridSpec:
     """A grid with its margins fixed in inches, the layout engine off (see ``_fixed_grid``)."""
     w_in, h_in = (fig.get_size_inches() if isinstance(fig, Figure)
                   else fig.figure.get_size_inches())
@@ -223,7 +228,7 @@ def _fixed_margins(fig: Canvas, grid: tuple[int, int], top_in: float, bottom_in:
         fig.set_layout_engine("none")
     return fig.add_gridspec(*grid, left=left_in / w_in, right=1 - right_in / w_in,
                             top=1 - top_in / h_in, bottom=bottom_in / h_in, wspace=wspace,
-                            hspace=hspace)
+                            hspace=hspace, **ratios)
 
 
 def _fixed_grid(fig: Canvas, nrows: int) -> dict[str, float]:
