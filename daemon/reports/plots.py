@@ -44,7 +44,9 @@ def png(draw: Callable[..., bool], height_in: float, *args: Any) -> bytes | None
     with matplotlib.rc_context({"font.size": 8, "axes.titlesize": 9, "figure.titlesize": 10,
                                 "legend.fontsize": 7, "xtick.labelsize": 7,
                                 "ytick.labelsize": 7}):
-        fig = Figure(figsize=(WIDTH_IN, height_in), layout="constrained")
+        # no layout engine: every plot sets its own margins, and a figure with an engine
+        # (even a switched-off one) is drawn twice by savefig
+        fig = Figure(figsize=(WIDTH_IN, height_in))
         if not draw(fig, *args):
             return None
         FigureCanvasAgg(fig)
@@ -224,7 +226,7 @@ def _fixed_margins(fig: Canvas, grid: tuple[int, int], top_in: float, bottom_in:
     """A grid with its margins fixed in inches, the layout engine off (see ``_fixed_grid``)."""
     w_in, h_in = (fig.get_size_inches() if isinstance(fig, Figure)
                   else fig.figure.get_size_inches())
-    if isinstance(fig, Figure):
+    if isinstance(fig, Figure) and fig.get_layout_engine() is not None:
         fig.set_layout_engine("none")
     return fig.add_gridspec(*grid, left=left_in / w_in, right=1 - right_in / w_in,
                             top=1 - top_in / h_in, bottom=bottom_in / h_in, wspace=wspace,
@@ -238,7 +240,7 @@ def _fixed_grid(fig: Canvas, nrows: int) -> dict[str, float]:
     row, the date ticks and the legend at the bottom."""
     w_in, h_in = (fig.get_size_inches() if isinstance(fig, Figure)
                   else fig.figure.get_size_inches())
-    if isinstance(fig, Figure):
+    if isinstance(fig, Figure) and fig.get_layout_engine() is not None:
         fig.set_layout_engine("none")
     top_in, bottom_in, gap_in = 0.62, 0.62, 0.5  # title; ticks + legend; between rows
     axes_in = max((h_in - top_in - bottom_in - gap_in * (nrows - 1)) / nrows, 0.3)
