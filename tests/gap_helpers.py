@@ -21,6 +21,7 @@ CONFIG = Path(__file__).resolve().parents[1] / "config"
 MACHINE = CONFIG / "machines/thesis_wcbxfzyt.yaml"
 ARTEFACT = CONFIG / "artefacts/thesis_4ball.yaml"
 STYLUS_R = 3.0
+EXAMPLE = CONFIG / "examples/thesis_annexB_14poses.csv"  # the shipped example log
 THESIS_LINKS = {"EB0Z": -12e-6, "EA0Y": -24e-6, "EC0Y": 17e-6, "EC0B": -23e-6, "EA0B": 2e-6,
                 "EA0C": -19e-6, "EB0C": 26e-6, "EX0C": -0.106}  # thesis Table B.2
 
@@ -61,3 +62,8 @@ def gap_json(log: Path, rows: Iterable[LogRow], out: Path) -> dict:
     assert main(["gap", "--log", str(log), "--machine", str(MACHINE), "--artefact",
                  str(ARTEFACT), "--json", str(out)]) == 0
     return json.loads(out.read_text())
+
+
+def scatter_components(rep: dict) -> dict[str, dict]:
+    """The visit-scatter components of a gap report, by name ("index C", "centre x" …)."""
+    return {c["component"]: c for c in rep["scatter"]["components"]}

@@ -12,18 +12,18 @@ from identification.effects import make_effect
 from identification.gap import Options, diagnose
 from identification.gap.simlog import simulate
 from identification.visit_scatter import arrange, estimate_components
-from tests.gap_helpers import CONFIG, MACHINE, STYLUS_R, annex_b_setup, gap_truth
-
-EXAMPLE = CONFIG / "examples/thesis_annexB_14poses.csv"
+from tests.gap_helpers import (
+    MACHINE,
+    STYLUS_R,
+    annex_b_setup,
+    gap_truth,
+    scatter_components,
+)
 
 
 @pytest.fixture(scope="module")
 def setup():
     return annex_b_setup()
-
-
-def _components(rep: dict) -> dict[str, dict]:
-    return {c["component"]: c for c in rep["scatter"]["components"]}
 
 
 def test_reml_tells_a_rigid_visit_shift_from_independent_scatter():
@@ -56,7 +56,7 @@ def test_null_run_with_index_scatter_is_none_and_states_the_repeatability(setup)
     data = simulate(machine, artefact, poses, truth, STYLUS_R, 0.5, seed=102)
     rep = diagnose(machine, artefact, data, STYLUS_R)
     assert rep["verdict"]["effect"] == "none", rep["verdict"]["message"]
-    comp = _components(rep)
+    comp = scatter_components(rep)
     for axis in "BC":
         c = comp[f"index {axis}"]
         assert c["detected"] and 7.0 < c["sigma"] < 13.0 and c["unit"] == "urad"
@@ -75,7 +75,7 @@ def test_stated_rotary_repeatability_is_used_as_given(setup):
     data = simulate(machine, artefact, poses, truth, STYLUS_R, 0.5, seed=102)
     rep = diagnose(machine, artefact, data, STYLUS_R,
                    options=Options(rotary_repeatability_urad={"C": 9.0}))
-    c = _components(rep)["index C"]
+    c = scatter_components(rep)["index C"]
     assert c["stated"] and c["sigma"] == 9.0
     assert "C indexing repeatability ≈ 9 µrad (1σ, stated in the machine file)" \
         in rep["scatter"]["message"]
@@ -95,7 +95,7 @@ def test_second_harmonic_of_c_under_scatter_is_named(setup):
     # estimated again with it as a fixed effect it is back near the truth
     assert rep["scatter"]["source"].endswith(")") and "rotary_positioning:C" in \
         rep["scatter"]["source"]
-    assert _components(rep)["index C"]["sigma"] < 14.0
+    assert scatter_components(rep)["index C"]["sigma"] < 14.0
 
 
 def test_machine_file_rotary_repeatability_key_is_checked():

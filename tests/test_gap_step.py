@@ -16,18 +16,21 @@ from identification.effects import make_effect
 from identification.gap import diagnose
 from identification.gap.selfcheck import run_case
 from identification.gap.simlog import simulate
-from tests.gap_helpers import ARTEFACT, CONFIG, MACHINE, STYLUS_R, annex_b_setup, gap_truth
-
-EXAMPLE = CONFIG / "examples/thesis_annexB_14poses.csv"
+from tests.gap_helpers import (
+    ARTEFACT,
+    CONFIG,
+    EXAMPLE,
+    MACHINE,
+    STYLUS_R,
+    annex_b_setup,
+    gap_truth,
+    scatter_components,
+)
 
 
 @pytest.fixture(scope="module")
 def setup():
     return annex_b_setup()
-
-
-def _components(rep: dict) -> dict[str, dict]:
-    return {c["component"]: c for c in rep["scatter"]["components"]}
 
 
 def test_knocked_ball_is_named_with_ball_moment_and_size(setup):
@@ -55,7 +58,7 @@ def test_simulator_indexes_with_scatter_and_knocks_a_ball(tmp_path):
     from simulators.errors_schema import errors_from_dict
     from simulators.offline import run_sync
     from simulators.truth import TruthModel
-    from tests.gap_helpers import gap_json
+    from tests.gap_helpers import gap_json, scatter_components
 
     m, mf = load_machine(MACHINE)
     a = load_artefact(ARTEFACT)
@@ -73,7 +76,7 @@ def test_simulator_indexes_with_scatter_and_knocks_a_ball(tmp_path):
     assert abs(step["size_um"] - np.linalg.norm([6, -5, 3])) < 1.0
     assert step["t_after_s"] < 100 < step["t_before_s"]
     assert rep["verdict"]["with_step_modelled"]["effect"] == "none"
-    assert all(_components(rep)[f"index {x}"]["detected"] for x in "BC")
+    assert all(scatter_components(rep)[f"index {x}"]["detected"] for x in "BC")
     for bad, key in (({"indexing": {"repeatability_urad": {"A": 3}}}, "repeatability_urad.A"),
                      ({"ball_steps": [{"ball": "B9", "t_s": 1, "vector_um": [1, 0, 0]}]},
                       "ball_steps[0].ball")):
@@ -90,7 +93,7 @@ def test_example_log_verdict_is_true_of_how_it_was_made(tmp_path, capsys):
                  str(ARTEFACT), "--json", str(out)]) == 0
     rep = json.loads(out.read_text())
     assert rep["verdict"]["effect"] == "none"
-    comp = _components(rep)
+    comp = scatter_components(rep)
     assert comp["centre x"]["detected"] and comp["centre y"]["detected"]
     assert 0.4 < comp["centre x"]["sigma"] < 0.85 and 0.7 < comp["centre y"]["sigma"] < 1.3
     assert not comp["index B"]["detected"] and not comp["index C"]["detected"]
