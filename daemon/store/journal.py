@@ -87,6 +87,7 @@ class RunRow:
     summary: str
     imported: bool
     hits: int = 0
+    started_by: str = ""  # the HMI account that started it ('' : controller, panel, script)
 
     @property
     def final(self) -> bool:
@@ -177,15 +178,15 @@ class Store:
     def new_run(self, run_id: str, machine: str, trigger: str, *, plan: str = "",
                 artefact: str = "", dialect: str = "", touch_total: int = 0,
                 state: str = "PREPARE", imported: bool = False,
-                started_at: float | None = None) -> None:
+                started_at: float | None = None, started_by: str = "") -> None:
         validate_run_id(run_id)
         if self.db.execute("SELECT 1 FROM runs WHERE id=?", (run_id,)).fetchone():
             raise StoreError(f"run {run_id} is already in the journal {self.path}")
         self.db.execute(
             "INSERT INTO runs (id, machine, trigger, state, plan, artefact, dialect, touch_total,"
-            " started_at, imported) VALUES (?,?,?,?,?,?,?,?,?,?)",
+            " started_at, imported, started_by) VALUES (?,?,?,?,?,?,?,?,?,?,?)",
             (run_id, machine, trigger, state, plan, artefact, dialect, touch_total,
-             time.time() if started_at is None else started_at, int(imported)))
+             time.time() if started_at is None else started_at, int(imported), started_by))
 
     def set_state(self, run_id: str, state: str, reason: str | None = None, *,
                   touch_total: int | None = None) -> None:
@@ -226,8 +227,10 @@ class Store:
     def _runs(self, where: str, args: tuple) -> list[RunRow]:
         q = ("SELECT r.id, r.machine, r.trigger, r.state, r.reason, r.plan, r.artefact, r.dialect,"
              " r.touch_total, r.started_at, r.ended_at, r.verdict, r.summary, r.imported,"
-             " (SELECT COUNT(*) FROM hits h WHERE h.run_id = r.id) FROM runs r " + where)
-        return [RunRow(*row[:13], bool(row[13]), row[14]) for row in self.db.execute(q, args)]
+             " (SELECT COUNT(*) FROM hits h WHERE h.run_id = r.id), r.started_by FROM runs r "
+             + where)
+        return [RunRow(*row[:13], bool(row[13]), row[14], row[15])
+                for row in self.db.execute(q, args)]
 
     # --------------------------------------------------------------------------------- hits
     def journal_hit(self, run_id: str, hit: ProbeHit) -> None:

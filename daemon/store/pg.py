@@ -25,7 +25,7 @@ from daemon.store.url import redact
 _MIGRATION_LOCK = 0x72756D6261  # "rumba": pg_advisory_xact_lock key for migrations
 
 RUN_COLS = ("id", "machine", "trigger", "state", "reason", "plan", "artefact", "dialect",
-            "touch_total", "started_at", "ended_at", "verdict", "summary", "imported")
+            "touch_total", "started_at", "ended_at", "verdict", "summary", "imported", "started_by")
 HIT_COLS = ("run_id", "seq", "t_s", "repeat", "pose", "b_cmd_deg", "c_cmd_deg", "ball", "touch",
             "dir_x", "dir_y", "dir_z", "axes", "triggered", "feed_mm_min", "raw", "extra",
             "received_at")

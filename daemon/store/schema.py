@@ -84,6 +84,18 @@ MIGRATIONS: list[list[str]] = [
             run_id TEXT PRIMARY KEY REFERENCES runs(id), model_key TEXT NOT NULL,
             estimate TEXT NOT NULL, plan TEXT NOT NULL, created_at REAL NOT NULL)""",
     ],
+    [  # 7: people, not a shared token (issue 23 item 5): the person who started a run (an
+        # HMI account; '' for the controller, the CAN panel or a script) and every start,
+        # abort, compensation confirm and rollback a person asked for on the HMI, with the
+        # person's name and role (daemon/store/actions.py)
+        "ALTER TABLE runs ADD COLUMN started_by TEXT NOT NULL DEFAULT ''",
+        """CREATE TABLE hmi_actions (
+            id INTEGER PRIMARY KEY AUTOINCREMENT, at REAL NOT NULL, machine TEXT NOT NULL,
+            run_id TEXT NOT NULL DEFAULT '', action TEXT NOT NULL, person TEXT NOT NULL,
+            role TEXT NOT NULL, via TEXT NOT NULL, outcome TEXT NOT NULL,
+            detail TEXT NOT NULL DEFAULT '')""",
+        "CREATE INDEX hmi_actions_machine ON hmi_actions(machine, id)",
+    ],
 ]
 SCHEMA_VERSION = len(MIGRATIONS)
 
