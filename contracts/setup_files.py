@@ -86,9 +86,28 @@ class AxisFile(StrictModel):
         return self
 
 
+class ToolBody(StrictModel):
+    """A keep-out that moves with the tool (issue 24): a cylinder around the spindle axis from
+    ``from_mm`` to ``to_mm`` above the stylus tip (probe body, spindle nose, head housing); the
+    safety check keeps it clear of balls, rods, table and boxes on every move and index."""
+
+    name: str
+    from_mm: float = Field(gt=0, le=MAX_RESULT_MM)
+    to_mm: float = Field(gt=0, le=MAX_RESULT_MM)
+    radius_mm: float = Field(gt=0, le=MAX_RESULT_MM)
+    _n = field_validator("name")(safe_name)
+
+    @model_validator(mode="after")
+    def _span(self) -> ToolBody:
+        if self.to_mm <= self.from_mm:
+            raise ValueError(f"to_mm {self.to_mm} must be beyond from_mm {self.from_mm}")
+        return self
+
+
 class ToolFile(StrictModel):
     tip_mm: Vec3 = [0.0, 0.0, 0.0]
     spindle_axis: Direction = [0.0, 0.0, 1.0]
+    bodies: list[ToolBody] = []
 
 
 class DynamicsFile(StrictModel):
@@ -117,6 +136,24 @@ class KeepOutBox(StrictModel):
     _n = field_validator("name")(safe_name)
 
 
+class ProbeRecordFile(StrictModel):
+    """The touch probe in the spindle, for the audit block of every report (issue 23): its
+    last qualification (the stylus' effective diameter measured on a reference sphere); the
+    diameter the computation uses is the plan's ``stylus_diameter_mm``."""
+
+    model: Record | None = None
+    serial: Record | None = None
+    qualified_on: datetime.date
+    qualified_by: Record | None = None
+
+    @field_validator("qualified_on")
+    @classmethod
+    def _not_future(cls, v: datetime.date) -> datetime.date:
+        if v > datetime.date.today():
+            raise ValueError(f"qualified_on {v} is in the future")
+        return v
+
+
 class MachineFile(StrictModel):
     name: str
     topology: str
@@ -129,6 +166,7 @@ class MachineFile(StrictModel):
     # [0, -1, 0] on a horizontal machine; None: identification.effects.default_gravity guesses.
     gravity: Direction | None = None
     serial: Record | None = None  # the machine's serial number, printed on every report (audit)
+    probe: ProbeRecordFile | None = None  # the spindle probe's qualification (report, issue 23)
     # What the control keeps of its kinematic model and where (compensation write-back, issue 13)
     controller_kinematics: ControllerKinematicsFile | None = None
     # Rotary positioning repeatability (µrad 1σ per indexation, by rotary axis letter), e.g.
@@ -203,8 +241,9 @@ def machine_from_dict(data: Any, path: Path | str = "<machine>") -> tuple[Machin
     axes = {}
     for letter, a in mf.axes.items():
         travel = a.travel_mm if a.type == "linear" else a.travel_deg
-        axes[letter] = Axis(letter, a.type, tuple(a.direction), tuple(a.point_mm or (0, 0, 0)),
-                            tuple(travel), a.sign)
+        d = np.asarray(a.direction, float)  # an inclined axis may be given to a few digits
+        axes[letter] = Axis(letter, a.type, tuple(float(x) for x in d / np.linalg.norm(d)),
+                            tuple(a.point_mm or (0, 0, 0)), tuple(travel), a.sign)
     try:
         m = Machine(mf.name, mf.topology, axes, tuple(mf.tool.tip_mm),
                     tuple(np.asarray(mf.tool.spindle_axis) / np.linalg.norm(mf.tool.spindle_axis)))

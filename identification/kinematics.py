@@ -23,6 +23,9 @@ _AXIS_INDEX = {"X": 0, "Y": 1, "Z": 2, "A": 0, "B": 1, "C": 2}
 _TRANS_NAMES = "XYZ"
 _ROT_NAMES = "ABC"
 
+# A nutating axis is commonly 45° (up to 50° on some heads) from its letter's direction.
+MAX_INCLINATION_DEG = 60.0
+
 MotionErrorFn = Callable[[np.ndarray], np.ndarray]
 """Maps joint values (N,) in model units to (N, 6) errors [EX, EY, EZ, EA, EB, EC] (mm, rad)."""
 
@@ -33,7 +36,8 @@ class TopologyError(ValueError):
 
 @dataclass(frozen=True)
 class Axis:
-    """One machine axis. ``direction`` is a unit principal vector in the parent frame."""
+    """One machine axis. ``direction`` is a unit vector in the parent frame: principal on
+    orthogonal machines, inclined on a nutating axis (issue 24: e.g. B tilted 45° about X)."""
 
     letter: str
     kind: str  # "linear" | "rotary"
@@ -44,8 +48,16 @@ class Axis:
 
     @property
     def index(self) -> int:
-        """Index (0, 1, 2) of the principal direction the axis runs along."""
+        """Index (0, 1, 2) of the principal direction the axis is named after (B → y): its own
+        letter decides, so a 45° nutating B is still the y-type axis of ISO 230-1."""
+        if self.letter in _AXIS_INDEX:
+            return _AXIS_INDEX[self.letter]
         return int(np.argmax(np.abs(self.direction)))
+
+    @property
+    def inclined(self) -> bool:
+        """Does the nominal direction leave the principal direction of the letter?"""
+        return axis_frame(self) is not None
 
     def location_error_names(self) -> list[str]:
         """ISO 230-1 location errors of this axis: two tilts (+ two offsets if rotary)."""
@@ -86,14 +98,16 @@ class Machine:
             if ax.kind != want:
                 raise TopologyError(f"axis {letter} must be {want}, got {ax.kind}")
             d = np.asarray(ax.direction, float)
-            if not np.isclose(np.linalg.norm(d), 1.0) or np.count_nonzero(np.abs(d) > 1e-12) != 1:
+            if not np.isclose(np.linalg.norm(d), 1.0):
+                raise TopologyError(f"axis {letter}: direction {ax.direction} must be a unit vector")
+            # An inclined axis keeps the ISO 230-1 names of its letter in its own frame (see
+            # ``axis_frame``): it must stay within MAX_INCLINATION_DEG of the letter's direction.
+            cos_min = np.cos(np.deg2rad(MAX_INCLINATION_DEG))
+            if abs(d[_AXIS_INDEX[letter]]) < cos_min - 1e-12:
                 raise TopologyError(
-                    f"axis {letter}: direction {ax.direction} must be a principal unit vector"
-                )
-            if ax.index != _AXIS_INDEX[letter]:
-                raise TopologyError(
-                    f"axis {letter}: direction {ax.direction} does not run along "
-                    f"{'xyz'[_AXIS_INDEX[letter]]} (ISO 230-1 names assume it does)"
+                    f"axis {letter}: direction {ax.direction} is more than "
+                    f"{MAX_INCLINATION_DEG:g}° from {'xyz'[_AXIS_INDEX[letter]]} (ISO 230-1 names "
+                    f"of {letter} refer to its {'xyz'[_AXIS_INDEX[letter]]} direction)"
                 )
         known = self.location_error_names()
         for name, value in self.held_links:
@@ -193,6 +207,35 @@ def _location_slots(axis: Axis) -> tuple[tuple[str, int], ...]:
     return tuple(out)
 
 
+@functools.lru_cache(maxsize=64)
+def axis_frame(axis: Axis) -> np.ndarray | None:
+    """Rotation R0 (3, 3) taking the letter's signed principal direction onto an inclined axis'
+    direction (the smallest such rotation, Rodrigues), or None for a principal axis.
+
+    An inclined axis' location errors are defined in the frame R0 carries the parent frame to
+    (issue 24): EX0B of a B tilted 45° about X is the offset of the B line along R0·x, EA0B its
+    tilt about R0·x, and so on — the ISO 230-1 names of a principal B in the axis' own frame.
+    On a principal axis R0 is the identity and nothing changes."""
+    d = np.asarray(axis.direction, float)
+    d = d / np.linalg.norm(d)
+    e = np.zeros(3)
+    e[axis.index] = 1.0 if d[axis.index] >= 0 else -1.0
+    v = np.cross(e, d)
+    s, c = float(np.linalg.norm(v)), float(e @ d)
+    if s < 1e-12:
+        return None
+    k = v / s
+    kx = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
+    return np.eye(3) + s * kx + (1.0 - c) * (kx @ kx)
+
+
+def _conjugate(r0: np.ndarray, m: np.ndarray) -> np.ndarray:
+    """R0 · m · R0ᵀ for batched HTMs m (N, 4, 4): a motion given in the axis frame."""
+    h = np.eye(4)
+    h[:3, :3] = r0
+    return h @ m @ h.T
+
+
 def _location_htm(axis: Axis, links: Mapping[str, float], n: int) -> np.ndarray | None:
     e = np.zeros(6)
     for name, slot in _location_slots(axis):
@@ -201,7 +244,9 @@ def _location_htm(axis: Axis, links: Mapping[str, float], n: int) -> np.ndarray 
             e[slot] = v
     if not e.any():
         return None
-    return _small_htm(np.broadcast_to(e, (n, 6)))
+    m = _small_htm(np.broadcast_to(e, (n, 6)))
+    r0 = axis_frame(axis)
+    return m if r0 is None else _conjugate(r0, m)
 
 
 def axis_htm(
@@ -213,11 +258,14 @@ def axis_htm(
     """Parent→axis HTM for joint values ``q`` (N,) in model units (mm or rad)."""
     n = q.shape[0]
     d = np.asarray(axis.direction, float)
+    r0 = axis_frame(axis)
     if axis.kind == "linear":
         m = _trans(q[:, None] * d[None, :])
     else:
-        sgn = float(d[axis.index])  # a rotary axis along -z turns by -q about +z
+        sgn = 1.0 if d[axis.index] >= 0 else -1.0  # an axis along -z turns by -q about +z
         m = _rot(axis.index, sgn * q)
+        if r0 is not None:  # about the inclined direction: R0 · Rot(q) · R0ᵀ
+            m = _conjugate(r0, m)
         p = np.asarray(axis.point_mm, float)
         if p.any():
             m = _trans(np.broadcast_to(p, (n, 3))) @ m @ _trans(np.broadcast_to(-p, (n, 3)))
@@ -226,7 +274,8 @@ def axis_htm(
         if loc is not None:
             m = loc @ m
     if motion_error is not None:
-        m = m @ _small_htm(np.asarray(motion_error(q), float).reshape(n, 6))
+        em = _small_htm(np.asarray(motion_error(q), float).reshape(n, 6))
+        m = m @ (em if r0 is None else _conjugate(r0, em))
     return m
 
 
