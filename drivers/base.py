@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 from contracts.jobs import ProgramJob, Verdict
 from contracts.messages import ProbeHit
+from contracts.temperatures import TemperatureChannel
 
 
 @dataclass(frozen=True)
@@ -79,3 +80,14 @@ class CncLink(abc.ABC):
     @abc.abstractmethod
     async def close(self) -> None:
         """Close the connection; safe to call twice."""
+
+    async def read_temperature(self, channel: TemperatureChannel) -> float:
+        """The channel's value (°C) read from the controller now; ``LinkError`` saying why not.
+        A link whose program prints its temperatures (DNC) returns them in ``printed``."""
+        raise LinkError(f"the {type(self).__name__} cannot read temperature channel "
+                        f"{channel.name} ({channel.address})")
+
+    def printed_temperatures(self) -> list[tuple[str, float, int | None]]:
+        """Temperatures the program printed since the last call (name, °C, pose), e.g. a DNC
+        program's macro-variable lines; polled links print none."""
+        return []

@@ -237,6 +237,12 @@ class VirtualController(MachineSide):
             raise KeyError(f"this control keeps no {'/'.join(families)} kinematic values")
         return self.kinematics
 
+    def sensor_temperatures(self) -> dict[str, float]:
+        """The structure sensors now (°C per axis with a warm-up; {} without): the same thermal
+        state as the TCP drift of the touches (simulators/thermal.py)."""
+        th = self.truth.thermal
+        return {} if th is None else th.temperatures_c(self.machine_time_s)
+
     def feed_hold(self) -> None:
         if self.state == "running":
             self._resume.clear()

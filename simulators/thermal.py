@@ -19,6 +19,22 @@ import numpy as np
 
 AXES = "XYZ"
 
+# Where the simulator's front-ends expose the sensor readings (issue 22 item 3; a daemon.yaml
+# temperature channel points there): OPC UA Double nodes (°C), Modbus registers (int16, 0.01 °C
+# per count, holding and input) on the controller, a transmitter's input registers (int16,
+# 0.1 °C per count, simulators/frontends/transmitter.py), LinuxCNC HAL pins (float, °C).
+OPCUA_PATH = "/Channel/Temperatures/{axis}"
+MODBUS_ADDRESS = {"X": 180, "Y": 181, "Z": 182}
+MODBUS_SCALE_C = 0.01
+TRANSMITTER_ADDRESS = {"X": 0, "Y": 1, "Z": 2}
+TRANSMITTER_SCALE_C = 0.1
+HAL_PIN = "rumba-probe.temp-{axis}"  # lower-case axis letter
+
+
+def counts(value_c: float, scale_c: float) -> int:
+    """A reading as an int16 register (two's complement) at ``scale_c`` °C per count."""
+    return round(value_c / scale_c) & 0xFFFF
+
 
 @dataclass(frozen=True)
 class AxisWarmup:

@@ -121,6 +121,7 @@ def judge(analysis: Analysis, tol: Tolerances, last_good: Analysis | None = None
             checks += _grade("volumetric distortion max", vmax, None, "µm",
                              tol.volumetric_max_um, k, ref)
     checks += thermal_checks(analysis, tol)
+    checks += temperature_checks(analysis, tol)
     checks += _health(analysis, tol)
     missing = sorted(set(tol.links) - set(analysis.links))
     status = max((c.status for c in checks), key=STATUS_ORDER.__getitem__, default="PASS")
@@ -165,6 +166,38 @@ def thermal_checks(analysis: Analysis, tol: Tolerances) -> list[Check]:
                           f"{tau}); the link errors are estimated with the drift, let the "
                           "machine warm up before trusting a trend" if bad
                           else f"thermal limit {lim:g} µm ({th.shape}{tau})")))
+    return out
+
+
+def temperature_checks(analysis: Analysis, tol: Tolerances) -> list[Check]:
+    """Each limited temperature channel (issue 22 item 3): outside its range or changed more
+    than ``change_c`` over the run → WARN "machine not in its thermal condition" with the
+    numbers; a limited channel not read at all → WARN (the limit could not be checked). Never
+    FAIL: a temperature says the check ran warm, not that the geometry is out."""
+    temps = analysis.temperatures or {}
+    out = []
+    for name, (lo, hi, change) in sorted(tol.temperatures.items()):
+        t = temps.get(name)
+        if t is None or t.get("min_c") is None:
+            why = "; ".join(t.get("errors", [])) if t else "no reading in this run"
+            out.append(Check(f"temperature {name}", float("nan"), None, "°C", "WARN",
+                             f"temperature limit not checked: channel not read ({why})"))
+            continue
+        if lo is not None or hi is not None:
+            worst = t["min_c"] if lo is not None and t["min_c"] < lo else t["max_c"]
+            bad = (lo is not None and t["min_c"] < lo) or (hi is not None and t["max_c"] > hi)
+            rng = f"[{'' if lo is None else f'{lo:g}'}, {'' if hi is None else f'{hi:g}'}] °C"
+            out.append(Check(f"temperature {name}", float(worst), None, "°C",
+                             "WARN" if bad else "PASS",
+                             f"machine outside its temperature range {rng} during the check"
+                             if bad else f"range {rng}"))
+        if change is not None and t.get("change_c") is not None:
+            bad = abs(t["change_c"]) > change
+            out.append(Check(f"temperature change {name} over the run", float(t["change_c"]),
+                             None, "°C", "WARN" if bad else "PASS",
+                             (f"machine not thermally stable: |change| > {change:g} °C "
+                              f"({t['start_c']:.1f} → {t['end_c']:.1f} °C)") if bad
+                             else f"change limit {change:g} °C"))
     return out
 
 

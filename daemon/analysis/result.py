@@ -267,6 +267,8 @@ class Analysis(_Json):
     scale_um_per_m: Scale | None = field(default=None, metadata=_OMIT)
     validation: Validation | None = field(default=None, metadata=_OMIT)
     thermal: Thermal | None = field(default=None, metadata=_OMIT)  # issue 22
+    # temperature channels of a journaled run (contracts.temperatures.summarise), per name
+    temperatures: dict[str, Any] | None = field(default=None, metadata=_OMIT)
     # centres input (``rumba analyze --centres``): the file's frame, instrument and source
     measured_by: str | None = field(default=None, metadata=_OMIT)
     instrument_frame: InstrumentFrame | None = field(default=None, metadata=_OMIT)

@@ -21,7 +21,9 @@ from contracts.setup_files import (
     load_plan,
     safe_name,
 )
+from contracts.temperatures import TemperatureChannel, check_address
 from contracts.yaml_files import ConfigError, StrictModel
+from daemon.hosts import is_loopback
 from daemon.machines.tolerances import Limit, Tolerances
 from identification.kinematics import Machine
 from identification.model import Artefact
@@ -46,6 +48,21 @@ class LimitFile(StrictModel):
         return Limit(self.warn, self.fail, self.drift_warn, self.drift_fail)
 
 
+class TemperatureLimitFile(StrictModel):
+    """A temperature channel's limits (°C): outside [min_c, max_c] or a change over the run
+    beyond change_c turns the verdict to WARN with the reason (never FAIL by itself)."""
+
+    min_c: float | None = Field(None, ge=-50, le=150)
+    max_c: float | None = Field(None, ge=-50, le=150)
+    change_c: float | None = Field(None, gt=0, le=100)
+
+    @model_validator(mode="after")
+    def _order(self) -> TemperatureLimitFile:
+        if self.min_c is not None and self.max_c is not None and self.min_c >= self.max_c:
+            raise ValueError(f"min_c {self.min_c} must be below max_c {self.max_c}")
+        return self
+
+
 class TolerancesFile(StrictModel):
     links: dict[str, LimitFile] = {}
     default_translation_um: LimitFile | None = None
@@ -57,6 +74,7 @@ class TolerancesFile(StrictModel):
     coverage_k: float = Field(2.0, ge=0, le=5)
     run_drift_um: float | None = Field(None, gt=0)
     thermal_drift_um: float | None = Field(None, gt=0)  # fitted TCP drift over a run (issue 22)
+    temperatures: dict[str, TemperatureLimitFile] = {}  # per channel name (issue 22 item 3)
 
     def to_tolerances(self) -> Tolerances:
         conv = (lambda x: x.to_limit() if x is not None else None)  # noqa: E731
@@ -64,7 +82,9 @@ class TolerancesFile(StrictModel):
                           conv(self.default_translation_um), conv(self.default_rotation_urad),
                           conv(self.volumetric_max_um), self.residual_rms_um,
                           self.sphere_radius_spread_um, self.sphere_form_um, self.coverage_k,
-                          self.run_drift_um, self.thermal_drift_um)
+                          self.run_drift_um, self.thermal_drift_um,
+                          {k: (v.min_c, v.max_c, v.change_c)
+                           for k, v in self.temperatures.items()})
 
 
 class TriggersFile(StrictModel):
@@ -93,7 +113,18 @@ class MachineEntry(StrictModel):
     # the program, its whole pose, up to this many rounds; 0: never (the verdict is ERROR).
     reprobe_max: int = Field(2, ge=0, le=5)
     operator: Record | None = None  # who answers for this machine's checks (on every report)
+    # temperature channels read at the start, every pose and the end (contracts/temperatures.py)
+    temperatures: list[TemperatureChannel] = Field(default_factory=list, max_length=16)
     _n = field_validator("name")(safe_name)
+
+    @field_validator("temperatures")
+    @classmethod
+    def _unique_channels(cls, v: list[TemperatureChannel]) -> list[TemperatureChannel]:
+        names = [c.name for c in v]
+        dup = sorted({n for n in names if names.count(n) > 1})
+        if dup:
+            raise ValueError(f"duplicated temperature channel names {dup}")
+        return v
 
     @field_validator("link")
     @classmethod
@@ -123,6 +154,7 @@ class MachineSetup:
     reprobe_max: int = 2  # re-probe rounds of faulty ball visits (daemon/run/reprobe.py)
     operator: str | None = None  # for the report's audit fields
     artefact_file: Any = None  # contracts.setup_files.ArtefactFile (its calibration record)
+    temperatures: tuple[TemperatureChannel, ...] = ()  # channels read during a run (issue 22)
 
 
 
@@ -194,10 +226,34 @@ def load_machines(entries: list[MachineEntry], base: Path, where: str
         if bad:
             raise ConfigError(f"{key}.validate_poses: {bad} outside the plan's "
                               f"{len(plan.poses)} poses (0-based)")
+        _check_temperatures(m, key)
         machines[m.name] = MachineSetup(
             m.name, machine, mfile, artefact, plan, m.dialect,
             validate_link(m.link, f"{key}.link", base), m.triggers,
             m.tolerances.to_tolerances(), m.touch_timeout_s, tuple(held),
             m.rerun_interrupted, m.program_targets, m.reprobe_max, operator=m.operator,
-            artefact_file=afile)
+            artefact_file=afile, temperatures=tuple(m.temperatures))
     return machines
+
+
+def _check_temperatures(m: MachineEntry, key: str) -> None:
+    """Each channel's address suits the run's link (a HAL pin on LinuxCNC, a macro variable of
+    the dialect on a DNC line …); a limit names a configured channel."""
+    family = "fanuc" if m.dialect == "haas" else m.dialect
+    for i, ch in enumerate(m.temperatures):
+        try:
+            check_address(ch, str(m.link.get("transport")), family)
+        except ValueError as e:
+            raise ConfigError(f"{key}.temperatures.{i}.address: {e}") from None
+    host = str(m.link.get("host", "127.0.0.1"))
+    if (m.temperatures and m.link.get("transport") == "linuxcnc"
+            and m.link.get("mode", "remote") == "remote" and not is_loopback(host)
+            and any(ch.source == "controller" for ch in m.temperatures)):
+        raise ConfigError(f"{key}.temperatures: HAL pins are read with halcmd on the LinuxCNC "
+                          f"PC; the link reaches {host}: run rumba there (mode: local or "
+                          "linuxcncrsh on 127.0.0.1) or use a transmitter")
+    names = {ch.name for ch in m.temperatures}
+    for name in m.tolerances.temperatures:
+        if name not in names:
+            raise ConfigError(f"{key}.tolerances.temperatures.{name}: no temperature channel "
+                              f"of that name (configured: {', '.join(sorted(names)) or 'none'})")

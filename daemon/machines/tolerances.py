@@ -31,3 +31,6 @@ class Tolerances:
     # Machine state (exceeded → WARN, the geometry still stated): the TCP drift over the run
     # fitted with the links (identification.drift), per controller axis, µm
     thermal_drift_um: float | None = None
+    # per temperature channel (min_c, max_c, change_c), None where not limited: outside → WARN
+    temperatures: dict[str, tuple[float | None, float | None, float | None]] = field(
+        default_factory=dict)

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import dataclasses
 import logging
 import time
 from collections.abc import Callable
@@ -28,6 +29,7 @@ from daemon.reports.compensation import verification_of
 from daemon.run import lease as run_lease
 from daemon.run import reprobe
 from daemon.run.phases import ControllerSilent, Refused, RunFailed, RunStatus, State, new_run_id
+from daemon.run.temperatures import TemperatureRecorder
 from daemon.store.journal import Store
 from daemon.store.machine_lock import Lease
 from drivers.base import CncLink, ControllerAborted, ControllerAlarm, LinkError
@@ -59,6 +61,8 @@ class Session(RunStatus):
         self._abort_state = State.ABORTED  # INTERRUPTED when the daemon stops under the run
         self.lease: Lease | None = None  # the machine lock of the current run (run/lease.py)
         self._controller_dirty = False  # a stop could not reach the controller
+        self.temps = TemperatureRecorder(setup.name, setup.temperatures, link, store,
+                                         str(getattr(setup.link, "transport", "")))
 
     async def reconnect(self) -> None:
         """Close the link and connect it again with backoff; the status shows it up again."""
@@ -129,8 +133,12 @@ class Session(RunStatus):
                 await self._clear_leftover()
             reference = self.store.last_good(self.setup.name, before=run_id)
             prepared = await self._prepare_program(run_id, reference)
+            self.temps.reset()
+            await self.temps.sample(run_id, "start", None, time.time() - self.started_at)
             hits = await self._capture(prepared)
             hits = await self._reprobe(run_id, hits, reference)
+            self.temps.take_printed(run_id, time.time() - self.started_at)
+            await self.temps.sample(run_id, "end", None, time.time() - self.started_at)
             self._raise_if_stopped()
             analysis = await self._identify(run_id, hits, reference)
             self._raise_if_stopped()
@@ -259,6 +267,10 @@ class Session(RunStatus):
         """IDENTIFY: hits → centres → estimate → analyses, recorded with the reference run."""
         self._enter(State.IDENTIFY)
         analysis = await asyncio.to_thread(self._analyse, self.setup, hits, run_id, reference)
+        temps = self.temps.summary(run_id)  # the readings journaled during the run (issue 22)
+        if temps is not None:
+            analysis = dataclasses.replace(analysis, data=dataclasses.replace(
+                analysis.data, temperatures=temps))
         self.store.save_centres(run_id, analysis.centre_rows)
         self.store.save_analysis(run_id, analysis.data)
         return analysis
@@ -312,6 +324,7 @@ class Session(RunStatus):
                 hit = own if remap is None else remap(own)
                 self.store.journal_hit(run_id, hit)  # raw data first, always
                 self._raise_if_stopped()  # journaled, then stopped: nothing lost
+                await self.temps.on_hit(run_id, hit.pose, hit.t_s)
                 hits.append(hit)
                 self.done = done0 + len(hits)
                 if self.first_hit_at is None:

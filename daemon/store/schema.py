@@ -96,6 +96,14 @@ MIGRATIONS: list[list[str]] = [
             detail TEXT NOT NULL DEFAULT '')""",
         "CREATE INDEX hmi_actions_machine ON hmi_actions(machine, id)",
     ],
+    [  # 8: temperature channels (issue 22 item 3): every reading of a run (start, each pose,
+        # end) committed on arrival like a hit; value_c NULL with the error when unreadable
+        """CREATE TABLE temperatures (
+            run_id TEXT NOT NULL REFERENCES runs(id), seq INTEGER NOT NULL,
+            channel TEXT NOT NULL, at TEXT NOT NULL, pose INTEGER, t_s REAL NOT NULL,
+            value_c REAL, error TEXT NOT NULL DEFAULT '', received_at REAL NOT NULL,
+            PRIMARY KEY (run_id, seq))""",
+    ],
 ]
 SCHEMA_VERSION = len(MIGRATIONS)
 

@@ -65,6 +65,7 @@ from pathlib import Path
 
 from contracts.jobs import ProgramJob, Verdict
 from contracts.messages import ProbeHit
+from contracts.temperatures import TemperatureChannel
 from drivers.base import (
     Capabilities,
     CncLink,
@@ -361,6 +362,17 @@ class LinuxCncLink(CncLink):
                 raise LinkError(f"LinuxCNC abort refused: {rep}")
         finally:
             await ch.close()
+
+    async def read_temperature(self, channel: TemperatureChannel) -> float:
+        """A HAL pin (``halcmd getp``, as the kinematics pins are read: drivers/linuxcnc/
+        halkins.py), on the PC LinuxCNC runs on: local mode or linuxcncrsh on loopback."""
+        from drivers.linuxcnc import halkins
+
+        try:
+            value = await asyncio.to_thread(halkins.getp, channel.address)
+        except halkins.HalError as e:
+            raise LinkError(f"LinuxCNC temperature {channel.name}: {e}") from None
+        return value * channel.scale + channel.offset_c
 
     async def close(self) -> None:
         await self._drop()

@@ -37,6 +37,7 @@ from contracts.modbus_map import (
     text_words,
     words_text,
 )
+from contracts.temperatures import TemperatureChannel
 from drivers.base import (
     Capabilities,
     CncLink,
@@ -46,6 +47,7 @@ from drivers.base import (
     StartRequest,
 )
 from drivers.hits import HitFactory, MalformedResult
+from drivers.modbus.registers import read_channel
 from drivers.modbus.schema import ModbusLinkConfig
 from drivers.retry import Refused, with_backoff
 
@@ -202,6 +204,12 @@ class ModbusLink(CncLink):
         if rr.isError():
             raise LinkError(f"modbus read {address}+{count}: exception response {rr}")
         return list(rr.registers)
+
+    async def read_temperature(self, channel: TemperatureChannel) -> float:
+        if self._client is None:
+            raise LinkError("modbus link not connected")
+        return await read_channel(self._client, channel, self.cfg.device_id,
+                                  f"modbus {self.cfg.host}:{self.cfg.port}")
 
     async def _write(self, address: int, values: list[int]) -> None:
         if self._client is None:

@@ -24,6 +24,7 @@ from asyncua.crypto.security_policies import SecurityPolicyBasic256Sha256
 from contracts.jobs import ProgramJob, Verdict
 from contracts.messages import ProbeHit
 from contracts.opcua_space import BY_ROLE, RESULT_ROLES, RING_SLOTS, STATES, node_id
+from contracts.temperatures import TemperatureChannel
 from drivers.base import (
     Capabilities,
     CncLink,
@@ -187,6 +188,7 @@ class OpcUaLink(CncLink):
             ns = 0
             if len(self.cfg.nodes) < len(NODE_ROLES):
                 ns = await client.get_namespace_index(self.cfg.namespace_uri)
+            self._ns = ns  # temperature channels given as a /path live in this namespace
             self._n = {r: client.get_node(node_id(r, ns, self.cfg.nodes)) for r in NODE_ROLES}
             for role in NODE_ROLES:  # every node must exist: a typo fails now, not mid-run
                 if BY_ROLE[role].kind != "Method":
@@ -225,6 +227,22 @@ class OpcUaLink(CncLink):
                 if time.monotonic() > deadline:
                     raise
                 await asyncio.sleep(0.2)
+
+    async def read_temperature(self, channel: TemperatureChannel) -> float:
+        if self._client is None:
+            raise LinkError(f"opcua {self.cfg.url}: not connected")
+        nid = (channel.address if channel.address.startswith("ns=")
+               else f"ns={getattr(self, '_ns', 0)};s={channel.address}")
+        try:
+            value = await self._client.get_node(nid).read_value()
+        except (TimeoutError, ua.UaError, OSError, ConnectionError, ValueError) as e:
+            raise LinkError(f"opcua {self.cfg.url}: temperature {channel.name} ({nid}): "
+                            f"{e or type(e).__name__}") from None
+        if (not isinstance(value, int | float) or isinstance(value, bool)
+                or not math.isfinite(value)):
+            raise LinkError(f"opcua {self.cfg.url}: temperature {channel.name} ({nid}) = "
+                            f"{value!r}, not a finite number")
+        return float(value) * channel.scale + channel.offset_c
 
     async def _write(self, role: str, value: float) -> None:
         try:

@@ -33,6 +33,7 @@ from contracts.modbus_map import (
     u32_words,
     words_text,
 )
+from simulators import thermal
 from simulators.frontends import cancel_tasks
 from simulators.frontends.lookahead import Lookahead
 
@@ -212,6 +213,9 @@ class ModbusFrontend:
             ms = min(int(float(getattr(self.ctrl, "machine_time_s", 0.0)) * 1000), 0xFFFFFFFF)
             mt = addr("MACHINE_TIME_MS")
             self.regs[mt:mt + 2] = u32_words(ms)
+            for axis, value in self.ctrl.sensor_temperatures().items():  # issue 22 item 3
+                self.regs[thermal.MODBUS_ADDRESS[axis]] = thermal.counts(value,
+                                                                         thermal.MODBUS_SCALE_C)
             for name, attr in HANDSHAKE.items():
                 reg = self.regs[addr(name)]
                 mine = int(getattr(self.ctrl, attr))

@@ -30,6 +30,7 @@ from asyncua.server.user_managers import UserManager
 
 from contracts.opcua_certs import ensure_certificate
 from contracts.opcua_space import BY_ROLE, NAMESPACE_URI, RESULT_ROLES, RING_SLOTS, STATES
+from simulators import thermal
 from simulators.frontends import cancel_tasks
 
 POLICIES = {
@@ -248,6 +249,17 @@ class OpcUaFrontend:
         await methods.add_method(ua.NodeId(BY_ROLE["abort"].path, ns),
                                  ua.QualifiedName("Abort", ns), uamethod(self._abort), [], [])
         self._mirror = {r: 0.0 for r in HANDSHAKE}
+        self._sensors = {}
+        for axis in thermal.AXES:  # structure temperatures (issue 22 item 3), read-only
+            path = thermal.OPCUA_PATH.format(axis=axis)
+            parent = await folder(path.rpartition("/")[0])
+            self._sensors[axis] = await parent.add_variable(
+                ua.NodeId(path, ns), ua.QualifiedName(axis, ns),
+                ua.Variant(20.0, ua.VariantType.Double))
+
+    def _sensor(self, axis: str) -> Any:
+        """The Double node of an axis' structure sensor (thermal.OPCUA_PATH), made at start."""
+        return self._sensors[axis]
 
     async def _write(self, role: str, value: Any) -> None:
         base = BY_ROLE[role].kind.rstrip("[]")
@@ -365,6 +377,11 @@ class OpcUaFrontend:
             if t != self._mirror.get("machine_time"):
                 await self._write("machine_time", t)
                 self._mirror["machine_time"] = t
+            for axis, value in self.ctrl.sensor_temperatures().items():  # issue 22 item 3
+                if self._mirror.get(f"temp_{axis}") != value:
+                    await self._sensor(axis).write_value(
+                        ua.DataValue(ua.Variant(value, ua.VariantType.Double)))
+                    self._mirror[f"temp_{axis}"] = value
             await asyncio.sleep(0.02)
 
 

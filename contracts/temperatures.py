@@ -1,0 +1,164 @@
+"""Temperature channels of a machine (issue 22 item 3): their config schema, a reading and the
+run's summary (start, end, change, per pose) that the report, the HMI, the fleet and the judge use.
+
+A channel is read from the controller over the run's own link (an OPC UA node, a Modbus register,
+a LinuxCNC HAL pin, a macro variable the DNC program prints) or from a Modbus TCP/RTU temperature
+transmitter of its own. Values are °C; Modbus registers carry a stated scale and offset
+(°C = raw × scale + offset_c), e.g. a transmitter giving 0.1 °C per count: scale 0.1.
+"""
+
+from __future__ import annotations
+
+import re
+import struct
+from dataclasses import dataclass
+from typing import Any, Literal
+
+from pydantic import Field, field_validator, model_validator
+
+from contracts.setup_types import safe_name
+from contracts.yaml_files import StrictModel
+
+MODBUS_ADDRESS = re.compile(r"^(input|holding):([0-9]{1,5})$")
+OPCUA_ADDRESS = re.compile(r"^(ns=[0-9]{1,5};[isgb]=[^\x00-\x1f]{1,200}|/[^\x00-\x1f]{1,200})$")
+HAL_PIN = re.compile(r"^[A-Za-z0-9_.-]{1,100}$")
+# the macro variable a DNC program prints, per dialect family: Fanuc/Haas and LinuxCNC
+# #-variables (LinuxCNC also named parameters #<_name>), Siemens R parameters, Heidenhain Q
+MACRO_VARIABLE = {"fanuc": re.compile(r"^#[0-9]{1,5}$"),
+                  "linuxcnc": re.compile(r"^#([0-9]{1,5}|<_?[A-Za-z][A-Za-z0-9_]{0,30}>)$"),
+                  "siemens": re.compile(r"^R[0-9]{1,4}$"),
+                  "heidenhain": re.compile(r"^Q[0-9]{1,4}$")}
+WORDS = {"int16": 1, "uint16": 1, "int32": 2, "float32": 2}
+
+
+class TransmitterFile(StrictModel):
+    """A Modbus temperature transmitter of its own: TCP (``host``) or RTU (``serial`` port)."""
+
+    host: str | None = None
+    port: int = Field(502, ge=1, le=65535)
+    serial: str | None = Field(None, pattern=r"^/[^\x00-\x1f ]{1,200}$")
+    baudrate: int = Field(9600, ge=1200, le=115200)
+    parity: Literal["N", "E", "O"] = "N"
+    device_id: int = Field(1, ge=0, le=247)
+    timeout_s: float = Field(1.0, gt=0, le=30)
+
+    @model_validator(mode="after")
+    def _one(self) -> TransmitterFile:
+        if (self.host is None) == (self.serial is None):
+            raise ValueError("give exactly one of 'host' (Modbus TCP) or 'serial' (Modbus RTU)")
+        return self
+
+    def describe(self) -> str:
+        return (f"modbus-tcp {self.host}:{self.port} unit {self.device_id}" if self.host
+                else f"modbus-rtu {self.serial} {self.baudrate} 8{self.parity}1 unit "
+                     f"{self.device_id}")
+
+
+class TemperatureChannel(StrictModel):
+    """One temperature channel (machines.N.temperatures in daemon.yaml)."""
+
+    name: str
+    unit: Literal["°C", "degC"] = "°C"
+    source: Literal["controller", "transmitter"] = "controller"
+    # OPC UA node id (ns=2;s=… or a /path in the link's namespace), Modbus input:N/holding:N,
+    # a HAL pin, or the macro variable the DNC program prints (#5021, R21, Q1600, #<_t_spindle>)
+    address: str = Field(min_length=1, max_length=200)
+    transmitter: TransmitterFile | None = None
+    format: Literal["int16", "uint16", "int32", "float32"] = "int16"  # Modbus registers
+    scale: float = 1.0  # Modbus: °C per count
+    offset_c: float = 0.0
+    _n = field_validator("name")(safe_name)
+
+    @model_validator(mode="after")
+    def _source(self) -> TemperatureChannel:
+        if (self.source == "transmitter") != (self.transmitter is not None):
+            raise ValueError("source: transmitter needs a 'transmitter' section (and only it)")
+        if self.source == "transmitter":
+            modbus_address(self.address)
+        if self.scale == 0:
+            raise ValueError("scale must not be 0")
+        return self
+
+    def describe(self, link: str) -> str:
+        """Where the value comes from, for the audit record."""
+        if self.transmitter is not None:
+            return f"{self.name}: {self.transmitter.describe()} {self.address}"
+        return f"{self.name}: {link} {self.address}"
+
+
+def modbus_address(address: str) -> tuple[str, int]:
+    """``input:30`` → ("input", 30); ValueError naming the expected form."""
+    m = MODBUS_ADDRESS.fullmatch(address)
+    if not m or int(m.group(2)) > 65535:
+        raise ValueError(f"address {address!r}: a Modbus register is input:N or holding:N "
+                         "(protocol address, 0-65535)")
+    return m.group(1), int(m.group(2))
+
+
+def check_address(ch: TemperatureChannel, transport: str, family: str) -> None:
+    """A controller channel's address must suit the run's transport (ValueError otherwise)."""
+    if ch.source == "transmitter":
+        return
+    if transport == "opcua":
+        ok, form = OPCUA_ADDRESS.fullmatch(ch.address), "an OPC UA node id (ns=2;s=…) or /path"
+    elif transport == "modbus":
+        modbus_address(ch.address)
+        return
+    elif transport == "linuxcnc":
+        ok, form = HAL_PIN.fullmatch(ch.address), "a HAL pin name"
+    elif transport == "serial":
+        pat = MACRO_VARIABLE.get(family)
+        ok = pat.fullmatch(ch.address) if pat else None
+        form = f"a {family} macro variable the program prints"
+    else:
+        raise ValueError(f"the {transport} link cannot read temperatures; use source: "
+                         "transmitter")
+    if not ok:
+        raise ValueError(f"address {ch.address!r} is not {form}")
+
+
+def decode_registers(regs: list[int], ch: TemperatureChannel) -> float:
+    """°C from the registers of a channel (high word first for 32-bit values)."""
+    raw: float
+    if ch.format == "uint16":
+        raw = regs[0]
+    elif ch.format == "int16":
+        raw = regs[0] - 0x10000 if regs[0] >= 0x8000 else regs[0]
+    else:
+        data = struct.pack(">HH", regs[0], regs[1])
+        raw = struct.unpack(">i" if ch.format == "int32" else ">f", data)[0]
+    return raw * ch.scale + ch.offset_c
+
+
+@dataclass(frozen=True)
+class TemperatureReading:
+    """One channel read at one instant of a run (``value_c`` None: not read, ``error`` why)."""
+
+    channel: str
+    at: Literal["start", "pose", "end"]
+    pose: int | None  # the plan pose being probed (at == "pose")
+    t_s: float  # since the run started
+    value_c: float | None
+    error: str = ""
+
+
+def summarise(readings: list[TemperatureReading], sources: dict[str, str]) -> dict[str, Any]:
+    """Per channel: start, end, change over the run, min, max, per-pose values, errors, source
+    (the analysis JSON's ``temperatures``; the report, HMI, fleet and judge read it)."""
+    out: dict[str, Any] = {}
+    for name, source in sources.items():
+        mine = [r for r in readings if r.channel == name]
+        ok = [r for r in mine if r.value_c is not None]
+        start = next((r.value_c for r in ok if r.at == "start"), ok[0].value_c if ok else None)
+        end = next((r.value_c for r in reversed(ok) if r.at == "end"),
+                   ok[-1].value_c if ok else None)
+        values = [float(r.value_c) for r in ok]  # type: ignore[arg-type]
+        out[name] = {
+            "source": source, "start_c": start, "end_c": end,
+            "change_c": (end - start) if start is not None and end is not None else None,
+            "min_c": min(values) if values else None, "max_c": max(values) if values else None,
+            "per_pose": [{"pose": r.pose, "t_s": round(r.t_s, 3), "value_c": r.value_c}
+                         for r in ok if r.at == "pose"],
+            "readings": len(mine), "unread": len(mine) - len(ok),
+            "errors": sorted({r.error for r in mine if r.error})[:5]}
+    return out

@@ -1,0 +1,171 @@
+"""Temperature channels end to end (issue 22 item 3): daemon.yaml → Service against the simulated
+CNC with a warm-up (simulators/thermal.py) behind its real front-end (an asyncua server, a pymodbus
+server) and a simulated Modbus TCP transmitter beside it; the readings at the start, at every pose
+and at the end are journaled, agree with the thermal state the touches drift with, reach the
+analysis JSON and the verdict (a change limit → WARN with the reason, never FAIL); a channel that
+cannot be read is journaled with the reason and the run goes on."""
+
+from __future__ import annotations
+
+import contextlib
+from pathlib import Path
+from typing import Any
+
+import pytest
+import pytest_asyncio
+import yaml
+
+from contracts.yaml_files import ConfigError
+from daemon.config import load_daemon_config
+from daemon.run.session import State
+from daemon.service.service import Service
+from daemon.store.temperatures import temperatures
+from simulators import thermal
+from simulators.controller import VirtualController
+from simulators.errors_schema import errors_from_dict
+from simulators.frontends.transmitter import TransmitterFrontend
+from simulators.truth import TruthModel
+from tests.daemon_helpers import CONFIG
+from tests.rig_helpers import ERRORS, start_rig
+from tests.test_e2e_transports import PLAN, RUN_TIMEOUT_S, wait_verdict_on_cnc
+
+WARMUP = {"axes": {"Z": {"amplitude_um": 6.0, "tau_s": 300.0, "rise_c": 8.0},
+                   "X": {"amplitude_um": 0.0, "tau_s": 600.0, "rise_c": 3.0}},
+          "start_state": 0.0, "ambient_c": 20.5}
+# the controller's own sensor of Z, per transport, where the simulator exposes it
+SPINDLE = {"opcua": {"address": thermal.OPCUA_PATH.format(axis="Z")},
+           "modbus": {"address": f"holding:{thermal.MODBUS_ADDRESS['Z']}",
+                      "scale": thermal.MODBUS_SCALE_C}}
+UNREADABLE = {"opcua": "/Channel/Temperatures/none", "modbus": "input:4000"}
+
+
+def warm_truth() -> TruthModel:
+    errors = yaml.safe_load(ERRORS.read_text())
+    errors["thermal"] = WARMUP
+    truth = TruthModel.from_files(CONFIG / "machines/thesis_wcbxfzyt.yaml",
+                                  CONFIG / "artefacts/thesis_4ball.yaml", ERRORS)
+    return TruthModel.build(truth.machine, truth.machine_file, truth.artefact,
+                            errors_from_dict(errors))
+
+
+def machine_entry(link: dict[str, Any], channels: list[dict[str, Any]],
+                  temp_limits: dict[str, Any]) -> dict[str, Any]:
+    return {"name": "mill1", "machine": str(CONFIG / "machines/thesis_wcbxfzyt.yaml"),
+            "artefact": str(CONFIG / "artefacts/thesis_4ball.yaml"),
+            "plan": str(CONFIG / f"plans/{PLAN}.yaml"), "dialect": "fanuc", "link": link,
+            "touch_timeout_s": 30, "temperatures": channels,
+            "tolerances": {"default_rotation_urad": {"warn": 40, "fail": 80},
+                           "default_translation_um": {"warn": 150, "fail": 300},
+                           "temperatures": temp_limits}}
+
+
+def write_config(tmp: Path, entry: dict[str, Any]) -> Path:
+    doc = {"store": {"path": str(tmp / "journal.sqlite")}, "reports_dir": str(tmp / "reports"),
+           "hmi": {"enabled": False}, "machines": [entry]}
+    path = tmp / "daemon.yaml"
+    path.write_text(yaml.safe_dump(doc, allow_unicode=True), encoding="utf-8")
+    return path
+
+
+@pytest_asyncio.fixture
+async def cnc(request):
+    """The warming CNC behind the transport's front-end and a transmitter beside it."""
+    ctrl = VirtualController(warm_truth())
+    rig = await start_rig(request.param, ctrl)
+    tx = TransmitterFrontend(ctrl)
+    port = await tx.start()
+    try:
+        yield rig, tx, port
+    finally:
+        with contextlib.suppress(Exception):
+            await tx.stop()
+        await rig.close()
+
+
+def sensor(axis: str, t_s: float) -> float:
+    w = WARMUP["axes"][axis]
+    return thermal.ThermalState({axis: thermal.AxisWarmup(w["amplitude_um"], w["tau_s"],
+                                                          w["rise_c"])},
+                                ambient_c=WARMUP["ambient_c"]).temperatures_c(t_s)[axis]
+
+
+@pytest.mark.asyncio
+@pytest.mark.parametrize("cnc", ["opcua", "modbus"], indirect=True)
+async def test_channels_read_at_start_every_pose_and_end_agree_with_the_warmup(cnc, tmp_path):
+    rig, tx, port = cnc
+    channels = [
+        {"name": "spindle", "source": "controller", **SPINDLE[rig.transport]},
+        {"name": "column", "source": "transmitter", "address": "input:0", "scale": 0.1,
+         "transmitter": {"host": "127.0.0.1", "port": port, "device_id": 1}},
+        {"name": "broken", "source": "controller", "address": UNREADABLE[rig.transport]},
+    ]
+    cfg = load_daemon_config(write_config(tmp_path, machine_entry(
+        rig.link, channels, {"spindle": {"change_c": 0.5, "min_c": 15, "max_c": 35}})))
+    service = Service(cfg)
+    await service.start()
+    try:
+        session = service.sessions["mill1"]
+        rig.ctrl.raise_start_request()
+        await wait_verdict_on_cnc(session, rig.ctrl, RUN_TIMEOUT_S)
+        run_id = session.run_id
+        readings = temperatures(service.store, run_id)
+        analysis = service.store.analysis(run_id)
+        verdict = service.store.verdict(run_id)
+    finally:
+        await service.stop()
+    assert session.state == State.IDLE, session.reason
+    t_end = rig.ctrl.machine_time_s  # the program's end: nothing ran after it on this link
+    plan_poses = sorted({p for p in range(7)})
+    for name in ("spindle", "column", "broken"):
+        mine = [r for r in readings if r.channel == name]
+        assert [r.at for r in mine] == ["start", *["pose"] * 7, "end"], (name, mine)
+        assert [r.pose for r in mine if r.at == "pose"] == plan_poses
+    ok = [r for r in readings if r.channel != "broken"]
+    assert all(r.value_c is not None and not r.error for r in ok), ok
+    broken = [r for r in readings if r.channel == "broken"]
+    assert all(r.value_c is None and "broken" in r.error for r in broken), broken
+    # the values come from the thermal state the touches drift with: cold at the start (machine
+    # time 0), warming monotonically, the live transmitter exactly the state at the end
+    spindle = [r.value_c for r in readings if r.channel == "spindle"]
+    column = [r.value_c for r in readings if r.channel == "column"]
+    assert spindle[0] == pytest.approx(sensor("Z", 0.0), abs=0.01)
+    assert column[0] == pytest.approx(sensor("X", 0.0), abs=0.05)
+    assert spindle == sorted(spindle) and column == sorted(column)
+    assert column[-1] == pytest.approx(round(sensor("X", t_end) / 0.1) * 0.1, abs=1e-9)
+    assert spindle[-1] <= sensor("Z", t_end) + 0.01
+    assert spindle[-1] - spindle[0] > 1.0  # 8 °C rise, τ 5 min over a program of minutes
+    # summary in the analysis JSON, the change limit turns the verdict to WARN with the reason
+    t = analysis.temperatures
+    assert t["spindle"]["change_c"] == pytest.approx(spindle[-1] - spindle[0])
+    assert t["spindle"]["source"].startswith(f"spindle: {rig.transport}")
+    assert t["column"]["source"].startswith("column: modbus-tcp 127.0.0.1")
+    assert t["broken"]["unread"] == 9 and t["broken"]["min_c"] is None
+    assert len(t["spindle"]["per_pose"]) == 7
+    assert verdict["status"] == "WARN", verdict
+    why = [r for r in verdict["reasons"] if "temperature change spindle" in r]
+    assert why and "machine not thermally stable: |change| > 0.5 °C" in why[0], verdict
+    assert not any("temperature spindle" in r and "range" in r for r in verdict["reasons"])
+    assert tx.reads >= 9
+
+
+@pytest.mark.parametrize(("channel", "limits", "message"), [
+    ({"name": "s", "address": "ns=2;s=/T", "colour": "red"}, {},
+     "machines.0.temperatures.0.colour"),
+    ({"name": "s", "address": "#5021"}, {}, "machines.0.temperatures.0.address: address "
+     "'#5021' is not an OPC UA node id"),
+    ({"name": "s", "source": "transmitter", "address": "input:1"}, {},
+     "needs a 'transmitter' section"),
+    ({"name": "s", "source": "transmitter", "address": "coil:1",
+      "transmitter": {"host": "127.0.0.1"}}, {}, "input:N or holding:N"),
+    ({"name": "s", "address": "/T"}, {"spindel": {"change_c": 1}},
+     "tolerances.temperatures.spindel: no temperature channel of that name"),
+    ({"name": "s", "address": "/T"}, {"s": {"min_c": 30, "max_c": 20}},
+     "min_c 30.0 must be below max_c 20.0"),
+    ({"name": "s x", "address": "/T"}, {}, "machines.0.temperatures.0.name"),
+])
+def test_bad_channel_config_is_one_line_naming_the_key(tmp_path, channel, limits, message):
+    link = {"transport": "opcua", "url": "opc.tcp://127.0.0.1:4840", "security": "none"}
+    path = write_config(tmp_path, machine_entry(link, [channel], limits))
+    with pytest.raises(ConfigError) as e:
+        load_daemon_config(path)
+    assert message in str(e.value) and "\n" not in str(e.value).strip(), str(e.value)
