@@ -49,6 +49,8 @@ def cmd_history(args: argparse.Namespace) -> int:
             return _export(cfg, store, args)
         if args.import_csv:
             return _import(cfg, store, args)
+        if getattr(args, "export_aqdef", None):
+            return _export_aqdef(cfg, store, args)
         _list(store, args.machine, args.limit)
         return 0
     finally:
@@ -65,6 +67,24 @@ def _export(cfg: DaemonConfig, store: Store, args: argparse.Namespace) -> int:
     except (StoreError, PipelineError, OSError) as e:
         raise UserError(str(e)) from None
     print(f"{args.csv}: {n} touches of run {args.export}")
+    return 0
+
+
+def _export_aqdef(cfg: DaemonConfig, store: Store, args: argparse.Namespace) -> int:
+    """One machine per file (one AQDEF part): --machine, or the only one configured."""
+    from daemon.reports.aqdef import write_aqdef
+
+    if args.machine is None and len(cfg.machines) != 1:
+        raise UserError(f"--export-aqdef: name the machine with --machine (configured: "
+                        f"{', '.join(cfg.machines)})")
+    setup = cfg.machines[args.machine or next(iter(cfg.machines))]
+    runs = store.trend(setup.name, limit=1_000_000)  # completed runs, oldest first
+    try:
+        n = write_aqdef(args.export_aqdef, setup.name, runs, setup.tolerances,
+                        operator=setup.operator, artefact=setup.artefact.name)
+    except OSError as e:
+        raise UserError(f"{args.export_aqdef}: cannot write: {e.strerror or e}") from None
+    print(f"wrote {args.export_aqdef}: {n} runs of {setup.name} (AQDEF)")
     return 0
 
 

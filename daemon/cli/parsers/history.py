@@ -19,6 +19,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     g = p.add_mutually_exclusive_group()
     g.add_argument("--export", metavar="RUN", help="export run RUN to --csv")
     g.add_argument("--import", dest="import_csv", metavar="CSV", help="import a probing log")
+    g.add_argument("--export-aqdef", metavar="FILE",
+                   help="write the machine's completed runs as an AQDEF (Q-DAS .dfq) SPC file")
     p.add_argument("--csv", metavar="OUT", help="output file for --export")
     p.add_argument("--no-analyse", action="store_true", help="--import: journal only")
     p.set_defaults(func=_run)

@@ -1,0 +1,146 @@
+"""SPC export (issue 25): a machine's runs as a Q-DAS ASCII transfer file (AQDEF, ``.dfq``).
+
+One part per machine (K1001 = machine name), one characteristic per identified ISO 230-1 link
+error plus the volumetric indicators, one value record per completed run. Written in the K-field
+form of the description and value parts (description part first, then the values), each line
+``Kxxxx[/i] value``, Windows-1252 text with CR LF line ends as the Q-DAS tools read it. Field by
+field in README "SPC export (AQDEF)".
+
+Text from configuration or the journal (machine, operator, run ids, descriptions) is sanitised:
+control characters (line breaks, the DFX separators 0x0F and 0x14) become spaces and characters
+outside Windows-1252 become '?', so no value can start a line of its own and pass for a K-field.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import re
+import tempfile
+import time
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+from daemon.analysis.judge import volumetric_max_um
+from daemon.analysis.result import Analysis
+from daemon.machines.tolerances import Limit, Tolerances
+from daemon.store.journal import TrendPoint
+
+AQDEF_VERSION = "Q-DAS ASCII transfer format (AQDEF), K-field form, field numbers of AQDEF V12"
+ENCODING = "cp1252"
+UNITS = {"um": "µm", "urad": "µrad"}
+DECIMALS = 3  # K2022: µm / µrad to the nanometre / nanoradian, below any probe's resolution
+VOLUMETRIC = ("VD_MAX", "VD_MAX_RESIDUAL")  # K2001 of the volumetric indicators (≤ 20 chars)
+MAX_TEXT = 80  # no description or name field of the format is longer than this
+
+_CTRL = re.compile(r"[\x00-\x1f\x7f-\x9f]")
+
+
+def text(value: object, limit: int = MAX_TEXT) -> str:
+    """One field's text: no control character (a line break would start a line of its own,
+    e.g. a forged ``K0001/1``), nothing the file's code page cannot hold, at most ``limit``."""
+    s = _CTRL.sub(" ", str(value)).strip()
+    s = s.encode(ENCODING, errors="replace").decode(ENCODING)
+    return s[:limit]
+
+
+@dataclass(frozen=True)
+class Characteristic:
+    key: str  # the link's ISO 230-1 name, or one of VOLUMETRIC
+    description: str
+    unit: str  # "um" | "urad"
+    limit: Limit | None
+
+
+def characteristics(runs: Sequence[TrendPoint], tol: Tolerances) -> list[Characteristic]:
+    """Every link identified in any of ``runs`` (sorted by name), then the volumetric
+    indicators; limits from the machine's tolerances (a link's own, else its unit's default)."""
+    units: dict[str, str] = {}
+    for r in runs:
+        for name, e in r.analysis.links.items():
+            units.setdefault(name, e.unit or ("urad" if name[1:2] in "ABC" else "um"))
+    out = []
+    for name in sorted(units):
+        u = units[name]
+        lim = tol.links.get(name) or (tol.default_rotation_urad if u == "urad"
+                                      else tol.default_translation_um)
+        kind = "orientation" if u == "urad" else "position"
+        out.append(Characteristic(name, f"{name}: ISO 230-1 location error ({kind})", u, lim))
+    out.append(Characteristic(VOLUMETRIC[0], "volumetric distortion max: largest over the "
+                              "poses and balls", "um", tol.volumetric_max_um))
+    out.append(Characteristic(VOLUMETRIC[1], "volumetric distortion max left after the link errors",
+                              "um", None))
+    return out
+
+
+def _value(c: Characteristic, a: Analysis) -> tuple[float, float | None] | None:
+    if c.key == VOLUMETRIC[0]:
+        v = volumetric_max_um(a)
+        return None if v is None else (v, None)
+    if c.key == VOLUMETRIC[1]:
+        v = volumetric_max_um(a, after_links=True)
+        return None if v is None else (v, None)
+    e = a.links.get(c.key)
+    return None if e is None else (float(e.value), e.std)
+
+
+def _num(v: float) -> str:
+    return f"{v:.{DECIMALS}f}"
+
+
+def _date(t: float) -> str:
+    # K0004: DD.MM.YYYY/HH:MM:SS, the daemon's local time (as its reports print it)
+    return time.strftime("%d.%m.%Y/%H:%M:%S", time.localtime(t))
+
+
+def aqdef_lines(machine: str, runs: Sequence[TrendPoint], tol: Tolerances, *,
+                operator: str | None = None, artefact: str = "") -> list[str]:
+    """The file's lines (without line ends): K0100, the part (K1xxx), the characteristics
+    (K2xxx/i), then per run (oldest first) and characteristic one value record (K0001/i …)."""
+    chars = characteristics(runs, tol)
+    out = [f"K0100 {len(chars)}",
+           f"K1001 {text(machine, 30)}",
+           f"K1002 {text(f'rumba-cnc kinematic check of {machine}')}"]
+    if artefact:
+        out.append(f"K1003 {text(artefact, 20)}")
+    for i, c in enumerate(chars, start=1):
+        out += [f"K2001/{i} {text(c.key, 20)}", f"K2002/{i} {text(c.description)}",
+                f"K2004/{i} 0",  # variable characteristic
+                f"K2022/{i} {DECIMALS}", f"K2101/{i} {_num(0.0)}"]
+        if c.limit is not None and c.limit.fail is not None:
+            lower = 0.0 if c.key in VOLUMETRIC else -c.limit.fail  # a norm is never negative
+            out += [f"K2110/{i} {_num(lower)}", f"K2111/{i} {_num(c.limit.fail)}"]
+        out.append(f"K2142/{i} {UNITS[c.unit]}")
+    for r in runs:
+        for i, c in enumerate(chars, start=1):
+            got = _value(c, r.analysis)
+            if got is None or not math.isfinite(got[0]):
+                continue  # not identified in this run: no value record (K0006 names the run)
+            v, u = got
+            note = f"verdict {r.verdict}" + (f"; u {_num(u)} {UNITS[c.unit]}" if u else "")
+            out += [f"K0001/{i} {_num(v)}", f"K0004/{i} {_date(r.started_at)}",
+                    f"K0006/{i} {text(r.run_id, 40)}"]
+            if operator:
+                out.append(f"K0008/{i} {text(operator, 40)}")
+            out += [f"K0009/{i} {text(note)}", f"K0010/{i} {text(machine, 40)}"]
+    return out
+
+
+def write_aqdef(path: Path | str, machine: str, runs: Iterable[TrendPoint], tol: Tolerances, *,
+                operator: str | None = None, artefact: str = "") -> int:
+    """Write the file atomically (a watched SPC folder never sees half a file); the number of
+    value records (runs) written."""
+    runs = list(runs)
+    body = "\r\n".join(aqdef_lines(machine, runs, tol, operator=operator,
+                                   artefact=artefact)) + "\r\n"
+    path = Path(path)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".part", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(body.encode(ENCODING))
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return len(runs)
