@@ -1,4 +1,4 @@
-"""The verdict rules: absolute limits, guard band on uncertainty, drift vs last good run."""
+"""The verdict rules: absolute limits, guard band on uncertainty, drift vs a baseline run."""
 
 from __future__ import annotations
 
@@ -29,11 +29,11 @@ def test_volumetric_max_is_the_largest_vector_norm():
 
 
 def test_pass_within_every_limit():
-    j = judge(analysis(), TOL)
+    j = judge(analysis(), TOL, analysis())
     assert j.status == "PASS" and j.reasons == ()
     assert {c.quantity for c in j.checks} == {"EB0C", "EX0C", "volumetric distortion max",
-                                              "residual RMS"}
-    assert "max volumetric distortion 50.0 µm" in j.summary
+                                              "residual RMS", "EB0C drift"}
+    assert "max volumetric distortion (probed poses) 50.0 µm" in j.summary
 
 
 def test_warn_and_fail_on_absolute_limits_with_sign():
@@ -61,14 +61,24 @@ def test_guard_band_widens_when_the_uncertainty_rests_on_few_residuals():
     assert judge(replace(a, estimation=Estimation(sigma_dof=500.0)), TOL).status == "PASS"
 
 
-def test_drift_against_last_good_run():
-    ref = analysis(eb0c=10.0)
+def test_drift_against_the_baseline_run():
+    ref = replace(analysis(eb0c=10.0), run_id="B1")
     assert judge(analysis(eb0c=13.0), TOL, ref).status == "PASS"
     j = judge(analysis(eb0c=17.0), TOL, ref)
     assert j.status == "WARN" and "EB0C drift: +7.00" in j.reasons[0]
-    assert "(was +10.00)" in j.reasons[0]
+    assert "since baseline run B1 (was +10.00)" in j.reasons[0]
+    assert [c.reference_run for c in j.checks if c.quantity == "EB0C drift"] == ["B1"]
     assert judge(analysis(eb0c=-1.0), TOL, ref).status == "FAIL"
-    assert judge(analysis(eb0c=17.0), TOL, None).status == "PASS"  # no reference: no drift
+
+
+def test_no_baseline_is_said_never_silently_dropped():
+    """Issue 23: without a baseline the drift is not checked, and the verdict says so (it
+    used to drop the drift checks silently when no PASS run existed)."""
+    j = judge(analysis(eb0c=17.0), TOL, None)
+    assert j.status == "PASS" and not any("drift" in c.quantity for c in j.checks)
+    assert [r for r in j.reasons if r.startswith("drift not checked: no baseline")]
+    no_drift = replace(TOL, links={"EB0C": Limit(warn=20, fail=40)})
+    assert judge(analysis(), no_drift, None).reasons == ()  # no drift limits: nothing to say
 
 
 def test_volumetric_and_health_limits():

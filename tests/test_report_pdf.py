@@ -1,5 +1,5 @@
 """The report for people: the PDF for filing (rendered to PNG with poppler's pdftoppm and read
-back with pdftotext: A4, one or two pages, not blank, with the verdict, what to do and the
+back with pdftotext: A4, three pages, not blank and without blank bands, with the verdict, what to do and the
 audit fields), the plain-language next step per verdict, the audit fields from the setup files
 and daemon.yaml ("not recorded" when absent), and the plots' axes (a unit on every axis, no
 offset notation, limits drawn, pose visits told apart, a reference arrow and colour legend)."""
@@ -72,11 +72,11 @@ def text_of(pdf: Path) -> str:
 
 
 @pytest.mark.peer
-def test_pdf_is_two_a4_pages_not_blank_with_verdict_advice_and_audit(runs, tmp_path):
+def test_pdf_is_three_a4_pages_not_blank_with_verdict_advice_and_audit(runs, tmp_path):
     _s, _setup, _, html = runs
     pdf = report.pdf_path(html)
     imgs = pages(pdf, tmp_path)
-    assert len(imgs) == 2
+    assert len(imgs) == 3
     for img in imgs:  # A4 at 40 dpi: 8.27 × 11.69 in
         assert img.shape[:2] == (468, 331), img.shape
         ink = (img[..., :3].mean(axis=2) < 0.9).mean()
@@ -85,21 +85,61 @@ def test_pdf_is_two_a4_pages_not_blank_with_verdict_advice_and_audit(runs, tmp_p
     for expected in ("Machine mill1 — run R2", "PASS", "What to do: " + ADVICE["PASS"][:30],
                      "DMU65-2019-04417", "J. Keller, shift 1", "DAkkS D-K-15183 #2024-117",
                      "2024-11-05", "not recorded (no temperature sensor connected)",
-                     "Checks", "EX0C", "page 1 of 2", "page 2 of 2"):
+                     "Checks", "EX0C", "page 1 of 3", "page 2 of 3", "page 3 of 3"):
         assert expected in text, expected
 
 
+def blank_bands_in(img: np.ndarray, dpi: int) -> list[float]:
+    """Heights (inches) of the all-white horizontal bands between the first and the last ink
+    of a page rendered at ``dpi`` (the footer left out)."""
+    ink = (img[..., :3].mean(axis=2) < 0.9).any(axis=1)
+    rows = np.flatnonzero(ink[: int(img.shape[0] - 0.4 * dpi)])
+    gaps = np.diff(rows) - 1
+    return [g / dpi for g in gaps if g > 0]
+
+
 @pytest.mark.peer
-def test_many_checks_stay_on_two_pages(runs, tmp_path):
+def test_pdf_carries_the_html_sections_without_blank_bands(tmp_path):
+    """Issue 23 item 4: the PDF has the HTML's setup errors, validation, health, each figure's
+    definition, the link errors with plain and controller names, the decision rule, the
+    baseline, probe and balls, and the approval block; no page has a blank band of more than
+    0.6 in between its text and plots (page 1 put the link plot at the page bottom before)."""
+    setup = thesis_setup()
+    s = Store(tmp_path / "j.sqlite")
+    a, j = journal_run(s, setup, "R0", 0, time.time() - 3600)
+    audit = report.audit_of(setup)
+    html, _ = report.write_report(tmp_path / "rep", s.run("R0"), a.data, j, a.centre_rows,
+                                  s.trend(setup.name), setup.tolerances, audit)
+    s.close()
+    pdf = report.pdf_path(html)
+    text = " ".join(text_of(pdf).split())
+    for expected in ("Setup errors", "ball B1", "Probe and ball health", "Figures and their "
+                     "definitions", "max volumetric distortion (probed poses)",
+                     "EX0C — X offset of the C axis line, Siemens $TC_CARR",
+                     "ISO 14253-1 decision rule", "Drift baseline", "none set: drift not "
+                     "checked", "Probe", "stylus diameter", "Balls", "Prepared by",
+                     "Checked by", "Approved by"):
+        assert expected in text, expected
+    html_text = " ".join(html.read_text().split())
+    for expected in ("EX0C — X offset of the C axis line, Siemens $TC_CARR",
+                     "ISO 14253-1 decision rule", "Approved by", "Setup errors"):
+        assert expected in html_text, expected
+    for k, img in enumerate(pages(pdf, tmp_path, dpi=50)):
+        bands = blank_bands_in(img, 50)
+        assert max(bands, default=0.0) < 0.6, (k + 1, sorted(bands)[-3:])
+
+
+@pytest.mark.peer
+def test_many_checks_stay_on_three_pages(runs, tmp_path):
     """A judgement with 80 checks (a long machine chain, drift checks): page 1 lists what fits,
-    the not-passed first, counts the rest, and the PDF is still two pages."""
+    the not-passed first, counts the rest, and the PDF is still three pages."""
     s, _setup, (a, j), _ = runs
     many = (*(Check(f"quantity {k}", float(k), 0.1, "µm", "PASS", "warn 1 / fail 2")
               for k in range(80)), Check("EX0C drift", 25.0, 0.2, "µm", "FAIL", "drift > 20"))
     judged = dataclasses.replace(j, status="FAIL", checks=many)
     _, doc = report.build(s.run("R2"), bare(a.data), judged, a.centre_rows, [], None)
     pdf = write_pdf(tmp_path / "many.pdf", s.run("R2"), a.data, doc, report.Audit(), {})
-    assert len(pages(pdf, tmp_path)) == 2
+    assert len(pages(pdf, tmp_path)) == 3
     text = text_of(pdf)
     assert re.search(r"… \d+ more checks, all PASS, in the HTML and JSON report", text)
     assert "EX0C drift" in text  # the failed one is listed, whatever its place
@@ -146,7 +186,8 @@ def test_no_audit_given_is_not_recorded(runs):
 
 def test_audit_fields_come_from_the_setup_files_and_daemon_yaml(tmp_path):
     machine = (CONFIG / "machines/thesis_wcbxfzyt.yaml").read_text() + \
-        "serial: 'HMC500 #2019-0417'\n"
+        "serial: 'HMC500 #2019-0417'\nprobe: {model: 'Renishaw OMP40-2', serial: 'P-1234', " \
+        "qualified_on: 2026-01-12, qualified_by: 'A. Berg'}\n"
     artefact = (CONFIG / "artefacts/thesis_4ball.yaml").read_text() + \
         "calibration: {certificate: 'DKD-K-15183 2024-117', date: 2024-11-05}\n"
     (tmp_path / "m.yaml").write_text(machine)
@@ -156,11 +197,24 @@ def test_audit_fields_come_from_the_setup_files_and_daemon_yaml(tmp_path):
                                     str(tmp_path / "m.yaml"))
     path.write_text(text.replace(str(CONFIG / "artefacts/thesis_4ball.yaml"),
                                  str(tmp_path / "a.yaml")))
-    audit = report.audit_of(load_daemon_config(path).machines["mill1"])
-    assert audit == report.Audit("HMC500 #2019-0417", "J. Keller (shift 1)",
-                                 "DKD-K-15183 2024-117", "2024-11-05")
     from contracts.yaml_files import ConfigError
 
+    audit = report.audit_of(load_daemon_config(path).machines["mill1"])
+    assert dataclasses.astuple(audit)[:4] == ("HMC500 #2019-0417", "J. Keller (shift 1)", "DKD-K-15183 2024-117",
+                         "2024-11-05")
+    # issue 23 item 4: the probe's qualification, the balls' diameters, the decision rule
+    assert audit.probe == ("Renishaw OMP40-2 serial P-1234, stylus diameter 6 mm (plan "
+                           "thesis-ch3-7poses), qualified on 2026-01-12 by A. Berg")
+    assert audit.balls == "B1 ⌀25.4 mm, B2 ⌀25.4 mm, B3 ⌀25.4 mm, B4 ⌀25.4 mm"
+    assert "ISO 14253-1" in (audit.decision_rule or "") and audit.baseline is None
+    assert audit.link_names["EX0C"].startswith("EX0C — X offset of the C axis line, Siemens ")
+    (tmp_path / "m.yaml").write_text(machine.replace("2026-01-12", "2999-01-01"))
+    with pytest.raises(ConfigError, match=r"m\.yaml: probe\.qualified_on: .*in the future"):
+        load_daemon_config(path)
+    (tmp_path / "m.yaml").write_text(machine.replace("qualified_by", "qualified_at"))
+    with pytest.raises(ConfigError, match=r"m\.yaml: probe\.qualified_at: unknown key"):
+        load_daemon_config(path)
+    (tmp_path / "m.yaml").write_text(machine)
     (tmp_path / "a.yaml").write_text(artefact.replace("date: 2024-11-05",
                                                       "date: 2024-11-05, by: me"))
     with pytest.raises(ConfigError, match=r"a\.yaml: calibration\.by: unknown key"):

@@ -1,11 +1,10 @@
-"""The verdict: identified link errors and volumetric distortion against tolerances, absolute and
-relative to the last good run → PASS / WARN / FAIL with one reason per violated limit.
-
-Decision rule (ISO 14253-1 spirit, stated in every reason): a value whose magnitude exceeds a
-``fail`` limit fails; one that exceeds ``warn`` — or whose magnitude plus ``k`` standard
-uncertainties reaches ``fail`` (conformance not proven) — warns. Units follow the ``Analysis``:
-µm for translations and distortions, µrad for rotations.
-"""
+"""The verdict: link errors and volumetric distortion against tolerances and a baseline run."""
+# Absolute and relative to the machine's baseline (a run a person accepted, issue 23) →
+# PASS / WARN / FAIL with one reason per violated limit.
+# Decision rule (ISO 14253-1, stated in every reason and in the report, ``decision_rule``): a
+# value whose magnitude exceeds a ``fail`` limit fails; one that exceeds ``warn`` — or whose
+# magnitude plus ``k`` standard uncertainties reaches ``fail`` (conformance not proven) —
+# warns. Units follow the ``Analysis``: µm for translations and distortions, µrad for rotations.
 
 from __future__ import annotations
 
@@ -13,6 +12,7 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
+from daemon.analysis.figures import run_figures, volumetric_max_um
 from daemon.analysis.result import Analysis
 from daemon.analysis.verdict_text import duration_text
 from daemon.machines.tolerances import Limit, Tolerances
@@ -31,7 +31,8 @@ class Check:
     unit: str
     status: str
     limit: str  # human-readable limit that decided
-    reference: float | None = None  # last good value (drift checks)
+    reference: float | None = None  # the baseline's value (drift checks)
+    reference_run: str | None = None  # the baseline run (drift checks)
 
     def as_dict(self) -> dict[str, Any]:
         return self.__dict__.copy()
@@ -45,15 +46,8 @@ class Judgement:
     summary: str
 
 
-def volumetric_max_um(analysis: Analysis, after_links: bool = False) -> float | None:
-    """Largest distortion vector norm over all poses and balls (µm), or None if absent."""
-    vecs = [v.error_after_links_um if after_links else v.error_um for v in analysis.volumetric]
-    norms = [math.hypot(*v) for v in vecs if v is not None]  # type: ignore[arg-type]
-    return max(norms) if norms else None
-
-
 def _grade(quantity: str, value: float, std: float | None, unit: str, lim: Limit,
-           k: float, reference: float | None) -> list[Check]:
+           k: float, reference: float | None, reference_run: str | None = None) -> list[Check]:
     out = []
     mag = abs(value)
     u = std or 0.0
@@ -74,7 +68,8 @@ def _grade(quantity: str, value: float, std: float | None, unit: str, lim: Limit
             status, why = "FAIL", f"drift > {lim.drift_fail:g} {unit}"
         elif lim.drift_warn is not None and abs(d) > lim.drift_warn:
             status, why = "WARN", f"drift > {lim.drift_warn:g} {unit}"
-        out.append(Check(f"{quantity} drift", d, std, unit, status, why, reference))
+        out.append(Check(f"{quantity} drift", d, std, unit, status, why, reference,
+                         reference_run))
     return out
 
 
@@ -87,17 +82,23 @@ def _fmt_limit(warn: float | None, fail: float | None, unit: str, prefix: str = 
 def _reason(c: Check) -> str:
     std = f" ± {c.std:.2f}" if c.std else ""
     if c.reference is not None:
-        return (f"{c.quantity}: {c.value:+.2f}{std} {c.unit} since last good run "
-                f"(was {c.reference:+.2f}); {c.limit}")
+        return (f"{c.quantity}: {c.value:+.2f}{std} {c.unit} since baseline run "
+                f"{c.reference_run or '?'} (was {c.reference:+.2f}); {c.limit}")
     return f"{c.quantity} = {c.value:+.2f}{std} {c.unit}: {c.limit}"
+
+
+NO_BASELINE = "drift not checked: no baseline"
 
 
 def judge(analysis: Analysis, tol: Tolerances, last_good: Analysis | None = None) -> Judgement:
     """Grade one run's analysis against ``tol``.
 
-    ``last_good`` is the analysis of the last PASS run of the same machine (drift reference)."""
+    ``last_good`` is the analysis of the machine's baseline run (issue 23: a run a person
+    accepted, ``daemon.store.baselines``): drift is judged against it; without one, and with
+    drift limits set, the reasons say "drift not checked: no baseline"."""
     checks: list[Check] = []
     ref_links = last_good.links if last_good is not None else {}
+    ref_run = last_good.run_id if last_good is not None else None
     # The guard band k·u at coverage_k's normal coverage (k = 2: 95.45 %), widened when u
     # rests on a σ estimated from few residual degrees of freedom (Student t, GUM G.3).
     dof = analysis.estimation.sigma_dof if analysis.estimation is not None else None
@@ -110,7 +111,7 @@ def judge(analysis: Analysis, tol: Tolerances, last_good: Analysis | None = None
         if lim is None:
             continue
         ref = ref_links[name].value if name in ref_links else None
-        checks += _grade(name, float(est.value), est.std, _unit(est.unit), lim, k, ref)
+        checks += _grade(name, float(est.value), est.std, _unit(est.unit), lim, k, ref, ref_run)
     if tol.volumetric_max_um is not None:
         vmax = volumetric_max_um(analysis)
         if vmax is None:
@@ -119,7 +120,7 @@ def judge(analysis: Analysis, tol: Tolerances, last_good: Analysis | None = None
         else:
             ref = volumetric_max_um(last_good) if last_good else None
             checks += _grade("volumetric distortion max", vmax, None, "µm",
-                             tol.volumetric_max_um, k, ref)
+                             tol.volumetric_max_um, k, ref, ref_run)
     checks += thermal_checks(analysis, tol)
     checks += temperature_checks(analysis, tol)
     checks += _health(analysis, tol)
@@ -132,12 +133,33 @@ def judge(analysis: Analysis, tol: Tolerances, last_good: Analysis | None = None
     reasons += [_reason(c) for c in checks
                 if c.status == "PASS" and c.quantity.startswith("measurement outlier")]
     reasons += [f"{n}: tolerance given but not identified in this run" for n in missing]
+    if last_good is None and _has_drift_limits(tol):  # said, never silently dropped
+        reasons.append(f"{NO_BASELINE} (a person sets one: rumba baseline set, or the HMI)")
     n_bad = sum(c.status != "PASS" for c in checks)
-    vmax = volumetric_max_um(analysis)
     summary = f"{status}: {len(checks)} checks, {n_bad} outside limits"
-    if vmax is not None:
-        summary += f"; max volumetric distortion {vmax:.1f} µm"
+    vol = run_figures(analysis)[0]
+    if vol.value is not None:  # the figure every surface shows, with its name
+        summary += f"; {vol.text()}"
     return Judgement(status, tuple(reasons), tuple(checks), summary)
+
+
+def decision_rule(k: float = 2.0) -> str:
+    """The decision rule as the report states it (ISO 14253-1: how u enters the verdict)."""
+    return (f"ISO 14253-1 decision rule, guard band k·u with k = {k:g} (95 % coverage, widened "
+            "by Student's t when σ rests on few degrees of freedom): conformance zone "
+            "|value| + k·u < fail limit and |value| ≤ warn limit → PASS; undecided zone "
+            "fail − k·u ≤ |value| ≤ fail (conformance not proven) or warn < |value| ≤ fail → "
+            "WARN; non-conformance |value| > fail limit → FAIL (the measured value decides "
+            "there, without a guard band: the user's risk is not extended). Drift: value − "
+            "baseline value against the drift limits. Health limits (sphere radius and form, "
+            "residual, revisit shift) make the measurement untrusted → ERROR.")
+
+
+def _has_drift_limits(tol: Tolerances) -> bool:
+    lims = [*tol.links.values(), tol.default_rotation_urad, tol.default_translation_um,
+            tol.volumetric_max_um]
+    return any(lim is not None and (lim.drift_warn is not None or lim.drift_fail is not None)
+               for lim in lims)
 
 
 def thermal_checks(analysis: Analysis, tol: Tolerances) -> list[Check]:

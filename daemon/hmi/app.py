@@ -34,6 +34,7 @@ from daemon.hmi.access import (  # the access names are re-exported: callers imp
     secured_app,
 )
 from daemon.hmi.auth import Auth
+from daemon.hmi.baseline_api import add_routes as add_baseline_routes
 from daemon.hmi.compensation_api import add_routes as add_compensation_routes
 from daemon.hmi.limits import HmiLimits, int_param
 from daemon.hmi.trend_api import trend_handler
@@ -240,6 +241,7 @@ def create_app(sessions: Mapping[str, Session], store: Store, token: str,
     app.router.add_get("/api/machines/{machine}/trend",
                        trend_handler(SESSIONS_KEY, STORE_KEY))
     add_compensation_routes(app, SESSIONS_KEY, STORE_KEY)  # issue 13: confirm from the page
+    add_baseline_routes(app, SESSIONS_KEY, STORE_KEY)  # issue 23: the drift baseline
     app.router.add_get("/reports/{run_id:[A-Za-z0-9_.-]{1,64}}.{kind:html|json|pdf}",
                        report_file)
     return app

@@ -136,6 +136,11 @@ function render(st) {
     badge.className = "badge " + v.status;
     showWhen(el, v.at);
     el.querySelector(".summary").textContent = v.summary || "";
+    // issue 23: each figure's one-sentence definition beside it, and the drift baseline
+    el.querySelector(".definition").textContent = (v.figures || []).slice(0, 1).map(
+      f => `${f.label}: ${f.definition}.`).join(" ");
+    el.querySelector(".baseline").textContent = v.figures ? (v.baseline ?
+      `Drift judged against baseline ${v.baseline.text}.` : "Drift not checked: no baseline.") : "";
     const todo = el.querySelector(".todo");
     todo.textContent = cfg.advice[v.status] ? `What to do: ${cfg.advice[v.status]}` : "";
     todo.hidden = !cfg.advice[v.status];

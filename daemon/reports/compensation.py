@@ -10,6 +10,7 @@ from typing import Any
 from daemon.analysis.judge import volumetric_max_um
 from daemon.analysis.result import Analysis
 from daemon.compensation import journal as cj
+from daemon.store import baselines
 from daemon.store.journal import RunRow, Store
 
 
@@ -46,7 +47,7 @@ class CompensationView:
 def verification_of(store: Store, run: RunRow, analysis: Analysis) -> CompensationView | None:
     """The compensation ``run`` verifies, or None: the machine's last applied compensation
     (not rolled back) when ``run`` started after it and no other run verified it yet. Records
-    ``run`` as its verification run in the journal."""
+    ``run`` as its verification run in the journal and proposes it as the drift baseline."""
     last = cj.last_applied(store, run.machine)
     if last is None or last.applied_at is None or run.started_at < last.applied_at:
         return None
@@ -57,6 +58,9 @@ def verification_of(store: Store, run: RunRow, analysis: Analysis) -> Compensati
         return None
     if last.verify_run_id is None:
         cj.update(store, last.id, verify_run_id=run.id)
+        # issue 23: the verification run is proposed as the drift baseline; a person confirms
+        baselines.propose(store, run.machine, run.id,
+                          f"verification run of compensation #{last.id} (run {last.run_id})")
     links = tuple(LinkBeforeAfter(n, v.unit, v.value, v.std, analysis.links[n].value,
                                   analysis.links[n].std)
                   for n, v in sorted(source.links.items()) if n in analysis.links)

@@ -22,6 +22,7 @@ from typing import Any
 from contracts.jobs import Verdict
 from contracts.messages import ProbeHit
 from daemon.analysis import pipeline
+from daemon.analysis.figures import figures_json, run_figures
 from daemon.analysis.judge import Judgement, judge
 from daemon.analysis.result import Analysis
 from daemon.machines.setup import MachineSetup
@@ -30,6 +31,7 @@ from daemon.run import lease as run_lease
 from daemon.run import reprobe
 from daemon.run.phases import ControllerSilent, Refused, RunFailed, RunStatus, State, new_run_id
 from daemon.run.temperatures import TemperatureRecorder
+from daemon.store import baselines
 from daemon.store.journal import Store
 from daemon.store.machine_lock import Lease
 from drivers.base import CncLink, ControllerAborted, ControllerAlarm, LinkError
@@ -61,6 +63,7 @@ class Session(RunStatus):
         self._abort_state = State.ABORTED  # INTERRUPTED when the daemon stops under the run
         self.lease: Lease | None = None  # the machine lock of the current run (run/lease.py)
         self._controller_dirty = False  # a stop could not reach the controller
+        self.baseline: baselines.Baseline | None = None  # the current run's drift baseline
         self.temps = TemperatureRecorder(setup.name, setup.temperatures, link, store,
                                          str(getattr(setup.link, "transport", "")))
 
@@ -131,7 +134,8 @@ class Session(RunStatus):
                 await self.reconnect()
             if self._controller_dirty:  # the last stop could not reach the controller
                 await self._clear_leftover()
-            reference = self.store.last_good(self.setup.name, before=run_id)
+            reference = self.store.last_good(self.setup.name, before=run_id)  # targets
+            drift_ref = self._drift_reference(run_id)  # issue 23: a person's baseline
             prepared = await self._prepare_program(run_id, reference)
             self.temps.reset()
             await self.temps.sample(run_id, "start", None, time.time() - self.started_at)
@@ -140,9 +144,9 @@ class Session(RunStatus):
             self.temps.take_printed(run_id, time.time() - self.started_at)
             await self.temps.sample(run_id, "end", None, time.time() - self.started_at)
             self._raise_if_stopped()
-            analysis = await self._identify(run_id, hits, reference)
+            analysis = await self._identify(run_id, hits, drift_ref)
             self._raise_if_stopped()
-            judgement = self._judge(run_id, analysis, reference)
+            judgement = self._judge(run_id, analysis, drift_ref)
             await self._report(run_id, analysis, judgement)
             self._raise_if_stopped()
             self._enter(State.WRITE_BACK)
@@ -275,6 +279,13 @@ class Session(RunStatus):
         self.store.save_analysis(run_id, analysis.data)
         return analysis
 
+    def _drift_reference(self, run_id: str) -> tuple[str, Analysis] | None:
+        """The machine's baseline (``store.baselines``: a run a person accepted) and its
+        analysis, the reference drift is judged against; None: "drift not checked"."""
+        base = baselines.reference(self.store, self.setup.name, before=run_id)
+        self.baseline = base[0] if base else None
+        return (base[0].run_id, base[1]) if base else None
+
     def _judge(self, run_id: str, analysis: pipeline.RunAnalysis,
                reference: tuple[str, Analysis] | None) -> Judgement:
         """JUDGE: the verdict against the tolerances and the drift from the reference run."""
@@ -282,7 +293,10 @@ class Session(RunStatus):
         j = judge(analysis.data, self.setup.tolerances, reference[1] if reference else None)
         self.store.save_judgement(run_id, j)
         self.verdict = {"status": j.status, "summary": j.summary, "reasons": list(j.reasons),
-                        "at": time.time()}  # when judged: the HMI shows its date and age
+                        "at": time.time(),  # when judged: the HMI shows its date and age
+                        # issue 23: the figures with their definitions, the drift baseline
+                        "figures": figures_json(run_figures(analysis.data)),
+                        "baseline": self.baseline.as_dict() if self.baseline else None}
         return j
 
     async def _report(self, run_id: str, analysis: pipeline.RunAnalysis,
@@ -296,7 +310,8 @@ class Session(RunStatus):
         verified = verification_of(self.store, run, analysis.data)  # issue 13: before/after
         paths = await asyncio.to_thread(report.write_report, self.reports_dir, run,
                                         analysis.data, judgement, analysis.centre_rows, trend,
-                                        self.setup.tolerances, report.audit_of(self.setup),
+                                        self.setup.tolerances,
+                                        report.audit_of(self.setup, self.baseline),
                                         verified)
         self.store.save_report(run_id, *paths)  # the PDF beside the HTML (report.pdf_path)
         self.verdict["report"] = str(paths[0])  # type: ignore[index]  # set by _judge

@@ -104,6 +104,14 @@ MIGRATIONS: list[list[str]] = [
             value_c REAL, error TEXT NOT NULL DEFAULT '', received_at REAL NOT NULL,
             PRIMARY KEY (run_id, seq))""",
     ],
+    [  # 9: each machine's drift baseline (issue 23 item 2, daemon/store/baselines.py): a run
+        # a person confirmed (or the daemon proposed after a compensation), who and when
+        """CREATE TABLE baselines (
+            id INTEGER PRIMARY KEY AUTOINCREMENT, machine TEXT NOT NULL,
+            run_id TEXT NOT NULL REFERENCES runs(id), state TEXT NOT NULL,
+            by_person TEXT NOT NULL, at REAL NOT NULL, note TEXT NOT NULL DEFAULT '')""",
+        "CREATE INDEX baselines_machine ON baselines(machine, id)",
+    ],
 ]
 SCHEMA_VERSION = len(MIGRATIONS)
 

@@ -1,0 +1,86 @@
+"""The drift baseline on the operator page: show it, and let a person set or confirm one."""
+
+# Issue 23 item 2. ``GET /api/machines/NAME/baseline``: the baseline, a proposal waiting and
+# the last decisions. ``POST`` ``{"run_id": …, "by": "Anna Berg", "note": …}`` (``run_id``
+# left out: confirm the proposed one) journals the decision with the person's name and how
+# they were signed in (the access layer's identity, never only what the client sends). With
+# HMI accounts (item 5) the account's name and role replace the typed name.
+
+from __future__ import annotations
+
+import asyncio
+from collections.abc import Mapping
+from typing import Any
+
+from aiohttp import web
+
+from daemon.compensation.names import BadName, validate_by
+from daemon.hmi.compensation_api import who
+from daemon.store import baselines
+from daemon.store.journal import RunIdError, Store, StoreError
+
+MAX_BODY = 4096
+
+
+def add_routes(app: web.Application, sessions_key: web.AppKey, store_key: web.AppKey) -> None:
+    lock = asyncio.Lock()
+
+    def machine(request: web.Request) -> str:
+        name = request.match_info["machine"]
+        if name not in request.app[sessions_key]:
+            raise web.HTTPNotFound(text=f"no machine {name!r}")
+        return name
+
+    async def get(request: web.Request) -> web.Response:
+        name = machine(request)
+        return web.json_response(view(request.app[store_key], name))
+
+    async def post(request: web.Request) -> web.Response:
+        name = machine(request)
+        if (request.content_length or 0) > MAX_BODY:
+            return web.json_response({"error": "body too large"}, status=413)
+        try:
+            body = await request.json()
+        except ValueError:
+            return web.json_response({"error": "expected a JSON object"}, status=400)
+        if not isinstance(body, dict):
+            return web.json_response({"error": "expected a JSON object"}, status=400)
+        store: Store = request.app[store_key]
+        try:
+            person = validate_by(body.get("by"), "by", allow_unattended=False)
+        except BadName as e:
+            return web.json_response({"error": str(e)}, status=422)
+        note = body.get("note", "")
+        if not isinstance(note, str) or len(note) > 300:
+            return web.json_response({"error": "note: text of at most 300 characters"},
+                                     status=422)
+        async with lock:
+            run_id = body.get("run_id")
+            if run_id is None:
+                wait = baselines.pending(store, name)
+                if wait is None:
+                    return web.json_response({"error": f"{name}: no proposed baseline to "
+                                                       "confirm; give run_id"}, status=409)
+                run_id = wait.run_id
+            if not isinstance(run_id, str):
+                return web.json_response({"error": "run_id: a run id"}, status=422)
+            try:
+                baselines.confirm(store, name, run_id, person,
+                                  (note + " " if note else "") + f"[{who(request)}]")
+            except (StoreError, RunIdError) as e:
+                return web.json_response({"error": str(e)}, status=409)
+        return web.json_response(view(store, name))
+
+    app.router.add_get("/api/machines/{machine}/baseline", get)
+    app.router.add_post("/api/machines/{machine}/baseline", post)
+
+
+def view(store: Store, machine: str) -> dict[str, Any]:
+    cur, wait = baselines.current(store, machine), baselines.pending(store, machine)
+    out: Mapping[str, Any] = {
+        "machine": machine, "baseline": cur.as_dict() if cur else None,
+        "proposed": wait.as_dict() if wait else None,
+        "text": f"drift judged against {cur.describe()}" if cur else
+        "drift not checked: no baseline",
+        "history": [b.as_dict() for b in baselines.history(store, machine, 10)]}
+    return dict(out)
