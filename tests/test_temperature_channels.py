@@ -8,6 +8,7 @@ cannot be read is journaled with the reason and the run goes on."""
 from __future__ import annotations
 
 import contextlib
+import json
 from pathlib import Path
 from typing import Any
 
@@ -111,6 +112,7 @@ async def test_channels_read_at_start_every_pose_and_end_agree_with_the_warmup(c
         readings = temperatures(service.store, run_id)
         analysis = service.store.analysis(run_id)
         verdict = service.store.verdict(run_id)
+        html_path, json_path = service.store.report(run_id)
     finally:
         await service.stop()
     assert session.state == State.IDLE, session.reason
@@ -146,6 +148,14 @@ async def test_channels_read_at_start_every_pose_and_end_agree_with_the_warmup(c
     assert why and "machine not thermally stable: |change| > 0.5 °C" in why[0], verdict
     assert not any("temperature spindle" in r and "range" in r for r in verdict["reasons"])
     assert tx.reads >= 9
+    # the report: HTML table, audit row naming the sources, JSON summary
+    html = html_path.read_text(encoding="utf-8")
+    assert "Temperatures during the run" in html and "no temperature sensor" not in html
+    assert f"spindle {spindle[0]:.1f} → {spindle[-1]:.1f} °C" in html  # the audit row
+    assert "column: modbus-tcp 127.0.0.1" in html
+    assert "9 of 9 readings failed" in html  # the broken channel, with its reason
+    doc = json.loads(json_path.read_text(encoding="utf-8"))
+    assert doc["analysis"]["temperatures"]["column"]["end_c"] == column[-1]
 
 
 @pytest.mark.parametrize(("channel", "limits", "message"), [
