@@ -1,11 +1,13 @@
-"""The report for filing: a PDF of two A4 pages (matplotlib's PDF backend, no other dependency).
+"""The report for filing: a PDF of three A4 pages (matplotlib's PDF backend, no other dependency).
 
 Page 1: the verdict, what to do, the audit fields, the reasons, the checks and the identified
 link errors with their limits. Page 2: volumetric distortion, relocalisation vs local
 distortion, and the trend of every link with its limits (when the machine has past runs).
+Page 3: figures with their definitions, link errors with plain and controller names, setup
+errors, validation, health, the decision rule and the approval block (``pdf_sections``).
 Text is vector; the plots are the report's own PNGs, drawn once at the page's text width for
 the HTML and the PDF (140 dpi, embedded without resampling). Checks beyond what fits on page 1
-are counted, not drawn (the HTML and JSON hold all of them): the PDF never grows past two pages.
+are counted, not drawn (the HTML and JSON hold all of them): the PDF never grows past 3 pages.
 """
 
 from __future__ import annotations
@@ -27,6 +29,7 @@ from matplotlib.patches import FancyBboxPatch
 from daemon.analysis.result import Analysis
 from daemon.reports import temperatures
 from daemon.reports.audit import audit_rows, local_time
+from daemon.reports.pdf_sections import page3
 from daemon.reports.plots import VERDICT_COLOURS
 from daemon.store.journal import RunRow
 
@@ -39,11 +42,14 @@ MARGIN_IN = 0.5
 LINE_IN = 0.16  # one line of 8 pt text
 FOOTER_IN = 0.35
 FONT = 8
+PAGES = 3
 STATUS_COLOURS = VERDICT_COLOURS
 
 
 class _Page:
     """Text placed from the top of an A4 figure, line by line (inches from the top edge)."""
+
+    margin, line_in = MARGIN_IN, LINE_IN
 
     def __init__(self, fig: Figure) -> None:
         self.fig, self.y = fig, MARGIN_IN
@@ -79,12 +85,13 @@ def _hline(x0: float, x1: float, y: float) -> Any:
 
 def _footer(fig: Figure, run: RunRow, page: int, generated: str) -> None:
     fig.text(0.5, 0.012, f"rumba-cnc — machine {run.machine} — run {run.id} — generated "
-                         f"{generated} — page {page} of 2", ha="center", fontsize=6.5,
+                         f"{generated} — page {page} of {PAGES}", ha="center", fontsize=6.5,
              color="#666666", parse_math=False)
 
 
 def _page1(fig: Figure, run: RunRow, analysis: Analysis, doc: dict[str, Any],
-           audit_rows: Sequence[tuple[str, str]], bottom_in: float) -> None:
+           audit_rows: Sequence[tuple[str, str]], bottom_in: float) -> float:
+    """Page 1's text; returns where it ends (inches from the top)."""
     p = _Page(fig)
     verdict = doc.get("verdict")
     status = verdict["status"] if verdict else run.state
@@ -135,6 +142,7 @@ def _page1(fig: Figure, run: RunRow, analysis: Analysis, doc: dict[str, Any],
         p.y += 0.05
     if verdict:
         _checks(p, verdict["checks"], bottom_in)
+    return p.y
 
 
 def _cut(text: str, n: int) -> str:
@@ -200,7 +208,7 @@ def _size(png: bytes) -> tuple[int, int]:
 
 
 def write_pdf(path: Path, run: RunRow, analysis: Analysis, doc: dict[str, Any], audit: Any,
-              plots: dict[str, bytes | None]) -> Path:
+              plots: dict[str, bytes | None], prepared_by: str = "") -> Path:
     """Write the two A4 pages of ``run`` to ``path`` (the caller has checked the path); the
     plots are the report's own PNGs by key (``report.render_plots``: distortion, cluster,
     links, trend; a missing or None one is left out)."""
@@ -217,10 +225,11 @@ def write_pdf(path: Path, run: RunRow, analysis: Analysis, doc: dict[str, Any], 
     # TrueType text (not Type 3): selectable, searchable and crisp in every viewer
     with matplotlib.rc_context({"pdf.fonttype": 42}), PdfPages(path, metadata=meta) as pdf:
         fig = Figure(figsize=A4_IN)
-        _page1(fig, run, analysis, doc, audit_rows(run, audit, analysis),
-               bottom - links_in - 0.15)
-        if links:
-            _stack(fig, [links], bottom - links_in, bottom)
+        end = _page1(fig, run, analysis, doc, audit_rows(run, audit, analysis),
+                     bottom - links_in - 0.15)
+        if links:  # right below the checks: no blank band between text and plot
+            top = min(end + 0.1, bottom - links_in)
+            _stack(fig, [links], top, top + links_in)
         _footer(fig, run, 1, generated)
         pdf.savefig(fig)
         fig = Figure(figsize=A4_IN)
@@ -230,6 +239,10 @@ def write_pdf(path: Path, run: RunRow, analysis: Analysis, doc: dict[str, Any], 
             fig.text(0.5, 0.5, "no plots: the run has no distortion, cluster or trend data",
                      ha="center")
         _footer(fig, run, 2, generated)
+        pdf.savefig(fig)
+        fig = Figure(figsize=A4_IN)  # the HTML's sections below the plots, the approval block
+        page3(_Page(fig), analysis, doc, audit, prepared_by, generated[:10])
+        _footer(fig, run, 3, generated)
         pdf.savefig(fig)
     return path
 

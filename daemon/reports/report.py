@@ -18,6 +18,7 @@ from typing import Any
 
 import jinja2
 
+from daemon.analysis.figures import LINK_DEFINITION, figures_json, run_figures
 from daemon.analysis.judge import Judgement, volumetric_max_um
 from daemon.analysis.result import Analysis
 from daemon.analysis.verdict_text import advice, duration_text
@@ -46,7 +47,8 @@ font-weight:bold;background:{{ colour }}}
 .todo{font-size:1.15em;border-left:6px solid {{ colour }};padding:.4em .8em;background:#f6f7f9}
 table{border-collapse:collapse;margin:1em 0}td,th{border:1px solid #ccc;padding:.25em .6em;
 text-align:right}th{background:#f3f3f3}td.l,th.l{text-align:left}
-table.audit td,table.audit th{text-align:left}
+table.audit td,table.audit th{text-align:left}table.figures td,table.figures th{text-align:left}
+table.sign td{height:2.2em;min-width:10em}
 .PASS{color:#1b873f}.WARN{color:#c77700;font-weight:bold}.FAIL{color:#c62828;font-weight:bold}
 .ERROR{color:#6a1b9a;font-weight:bold}
 img{max-width:100%;border:1px solid #eee;margin:.5em 0}small{color:#666}
@@ -65,6 +67,9 @@ img{max-width:100%;border:1px solid #eee;margin:.5em 0}small{color:#666}
 <p><small>{{ analysis.touches }} touches; residual RMS {{ '%.2f' % analysis.residual_rms_um }} µm;
 condition number {{ '%.3g' % analysis.condition_number }}{% if analysis.reference_run %}; drift
 reference: run {{ analysis.reference_run }}{% endif %}</small></p>
+<table class="figures">{% for f in figures %}<tr><th class="l">{{ f.label }}</th>
+<td>{{ '%.1f %s' % (f.value, f.unit) if f.value is not none else '—' }}</td>
+<td class="l"><small>{{ f.definition }}</small></td></tr>{% endfor %}</table>
 {% if verdict and verdict.reasons %}<h2>Reasons</h2><ul>
 {% for r in verdict.reasons %}<li>{{ r }}</li>{% endfor %}</ul>{% endif %}
 {% if verdict %}<h2>Checks</h2><table><tr><th class="l">quantity</th><th>value</th><th>u</th>
@@ -74,8 +79,9 @@ reference: run {{ analysis.reference_run }}{% endif %}</small></p>
 <td>{{ '%.2f' % c.std if c.std else '' }}</td><td class="l">{{ c.unit }}</td>
 <td class="l">{{ c.limit }}</td><td class="l {{ c.status }}">{{ c.status }}</td></tr>
 {% endfor %}</table>{% endif %}
-<h2>Link errors</h2><table><tr><th class="l">ISO 230-1</th><th>value</th><th>u (k=1)</th>
-<th class="l">unit</th></tr>{% for n, v in analysis.links|dictsort %}<tr><td class="l">{{ n }}</td>
+<h2>Link errors</h2><p><small>{{ link_definition }}.</small></p><table><tr><th class="l">ISO
+230-1 — name, controller term</th><th>value</th><th>u (k=1)</th><th class="l">unit</th></tr>
+{% for n, v in analysis.links|dictsort %}<tr><td class="l">{{ audit_links.get(n, n) }}</td>
 <td>{{ '%+.2f' % v.value }}</td><td>{{ '%.2f' % v.std }}</td>
 <td class="l">{{ 'µrad' if v.unit == 'urad' else 'µm' }}</td></tr>{% endfor %}</table>
 <p><small>Not observable: {{ analysis.unobservable|join(', ') or 'nothing' }}.</small></p>
@@ -90,9 +96,9 @@ after run {{ comp.source_run }}, confirmed by {{ comp.confirmed_by }} on {{ comp
 <td>{{ '%+.2f' % l.before }}</td><td>{{ '%.2f' % l.u_before }}</td>
 <td>{{ '%+.2f' % l.after }}</td><td>{{ '%.2f' % l.u_after }}</td>
 <td class="l">{{ 'µrad' if l.unit == 'urad' else 'µm' }}</td></tr>{% endfor %}</table>
-{% if comp.distortion_before_um is not none and comp.distortion_after_um is not none %}<p>Largest
-volumetric distortion {{ '%.1f' % comp.distortion_before_um }} µm before,
-{{ '%.1f' % comp.distortion_after_um }} µm now.</p>{% endif %}{% endif %}
+{% if comp.distortion_before_um is not none and comp.distortion_after_um is not none %}<p>{{
+figures[0].label }}: {{ '%.1f' % comp.distortion_before_um }} µm in run {{ comp.source_run }}
+before, {{ '%.1f' % comp.distortion_after_um }} µm now.</p>{% endif %}{% endif %}
 {% for title, img in plots %}{% if img %}<h2>{{ title }}</h2>
 <img alt="{{ title }}" src="data:image/png;base64,{{ img }}">{% endif %}{% endfor %}
 <h2>Setup errors</h2><table><tr><th class="l">item</th><th>dx / µm</th><th>dy / µm</th>
@@ -137,6 +143,12 @@ is not none %} ± {{ '%.1f' % analysis.thermal.tau_std_min }}{% else %} (at its
 {% endfor %}</table>{% endif %}
 {% if analysis.warnings %}<h2>Warnings</h2><ul>{% for w in analysis.warnings %}<li>{{ w }}</li>
 {% endfor %}</ul>{% endif %}
+{% if audit_doc.decision_rule %}<h2>Decision rule</h2><p>{{ audit_doc.decision_rule }}</p>
+{% endif %}<h2>Approval</h2><table class="sign"><tr><th class="l">role</th><th class="l">name</th>
+<th class="l">date</th><th class="l">signature</th></tr>{% for r in ("Prepared by", "Checked by",
+"Approved by") %}<tr><td class="l">{{ r }}</td><td class="l">{{ prepared_by if loop.first else ''
+}}</td><td class="l">{{ generated_date if loop.first else '' }}</td><td class="l"></td></tr>
+{% endfor %}</table>
 <p><small>rumba-cnc report generated {{ generated }}; numbers also in {{ json_name }}, for
 filing {{ pdf_name }}.</small></p>
 </body></html>
@@ -193,6 +205,7 @@ def _render(run: RunRow, analysis: Analysis, judgement: Judgement | None,
     plots = render_plots(analysis, {(c[0], c[1]): c[4:7] for c in centre_rows}, trend, tol)
     health = analysis.health
     status = verdict["status"] if verdict else None
+    figures = run_figures(analysis)  # one definition of each quantity (issue 23)
     doc = {
         "run": {k: getattr(run, k) for k in ("id", "machine", "trigger", "state", "reason",
                                                "plan", "artefact", "dialect", "touch_total",
@@ -206,6 +219,7 @@ def _render(run: RunRow, analysis: Analysis, judgement: Judgement | None,
                    "links": {k: v.value for k, v in t.analysis.links.items()}}
                   for t in trend],
         "compensation": compensation.to_json() if compensation else None,
+        "figures": figures_json(figures), "links_definition": LINK_DEFINITION,
     }
     stab = analysis.stability
     html = _TEMPLATE.render(
@@ -216,13 +230,21 @@ def _render(run: RunRow, analysis: Analysis, judgement: Judgement | None,
         temperature_rows=temperature_rows(analysis),
         colour=VERDICT_COLOURS.get(status or "ERROR", "#555"),
         generated=local_time(time.time()), json_name=f"{run.id}.json",
-        pdf_name=f"{run.id}.pdf", comp=compensation,
+        pdf_name=f"{run.id}.pdf", comp=compensation, figures=figures, audit_doc=audit,
+        audit_links=audit.link_names, link_definition=LINK_DEFINITION,
+        prepared_by=prepared_by(run, audit), generated_date=time.strftime("%Y-%m-%d"),
         comp_time=local_time(compensation.applied_at) if compensation else "",
         stability_span=duration_text(stab.span_min * 60)
         if stab is not None and stab.span_min is not None else "",
         health_rad=max((abs(h.radius_dev_um or 0.0) for h in health), default=0.0),
         health_form=max((h.form_rms_um or 0.0 for h in health), default=0.0))
     return html, doc, plots
+
+
+def prepared_by(run: RunRow, audit: Audit) -> str:
+    """Who prepared the measurement: the person who started the run, else the operator the
+    configuration names, else blank (a name is written in by hand)."""
+    return getattr(run, "started_by", "") or audit.operator or ""
 
 
 def pdf_path(html_path: Path) -> Path:
@@ -248,7 +270,8 @@ def write_report(reports_dir: Path, run: RunRow, analysis: Analysis,
     html_path = contained_path(reports_dir, f"{run_id}.html")
     json_path = contained_path(reports_dir, f"{run_id}.json")
     pdf = contained_path(reports_dir, f"{run_id}.pdf")
-    write_pdf(pdf, run, analysis, doc, audit or Audit(), plots)
+    write_pdf(pdf, run, analysis, doc, audit or Audit(), plots,
+              prepared_by(run, audit or Audit()))
     json_path.write_text(json.dumps(doc, indent=1), encoding="utf-8")
     html_path.write_text(html, encoding="utf-8")
     return html_path, json_path
