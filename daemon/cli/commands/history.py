@@ -51,6 +51,10 @@ def cmd_history(args: argparse.Namespace) -> int:
             return _import(cfg, store, args)
         if getattr(args, "export_aqdef", None):
             return _export_aqdef(cfg, store, args)
+        if getattr(args, "against_temperature", None):
+            from daemon.cli.commands.temperature_trend import cmd_against_temperature
+
+            return cmd_against_temperature(cfg, store, args)
         _list(store, args.machine, args.limit)
         return 0
     finally:

@@ -21,6 +21,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     g.add_argument("--import", dest="import_csv", metavar="CSV", help="import a probing log")
     g.add_argument("--export-aqdef", metavar="FILE",
                    help="write the machine's completed runs as an AQDEF (Q-DAS .dfq) SPC file")
+    g.add_argument("--against-temperature", metavar="CHANNEL",
+                   help="a link error (--link) against this temperature channel over the "
+                        "machine's runs: r and slope ± u (issue 22)")
+    p.add_argument("--link", help="--against-temperature: the link error, e.g. EX0C")
+    p.add_argument("--plot", metavar="PNG", help="--against-temperature: also a scatter plot")
     p.add_argument("--csv", metavar="OUT", help="output file for --export")
     p.add_argument("--no-analyse", action="store_true", help="--import: journal only")
     p.set_defaults(func=_run)

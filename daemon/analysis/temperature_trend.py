@@ -1,0 +1,81 @@
+"""A link error against a recorded temperature over a machine's runs (issue 22 item 4): does
+"EX0C move with the spindle temperature"? Each run gives one point, the channel's mean over the
+run (start, every pose, end) and the link's identified value ± u; the straight line is fitted
+by ordinary least squares with its slope's standard uncertainty from the residual scatter
+(GUM: the run-to-run spread of a link, not only its within-run u, is what the slope must beat)
+and Pearson's correlation coefficient r."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+from daemon.analysis.result import Analysis
+
+
+@dataclass(frozen=True)
+class TempPoint:
+    run_id: str
+    temperature_c: float
+    value: float
+    std: float | None
+
+
+@dataclass(frozen=True)
+class TempFit:
+    """value ≈ intercept + slope·(T − mean T); ``slope_std`` None below 3 runs."""
+
+    n: int
+    r: float | None
+    slope: float | None
+    slope_std: float | None
+    unit: str  # the link's unit per °C, e.g. "µm/°C"
+
+    def text(self, link: str, channel: str) -> str:
+        if self.slope is None or self.r is None:
+            return f"{link} against {channel}: {self.n} runs with both, at least 3 needed"
+        u = f" ± {self.slope_std:.3g}" if self.slope_std is not None else ""
+        return (f"{link} against {channel}: r = {self.r:+.2f}, slope {self.slope:+.3g}{u} "
+                f"{self.unit} (OLS, u from the residual scatter; {self.n} runs)")
+
+
+def run_temperature(analysis: Analysis, channel: str) -> float | None:
+    """The channel's mean over the run's readings (per pose, else start and end)."""
+    t: dict[str, Any] | None = (analysis.temperatures or {}).get(channel)
+    if not t:
+        return None
+    values = [p["value_c"] for p in t.get("per_pose", []) if p.get("value_c") is not None]
+    if not values:
+        values = [v for v in (t.get("start_c"), t.get("end_c")) if v is not None]
+    return sum(values) / len(values) if values else None
+
+
+def points(trend: list[Any], link: str, channel: str) -> tuple[list[TempPoint], str]:
+    """One point per run (``store.trend`` rows) with both the link and the channel; the unit."""
+    out, unit = [], ""
+    for row in trend:
+        est = row.analysis.links.get(link)
+        temp = run_temperature(row.analysis, channel)
+        if est is None or temp is None:
+            continue
+        unit = "µrad" if est.unit == "urad" else "µm"
+        out.append(TempPoint(row.run_id, temp, float(est.value), est.std))
+    return out, unit
+
+
+def fit(pts: list[TempPoint], unit: str) -> TempFit:
+    n = len(pts)
+    if n < 3:
+        return TempFit(n, None, None, None, f"{unit}/°C")
+    mt = sum(p.temperature_c for p in pts) / n
+    mv = sum(p.value for p in pts) / n
+    sxx = sum((p.temperature_c - mt) ** 2 for p in pts)
+    syy = sum((p.value - mv) ** 2 for p in pts)
+    sxy = sum((p.temperature_c - mt) * (p.value - mv) for p in pts)
+    if sxx <= 0:  # every run at one temperature: no slope to speak of
+        return TempFit(n, None, None, None, f"{unit}/°C")
+    slope = sxy / sxx
+    r = sxy / math.sqrt(sxx * syy) if syy > 0 else 0.0
+    ssr = max(syy - slope * sxy, 0.0)
+    return TempFit(n, r, slope, math.sqrt(ssr / (n - 2) / sxx), f"{unit}/°C")
