@@ -99,7 +99,8 @@ class Machine:
                 raise TopologyError(f"axis {letter} must be {want}, got {ax.kind}")
             d = np.asarray(ax.direction, float)
             if not np.isclose(np.linalg.norm(d), 1.0):
-                raise TopologyError(f"axis {letter}: direction {ax.direction} must be a unit vector")
+                raise TopologyError(f"axis {letter}: direction {ax.direction} must be a unit "
+                                    "vector")
             # An inclined axis keeps the ISO 230-1 names of its letter in its own frame (see
             # ``axis_frame``): it must stay within MAX_INCLINATION_DEG of the letter's direction.
             cos_min = np.cos(np.deg2rad(MAX_INCLINATION_DEG))

@@ -33,6 +33,7 @@ from programs.geometry import (
 )
 from programs.model import Targets, ball_positions
 from programs.safety import SafetyError, check_program
+from programs.tilted import head_tilts, park_value, rotation_z_to
 from programs.toolpath import APPROACH_GAP_MM, build_program, clearance_margin
 
 
@@ -58,9 +59,17 @@ class Candidates:
         self.visits: dict[int, Visit] = {}
         self.builds = 0
         r1, r2 = machine.rotary_axes
-        pf = pose_frame(machine, {r1: poses[0][0], r2: poses[0][1]}, ChainState())
-        self.k, rate = retract_axis(pf)
-        self.up = 1.0 if rate > 0 else -1.0
+        # A head that tilts the spindle (issue 24): its programs index at the park value of
+        # the axis most along the spindle at the rotary home (programs.tilted)
+        self.park = park_value(machine) if head_tilts(machine) else None
+        if self.park is not None:
+            self.k, value = self.park
+            _lo, hi = machine.axes["XYZ"[self.k]].travel
+            self.up = 1.0 if value == hi else -1.0
+        else:
+            pf = pose_frame(machine, {r1: poses[0][0], r2: poses[0][1]}, ChainState())
+            self.k, rate = retract_axis(pf)
+            self.up = 1.0 if rate > 0 else -1.0
         dyn = machine_file.dynamics
         self.rapid_s_per_mm = 60.0 / dyn.rapid_mm_min
         self.proxy_s = self._tour_mm(np.asarray(centres_mm)) * self.rapid_s_per_mm
@@ -80,12 +89,14 @@ class Candidates:
         f_w, f_t = frames(m, to_model(m, {"X": zero, "Y": zero, "Z": zero, r1: rot[:, 0],
                                           r2: rot[:, 1]}), ChainState())
         spindle = np.einsum("nij,j->ni", f_t[:, :3, :3], np.asarray(m.spindle_axis, float))
-        d = np.array([TOUCH_DIRECTIONS[k] for k in (1, 2, 3, 4)])
+        # the equator directions in the tool frame (programs.tilted; the X-Y diagonals where
+        # the spindle is along z), per pose (n, 4, 3)
+        d = np.array([[rotation_z_to(s) @ np.asarray(TOUCH_DIRECTIONS[k], float)
+                       for k in (1, 2, 3, 4)] for s in spindle])
         refused = 0
         for b, c_w in zip(self.artefact.balls, self.artefact.nominal_mm, strict=True):
             a = b.diameter_mm / 2 + rs + self.probing.standoff_mm + APPROACH_GAP_MM
-            rel = np.concatenate([np.broadcast_to(-d * a * np.sqrt(2), (n, 4, 3)),
-                                  np.broadcast_to(-d * a, (n, 4, 3)),
+            rel = np.concatenate([-d * a * np.sqrt(2), -d * a,
                                   (spindle * a)[:, None, :]], axis=1)  # foundation frame
             tip = c_w + np.einsum("nji,nkj->nki", f_w[:, :3, :3], rel)
             z_k, r_k = t.surface_z_mm + t.clearance_mm + rs, t.radius_mm + t.clearance_mm + rs
@@ -166,6 +177,8 @@ class Candidates:
     def sweep_height(self, a: tuple[float, float], b: tuple[float, float]) -> float:
         """Retract value clearing everything while indexing from pose a to pose b (grid of
         the tool path's spacing over the rotary rectangle, cached)."""
+        if self.park is not None:  # a tilting head indexes at the park value
+            return self.park[1]
         key = (a, b) if a <= b else (b, a)
         if key not in self._sweep:
             g1 = _grid(a[0], b[0])

@@ -22,6 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from identification.kinematics import frames, to_model
+from programs.bodies import body_slack
 from programs.clearance import TOL_MM, keepout_slack, seg_point, tip_in_workpiece
 from programs.model import Program, ball_positions, chain_state
 
@@ -231,6 +232,11 @@ def _check_segments(prog: Program, qa: np.ndarray, qb: np.ndarray, owner: np.nda
             fail(j, "a non-linear rapid of this retract would cut into the ball")
     stem = stem_direction(prog, qa[:, 3:5])
     slack, explain = keepout_slack(prog, pa, pb, own, stem)
+    bad = np.nonzero(slack < 0)[0]
+    if bad.size:
+        fail(bad[0], explain(int(bad[0])))
+    # what moves with the head (probe body, spindle nose, housing: issue 24), if declared
+    slack, explain = body_slack(prog, pa, pb, stem)
     bad = np.nonzero(slack < 0)[0]
     if bad.size:
         fail(bad[0], explain(int(bad[0])))

@@ -54,6 +54,7 @@ from programs.model import (
     chain_state,
     plan_visits,
 )
+from programs.tilted import build_tilted, spindle_is_tilted
 from programs.tour import open_tour
 
 APPROACH_GAP_MM = 0.5  # fed at approach feed between clearance and start point
@@ -120,6 +121,9 @@ def build_program(machine: Machine, machine_file: MachineFile, artefact: Artefac
     r1, r2 = prog.rotary
 
     frames_ = [pose_frame(machine, {r1: p.b_deg, r2: p.c_deg}, state) for p in plan.poses]
+    if any(spindle_is_tilted(machine, pf) for pf in frames_):  # a head tilts it (issue 24)
+        fast = plan.feeds.fast_probe_mm_min if two_speed else None
+        return build_tilted(prog, frames_, fast, BACKOFF_MM)
     k_ret, rate = retract_axis(frames_[0])
     prog.retract_axis = k_ret
     sgn = 1.0 if rate > 0 else -1.0

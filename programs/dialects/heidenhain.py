@@ -13,7 +13,7 @@ from programs.model import Program, Touch
 
 
 class Heidenhain(Dialect):
-    """Heidenhain TNC conversational: TCH PROBE 0/1, Q115-Q119, FN 16 F-PRINT, FN 14 ERROR."""
+    """Heidenhain TNC conversational: TCH PROBE 0/1/4, Q115-Q119, FN 16 F-PRINT, FN 14 ERROR."""
 
     name, extension, counter, slot_prefix, slot_base = "heidenhain", "h", "Q1599", "Q", 1600
     result_channel = "FN 16 F-PRINT to RUMBA_RES.TXT next to the program"
@@ -38,13 +38,17 @@ class Heidenhain(Dialect):
         if abs(u[2]) < 1e-9:
             ctx["cycle"] = 1
             ctx["angle"] = sfmt(math.degrees(math.atan2(u[1], u[0])) % 360.0)
-        else:
-            k = max(range(3), key=lambda i: abs(u[i]))
-            if abs(abs(u[k]) - 1.0) > 1e-9:
-                raise ProgramError(f"touch seq {t.id.seq}: heidenhain cycles probe in the X-Y "
-                                   "plane or along one axis only")
+        elif abs(abs(u[k := max(range(3), key=lambda i: abs(u[i]))]) - 1.0) <= 1e-9:
             ctx["cycle"] = 0
             ctx["axis"] = "XYZ"[k] + ("+" if u[k] > 0 else "-")
+        else:
+            # a tilted probe (issue 24): cycle 4 MEASURING IN 3-D probes from where the tool is
+            # (the start point) along IX IY IZ for ABST and writes X Y Z to Q115-Q117; it leaves
+            # the rotary axes alone, which stand at the pose (Q118, Q119 set from it)
+            ctx["cycle"] = 4
+            ctx["dir"] = [sfmt(x) for x in u]
+            ctx["dist"] = f"{n:.4f}"
+            ctx["rot"] = [sfmt(t.b_deg), sfmt(t.c_deg)]
         ctx["print"] = [Code(f"Q{self.print_base + f}") for f in range(SLOT_FIELDS)]
         ctx["format_file"] = Code(f"RUMBA_{t.id.ball}.A")  # checked by touch_context
         return ctx

@@ -1,5 +1,5 @@
 """Heidenhain TNC conversational dialect: numbered lines, Q parameters, L moves, touch-probe
-cycles 0 (REF. PLANE) and 1 (POLAR DATUM PLANE), FN 9-12 jumps, FN 14 errors, FN 16 F-PRINT,
+cycles 0 (REF. PLANE), 1 (POLAR DATUM PLANE) and 4 (MEASURING IN 3-D), FN 9-12 jumps, FN 14 errors, FN 16 F-PRINT,
 FN 18 SYSREAD ID360 (last touch point).
 
 Touch-probe cycles behave as the TNC manuals describe them: the point given in ``0.1`` / ``1.2``
@@ -171,6 +171,8 @@ class HeidenhainInterpreter(Interpreter):
             a = math.radians(self.num(mm.group(2)))
             self.pending["dir"] = [math.cos(a), math.sin(a), 0.0]
             return NEXT
+        if cyc == 4:
+            return self._cycle4(step, rest)
         if (cyc, step) in ((0, 1), (1, 2)):
             if not self.pending or self.pending.get("cycle") != cyc or "dir" not in self.pending:
                 raise Alarm(f"TCH PROBE {cyc}.{step} without its cycle definition")
@@ -194,6 +196,54 @@ class HeidenhainInterpreter(Interpreter):
             self.pending = None
             return NEXT
         raise Alarm(f"TCH PROBE {cyc}.{step} is not supported by the simulator")
+
+    def _cycle4(self, step: int, rest: str) -> Flow:
+        """Cycle 4 MEASURING IN 3-D: from the current position along the direction of 4.2 for at
+        most ABST at F; X Y Z of the trigger to Q<n>..Q<n+2> of 4.1; back by at most MB."""
+        if step == 0:
+            if not re.match(r"^MEASURING\s+IN\s+3-?D$", rest, re.IGNORECASE):
+                raise Alarm(f"TCH PROBE 4.0: expected 'MEASURING IN 3-D': {rest!r}")
+            self.pending = {"cycle": 4}
+            return NEXT
+        if not self.pending or self.pending.get("cycle") != 4:
+            raise Alarm(f"TCH PROBE 4.{step} without its cycle definition")
+        if step == 1:
+            mm = re.match(r"^Q(\d+)$", rest, re.IGNORECASE)
+            if not mm:
+                raise Alarm(f"TCH PROBE 4.1: expected 'Q<n>': {rest!r}")
+            self.pending["result"] = int(mm.group(1))
+            return NEXT
+        if step == 2:
+            inc = dict(re.findall(r"I([XYZ])\s*([-+]?[\d.]+)", rest.upper()))
+            d = [float(inc.get(a, 0.0)) for a in "XYZ"]
+            n = math.sqrt(sum(x * x for x in d))
+            if n == 0:
+                raise Alarm(f"TCH PROBE 4.2: no direction in {rest!r}")
+            self.pending["dir"] = [x / n for x in d]
+            return NEXT
+        mm = re.match(r"^ABST\s*\+?([\d.]+)\s+F([\d.]+)\s+MB\s*\+?([\d.]+)"
+                      r"\s+REFERENCE\s+SYSTEM\s*:\s*0$", rest, re.IGNORECASE)
+        if step != 3 or not mm or "dir" not in self.pending or "result" not in self.pending:
+            raise Alarm(f"TCH PROBE 4.{step} out of sequence or malformed: {rest!r}")
+        dist, feed, back = (float(mm.group(i)) for i in (1, 2, 3))
+        start = dict(self.io.position())
+        d = self.pending["dir"]
+        end = dict(start)
+        for k, a in enumerate("XYZ"):
+            end[a] = start[a] + dist * d[k]
+        out = self.io.probe(end, feed)
+        if not out.triggered:
+            raise Alarm("TOUCH POINT INACCESSIBLE (stylus not deflected within ABST)")
+        q = int(self.pending["result"])
+        for k, a in enumerate("XYZ"):
+            self.variables[f"Q{q + k}"] = out.latched[a]
+        self.last_touch = (dict(out.latched), list(d))
+        run = math.sqrt(sum((out.latched[a] - start[a]) ** 2 for a in "XYZ"))
+        s = min(back, run) / run if run > 0 else 0.0
+        self.io.move({**out.latched, **{a: out.latched[a] - s * (out.latched[a] - start[a])
+                                        for a in "XYZ"}}, None)
+        self.pending = None
+        return NEXT
 
     def sysread_360(self, nr: int, idx: int) -> float:
         """FN 18 ID360: last touch point of cycle 0/1 for axis ``idx`` (1 = X … 5 = 5th axis);
