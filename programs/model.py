@@ -120,6 +120,9 @@ class Program:
     overtravel_mm: float
     moves: list[Move] = field(default_factory=list)
     touches: list[Touch] = field(default_factory=list)
+    # the spindle tilts (a swivel or fork head, issue 24): X Y Z command the head pivot with
+    # TCPM and tool-length offset off, which every dialect states and sets (``tcpm_off``)
+    tilted: bool = False
 
     @property
     def axis_letters(self) -> tuple[str, str, str, str, str]:

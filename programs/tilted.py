@@ -144,6 +144,7 @@ def build_tilted(prog: Program, frames_: list[PoseFrame], two_speed_feed: float 
     fmax = mf.dynamics.max_feed_mm_min
     k, park = park_value(machine)
     prog.retract_axis = k
+    prog.tilted = True
     path = _Path(prog)
     path.park = (k, park)
     path.emit("rapid", [park if i == k else None for i in range(3)] + [None, None], pose=0)

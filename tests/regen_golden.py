@@ -50,6 +50,33 @@ def golden_files() -> dict[str, str]:
     fast = plan.model_copy(update={"feeds": plan.feeds.model_copy(
         update={"fast_probe_mm_min": 1000.0})})
     out["linuxcnc-two-speed.ngc"] = generate(machine, mf, art, fast, "linuxcnc").text
+    # issue 24: a swivel head, a fork head (tilted probe: TCPM off, Heidenhain cycle 4) and a
+    # nutating table, one ball at two poses (one tilted) in every dialect
+    for family, args in head_family_setups().items():
+        for name in sorted(DIALECTS):
+            g = generate(*args, name)
+            out[f"{family}.{name}.{g.dialect.extension}"] = g.text
+            for aux, text in g.aux_files.items():
+                out[f"{family}.{name}.{aux}"] = text
+    return out
+
+
+def head_family_setups() -> dict[str, tuple]:
+    """(machine, machine file, artefact, plan) of the issue-24 golden programs."""
+    art = artefact_from_dict({"name": "golden-1ball", "ball_diameter_mm": 25.4,
+                              "rod_diameter_mm": 8,
+                              "balls": [{"id": "B1", "position_mm": [-90, -70, 70],
+                                         "rod_length_mm": 120}]})
+    out = {}
+    for family, machine_file, poses in (("swivelhead", "swivelhead_wcfxyzbt", [[0, 0], [-40, 90]]),
+                                        ("forkhead", "forkhead_wxfyzcat", [[0, 0], [30, -90]]),
+                                        ("nutating", "nutating_wcbyfxzt", [[0, 0], [80, 90]])):
+        machine, mf = load_machine(ROOT / "config" / "machines" / f"{machine_file}.yaml")
+        plan = plan_from_dict({"name": f"golden-{family}", "stylus_diameter_mm": 6,
+                               "stylus_length_mm": 120 if family != "nutating" else 100,
+                               "poses": poses,
+                               "feeds": {"probe_mm_min": 300, "approach_mm_min": 2000}})
+        out[family] = (machine, mf, art, plan)
     return out
 
 

@@ -106,6 +106,11 @@ class Dialect:
     result_channel = ""  # where the controller writes the result lines
     verdict_variable = ""  # where the verdict program writes the verdict code (1-4)
     two_speed = False  # can render a two-speed touch (``backoff_words``)
+    # A tilted-probe program (issue 24) commands the head pivot through X Y Z: the control's
+    # tool-centre-point transformation must be off; ``tcpm_off`` is the block that ensures it
+    # (a safety precondition, after the modal line), ``tcpm_note`` what the header says.
+    tcpm_off = ""
+    tcpm_note = ""
 
     def __init__(self) -> None:
         self._template = _env().get_template(f"{self.name}/program.j2")
@@ -234,7 +239,11 @@ class Dialect:
                 f"STANDOFF {program.standoff_mm:g} OVERTRAVEL {program.overtravel_mm:g}",
                 f"STYLUS DIAMETER {plan.stylus_diameter_mm:g}",
                 f"CYCLE TIME {cycle_time.summary().replace('(', '').replace(')', '')}"]
+        if program.tilted:
+            info += [f"TILTED PROBE: {self.tcpm_note}",
+                     "X Y Z COMMAND THE HEAD PIVOT: NO TOOL LENGTH OFFSET, NO TILTED PLANE"]
         return {"title": "RUMBA PROBING PROGRAM", "info": [safe_text(x) for x in info],
+                "tcpm_off": Code(self.tcpm_off) if program.tilted else "",
                 "blocks": self.blocks(program), "counter": Code(self.counter),
                 "miss_tol": fmt(MISS_TOL_MM), "r1": program.rotary[0], "r2": program.rotary[1]}
 

@@ -15,6 +15,7 @@ class Fanuc(Dialect):
     """Fanuc 0i/30i macro B (also Haas): G31, #5061-#5065, DPRNT, #3000 alarm."""
 
     name, extension, counter, slot_prefix, slot_base = "fanuc", "nc", "#599", "#", 600
+    tcpm_off, tcpm_note = "G49", "G43.4 G43.5 TCPM MUST BE OFF - G49 BELOW"
     result_channel = "DPRNT on the DNC serial port (POPEN/PCLOS)"
     verdict_variable = VERDICT_VARIABLES["fanuc"]
     verdict_program_number = 9101
@@ -26,6 +27,8 @@ class Fanuc(Dialect):
     def __init__(self, haas: bool = False) -> None:
         super().__init__()
         self.haas = haas
+        if haas:  # Haas: TCPC is G234; G49 cancels it as it does G43.4
+            self.tcpm_note = "G234 TCPC G43.4 MUST BE OFF - G49 BELOW"
 
     @property
     def label(self) -> str:

@@ -8,7 +8,6 @@ from collections.abc import Sequence
 from contracts.result_lines import SLOT_FIELDS, VERDICT_VARIABLES
 from programs.cycletime import CycleTime
 from programs.dialects.base import Code, Dialect, sfmt
-from programs.geometry import ProgramError
 from programs.model import Program, Touch
 
 
@@ -16,6 +15,7 @@ class Heidenhain(Dialect):
     """Heidenhain TNC conversational: TCH PROBE 0/1/4, Q115-Q119, FN 16 F-PRINT, FN 14 ERROR."""
 
     name, extension, counter, slot_prefix, slot_base = "heidenhain", "h", "Q1599", "Q", 1600
+    tcpm_off, tcpm_note = "M129", "M128 FUNCTION TCPM MUST BE OFF - M129 BELOW"
     result_channel = "FN 16 F-PRINT to RUMBA_RES.TXT next to the program"
     print_base = 1580
     verdict_variable = VERDICT_VARIABLES["heidenhain"]

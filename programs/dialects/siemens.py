@@ -11,6 +11,7 @@ class Siemens(Dialect):
     """Sinumerik 840D: MEAS=1 G1, $AA_MW / $AC_MEA, R parameters, WRITE, SETAL."""
 
     name, extension, counter, slot_prefix, slot_base = "siemens", "mpf", "R99", "R", 100
+    tcpm_off, tcpm_note = "TRAFOOF", "TRAORI MUST BE OFF - TRAFOOF BELOW"
     result_channel = "WRITE to the file RUMBA_RES (part-program memory)"
     verdict_variable = VERDICT_VARIABLES["siemens"]
 
