@@ -93,3 +93,38 @@ def test_bad_request_is_one_error_line(tmp_path, capsys, args, message):
     err = capsys.readouterr().err
     assert code == 2 and err.startswith("error: ") and err.count("\n") == 1, err
     assert message in err, err
+
+
+async def test_hmi_trend_against_a_channel_over_http(tmp_path):
+    import aiohttp
+
+    from daemon.config import load_daemon_config
+    from daemon.service.service import Service
+    from tests.daemon_helpers import thesis_rows, thesis_setup
+    from tests.replay_link import ReplayLink, prepare_from_rows
+
+    token = "t0k3n-for-temperature-trend-0123"
+    fill(tmp_path, slope=1.5)
+    path = write_daemon_yaml(tmp_path, token=token, extra_machine=CHANNELS)
+    rows = thesis_rows(thesis_setup())
+    svc = Service(load_daemon_config(path), lambda s: ReplayLink(rows, s.machine),
+                  prepare=prepare_from_rows(rows))
+    await svc.start()
+    try:
+        async with aiohttp.ClientSession(headers={"Authorization": f"Bearer {token}"}) as http:
+            url = svc.hmi_url + "api/machines/mill1/trend?limit=100"
+            t = await (await http.get(url)).json()
+            assert t["channels"] == ["spindle"] and "against" not in t
+            t = await (await http.get(url + "&against=spindle&link=EX0C")).json()
+            a = t["against"]
+            f = fit(*points(svc.store.trend("mill1", 100), "EX0C", "spindle"))
+            assert (a["n"], a["r"], a["slope"], a["slope_std"]) == (30, f.r, f.slope,
+                                                                    f.slope_std)
+            assert a["unit"] == "µm" and a["slope_unit"] == "µm/°C" and len(a["points"]) == 30
+            for q, why in (("&against=spindel&link=EX0C", "'spindel' is not a temperature"),
+                           ("&against=spindle&link=EX0Q", "'EX0Q' is not a location error"),
+                           ("&against=spindle", "None is not a location error")):
+                r = await http.get(url + q)
+                assert r.status == 400 and why in await r.text(), q
+    finally:
+        await svc.stop()

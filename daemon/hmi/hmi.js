@@ -141,6 +141,14 @@ function render(st) {
       f => `${f.label}: ${f.definition}.`).join(" ");
     el.querySelector(".baseline").textContent = v.figures ? (v.baseline ?
       `Drift judged against baseline ${v.baseline.text}.` : "Drift not checked: no baseline.") : "";
+    // issue 22: the temperature channels read during the run, start → end
+    let temps = el.querySelector(".temperatures");
+    if (!temps) {
+      temps = document.createElement("div");
+      temps.className = "temperatures";
+      el.querySelector(".baseline").after(temps);
+    }
+    temps.textContent = (v.temperatures || []).length ? `Temperatures: ${v.temperatures.join("; ")}.` : "";
     const todo = el.querySelector(".todo");
     todo.textContent = cfg.advice[v.status] ? `What to do: ${cfg.advice[v.status]}` : "";
     todo.hidden = !cfg.advice[v.status];
@@ -291,6 +299,88 @@ async function loadTrend(name) {
   box.querySelector(".trend-note").textContent = enough ? `(last ${t.runs.length} runs)` :
     "(shown from the second run with a verdict on)";
   box.querySelector(".charts").replaceChildren(...(enough ? t.series.map(s => chart(s, t.runs)) : []));
+  if ((t.channels || []).length) againstControls(name, box, t);
+}
+
+// Issue 22 item 4: a link error against a recorded temperature channel, one dot per run
+// (the channel's mean over the run), the least-squares line, r and the slope ± u.
+function againstControls(name, box, t) {
+  // beside the trend box, not in it: the trend's charts stay one per link error
+  let div = box.nextElementSibling && box.nextElementSibling.classList.contains("against") ?
+    box.nextElementSibling : null;
+  if (!div) {
+    div = document.createElement("div");
+    div.className = "against";
+    const ch = document.createElement("select"), ln = document.createElement("select");
+    ch.className = "against-channel"; ln.className = "against-link";
+    ch.setAttribute("aria-label", "temperature channel");
+    ln.setAttribute("aria-label", "link error");
+    const label = document.createElement("span");
+    label.textContent = "Link error against temperature: ";
+    const out = document.createElement("div"); out.className = "against-chart";
+    const note = document.createElement("p"); note.className = "against-text";
+    div.append(label, ln, document.createTextNode(" vs "), ch, out, note);
+    box.after(div);
+    ch.addEventListener("change", () => loadAgainst(name, div));
+    ln.addEventListener("change", () => loadAgainst(name, div));
+  }
+  const fill = (sel, names) => {
+    const keep = sel.value;
+    sel.replaceChildren(...names.map(n => { const o = document.createElement("option");
+                                             o.value = o.textContent = n; return o; }));
+    if (names.includes(keep)) sel.value = keep;
+  };
+  fill(div.querySelector(".against-channel"), t.channels);
+  fill(div.querySelector(".against-link"), t.series.map(s => s.name).filter(n => /^E[A-Z]/.test(n)));
+  loadAgainst(name, div);
+}
+
+async function loadAgainst(name, div) {
+  const ch = div.querySelector(".against-channel").value, ln = div.querySelector(".against-link").value;
+  if (!ch || !ln) return;
+  let a;
+  try {
+    const r = await fetch(`/api/machines/${encodeURIComponent(name)}/trend?limit=200&against=` +
+                          `${encodeURIComponent(ch)}&link=${encodeURIComponent(ln)}`,
+                          {credentials: "same-origin"});
+    if (!r.ok) return;
+    a = (await r.json()).against;
+  } catch (e) { return; }
+  div.querySelector(".against-text").textContent = a.text;
+  div.querySelector(".against-chart").replaceChildren(...(a.points.length ? [scatter(a)] : []));
+}
+
+function scatter(a) {
+  const W = 300, H = 150, L = 44, R = 8, T = 8, B = 24;
+  const xs = a.points.map(p => p.temperature_c), ys = a.points.map(p => p.value);
+  let x0 = Math.min(...xs), x1 = Math.max(...xs), y0 = Math.min(...ys), y1 = Math.max(...ys);
+  if (x1 - x0 < 1e-9) { x0 -= 0.5; x1 += 0.5; }
+  if (y1 - y0 < 1e-9) { y0 -= 0.5; y1 += 0.5; }
+  const px = v => L + (W - L - R) * (v - x0) / (x1 - x0), py = v => T + (H - T - B) * (y1 - v) / (y1 - y0);
+  const svg = svgEl("svg", {viewBox: `0 0 ${W} ${H}`, class: "chart scatter", role: "img",
+                         "aria-label": `${a.link} against ${a.channel}`});
+  svg.appendChild(svgEl("line", {x1: L, x2: L, y1: T, y2: H - B, class: "axis"}));
+  svg.appendChild(svgEl("line", {x1: L, x2: W - R, y1: H - B, y2: H - B, class: "axis"}));
+  for (const [v, y] of [[y0, py(y0)], [y1, py(y1)]]) {
+    svg.appendChild(svgEl("text", {x: L - 3, y: y + 3, class: "tick", "text-anchor": "end"}, v.toFixed(1)));
+  }
+  for (const [v, anchor] of [[x0, "start"], [x1, "end"]]) {
+    svg.appendChild(svgEl("text", {x: px(v), y: H - B + 12, class: "tick", "text-anchor": anchor},
+                       `${v.toFixed(1)} °C`));
+  }
+  svg.appendChild(svgEl("text", {x: (L + W) / 2, y: H - 2, class: "unit", "text-anchor": "middle"},
+                     `${a.channel} (°C), ${a.link} (${a.unit})`));
+  if (a.slope !== null) {
+    const mx = xs.reduce((s, v) => s + v, 0) / xs.length, my = ys.reduce((s, v) => s + v, 0) / ys.length;
+    const f = v => my + a.slope * (v - mx);
+    svg.appendChild(svgEl("line", {x1: px(x0), x2: px(x1), y1: py(f(x0)), y2: py(f(x1)), class: "line"}));
+  }
+  for (const p of a.points) {
+    const c = svgEl("circle", {cx: px(p.temperature_c), cy: py(p.value), r: 3, class: "pt"});
+    c.appendChild(svgEl("title", {}, `${p.run_id}: ${p.temperature_c.toFixed(2)} °C, ${p.value.toFixed(2)} ${a.unit}`));
+    svg.appendChild(c);
+  }
+  return svg;
 }
 
 document.getElementById("logout").addEventListener("click", async () => {

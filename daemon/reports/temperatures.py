@@ -21,6 +21,11 @@ def channel_text(name: str, t: dict[str, Any]) -> str:
             + (f" ({change:+.1f} °C)" if change is not None else ""))
 
 
+def temperature_lines(analysis: Analysis) -> list[str]:
+    """One line per channel (the HMI's verdict card, the fleet page)."""
+    return [channel_text(n, t) for n, t in (analysis.temperatures or {}).items()]
+
+
 def audit_text(analysis: Analysis) -> str | None:
     """The audit row: each channel at start → end, then where the values came from."""
     temps = analysis.temperatures

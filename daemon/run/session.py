@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import dataclasses
 import logging
 import time
 from collections.abc import Callable
@@ -27,6 +26,7 @@ from daemon.analysis.judge import Judgement, judge
 from daemon.analysis.result import Analysis
 from daemon.machines.setup import MachineSetup
 from daemon.reports.compensation import verification_of
+from daemon.reports.temperatures import temperature_lines
 from daemon.run import lease as run_lease
 from daemon.run import reprobe
 from daemon.run.phases import ControllerSilent, Refused, RunFailed, RunStatus, State, new_run_id
@@ -137,12 +137,10 @@ class Session(RunStatus):
             reference = self.store.last_good(self.setup.name, before=run_id)  # targets
             drift_ref = self._drift_reference(run_id)  # issue 23: a person's baseline
             prepared = await self._prepare_program(run_id, reference)
-            self.temps.reset()
-            await self.temps.sample(run_id, "start", None, time.time() - self.started_at)
+            await self.temps.start(run_id, time.time() - self.started_at)  # issue 22
             hits = await self._capture(prepared)
             hits = await self._reprobe(run_id, hits, reference)
-            self.temps.take_printed(run_id, time.time() - self.started_at)
-            await self.temps.sample(run_id, "end", None, time.time() - self.started_at)
+            await self.temps.end(run_id, time.time() - self.started_at)
             self._raise_if_stopped()
             analysis = await self._identify(run_id, hits, drift_ref)
             self._raise_if_stopped()
@@ -271,10 +269,7 @@ class Session(RunStatus):
         """IDENTIFY: hits → centres → estimate → analyses, recorded with the reference run."""
         self._enter(State.IDENTIFY)
         analysis = await asyncio.to_thread(self._analyse, self.setup, hits, run_id, reference)
-        temps = self.temps.summary(run_id)  # the readings journaled during the run (issue 22)
-        if temps is not None:
-            analysis = dataclasses.replace(analysis, data=dataclasses.replace(
-                analysis.data, temperatures=temps))
+        analysis = self.temps.with_summary(run_id, analysis)  # the run's temperatures
         self.store.save_centres(run_id, analysis.centre_rows)
         self.store.save_analysis(run_id, analysis.data)
         return analysis
@@ -296,7 +291,9 @@ class Session(RunStatus):
                         "at": time.time(),  # when judged: the HMI shows its date and age
                         # issue 23: the figures with their definitions, the drift baseline
                         "figures": figures_json(run_figures(analysis.data)),
-                        "baseline": self.baseline.as_dict() if self.baseline else None}
+                        "baseline": self.baseline.as_dict() if self.baseline else None,
+                        # issue 22: each temperature channel's start → end (the HMI card)
+                        "temperatures": temperature_lines(analysis.data)}
         return j
 
     async def _report(self, run_id: str, analysis: pipeline.RunAnalysis,

@@ -5,6 +5,7 @@ reason and logged as a warning, never stops the run."""
 from __future__ import annotations
 
 import asyncio
+import dataclasses
 import logging
 from typing import Any
 
@@ -90,8 +91,23 @@ class TemperatureRecorder:
             return None
         return summarise(temperatures(self.store, run_id), self.sources())
 
-    def reset(self) -> None:
+    async def start(self, run_id: str, t_s: float) -> None:
+        """Before the program: the first sample."""
         self._last_pose = None
+        await self.sample(run_id, "start", None, t_s)
+
+    async def end(self, run_id: str, t_s: float) -> None:
+        """After the last touch (re-probes included): what was printed, the last sample."""
+        self.take_printed(run_id, t_s)
+        await self.sample(run_id, "end", None, t_s)
+
+    def with_summary(self, run_id: str, analysis: Any) -> Any:
+        """``analysis`` (a ``pipeline.RunAnalysis``) with the run's summary in its data."""
+        temps = self.summary(run_id)
+        if temps is None:
+            return analysis
+        return dataclasses.replace(analysis, data=dataclasses.replace(analysis.data,
+                                                                      temperatures=temps))
 
     async def close(self) -> None:
         for t in self._transmitters.values():
