@@ -222,6 +222,20 @@ def trend_charts(trend: Sequence[Mapping[str, Any]], limits: Mapping[str, Any]) 
     return "".join(out) or '<p class="empty">No analysed run in this period.</p>'
 
 
+def temperatures_text(temps: Any) -> str:
+    """A run's temperature channels (issue 22), "spindle 20.5 → 24.1 °C"; a store written by
+    hand or another version costs the cell, never the page."""
+    if not isinstance(temps, Mapping):
+        return ""
+    out = []
+    for name, t in temps.items():
+        start = finite(t.get("start_c")) if isinstance(t, Mapping) else None
+        end = finite(t.get("end_c")) if isinstance(t, Mapping) else None
+        out.append(f"{name} {start:.1f} → {end:.1f} °C" if start is not None and end is not None
+                   else f"{name} not read")
+    return "; ".join(out)
+
+
 def machine_page(name: str, machine: Mapping[str, Any] | None, runs: Sequence[Mapping[str, Any]],
                  trend: Sequence[Mapping[str, Any]], days: int) -> str:
     limits = (machine or {}).get("limits") or {}
@@ -229,7 +243,7 @@ def machine_page(name: str, machine: Mapping[str, Any] | None, runs: Sequence[Ma
         f'<tr><td>{_e(r["id"])}</td><td>{_e(when(r["started_at"]))}</td>'
         f'<td>{_e(r["trigger"])}</td><td>{_e(r["state"])}</td>'
         f'<td>{_badge(r["verdict"] or ("ERROR" if r["state"] in _ENDED else None))}</td>'
-        f'<td>{_e(r["summary"])}</td><td>'
+        f'<td>{_e(r["summary"])}</td><td>{_e(temperatures_text(r.get("temperatures")))}</td><td>'
         + (f'<a class="report" href="/reports/{_e(r["id"])}.html">report</a>'
            if r["has_report"] else "—") + "</td></tr>" for r in runs)
     desc = ("" if machine is None else
@@ -240,6 +254,7 @@ def machine_page(name: str, machine: Mapping[str, Any] | None, runs: Sequence[Ma
             f'<h2>Trend, last {days} days (limits: dashed amber warn, red fail)</h2>'
             f'{trend_charts(trend, limits)}'
             '<h2>Runs</h2><table class="runs"><thead><tr><th>Run</th><th>Started</th>'
-            '<th>Trigger</th><th>State</th><th>Verdict</th><th>Summary</th><th>Report</th>'
+            '<th>Trigger</th><th>State</th><th>Verdict</th><th>Summary</th>'
+            '<th>Temperatures</th><th>Report</th>'
             f"</tr></thead><tbody>{rows}</tbody></table></main>")
     return _page(f"rumba fleet — {name}", html)

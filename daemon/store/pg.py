@@ -208,13 +208,16 @@ class PgStore:
                  "links": r[3] or {}} for r in rows]
 
     async def runs(self, machine: str, limit: int) -> list[dict[str, Any]]:
-        """A machine's last ``limit`` runs, newest first, with whether a report exists."""
+        """A machine's last ``limit`` runs, newest first, with whether a report exists and the
+        temperature channels' summary of its analysis (issue 22; None without)."""
         rows = await self._all(
             "SELECT r.id, r.trigger, r.state, r.verdict, r.summary, r.started_at, r.ended_at,"
-            " EXISTS (SELECT 1 FROM reports p WHERE p.run_id = r.id) FROM runs r"
+            " EXISTS (SELECT 1 FROM reports p WHERE p.run_id = r.id),"
+            " (SELECT (e.analysis::jsonb)->'temperatures' FROM estimates e"
+            " WHERE e.run_id = r.id) FROM runs r"
             " WHERE r.machine=%s ORDER BY r.started_at DESC LIMIT %s", (machine, limit))
         keys = ("id", "trigger", "state", "verdict", "summary", "started_at", "ended_at",
-                "has_report")
+                "has_report", "temperatures")
         return [dict(zip(keys, r, strict=True)) for r in rows]
 
     async def report_path(self, run_id: str) -> str | None:
