@@ -11,7 +11,6 @@ never used.
 from __future__ import annotations
 
 import asyncio
-import hmac
 import json
 import logging
 from collections import deque
@@ -20,15 +19,11 @@ from typing import Any
 
 from asyncua import Server, ua
 from asyncua.common.methods import uamethod
-from asyncua.common.utils import ServiceError
-from asyncua.crypto.permission_rules import User, UserRole
-from asyncua.crypto.security_policies import SecurityPolicyNone
 from asyncua.crypto.truststore import TrustStore
 from asyncua.crypto.validator import CertificateValidator, CertificateValidatorOptions
-from asyncua.server.binary_server_asyncio import BinaryServer
-from asyncua.server.user_managers import UserManager
 
 from contracts.opcua_certs import ensure_certificate
+from contracts.opcua_security import PasswordUsers, SecureServer
 from contracts.opcua_space import BY_ROLE, NAMESPACE_URI, RESULT_ROLES, RING_SLOTS, STATES
 from simulators import thermal
 from simulators.frontends import cancel_tasks
@@ -44,73 +39,6 @@ HANDSHAKE = ("request", "busy", "done", "verdict")
 
 for _name in ("asyncua.server", "asyncua.uaprotocol", "asyncua.common"):
     logging.getLogger(_name).setLevel(logging.ERROR)  # one line per rejected client is enough
-
-
-class PasswordUsers(UserManager):
-    """User/password check (constant-time); ``users=None`` admits anonymous sessions."""
-
-    def __init__(self, users: dict[str, str] | None) -> None:
-        self.users = users
-
-    def get_user(self, iserver: Any, username: str | None = None, password: Any = None,
-                 certificate: Any = None) -> User | None:
-        if self.users is None:
-            return User(role=UserRole.User)
-        if username is None or username not in self.users:
-            return None
-        given = password.encode() if isinstance(password, str) else bytes(password or b"")
-        if hmac.compare_digest(given, self.users[username].encode()):
-            return User(role=UserRole.User, name=username)
-        return None
-
-
-DISCOVERY = (ua.NodeId(ua.ObjectIds.GetEndpointsRequest_Encoding_DefaultBinary),
-             ua.NodeId(ua.ObjectIds.FindServersRequest_Encoding_DefaultBinary))
-
-
-class _SecureOnlyBinaryServer(BinaryServer):
-    """Refuses every service but discovery on an unsecured channel.
-
-    asyncua's server (2.1) lets a client open a None channel and then create and activate a
-    session on it even when only Basic256Sha256 endpoints are published - with the password in
-    plain text. OPC UA allows None only for GetEndpoints/FindServers; enforce that here."""
-
-    def _make_protocol(self) -> Any:
-        proto = super()._make_protocol()
-        made = proto.connection_made
-
-        def connection_made(transport: Any) -> None:
-            made(transport)
-            if proto.processor is not None:
-                _guard(proto.processor)
-        proto.connection_made = connection_made
-        return proto
-
-
-def _guard(processor: Any) -> None:
-    inner = processor._process_message
-
-    async def process(typeid: Any, requesthdr: Any, seqhdr: Any, body: Any) -> Any:
-        if (processor._connection.security_policy.URI == SecurityPolicyNone.URI
-                and typeid not in DISCOVERY):
-            raise ServiceError(ua.StatusCodes.BadSecurityModeRejected)
-        return await inner(typeid, requesthdr, seqhdr, body)
-    processor._process_message = process
-
-
-class _SecureServer(Server):
-    async def start(self) -> None:
-        # Server.start with the guarded binary server (same steps as asyncua 2.1).
-        await self._setup_server_nodes()
-        await self.iserver.start()
-        try:
-            host, port = self._get_bind_socket_info()
-            self.bserver = _SecureOnlyBinaryServer(self.iserver, host, port, self.limits)
-            self.bserver.set_policies(self._policies)
-            await self.bserver.start()
-        except Exception:
-            await self.iserver.stop()
-            raise
 
 
 class OpcUaFrontend:
@@ -154,7 +82,7 @@ class OpcUaFrontend:
         """Everything but listening (the slow part: asyncua loads its standard nodes)."""
         if port == 0:
             port = _free_port(host)
-        cls = Server if self.security == "none" else _SecureServer
+        cls = Server if self.security == "none" else SecureServer
         server = cls(user_manager=PasswordUsers(self.users or None))
         await server.init()
         server.set_endpoint(f"opc.tcp://{host}:{port}/rumba/")

@@ -1,0 +1,194 @@
+"""A journaled run as an OPC 40001-101 result: ResultMetaData (result id = run id, creation
+time, ResultState, ResultEvaluation), ResultContent (the link errors and volumetric indicators
+with their units and standard uncertainties) and the filter of GetResultIdListFiltered.
+
+ResultEvaluation from the verdict (decision rule of daemon/analysis/judge.py): PASS → OK;
+FAIL → NotOK; WARN → NotDecidable when a check warned because |value| + k·u reaches its fail
+limit ("conformance not proven": the uncertainty straddles the limit, ISO 14253-1), else OK
+(inside the fail limits, over a warning limit only); ERROR (measurement not trusted) and runs
+without a verdict → Undefined."""
+
+from __future__ import annotations
+
+import datetime as dt
+import math
+from dataclasses import dataclass
+from typing import Any
+
+from asyncua import ua
+
+from daemon.analysis.judge import volumetric_max_um
+from daemon.analysis.result import Analysis
+from daemon.store.journal import RunRow, Store
+
+NOT_PROVEN = "conformance not proven"
+STATE = {"DONE": 1, "IMPORTED": 1, "ABORTED": 3, "INTERRUPTED": 3, "FAILED": 4}
+"""ResultState (OPC 40001-101): 1 Completed, 2 Processing, 3 Aborted, 4 Failed."""
+UNECE = "http://www.opcfoundation.org/UA/units/un/cefact"
+EU = {"um": ("4H", "µm", "micrometre"), "urad": ("B97", "µrad", "microradian")}
+ERR_UNKNOWN_ID = -1  # application-specific (negative) error codes of the methods
+ERR_NO_RESULT = -2
+ERR_FILTER = -3
+
+
+def evaluation(verdict: str | None, checks: list[dict[str, Any]] | None) -> int:
+    """ResultEvaluationEnum value: 0 Undefined, 1 OK, 2 NotOK, 3 NotDecidable."""
+    if verdict == "PASS":
+        return 1
+    if verdict == "FAIL":
+        return 2
+    if verdict == "WARN":
+        undecided = any(c.get("status") == "WARN" and NOT_PROVEN in str(c.get("limit", ""))
+                        for c in checks or [])
+        return 3 if undecided else 1
+    return 0
+
+
+def eu_information(unit: str) -> ua.EUInformation:
+    """OPC 10000-8 EUInformation of a UNECE unit: UnitId from the common code's characters."""
+    code, short, name = EU[unit]
+    unit_id = 0
+    for ch in code:
+        unit_id = (unit_id << 8) | ord(ch)
+    return ua.EUInformation(NamespaceUri=UNECE, UnitId=unit_id,
+                            DisplayName=ua.LocalizedText(short, "en"),
+                            Description=ua.LocalizedText(name, "en"))
+
+
+@dataclass(frozen=True)
+class Quantity:
+    name: str
+    value: float
+    std: float | None
+    unit: str  # "um" | "urad"
+
+
+def quantities(a: Analysis) -> list[Quantity]:
+    out = [Quantity(n, float(e.value), e.std, e.unit or ("urad" if n[1:2] in "ABC" else "um"))
+           for n, e in sorted(a.links.items())]
+    for name, after in (("VD_MAX", False), ("VD_MAX_RESIDUAL", True)):
+        v = volumetric_max_um(a, after_links=after)
+        if v is not None and math.isfinite(v):
+            out.append(Quantity(name, v, None, "um"))
+    return out
+
+
+def content(a: Analysis | None, ns: int) -> list[ua.Variant]:
+    """ResultContent: per quantity a KeyValuePair (Key = its name in rumba's namespace) whose
+    value is [value, standard uncertainty (NaN when none), EUInformation]."""
+    if a is None:
+        return []
+    out = []
+    for q in quantities(a):
+        value = ua.Variant([ua.Variant(q.value, ua.VariantType.Double),
+                            ua.Variant(math.nan if q.std is None else float(q.std),
+                                       ua.VariantType.Double),
+                            ua.Variant(eu_information(q.unit), ua.VariantType.ExtensionObject)],
+                           ua.VariantType.Variant)
+        out.append(ua.Variant(ua.KeyValuePair(Key=ua.QualifiedName(q.name, ns), Value=value),
+                              ua.VariantType.ExtensionObject))
+    return out
+
+
+def _utc(t: float | None) -> dt.datetime | None:
+    return None if t is None else dt.datetime.fromtimestamp(t, dt.UTC)
+
+
+def metadata(run: RunRow, checks: list[dict[str, Any]] | None, machine_uri: str,
+             has_file: bool) -> Any:
+    """ResultMetaDataType of one run (the optional fields rumba knows)."""
+    times = ua.ProcessingTimesDataType(StartTime=_utc(run.started_at),
+                                       EndTime=_utc(run.ended_at or run.started_at))
+    ev = evaluation(run.verdict, checks)
+    return ua.ResultMetaDataType(
+        ResultId=run.id, HasTransferableDataOnFile=has_file, IsPartial=False,
+        IsSimulated=False, ResultState=STATE.get(run.state, 2), PartId=run.artefact or None,
+        ProductId=machine_uri, InternalRecipeId=run.plan or None, JobId=run.id,
+        CreationTime=_utc(run.ended_at or run.started_at), ProcessingTimes=times,
+        ResultEvaluation=ua.ResultEvaluationEnum(ev),
+        ResultEvaluationDetails=ua.LocalizedText(run.summary or run.reason or run.state, "en"),
+        FileFormat=["application/pdf", "text/html"] if has_file else None)
+
+
+def result(store: Store, run: RunRow, machine_uri: str, ns: int) -> Any:
+    """ResultDataType: metadata and content of ``run``."""
+    v = store.verdict(run.id)
+    has_file = store.report(run.id) is not None
+    return ua.ResultDataType(ResultMetaData=metadata(run, v["checks"] if v else None,
+                                                     machine_uri, has_file),
+                             ResultContent=content(store.analysis(run.id), ns))
+
+
+# ------------------------------------------------------------------ GetResultIdListFiltered
+FIELDS = {"ResultId", "ResultState", "ResultEvaluation", "CreationTime", "PartId", "JobId"}
+_OPS = {ua.FilterOperator.Equals: lambda a, b: a == b,
+        ua.FilterOperator.GreaterThan: lambda a, b: a > b,
+        ua.FilterOperator.LessThan: lambda a, b: a < b,
+        ua.FilterOperator.GreaterThanOrEqual: lambda a, b: a >= b,
+        ua.FilterOperator.LessThanOrEqual: lambda a, b: a <= b}
+
+
+class FilterError(ValueError):
+    """A ContentFilter outside the supported subset (the method answers ERR_FILTER)."""
+
+
+def _operand(op: Any, row: dict[str, Any], elements: list[Any]) -> Any:
+    if isinstance(op, ua.LiteralOperand):
+        v = op.Value.Value
+        return int(v) if isinstance(v, (ua.ResultEvaluationEnum,)) else v
+    if isinstance(op, ua.SimpleAttributeOperand):
+        name = op.BrowsePath[-1].Name if op.BrowsePath else ""
+        if name not in FIELDS:
+            raise FilterError(f"operand {name!r}: one of {sorted(FIELDS)}")
+        return row[name]
+    if isinstance(op, ua.ElementOperand):
+        return _element(elements, op.Index, row)
+    raise FilterError(f"operand {type(op).__name__} not supported")
+
+
+def _element(elements: list[Any], i: int, row: dict[str, Any]) -> bool:
+    if not 0 <= i < len(elements):
+        raise FilterError(f"element {i} out of range")
+    el = elements[i]
+    ops = [_operand(o, row, elements) for o in el.FilterOperands]
+    if el.FilterOperator == ua.FilterOperator.And:
+        return all(ops)
+    if el.FilterOperator == ua.FilterOperator.Or:
+        return any(ops)
+    if el.FilterOperator == ua.FilterOperator.Not:
+        return not ops[0]
+    fn = _OPS.get(el.FilterOperator)
+    if fn is None or len(ops) != 2:
+        raise FilterError(f"operator {el.FilterOperator!r} not supported")
+    a, b = ops
+    if isinstance(a, dt.datetime) and isinstance(b, dt.datetime):
+        a, b = a.replace(tzinfo=a.tzinfo or dt.UTC), b.replace(
+            tzinfo=b.tzinfo or dt.UTC)
+    try:
+        return bool(fn(a, b))
+    except TypeError:
+        raise FilterError(f"cannot compare {a!r} with {b!r}") from None
+
+
+def row_of(run: RunRow, checks: list[dict[str, Any]] | None) -> dict[str, Any]:
+    return {"ResultId": run.id, "ResultState": STATE.get(run.state, 2),
+            "ResultEvaluation": evaluation(run.verdict, checks),
+            "CreationTime": _utc(run.ended_at or run.started_at), "PartId": run.artefact,
+            "JobId": run.id}
+
+
+def filtered_ids(store: Store, machine: str, flt: Any, max_results: int) -> list[str]:
+    """Result ids of ``machine`` (newest first) matching ``flt`` (an empty ContentFilter
+    matches all); at most ``max_results`` (0: no limit)."""
+    elements = list(flt.Elements or []) if flt is not None else []
+    out = []
+    for run in store.runs(machine, limit=1_000_000):
+        if not elements:
+            out.append(run.id)
+        else:
+            v = store.verdict(run.id) if run.verdict else None
+            if _element(elements, 0, row_of(run, v["checks"] if v else None)):
+                out.append(run.id)
+        if max_results and len(out) >= max_results:
+            break
+    return out
