@@ -85,15 +85,20 @@ def angular_motion(machine: Machine, axis: str | None, powers: tuple[int, ...] =
                   note="seed 004 Eqs (4)-(6): angular motion polynomial, terms of power >= 1")
 
 
-def rotary_positioning(machine: Machine, axis: str | None, orders: tuple[int, ...] = (1, 2)
-                        ) -> Effect:
+def rotary_positioning(machine: Machine, axis: str | None, orders: tuple[int, ...] = (1, 2),
+                       slope: bool = True) -> Effect:
     # ISO 230-1 angular positioning error of a rotary axis (ECC, EBB …): a slope (encoder scale,
     # µrad per rad of rotation) plus harmonics of the angle (µrad). The constant is the zero
-    # offset, absorbed by the ball setup (it rotates every ball alike).
+    # offset, absorbed by the ball setup (it rotates every ball alike). ``slope=False`` with one
+    # order: a single harmonic alone (an eccentric or two-fold encoder error, 2 parameters).
     letter = need_axis(machine, "rotary_positioning", axis, ROTARY_LETTERS)
+    if (not orders and not slope) or any(k < 1 for k in orders):
+        raise ValueError("rotary_positioning: orders must be >= 1 (the constant is the zero "
+                         "offset), with a slope or at least one order")
     comp = 3 + machine.axes[letter].index
-    names = [f"E{letter}{letter}_slope"]
-    units = ["urad/rad"]
+    names = [f"E{letter}{letter}_slope"] if slope else []
+    units = ["urad/rad"] if slope else []
+    off = 1 if slope else 0
     for k in orders:
         names += [f"E{letter}{letter}_cos{k}", f"E{letter}{letter}_sin{k}"]
         units += ["urad", "urad"]
@@ -101,9 +106,9 @@ def rotary_positioning(machine: Machine, axis: str | None, orders: tuple[int, ..
     def motion(p: np.ndarray) -> dict[str, MotionErrorFn]:
         def fn(q: np.ndarray) -> np.ndarray:
             q = np.asarray(q, float)
-            e = p[0] * q
+            e = p[0] * q if slope else np.zeros_like(q)
             for i, k in enumerate(orders):
-                e = e + p[1 + 2 * i] * np.cos(k * q) + p[2 + 2 * i] * np.sin(k * q)
+                e = e + p[off + 2 * i] * np.cos(k * q) + p[off + 1 + 2 * i] * np.sin(k * q)
             out = np.zeros((q.shape[0], 6))
             out[:, comp] = e * URAD
             return out

@@ -20,7 +20,8 @@ from identification.offset_effects import (
 )
 
 __all__ = ["FAMILIES", "Effect", "EffectContext", "combine_motion_errors", "default_gravity",
-           "default_rod_direction", "library", "make_effect", "unit_vector", "workpiece_rotation"]
+           "default_rod_direction", "library", "make_effect", "model_name", "sub_models",
+           "unit_vector", "workpiece_rotation"]
 
 _FACTORIES: dict[str, Callable[..., Effect]] = {
     "thermal_drift": offset_effects.thermal_drift,
@@ -49,7 +50,7 @@ def make_effect(family: str, axis: str | None, machine: Machine, **options) -> E
     """Build one effect. Options per family:
 
     thermal_drift(model="linear"|"exponential", tau_h=None); straightness(powers=(2, 3));
-    angular_motion(powers=(1, 2)); rotary_positioning(orders=(1, 2));
+    angular_motion(powers=(1, 2)); rotary_positioning(orders=(1, 2), slope=True);
     rotary_error_motion(orders=(2,), components=("radial", "axial", "tilt")) — ISO 230-7,
     in the axis' fixed frame, orders >= 1;
     gravity_sag(gravity_dir=None, rod_dir=None); probe_pretravel(n_directions=5);
@@ -61,6 +62,31 @@ def make_effect(family: str, axis: str | None, machine: Machine, **options) -> E
         return _FACTORIES[family](machine, axis, **options)
     except TypeError as e:  # unknown option: say which family and which options exist
         raise ValueError(f"{family}: {e}") from None
+
+
+# Single harmonics of a rotary axis' positioning error offered beside the full model (slope +
+# orders 1-2, 5 parameters): an eccentric (order 1) or two-fold (order 2) encoder error is often
+# alone, and where a plan holds few distinct angles of the axis under indexing scatter the full
+# model cannot extrapolate to poses it did not see (issue 21: the annex-B hold-out plan's seven
+# estimate poses hold five C angles) while 2 parameters do.
+SINGLE_HARMONICS = (1, 2)
+
+
+def sub_models(machine: Machine) -> list[Effect]:
+    """The diagnosis' lower-parameter variants of library effects (same family and axis,
+    fewer parameters): each single harmonic of every rotary axis' positioning error."""
+    return [make_effect("rotary_positioning", a, machine, orders=(k,), slope=False)
+            for a in machine.rotary_axes for k in SINGLE_HARMONICS]
+
+
+def model_name(effect: Effect) -> dict[str, str]:
+    """``{"model": "harmonic k"}`` for a single-harmonic rotary positioning error (a
+    ``sub_models`` variant), else nothing: the report says which variant was named."""
+    if effect.family != "rotary_positioning" or any(n.endswith("_slope")
+                                                    for n in effect.param_names):
+        return {}
+    return {"model": "harmonic " + ", ".join(n.rsplit("cos", 1)[1] for n in effect.param_names
+                                              if "_cos" in n)}
 
 
 def library(machine: Machine, ball_ids: list[str],

@@ -22,7 +22,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from identification.effects import FAMILIES, Effect, EffectContext, library
+from identification.effects import FAMILIES, Effect, EffectContext, library, model_name, sub_models
 from identification.gap.attribute import (
     ALPHA,
     Candidate,
@@ -218,8 +218,8 @@ def _analyse(machine: Machine, artefact: Artefact, data: TouchData, groups: Grou
 
     rep_floor = repeat_floor_um(groups)
     lib = [(e, effect_columns(e, twin, groups, ctx, ball_jac, base_pred_mm))
-           for e in library(machine, artefact.ids, gravity_dir=opt.gravity_dir)
-           if e.family in opt.families and e.label not in known]
+           for e in [*library(machine, artefact.ids, gravity_dir=opt.gravity_dir),
+                     *sub_models(machine)] if e.family in opt.families and e.label not in known]
     vs, step, n_step = model_visits(machine, artefact, problem, groups, twin, ctx, ball_jac,
                                     base_pred_mm, opt.visit_scatter,
                                     opt.rotary_repeatability_urad, scatter_with,
@@ -277,6 +277,7 @@ def _analyse(machine: Machine, artefact: Artefact, data: TouchData, groups: Grou
         cand_out.append({
             "effect": c.effect.family, "axis": c.effect.axis,
             "params": c.params(n_base) | tau_param(c.effect), **model_of(c.effect),
+            **model_name(c.effect),
             "holdout_rms_um": round(c.ho.rms_um, 4), "holdout_max_um": round(c.ho.max_um, 4),
             "explained_fraction": round(explained(base_ho, c.ho), 4),
             "significant": c.significant, "p_value": float(f"{c.p_value:.3g}"),
@@ -371,10 +372,14 @@ def _analyse(machine: Machine, artefact: Artefact, data: TouchData, groups: Grou
         "verdict": {"effect": effect, "axis": axis,
                     "holdout_rms_before_um": round(base_ho.rms_um, 4),
                     "holdout_rms_after_um": round(after_ho.rms_um, 4),
+                    # the floor the model with the selected effects can reach on held-out
+                    # data: its own fitted parameters' prediction variance included
+                    "holdout_floor_after_um": round(float(np.sqrt(
+                        noise_floor**2 * after_ho.expected_ss / after_ho.n_obs)), 4),
                     "holdout_max_before_um": round(base_ho.max_um, 4),
                     "holdout_max_after_um": round(after_ho.max_um, 4),
                     "selected": [{"effect": c.effect.family, "axis": c.effect.axis,
-                                  **model_of(c.effect),
+                                  **model_of(c.effect), **model_name(c.effect),
                                   "params": c.params(n_base) | tau_param(c.effect)}
                                  for c in selected],
                     "explained_fraction": round(frac, 4), "message": message},

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from identification.effects import Effect, model_name
 from identification.gap.data import Groups
 from identification.gap.linear import Problem, live
 from identification.gap.step_ball import Step, find_step
@@ -176,28 +177,37 @@ def rescatter(rep: dict, again: Callable[[list, frozenset], dict], machine: Mach
     hidden under the last can only show once the one above it is a fixed effect). The
     confounded ones (their likelihood-ratio test) may be attributed even where the held-out
     test of the gap, resting on a floor of few visits, is weak."""
-    from identification.effects import library
+    from identification.effects import library, sub_models
+
+    lib = [*library(machine, ball_ids, gravity_dir=gravity_dir), *sub_models(machine)]
+
+    def variant(family: str, axis: str | None, names) -> Effect:
+        # the variant the pass named (a single harmonic or the full model: the largest one
+        # whose parameters it reported), else the library's own (a profiled warm-up)
+        hits = [e for e in lib if (e.family, e.axis) == (family, axis)]
+        fits = [e for e in hits if set(e.param_names) <= set(names)]
+        return max(fits, key=lambda e: e.n_params) if fits else hits[0]
 
     first, used, lr = rep, set(), set()
     for _ in range(MAX_PASSES):
         if not rep.get("scatter"):
             return rep
-        sel = set(used) | {(s["effect"], s["axis"])
+        sel = set(used) | {variant(s["effect"], s["axis"], s.get("params", ()))
                            for s in rep["verdict"].get("selected", [])}
         conf = rep["scatter"].get("confounded_with")
         if conf:
-            sel.add((conf["effect"], conf["axis"]))
+            sel.add(variant(conf["effect"], conf["axis"], conf.get("params", ())))
             lr.add(f"{conf['effect']}:{conf['axis']}" if conf["axis"] else conf["effect"])
         if sel <= used:
             break
         used = sel
-        effects = [e for e in library(machine, ball_ids, gravity_dir=gravity_dir)
-                   if (e.family, e.axis) in sel]
+        effects = sorted(sel, key=lambda e: (e.label, e.n_params))
         rep = again(effects, frozenset(lr))
     if rep is not first:
         rep["noise"]["source"] = first["noise"]["source"]  # the first pass' floor notes hold
         rep["scatter"]["source"] += (" — with " + ", ".join(sorted(
-            f"{f}:{a}" if a else f for f, a in used)) + " as fixed effects (first pass "
+            e.label + (f" ({model_name(e)['model']})" if model_name(e) else "")
+            for e in used)) + " as fixed effects (first pass "
             "without them: " + first["scatter"]["message"] + ")")
     return rep
 
@@ -265,15 +275,16 @@ def confounded(vs: VisitScatter | None, problem: Problem, groups: Groups, cands:
         return estimate_components(b, vs.fit.names, np.maximum(vs.fit.sigma, 0.05), stated,
                                   test=False, restricted=False).nll
 
-    from identification.gap.attribute import f_test
+    from identification.gap.attribute import f_test, test_rows
     from identification.gap.linear import fit
 
     cands = [c for c in cands if c.effect.label not in vs.labels]
     fixed_base = np.concatenate([problem.base, *vs.extra], axis=2)
     plain = Problem(problem.y_um, fixed_base, problem.whiten, problem.fold)
-    plain_base = fit(plain, plain.base)
+    rows = test_rows(plain)
+    plain_base = fit(plain, plain.base, rows)
     screened = [c for c in cands if f_test(plain_base, fit(plain, np.concatenate(
-        [plain.base, c.cols], axis=2)))[0] < SCREEN_P]
+        [plain.base, c.cols], axis=2), rows))[0] < SCREEN_P]
     if not screened:
         return None
     nll0 = ml(fixed_base)
@@ -282,5 +293,6 @@ def confounded(vs: VisitScatter | None, problem: Problem, groups: Groups, cands:
         lr = max(nll0 - ml(np.concatenate([fixed_base, c.cols], axis=2)), 0.0)
         p = float(stats.chi2.sf(lr, c.visible_dof)) * len(cands)
         if p < alpha and (best is None or p < best["p_value"]):
-            best = {"effect": c.effect.family, "axis": c.effect.axis, "p_value": p}
+            best = {"effect": c.effect.family, "axis": c.effect.axis, "p_value": p,
+                    "params": list(c.effect.param_names)}
     return best
