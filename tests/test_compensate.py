@@ -102,7 +102,9 @@ def test_propose_prints_values_and_writes_the_reviewed_program(tmp_path, capsys)
     delta_um = float(line.split("µm")[0].split()[-1])
     assert abs(delta_um - 40.0) < 2.0  # EX0C −40 µm is held by x-offset +40 µm
     assert "skipped (not observable" in out  # the rot-points move every ball alike
-    assert "volumetric distortion (rms / max µm): before" in out and "EX0C" in out
+    # issue 23: named and defined figures; the link-caused distortion, never "compensable"
+    assert "link-caused distortion max" in out and "predicted after compensation max" in out
+    assert "compensable" not in out and "EX0C" in out
     program = Path(out.strip().splitlines()[-1].split("program: ")[1])
     assert program.parent == tmp_path / "reports" and program.suffix == ".hal"
     assert "setp xyzbc-trt-kins.x-offset 12.5" in program.read_text()

@@ -104,13 +104,25 @@ async def test_the_unattended_path_reads_the_estimate_the_run_stored(tmp_path, c
         assert store.run(first).state == "DONE" and store.run(second).state == "DONE"
         (row,) = [r for r in cj.rows(store, "lcnc") if r.state == "applied"]
         assert row.run_id == first and row.confirmed_by == "unattended"
-        # identified once per run, both times in the run's worker thread, never on the loop
-        assert len(calls) == 2 and threading.main_thread().name not in calls, calls
+        # issue 23: never identified again at run end — the stored view is the run's own
+        # estimate (the one its report shows), planned in the run's worker thread
+        assert calls == [], calls
         stored = {r[0] for r in store.db.execute("SELECT run_id FROM link_estimates")}
         assert stored == {first, second}
+        for run_id in (first, second):
+            got = identified.load(store, run_id, identified.model_key(
+                setup, controller_model(setup, store, before=store.run(run_id).started_at,
+                                        check_hal=False), spec_of(setup).to_math(),
+                setup.tolerances.coverage_k))
+            assert got is not None
+            a = store.analysis(run_id)
+            for name, (value, std, _) in got[0].links_si().items():
+                assert (value, std) == pytest.approx((a.links[name].value, a.links[name].std),
+                                                     abs=1e-4), name
         _same_view(setup, store, first)
         _same_view(setup, store, second)
-        assert len(calls) == 4  # only the two re-identifications of _same_view
+        assert len(calls) == 2  # only the two re-identifications of _same_view
+        assert threading.main_thread().name in calls  # (the test's own, on its thread)
     finally:
         store.close()
     assert abs(json.loads(pins.read_text())["pins"][X] - row.values[0].new) < 1e-9

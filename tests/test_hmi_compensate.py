@@ -271,8 +271,8 @@ async def test_browser_confirm_with_a_second_confirmation(tmp_path):
             cx = await cdp.eval(sid, f"{rows}.filter(r => r.dataset.name === 'c-x')"
                                      ".map(r => [...r.cells].map(c => c.textContent))[0]")
             assert cx[1] == "$TC_CARR15[1]" and cx[4].endswith(" µm") and cx[6] == "apply", cx
-            assert "before" in await cdp.eval(sid, f"{panel}.querySelector('.comp-dist')"
-                                                   ".textContent")
+            assert "link-caused distortion max" in await cdp.eval(
+                sid, f"{panel}.querySelector('.comp-dist').textContent")
             over = await cdp.eval(sid, "[...document.querySelectorAll('.card')].map(c => "
                                        "[c.className, c.scrollWidth, c.clientWidth])")
             assert all(sw <= cw for _, sw, cw in over), over

@@ -102,15 +102,17 @@ def analyse_centres(machine: Machine, artefact: Artefact, data: CentreData, *,
                     validate_poses: Sequence[int] = (), links: Sequence[str] | None = None,
                     repeatability_um: Sequence[float] | None = None,
                     fixed_radius: bool = False, source: str = "",
-                    estimator: Callable[[Centres], tuple[Any, Callable | None]] | None = None
-                    ) -> Analysis:
+                    estimator: Callable[[Centres], tuple[Any, Callable | None]] | None = None,
+                    keep: dict[str, Any] | None = None) -> Analysis:
     """The whole analysis (its ``to_json()``: the keys of issue 2, plus a few more).
 
     ``links`` None: the identifiable set; () setup only. Poses in ``validate_poses`` are held
     out of the estimate and predicted (thesis annex B). ``estimator`` (centres input,
     ``daemon.analysis.centres_input``) replaces ``estimate`` on the estimation centres: it
     returns the estimate and, for centres in an instrument frame, the map to controller X Y Z
-    the analyses then run in. Visits are screened for gross faults first (``screen_centres``)."""
+    the analyses then run in. Visits are screened for gross faults first (``screen_centres``).
+    ``keep``: receives the estimate itself under "estimate" (the run's compensation view is
+    planned from this very estimate, so the panel's link values are the report's, issue 23)."""
     data, screened = screen_centres(machine, artefact, data)
     c = data.centres
     poses = sorted(int(x) for x in np.unique(c.pose))
@@ -146,6 +148,8 @@ def analyse_centres(machine: Machine, artefact: Artefact, data: CentreData, *,
             and all(np.isfinite(v) for v, _, _ in est.links_si().values())):
         raise AnalysisError(f"{where}estimate (setup + links) did not converge to finite "
                             "numbers (centres far outside the machine's range?)")
+    if keep is not None:
+        keep["estimate"] = est
     findings = implausible(machine, artefact, est, touch_noise_um(data))
     if findings:  # 90° "link errors" are not a machine's: refuse, never report or compensate
         raise ImplausibleFitError(f"{where}{describe(machine, artefact, findings)}")

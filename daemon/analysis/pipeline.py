@@ -125,6 +125,7 @@ def row_to_hit(row: LogRow, machine: Machine) -> ProbeHit:
 class RunAnalysis:
     data: analysis_result.Analysis  # with the run's identity (run id, plan, touches)
     centre_rows: list[tuple]  # for the store: pose, ball, b, c, x, y, z, radius dev, form
+    estimate: Any = None  # the Estimate behind ``data.links`` (the compensation view's)
 
 
 def analyse(setup: MachineSetup, hits: Sequence[ProbeHit], run_id: str = "run",
@@ -143,9 +144,11 @@ def analyse(setup: MachineSetup, hits: Sequence[ProbeHit], run_id: str = "run",
                                  source=f"run {run_id}")
         except ValueError as e:  # ProbeLogError, and any numerical failure of the fit
             raise PipelineError(str(e)) from None
+    keep: dict[str, Any] = {}
     try:
         data = analyse_centres(controller or setup.machine, setup.artefact, cd,
-                               validate_poses=setup.validate_poses, source=f"run {run_id}")
+                               validate_poses=setup.validate_poses, source=f"run {run_id}",
+                               keep=keep)
     except (AnalysisError, ValueError) as e:
         raise PipelineError(f"identification impossible: {e}") from None
     data = replace(data, run_id=run_id, machine=setup.name, plan=setup.plan.name,
@@ -168,5 +171,5 @@ def analyse(setup: MachineSetup, hits: Sequence[ProbeHit], run_id: str = "run",
         centre_rows.append((int(centres.pose[k]), ids[int(centres.ball[k])],
                             float(centres.b_deg[k]), float(centres.c_deg[k]),
                             *map(float, centres.xyz_mm[k]), h.radius_dev_um, h.form_rms_um))
-    return RunAnalysis(data, centre_rows)
+    return RunAnalysis(data, centre_rows, keep.get("estimate"))
 

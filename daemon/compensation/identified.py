@@ -214,10 +214,19 @@ def stored_or_computed(setup: MachineSetup, store: Store, run_id: str, machine: 
 
 
 def at_run_end(setup: MachineSetup, store: Store, run_id: str, centre_rows: Sequence[tuple],
-               machine: Machine, params: Sequence[ControllerParam], coverage_k: float) -> None:
+               machine: Machine, params: Sequence[ControllerParam], coverage_k: float,
+               est: Estimate | None = None) -> None:
     """Compute and store the run's view as the run's analysis is made (its worker thread),
     from the centre rows the run is about to store: the HMI, the unattended path and `rumba
-    compensate` then read it instead of identifying again."""
+    compensate` then read it instead of identifying again. ``est``: the run's own estimate
+    (the one its report shows: every visit, the fitted drift when selected); the plan is
+    made from it, so the panel's links are the report's (issue 23). Without it, or for
+    another layout, the stored centres are identified again (first visit per pose)."""
     c = estimation_centres(setup, centres_of(setup, centre_rows, run_id))
-    save(store, run_id, model_key(setup, machine, params, coverage_k),
-         *compute(setup, c, run_id, machine, params, coverage_k))
+    key = model_key(setup, machine, params, coverage_k)
+    if est is not None and list(est.ball_ids) == list(setup.artefact.ids):
+        plan = plan_compensation(machine, setup.artefact, est, params, c.b_deg, c.c_deg,
+                                 coverage_k=coverage_k)
+        save(store, run_id, key, est, plan)
+        return
+    save(store, run_id, key, *compute(setup, c, run_id, machine, params, coverage_k))

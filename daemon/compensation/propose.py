@@ -15,6 +15,7 @@ import numpy as np
 
 from contracts.controller_kinematics import ControllerKinematics, controller_kinematics
 from contracts.messages import ProbeHit
+from daemon.analysis.figures import LINK_DEFINITION, Figure, plan_figures, run_figures
 from daemon.compensation import identified
 from daemon.compensation import journal as cj
 from daemon.compensation.identified import CompensationRefused, run_centres
@@ -163,6 +164,22 @@ class Proposal:
     refusals: list[str] = field(default_factory=list)
     skipped: dict[str, str] = field(default_factory=dict)  # name → why not applied
     current: dict[str, float] = field(default_factory=dict)  # name → value the control holds
+    # issue 23: the run's own figures (the report's), and where the link values come from
+    run_figures: tuple[Figure, ...] = ()
+    links_from: str = "run"  # "run": the report's estimate | "refit": stored centres again
+
+    def figures(self) -> tuple[Figure, ...]:
+        """The run's figures, then the plan's link-caused and predicted-after distortions."""
+        return (*self.run_figures, *plan_figures(self.plan.distortion_before_um,
+                                                 self.plan.distortion_after_um))
+
+    def links_text(self) -> str:
+        """Where the link values come from, one sentence."""
+        if self.links_from == "run":
+            return LINK_DEFINITION + " — the same as the run's report"
+        return ("link errors re-identified from the run's stored centres (first visit per "
+                "pose, no drift model) against the controller model: the run's report was made "
+                "before the machine or artefact file changed and may differ")
 
 
 def reidentify(setup: MachineSetup, store: Store, run_id: str, machine: Machine
@@ -239,9 +256,15 @@ def propose(setup: MachineSetup, store: Store, run_id: str) -> Proposal:
     values = to_value_changes(spec, store, setup.name, list(guard.accepted))
     if values and later is None:
         refusals += cumulative_refusals(setup, store, spec, values, run_id)
+    analysis = store.analysis(run_id)
+    links = est.links_si()
+    same = analysis is not None and set(analysis.links) == set(links) and all(
+        abs(analysis.links[n].value - v) <= 1e-3 for n, (v, _, _) in links.items())
     return Proposal(run_id, spec, plan, guard, values,
-                    est.links_si(), k, refusals, {ch.name: why for ch, why in guard.skipped},
-                    {n: v for n, (_, v) in expected_values(spec, store, setup.name).items()})
+                    links, k, refusals, {ch.name: why for ch, why in guard.skipped},
+                    {n: v for n, (_, v) in expected_values(spec, store, setup.name).items()},
+                    run_figures(analysis) if analysis is not None else (),
+                    "run" if same else "refit")
 
 
 # ------------------------------------------------------------------------ cumulative guard
@@ -346,7 +369,7 @@ def _store_estimate(setup: MachineSetup, store: Store, run_id: str, out: RunAnal
         model = controller_model(setup, store, before=store.run(run_id).started_at,
                                  check_hal=False)
         identified.at_run_end(setup, store, run_id, out.centre_rows, model, spec.to_math(),
-                              setup.tolerances.coverage_k)
+                              setup.tolerances.coverage_k, out.estimate)
     except Exception as e:  # any failure (a plan's SVD included) must not fail the run
         log.warning("%s %s: compensation estimate not stored (computed when asked): %s",
                     setup.name, run_id, e)

@@ -61,18 +61,23 @@ window.rumbaComp = (() => {
                    v.status === "apply" ? "apply" : `${v.status}: ${v.reason}`], vl);
         return tr;
       }));
-      const ll = ["Link", "Identified", "Compensable", "Residual"];
+      const ll = ["Link", "Run estimate", "Held by the changes", "Residual"];
       el.querySelector(".comp-links tbody").replaceChildren(...p.links.map(l => {
         const tr = document.createElement("tr");
         cells(tr, [l.name, ...[l.identified, l.compensable, l.residual].map(
           v => `${fmt(v)} ${l.unit}`)], ll);
         return tr;
       }));
-      const ds = p.distortion_um;
-      el.querySelector(".comp-dist").textContent = "Volumetric distortion (rms / max): before " +
-        `${ds.before.rms.toFixed(1)} / ${ds.before.max.toFixed(1)} µm, compensable ` +
-        `${ds.compensable.rms.toFixed(1)} / ${ds.compensable.max.toFixed(1)} µm, after ` +
-        `${ds.after.rms.toFixed(1)} / ${ds.after.max.toFixed(1)} µm`;
+      // issue 23: each figure named and defined as on the report (one truth per run)
+      el.querySelector(".comp-dist").replaceChildren(...(p.figures || []).map(f => {
+        const div = document.createElement("div");
+        const b = document.createElement("b");
+        b.textContent = `${f.label} ${f.value === null ? "—" : f.value.toFixed(1) + " " + f.unit}`;
+        const small = document.createElement("small");
+        small.textContent = ` — ${f.definition}`;
+        div.append(b, small);
+        return div;
+      }), Object.assign(document.createElement("small"), {textContent: p.links_text || ""}));
       el.querySelector(".comp-refusals").replaceChildren(...p.refusals.map(r => {
         const li = document.createElement("li"); li.textContent = r; return li; }));
     }

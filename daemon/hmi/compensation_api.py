@@ -15,6 +15,7 @@ from typing import Any
 from aiohttp import web
 
 from contracts.yaml_files import ConfigError
+from daemon.analysis.figures import figures_json
 from daemon.compensation import journal as cj
 from daemon.compensation.apply import ApplyError, Written, confirm, rollback
 from daemon.compensation.names import BadName, validate_by
@@ -99,11 +100,14 @@ def proposal_dict(p: Proposal) -> dict[str, Any]:
                       "compensable": _um(name, p.plan.links_compensable[name])[0],
                       "residual": _um(name, p.plan.links_residual[name])[0]})
     pl = p.plan
+    # issue 23: link-caused before and predicted after, each defined (figures); "compensable"
+    # (the norm of what the changes reproduce) is no longer shown: it could exceed "before"
     dist = {k: {"rms": float(v[0]), "max": float(v[1])} for k, v in (
-        ("before", pl.distortion_before_um), ("compensable", pl.distortion_compensable_um),
-        ("after", pl.distortion_after_um))}
+        ("before", pl.distortion_before_um), ("after", pl.distortion_after_um))}
     return {"family": p.spec.family, "coverage_k": p.coverage_k, "values": values,
-            "links": links, "distortion_um": dist, "refusals": list(p.refusals),
+            "links": links, "distortion_um": dist,
+            "figures": figures_json(p.figures()), "links_from": p.links_from,
+            "links_text": p.links_text(), "refusals": list(p.refusals),
             "applicable": bool(p.values) and not p.refusals}
 
 

@@ -64,15 +64,15 @@ def render(p: Proposal) -> list[str]:
         lines.append(f"  {ch.name:<14} {sp.address:<30} {old:>12.6g} {new:>12} "
                      f"{_fmt(ch.kind, ch.delta):>14} {_fmt(ch.kind, ch.u_expanded)[1:]:>12}  "
                      f"{status}  [{unit}]")
-    lines.append("  links          identified    compensable       residual")
+    lines.append("  links        run estimate  held by changes       residual")
     for k in plan.links_identified:
         lines.append(f"  {k:<10} {_link(k, plan.links_identified[k]):>14} "
                      f"{_link(k, plan.links_compensable[k]):>14} "
                      f"{_link(k, plan.links_residual[k]):>14}")
-    b, c, a = plan.distortion_before_um, plan.distortion_compensable_um, \
-        plan.distortion_after_um
-    lines.append(f"  volumetric distortion (rms / max µm): before {b[0]:.2f} / {b[1]:.2f}, "
-                 f"compensable {c[0]:.2f} / {c[1]:.2f}, after {a[0]:.2f} / {a[1]:.2f}")
+    lines.append(f"  ({p.links_text()})")
+    # issue 23: the figures as the report and the HMI name and define them
+    for f in p.figures():
+        lines.append(f"  {f.text()} — {f.definition}")
     return lines
 
 
