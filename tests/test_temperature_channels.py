@@ -179,3 +179,55 @@ def test_bad_channel_config_is_one_line_naming_the_key(tmp_path, channel, limits
     with pytest.raises(ConfigError) as e:
         load_daemon_config(path)
     assert message in str(e.value) and "\n" not in str(e.value).strip(), str(e.value)
+
+
+@pytest.mark.peer
+@pytest.mark.asyncio
+async def test_modbus_rtu_transmitter_over_a_pty_pair(tmp_path):
+    """The transmitter on an RTU line (socat's pty pair, as a USB-RS485 adapter would be): the
+    daemon's reader gets the thermal state's reading, and a silent line is a clear error."""
+    import asyncio
+    import os
+    import shutil
+    import signal
+    import subprocess
+    import time
+
+    from contracts.temperatures import TemperatureChannel, TransmitterFile
+    from drivers.base import LinkError
+    from drivers.modbus.transmitter import Transmitter
+
+    socat = shutil.which("socat")
+    if socat is None:
+        pytest.skip("socat not installed (.ci/install-peers.sh installs it)")
+    a, b = tmp_path / "ttyA", tmp_path / "ttyB"
+    proc = subprocess.Popen([socat, f"pty,raw,echo=0,link={a}", f"pty,raw,echo=0,link={b}"],
+                            stderr=subprocess.DEVNULL, start_new_session=True)
+    ctrl = VirtualController(warm_truth())
+    ctrl.machine_time_s = 240.0  # four minutes into a program
+    fe = TransmitterFrontend(ctrl, device_id=7)
+    tx = None
+    try:
+        deadline = time.monotonic() + 5
+        while not (a.exists() and b.exists()):
+            assert time.monotonic() < deadline, "socat did not create its ptys"
+            await asyncio.sleep(0.02)
+        await fe.start_rtu(str(b), baudrate=19200)
+        ch = TemperatureChannel(name="column", source="transmitter", address="input:2",
+                                scale=0.1, transmitter=TransmitterFile(
+                                    serial=str(a), baudrate=19200, device_id=7))
+        tx = Transmitter(ch.transmitter)
+        value = await tx.read(ch)
+        assert value == pytest.approx(round(sensor("Z", 240.0) / 0.1) * 0.1, abs=1e-9)
+        assert value > sensor("Z", 0.0) + 1.0  # warmed since the start
+        await tx.close()  # one user of the line at a time (pymodbus locks the port)
+        wrong = ch.model_copy(update={"transmitter": TransmitterFile(
+            serial=str(a), baudrate=19200, device_id=9, timeout_s=0.3)})
+        with pytest.raises(LinkError, match=r"modbus-rtu .* unit 9: temperature column"):
+            await Transmitter(wrong.transmitter).read(wrong)  # nobody answers unit 9
+    finally:
+        if tx is not None:
+            await tx.close()
+        await fe.stop()
+        os.killpg(proc.pid, signal.SIGTERM)
+        proc.wait(5)

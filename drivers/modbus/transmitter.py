@@ -35,7 +35,8 @@ class Transmitter:
         except OSError as e:
             ok, why = False, str(e)
         else:
-            why = "connection refused or port not available"
+            why = ("connection refused or host unreachable" if c.host is not None
+                   else "serial port missing, in use or not permitted")
         if not ok:
             client.close()
             raise LinkError(f"{c.describe()}: cannot connect: {why}")
