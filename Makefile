@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: install demo test test-linuxcnc demo-linuxcnc demo-compensate demo-fleet linuxcnc-up linuxcnc-down lint bench golden peers clean
+.PHONY: install demo demo-hmi test test-linuxcnc demo-linuxcnc demo-compensate demo-fleet linuxcnc-up linuxcnc-down lint bench golden peers clean
 LCNC_ENV := .peers/linuxcnc.env
 
 $(BIN)/python:
@@ -20,6 +20,11 @@ install: $(STAMP)
 
 demo: $(STAMP)
 	$(BIN)/python -m demos.e2e
+
+# simulated CNC + daemon + HMI until Ctrl-C; prints the URL and a one-time login (HMI_PORT=0: any)
+HMI_PORT ?= 8470
+demo-hmi: $(STAMP)
+	$(BIN)/python -m demos.hmi --port $(HMI_PORT)
 
 # pytest-xdist workers: many tests wait on peers and sockets, so one more worker than cores
 # keeps both cores busy (TEST_WORKERS=0 runs in one process).

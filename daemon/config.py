@@ -47,6 +47,9 @@ class HmiFile(StrictModel):
     public_origins: list[str] = []
     # a verdict older than this is shown as stale (the page says so, in the operator's colours)
     stale_after_h: float = Field(24.0, gt=0, le=8760)
+    # Accounts (daemon/hmi/users.py, `rumba users`): people sign in with name and password and
+    # act in their role; the token then serves scripts only (Authorization: Bearer)
+    users_file: str | None = None
 
     @field_validator("public_origins")
     @classmethod
@@ -109,6 +112,7 @@ class DaemonConfig:
     store_dsn: str | None = None  # postgresql://… : the fleet store the journal drains to
     mqtt: Any = None  # daemon.mqtt.config.MqttConfig
     notify: Any = None  # daemon.notify.config.NotifyConfig
+    users_file: Path | None = None  # hmi.users_file: the HMI accounts
 
 
 MAX_TOKEN_FILE_BYTES = 4096  # a token is 16 to a few hundred characters
@@ -161,6 +165,15 @@ def load_daemon_config(path: Path | str) -> DaemonConfig:
 
             tls = (resolve_path(base, df.hmi.tls.cert), resolve_path(base, df.hmi.tls.key))
             server_context(*tls, f"{path}: hmi.tls")  # missing, mismatched, encrypted … keys
+    users_file = None
+    if df.hmi.enabled and df.hmi.users_file is not None:
+        from daemon.hmi.users import UsersError, read_users
+
+        users_file = resolve_path(base, df.hmi.users_file)
+        try:
+            read_users(users_file)  # a bad file stops the start here, naming the line
+        except UsersError as e:
+            raise ConfigError(f"{path}: hmi.users_file: {e}") from None
     store_path, dsn = resolve_path(base, df.store.path), None
     if df.store.url is not None:
         from daemon.store.url import parse_store_url
@@ -183,7 +196,7 @@ def load_daemon_config(path: Path | str) -> DaemonConfig:
                              read_token_file)
     return DaemonConfig(path, store_path, df.store.synchronous,
                         resolve_path(base, df.reports_dir), df.hmi, token, tls, df.can_panel,
-                        machines, dsn, mqtt, notify)
+                        machines, dsn, mqtt, notify, users_file=users_file)
 
 
 def config_from_dict(data: Any, path: Path) -> DaemonFile:

@@ -80,6 +80,19 @@ class Cdp:
         await self.wait_for(sid, "!!document.querySelector('.machine .start')")
         await self.wait_for(sid, "document.getElementById('conn').textContent === 'live'")
 
+    async def sign_in_user(self, sid: str, url: str, user: str, password: str,
+                           live: bool = True) -> None:
+        """Open the HMI at ``url`` and sign in with an account (``hmi.users_file``)."""
+        await self.call("Page.navigate", sid, url=url)
+        await self.wait_for(sid, "location.pathname === '/login' && "
+                                 "document.readyState === 'complete'")
+        await self.eval(sid, f"document.getElementById('user').value = {user!r};"
+                             f"document.getElementById('password').value = {password!r};"
+                             "document.querySelector('form').submit(); true")
+        if live:
+            await self.wait_for(sid, "!!document.querySelector('.machine .start')")
+            await self.wait_for(sid, "document.getElementById('conn').textContent === 'live'")
+
     async def screenshot(self, sid: str, path: Path, whole_page: bool = False) -> None:
         shot = await self.call("Page.captureScreenshot", sid, captureBeyondViewport=whole_page)
         path.write_bytes(base64.b64decode(shot["data"]))
@@ -112,3 +125,17 @@ async def chromium(profile: Path, window: str = "1280,900") -> AsyncIterator[Cdp
         if proc.returncode is None:
             proc.kill()
         await proc.wait()
+
+
+async def tick_preflight(cdp: Cdp, sid: str, shot: Path | None = None) -> None:
+    """The Start button's pre-flight dialog: open, its Start refused until every item is
+    ticked, then ticked and confirmed (``shot``: a screenshot with every item ticked)."""
+    dlg = "document.getElementById('preflight')"
+    await cdp.wait_for(sid, f"{dlg}.open")
+    assert await cdp.eval(sid, f"{dlg}.querySelector('.pf-start').disabled")
+    await cdp.eval(sid, f"[...{dlg}.querySelectorAll('.pf-items input')].forEach(b => {{"
+                        "b.checked = true; b.dispatchEvent(new Event('change')); }); true")
+    assert not await cdp.eval(sid, f"{dlg}.querySelector('.pf-start').disabled")
+    if shot is not None:
+        await cdp.screenshot(sid, shot)
+    await cdp.eval(sid, f"{dlg}.querySelector('.pf-start').click(); true")

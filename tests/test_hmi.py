@@ -13,7 +13,7 @@ import pytest
 from contracts.yaml_files import ConfigError
 from daemon.config import load_daemon_config
 from daemon.service.service import Service
-from tests.browser import chromium
+from tests.browser import chromium, tick_preflight
 from tests.daemon_helpers import thesis_rows, thesis_setup, write_daemon_yaml
 from tests.replay_link import ReplayLink, prepare_from_rows
 
@@ -108,10 +108,16 @@ async def test_login_cookie_csrf_and_origin(service):
         assert (await http.post(url)).status == 403  # cookie alone: no CSRF token
         r = await http.post(url, headers={"X-CSRF-Token": csrf, "Origin": "http://evil.example"})
         assert r.status == 403
-        r = await http.post(url, headers={"X-CSRF-Token": csrf})
+        r = await http.post(url, headers={"X-CSRF-Token": csrf})  # issue 23: no pre-flight
+        assert r.status == 400 and "pre-flight checklist not confirmed" in await r.text()
+        r = await http.post(url, headers={"X-CSRF-Token": csrf},
+                            json={"preflight": ["probe", "balls", "doors"]})  # one unticked
+        assert r.status == 400 and "Working area clear" in await r.text()
+        preflight = {"preflight": ["probe", "balls", "doors", "area"]}
+        r = await http.post(url, headers={"X-CSRF-Token": csrf}, json=preflight)
         assert r.status == 202
         run_id = (await r.json())["run_id"]
-        r = await http.post(url, headers={"X-CSRF-Token": csrf})
+        r = await http.post(url, headers={"X-CSRF-Token": csrf}, json=preflight)
         assert r.status == 409 and run_id in (await r.json())["error"]
         r = await http.post(service.hmi_url + "api/machines/mill1/abort",
                             headers={"X-CSRF-Token": csrf})
@@ -175,6 +181,7 @@ async def test_browser_start_progress_verdict_report(sim_service, tmp_path):
         # A mark on this document: still there at the end = no navigation, no reload.
         await cdp.eval(sid, "window.rumbaNoReload = 1; true")
         await cdp.eval(sid, "document.querySelector('.machine .start').click(); true")
+        await tick_preflight(cdp, sid)
         progress = set()
         async with asyncio.timeout(60):
             while True:

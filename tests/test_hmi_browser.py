@@ -14,7 +14,7 @@ import pytest
 
 from daemon.config import load_daemon_config
 from daemon.service.service import Service
-from tests.browser import chromium
+from tests.browser import chromium, tick_preflight
 from tests.daemon_helpers import thesis_rows, thesis_setup, write_daemon_yaml
 from tests.replay_link import ReplayLink, prepare_from_rows
 from tests.report_helpers import journal_run
@@ -97,6 +97,7 @@ async def test_running_row_follows_the_progress_bar_and_pdf_is_served(tmp_path):
             sid = await cdp.page()
             await cdp.sign_in(sid, svc.hmi_url, TOKEN)
             await cdp.eval(sid, "document.querySelector('.machine .start').click(); true")
+            await tick_preflight(cdp, sid)
             run_id = await cdp.wait_for(sid, "document.querySelector('#history tbody tr') && "
                                              "document.querySelector('#history tbody tr')"
                                              ".dataset.run")
@@ -174,6 +175,7 @@ async def test_start_refusals_are_shown_json_or_not(tmp_path):
                                 "new Response('502 Bad Gateway: upstream down', {status: 502, "
                                 "headers: {'Content-Type': 'text/plain'}}); true")
             await cdp.eval(sid, f"{card}.querySelector('.start').click(); true")
+            await tick_preflight(cdp, sid)
             msg = await cdp.wait_for(sid, f"{card}.querySelector('.message').textContent")
             assert msg == "502 Bad Gateway: upstream down", msg
             # an empty non-JSON answer names its status; the daemon's own refusal is JSON
@@ -183,8 +185,10 @@ async def test_start_refusals_are_shown_json_or_not(tmp_path):
                 [False, "HTTP 503"]
             await cdp.eval(sid, "window.fetch = window.realFetch; true")
             url = f"/api/machines/{next(iter(svc.sessions))}/start"
-            first = await cdp.eval(sid, f"post('{url}').then(r => r.ok)")
-            ok, error = await cdp.eval(sid, f"post('{url}').then(r => [r.ok, r.body.error])")
+            ticked = "{preflight: ['probe', 'balls', 'doors', 'area']}"
+            first = await cdp.eval(sid, f"post('{url}', {ticked}).then(r => r.ok)")
+            ok, error = await cdp.eval(sid, f"post('{url}', {ticked}).then(r => [r.ok, "
+                                            "r.body.error])")
             assert first is True and ok is False and "in progress" in error, error
             await svc.sessions[next(iter(svc.sessions))].wait()
     finally:

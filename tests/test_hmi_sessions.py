@@ -116,11 +116,12 @@ async def test_expired_tampered_and_foreign_cookies_are_refused(daemon):
     assert await status_code(daemon, good) == 200
     expired, _ = auth.new_session(now=time.time() - SESSION_TTL_S - 1)
     assert await status_code(daemon, expired) == 401
-    sid, exp, sig = good.split(".")
-    tampered = [f"{sid}.{int(exp) + 86400}.{sig}",                       # longer life
-                f"{sid[:-1]}{'A' if sid[-1] != 'A' else 'B'}.{exp}.{sig}",  # other id
-                f"{sid}.{exp}.{sig[:-1]}{'A' if sig[-1] != 'A' else 'B'}",  # other signature
-                f"{sid}.{exp}", "", "a.b.c.d"]
+    sid, exp, user, gen, sig = good.split(".")  # a token session: no user, no generation
+    tampered = [f"{sid}.{int(exp) + 86400}.{user}.{gen}.{sig}",                 # longer life
+                f"{sid[:-1]}{'A' if sid[-1] != 'A' else 'B'}.{exp}.{user}.{gen}.{sig}",  # id
+                f"{sid}.{exp}.{user}.{gen}.{sig[:-1]}{'A' if sig[-1] != 'A' else 'B'}",  # sig
+                f"{sid}.{exp}.admin.{gen}.{sig}",                       # a name slipped in
+                f"{sid}.{exp}.{sig}", f"{sid}.{exp}", "", "a.b.c.d", "a.b.c.d.e"]
     for bad in tampered:
         assert await status_code(daemon, bad) == 401, bad
     foreign, _ = Auth(TOKEN).new_session()  # same token, another daemon's secret

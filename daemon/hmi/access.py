@@ -3,7 +3,10 @@
 Auth: ``Authorization: Bearer <token>`` (scripts) or a login form that sets an HttpOnly,
 SameSite=Strict (and, over TLS, Secure) signed session cookie that survives a daemon restart
 (``daemon.hmi.auth``); tokens are compared in constant time. Cookie-authenticated POSTs also
-need the per-session CSRF token (header ``X-CSRF-Token``) and an allowed ``Origin``. Every
+need the per-session CSRF token (header ``X-CSRF-Token``) and an allowed ``Origin``. With
+accounts (``hmi.users_file``) the form asks for name and password and every request knows the
+person and role (``IDENTITY_KEY``; ``require`` refuses a role too low); the token is then for
+scripts only. Every
 request needs an allowed ``Host`` (DNS rebinding); wrong tokens are limited daemon-wide, and
 headers, bodies and query values are bounded (``daemon.hmi.limits``).
 """
@@ -20,7 +23,7 @@ from urllib.parse import parse_qsl
 
 from aiohttp import web
 
-from daemon.hmi.auth import SESSION_TTL_S, Auth
+from daemon.hmi.auth import SESSION_TTL_S, TOKEN_NAME, Auth, Identity
 from daemon.hmi.limits import AuthLimiter, HmiLimits, Origins
 
 COOKIE = "rumba_session"
@@ -36,6 +39,7 @@ ORIGINS_KEY = web.AppKey("origins", Origins)
 LOGIN_NAME_KEY = web.AppKey("login_name", str)  # the page the login form signs in to
 VIA_KEY = web.RequestKey("via", str)
 CSRF_KEY = web.RequestKey("csrf", str)
+IDENTITY_KEY = web.RequestKey("identity", Identity)
 
 
 def page_asset(name: str) -> str:
@@ -95,13 +99,16 @@ def _authenticate(request: web.Request) -> None:
             raise web.HTTPUnauthorized(text="wrong token", headers={"WWW-Authenticate": "Bearer"})
         limiter.succeeded(request.remote)
         request[VIA_KEY] = "bearer"  # not sent by browsers on their own: no CSRF risk
+        request[IDENTITY_KEY] = Identity(TOKEN_NAME, "admin", "bearer")
         return
     # A cookie is signed with a 256-bit key: a wrong one is not a token guess (and expired
     # ones come from honest browsers), so it is not counted and works during a lockout.
-    csrf = auth.session(request.cookies.get(COOKIE))
-    if csrf is not None:
+    ident = auth.identity(request.cookies.get(COOKIE))
+    if ident is not None:
+        csrf = ident.csrf
         request[VIA_KEY] = "cookie"
         request[CSRF_KEY] = csrf
+        request[IDENTITY_KEY] = ident
         if request.method not in ("GET", "HEAD"):
             if not _origin_ok(request):
                 raise web.HTTPForbidden(text="cross-origin request refused")
@@ -156,11 +163,31 @@ async def security(request: web.Request, handler: Callable[[web.Request], Awaita
     return resp
 
 
+_TOKEN_FIELDS = ('<label for="token">Access token</label>\n  <input id="token" name="token" '
+                 'type="password" autocomplete="current-password" autofocus required>')
+_USER_FIELDS = ('<label for="user">Name</label>\n  <input id="user" name="user" '
+                'autocomplete="username" autocapitalize="none" autofocus required>\n  '
+                '<label for="password">Password</label>\n  <input id="password" '
+                'name="password" type="password" autocomplete="current-password" required>')
+
+
+def require(request: web.Request, role: str, what: str) -> Identity:
+    """The request's person when their role is at least ``role``, else 403 naming both."""
+    ident = request.get(IDENTITY_KEY)
+    if ident is None or not ident.may(role):
+        who = f"{ident.name} ({ident.role})" if ident else "nobody"
+        need = "an engineer or admin" if role == "engineer" else f"at least {role}"
+        raise web.HTTPForbidden(text=f"signed in as {who}: {what} needs {need}")
+    return ident
+
+
 def _login_html(request: web.Request, error: str) -> str:
     """The login form naming the page it signs in to (escaped); ``error`` is our own markup.
     One pass over login.html's placeholders, so a value is never itself substituted."""
-    values = {"error": error, "page": escape(request.app[LOGIN_NAME_KEY])}
-    return re.sub(r"\{\{(error|page)\}\}", lambda m: values[m.group(1)],
+    auth: Auth = request.app[AUTH_KEY]  # type: ignore[assignment]
+    values = {"error": error, "page": escape(request.app[LOGIN_NAME_KEY]),
+              "fields": _USER_FIELDS if auth.accounts else _TOKEN_FIELDS}
+    return re.sub(r"\{\{(error|page|fields)\}\}", lambda m: values[m.group(1)],
                   page_asset("login.html"))
 
 
@@ -181,12 +208,19 @@ async def login(request: web.Request) -> web.Response:
         raise web.HTTPBadRequest(text="too many form fields") from None
     _locked_out(request)
     limiter = request.app[LIMITER_KEY]
-    if not auth.token_ok(form.get("token", "")):
+    user = None
+    if auth.accounts is not None:  # a person: name and password (scrypt, in a worker thread)
+        user = await asyncio.to_thread(auth.accounts.check, form.get("user", "")[:64],
+                                       form.get("password", "")[:1024])
+        ok, wrong = user is not None, "Wrong name or password."
+    else:
+        ok, wrong = auth.token_ok(form.get("token", "")), "Wrong token."
+    if not ok:
         limiter.failed(request.remote, "login")
         return web.Response(status=401, content_type="text/html", text=_login_html(
-            request, '<p class="error">Wrong token.</p>'))
+            request, f'<p class="error">{wrong}</p>'))
     limiter.succeeded(request.remote)
-    cookie, _ = auth.new_session()
+    cookie, _ = auth.new_session(user=user)
     resp = web.HTTPSeeOther("/")
     resp.set_cookie(COOKIE, cookie, httponly=True, samesite="Strict", secure=auth.secure_cookie,
                     max_age=SESSION_TTL_S, path="/")

@@ -24,6 +24,7 @@ from daemon.hmi.access import (  # the access names are re-exported: callers imp
     CSP,
     CSRF_KEY,
     HMI_NAME,
+    IDENTITY_KEY,
     LIMITER_KEY,
     LIMITS_KEY,
     ORIGINS_KEY,
@@ -31,14 +32,17 @@ from daemon.hmi.access import (  # the access names are re-exported: callers imp
     VIA_KEY,
     asset,
     page_asset,
+    require,
     secured_app,
 )
-from daemon.hmi.auth import Auth
+from daemon.hmi.auth import Auth, Identity
 from daemon.hmi.baseline_api import add_routes as add_baseline_routes
 from daemon.hmi.compensation_api import add_routes as add_compensation_routes
 from daemon.hmi.limits import HmiLimits, int_param
 from daemon.hmi.trend_api import trend_handler
+from daemon.hmi.users import Accounts
 from daemon.run.session import Refused, Session
+from daemon.store.actions import record_action
 from daemon.store.journal import Store, StoreError, validate_run_id
 
 __all__ = ["AUTH_KEY", "COOKIE", "LIMITER_KEY", "LIMITS_KEY", "ORIGINS_KEY", "PUBLIC",
@@ -93,16 +97,63 @@ async def status(request: web.Request) -> web.Response:
     return web.json_response({n: s.status() for n, s in _sessions(request).items()})
 
 
+# Start from the page asks for this pre-flight list, every item ticked (issue 23): a run that
+# starts with the probe in the magazine or a door open is a crash or a wasted hour.
+PREFLIGHT = (("probe", "Touch probe in the spindle, switched on"),
+             ("balls", "Balls clean and tight on their stems, artefact clamped"),
+             ("doors", "Doors closed"),
+             ("area", "Working area clear: no tools, clamps, chips or people inside"))
+
+
+def _identity(request: web.Request) -> Identity:
+    return request.get(IDENTITY_KEY) or Identity("token", "admin", "bearer")
+
+
+def _journal(request: web.Request, machine: str, action: str, outcome: str, *,
+             run_id: str = "", detail: str = "") -> None:
+    i = _identity(request)
+    record_action(request.app[STORE_KEY], machine, action, i.name, i.role, i.via, outcome,
+                  run_id=run_id, detail=detail)
+
+
+async def _preflight(request: web.Request) -> str:
+    """The ticked pre-flight list of a page's start request ('' for scripts), else 400."""
+    if request.get(VIA_KEY) == "bearer":
+        return ""
+    try:
+        body = json.loads(await request.text() or "{}")
+    except (ValueError, UnicodeDecodeError):
+        body = None
+    ticked = body.get("preflight") if isinstance(body, dict) else None
+    missing = [k for k, _ in PREFLIGHT if not isinstance(ticked, list) or k not in ticked]
+    if missing:
+        raise web.HTTPBadRequest(text="pre-flight checklist not confirmed: " + "; ".join(
+            t for k, t in PREFLIGHT if k in missing))
+    return "pre-flight ticked: " + ", ".join(k for k, _ in PREFLIGHT)
+
+
 async def start(request: web.Request) -> web.Response:
     s = _session(request)
+    require(request, "operator", "starting a run")
     # Scripts (`rumba verify --daemon`, bearer token) say who they are; the page is "hmi".
     trigger = "cli" if request.get(VIA_KEY) == "bearer" and \
         request.query.get("trigger") == "cli" else "hmi"
+    checked = await _preflight(request)
+    person = _identity(request).name if _identity(request).via == "password" else ""
     try:
-        run_id = s.start(trigger)
+        run_id = s.start(trigger, started_by=person)
     except Refused as e:
+        _journal(request, s.setup.name, "start", f"refused: {e}", detail=checked)
         return web.json_response({"error": str(e)}, status=409)
+    _journal(request, s.setup.name, "start", "ok", run_id=run_id, detail=checked)
     return web.json_response({"run_id": run_id}, status=202)
+
+
+async def me(request: web.Request) -> web.Response:
+    """Who is signed in, and what the page may offer them."""
+    i = _identity(request)
+    return web.json_response({"name": i.name, "role": i.role, "via": i.via,
+                              "may_compensate": i.may("engineer")})
 
 
 # `rumba verify --daemon` stopped by a signal names it (bearer scripts only); a fixed text per
@@ -122,8 +173,14 @@ async def abort(request: web.Request) -> web.Response:
     if run_id is not None and (run_id != s.run_id or not s.busy):
         return web.json_response({"error": f"{s.setup.name}: run {run_id[:64]!r} is not "
                                            "running", **s.status()}, status=409)
-    if not await s.abort(ABORT_BY[by] if by else "hmi"):
+    require(request, "operator", "aborting a run")
+    person = f"{_identity(request).name} (hmi)" if _identity(request).via == "password" \
+        else "hmi"
+    current = s.run_id or ""
+    if not await s.abort(ABORT_BY[by] if by else person):
+        _journal(request, s.setup.name, "abort", "refused: nothing to abort")
         return web.json_response({"error": f"{s.setup.name}: nothing to abort"}, status=409)
+    _journal(request, s.setup.name, "abort", "ok", run_id=current, detail=by or "")
     return web.json_response(s.status())
 
 
@@ -210,20 +267,22 @@ async def events(request: web.Request) -> web.StreamResponse:
 def create_app(sessions: Mapping[str, Session], store: Store, token: str,
                secure_cookie: bool = False, secret: bytes | None = None, *,
                limits: HmiLimits | None = None, bind_host: str | None = None,
-               public_origins: Iterable[str] = (), stale_after_h: float = 24.0
-               ) -> web.Application:
+               public_origins: Iterable[str] = (), stale_after_h: float = 24.0,
+               accounts: Accounts | None = None) -> web.Application:
     """``secret``: the session signing secret (``auth.load_or_create_secret``); without it
     sessions end with this app. ``bind_host`` (``hmi.host``) and ``public_origins``
     (``scheme://name[:port]`` the operators type) are accepted as Host / Origin besides the
     address the client connected to (and localhost names on loopback). The timeouts and
     sizes of ``limits`` apply to any ``web.AppRunner`` of this app (``handler_args``); a verdict
-    older than ``stale_after_h`` is flagged stale on the page."""
-    app = secured_app(Auth(token, secure_cookie, secret=secret, store=store), limits,
-                      bind_host, public_origins, HMI_NAME)
+    older than ``stale_after_h`` is flagged stale on the page. ``accounts``: people sign in
+    with name and password and act in their role (``daemon.hmi.users``)."""
+    app = secured_app(Auth(token, secure_cookie, secret=secret, store=store,
+                           accounts=accounts), limits, bind_host, public_origins, HMI_NAME)
     app[SESSIONS_KEY] = dict(sessions)
     app[STORE_KEY] = store
     app[STREAMS_KEY] = set()
-    app[PAGE_KEY] = escape(json.dumps({"stale_after_h": stale_after_h, "advice": ADVICE}))
+    app[PAGE_KEY] = escape(json.dumps({"stale_after_h": stale_after_h, "advice": ADVICE,
+                                       "preflight": PREFLIGHT}))
 
     async def end_streams(app: web.Application) -> None:
         # Open event streams never end on their own: close them so shutdown is immediate.
@@ -234,6 +293,7 @@ def create_app(sessions: Mapping[str, Session], store: Store, token: str,
     app.router.add_get("/", index)
     app.router.add_get("/{name:hmi\\.js}", asset)  # hmi.css: secured_app (the login's too)
     app.router.add_get("/api/status", status)
+    app.router.add_get("/api/me", me)
     app.router.add_get("/api/events", events)
     app.router.add_get("/api/runs", runs)
     app.router.add_post("/api/machines/{machine}/start", start)

@@ -37,6 +37,14 @@ window.rumbaComp = (() => {
     p.el.querySelector(".comp-confirm").disabled =
       p.busy || !d || !d.proposal || !d.proposal.applicable;
     p.el.querySelector(".comp-rollback").disabled = p.busy || !d || !d.last_applied;
+    // issue 23: only an engineer or admin confirms or rolls back; say so on the buttons
+    const me = window.rumbaMe;
+    if (me && !me.may_compensate) {
+      for (const b of p.el.querySelectorAll(".comp-confirm, .comp-rollback")) {
+        b.disabled = true;
+        b.title = `signed in as ${me.name} (${me.role}): an engineer or admin confirms`;
+      }
+    }
   }
 
   function render(name) {

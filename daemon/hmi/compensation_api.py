@@ -28,8 +28,9 @@ from daemon.compensation.propose import (
     spec_of,
     unit_of,
 )
-from daemon.hmi.access import COOKIE, VIA_KEY, page_asset
+from daemon.hmi.access import COOKIE, IDENTITY_KEY, VIA_KEY, page_asset, require
 from daemon.run.session import Session
+from daemon.store.actions import record_action
 from daemon.store.journal import RunRow, Store, StoreError, validate_run_id
 
 FINISHED = ("DONE", "IMPORTED")  # a run that ended with an identification (not aborted)
@@ -40,9 +41,13 @@ log = logging.getLogger("rumba.hmi")
 
 def who(request: web.Request) -> str:
     """Who confirms, as the access layer knows the client (never a name the client sends):
-    ``hmi:<session id prefix>@<address>`` for a signed-in page, ``hmi:token@<address>`` for a
-    script with the bearer token."""
-    if request.get(VIA_KEY) == "cookie":
+    the person's account name when signed in with a password (issue 23),
+    ``hmi:<session id prefix>@<address>`` for a page signed in with the token,
+    ``hmi:token@<address>`` for a script with the bearer token."""
+    ident = request.get(IDENTITY_KEY)
+    if ident is not None and ident.via == "password":
+        name = ident.name
+    elif request.get(VIA_KEY) == "cookie":
         sid = (request.cookies.get(COOKIE) or "").split(".")[0]
         name = f"hmi:{sid[:8]}@{request.remote}"
     else:
@@ -291,8 +296,25 @@ def add_routes(app: web.Application, sessions_key: web.AppKey, store_key: web.Ap
         out, _ = await asyncio.to_thread(views(request).get, session)
         return web.json_response(out)
 
+    def audit(request: web.Request, machine: str, action: str, resp: web.Response,
+              run_id: str = "") -> web.Response:
+        """The person's confirm / rollback and its outcome in the HMI's audit trail."""
+        ident = request.get(IDENTITY_KEY)
+        outcome = "ok" if resp.status < 300 else \
+            f"refused: {json.loads(resp.text or '{}').get('error', resp.status)}"
+        record_action(request.app[store_key], machine, action,
+                      ident.name if ident else "token", ident.role if ident else "admin",
+                      ident.via if ident else "bearer", outcome[:500], run_id=run_id)
+        return resp
+
     async def post_confirm(request: web.Request) -> web.Response:
+        require(request, "engineer", "confirming a compensation")
         body = await _body(request, "machine", "run_id")
+        session = session_of(request, body["machine"], 422)
+        return audit(request, session.setup.name, "confirm",
+                     await confirm_body(request, body), body["run_id"])
+
+    async def confirm_body(request: web.Request, body: dict[str, Any]) -> web.Response:
         again = body.pop("again", False) is True
         session = session_of(request, body["machine"], 422)
         try:
@@ -338,8 +360,13 @@ def add_routes(app: web.Application, sessions_key: web.AppKey, store_key: web.Ap
                                   "values": [v.as_dict() for v in p.values]})
 
     async def post_rollback(request: web.Request) -> web.Response:
+        require(request, "engineer", "rolling back a compensation")
         body = await _body(request, "machine")
         session = session_of(request, body["machine"], 422)
+        return audit(request, session.setup.name, "rollback",
+                     await rollback_body(request, session))
+
+    async def rollback_body(request: web.Request, session: Session) -> web.Response:
         by = who(request)
         journal: Path = request.app[store_key].path
         async with request.app[LOCK_KEY]:

@@ -68,11 +68,14 @@ setInterval(() => {
   }
 }, 30000);
 
-async function post(url) {
+async function post(url, body) {
   // the body is read once, as text: an answer that is not JSON (a proxy's error page) is shown
   let r, text;
+  const headers = {"X-CSRF-Token": csrf};
+  if (body !== undefined) headers["Content-Type"] = "application/json";
   try {
-    r = await fetch(url, {method: "POST", headers: {"X-CSRF-Token": csrf}, credentials: "same-origin"});
+    r = await fetch(url, {method: "POST", headers, credentials: "same-origin",
+                          body: body === undefined ? undefined : JSON.stringify(body)});
     text = await r.text();
   } catch (e) { return {ok: false, body: {error: "daemon not reachable"}}; }
   try { return {ok: r.ok, body: JSON.parse(text)}; } catch (e) {
@@ -85,10 +88,12 @@ function card(name) {
   const el = document.getElementById("machine-tpl").content.firstElementChild.cloneNode(true);
   el.dataset.machine = name;
   el.querySelector(".name").textContent = name;
-  el.querySelector(".start").addEventListener("click", async () => {
+  el.querySelector(".start").addEventListener("click", () => {
     el.querySelector(".message").textContent = "";
-    const r = await post(`/api/machines/${encodeURIComponent(name)}/start`);
-    if (!r.ok) el.querySelector(".message").textContent = r.body.error || "start refused";
+    preflight(name, async ticked => {
+      const r = await post(`/api/machines/${encodeURIComponent(name)}/start`, {preflight: ticked});
+      if (!r.ok) el.querySelector(".message").textContent = r.body.error || "start refused";
+    });
   });
   el.querySelector(".abort").addEventListener("click", async () => {
     if (!confirm(`Abort the run on ${name}? The machine stops.`)) return;
@@ -125,6 +130,12 @@ function render(st) {
   }
   if (!running && st.reason) text = st.reason;
   el.querySelector(".progress-text").textContent = text;
+  // issue 23: which pose and ball the probe is on, live
+  const p = running && st.probing;
+  const probing = el.querySelector(".probing");
+  probing.hidden = !p;
+  probing.textContent = p ? `Probing pose ${p.pose}, ball ${p.ball}, touch ${p.touch}` : "";
+  if (p) Object.assign(probing.dataset, {pose: p.pose, ball: p.ball, touch: p.touch});
   el.querySelector(".start").disabled = running;
   el.querySelector(".abort").disabled = !running;
   // The daemon's own verdict; when it has none (just started, or the last run failed) the
@@ -243,18 +254,21 @@ function niceStep(span) {
 // One small chart per link error: its own axis in its own unit (µm or µrad), its warn and fail
 // limits (±, the judge bounds |value|), one dot per run coloured by the run's verdict.
 function chart(s, runs) {
-  const W = 240, H = 118, L = 44, R = 6, T = 18, B = 14;
+  // issue 23: large enough to read, runs placed by their date, date and time on the axis
+  const W = 380, H = 210, L = 52, R = 10, T = 24, B = 34;
   const vals = s.values.filter(v => v !== null);
   const lim = s.fail || s.warn || 0;
   const top = 1.12 * Math.max(lim, ...vals.map(Math.abs), 1e-9);
   const lo = s.two_sided ? -top : 0;
   const y = v => T + (H - T - B) * (top - v) / (top - lo);
-  const x = i => L + (W - L - R) * (runs.length > 1 ? i / (runs.length - 1) : 0.5);
+  const t0 = runs.length ? runs[0].started_at : 0;
+  const span = runs.length > 1 ? runs[runs.length - 1].started_at - t0 : 0;
+  const x = i => L + (W - L - R) * (span > 0 ? (runs[i].started_at - t0) / span : 0.5);
   const svg = svgEl("svg", {viewBox: `0 0 ${W} ${H}`, class: "chart", role: "img",
                          "aria-label": `${s.name} trend in ${s.unit}`});
-  svg.appendChild(svgEl("text", {x: L, y: 11, class: "title"}, s.name));
+  svg.appendChild(svgEl("text", {x: L, y: 14, class: "title"}, s.name));
   const last = vals.length ? vals[vals.length - 1] : null;
-  if (last !== null) svg.appendChild(svgEl("text", {x: W - R, y: 11, class: "last", "text-anchor": "end"},
+  if (last !== null) svg.appendChild(svgEl("text", {x: W - R, y: 14, class: "last", "text-anchor": "end"},
                                         `${last >= 0 ? "+" : ""}${last.toFixed(1)} ${s.unit}`));
   const step = niceStep(top - lo);
   for (let v = Math.ceil(lo / step) * step; v <= top + 1e-9; v += step) {
@@ -262,8 +276,8 @@ function chart(s, runs) {
     svg.appendChild(svgEl("text", {x: L - 3, y: y(v) + 3, class: "tick", "text-anchor": "end"},
                        String(Math.round(v * 100) / 100)));
   }
-  svg.appendChild(svgEl("text", {x: 9, y: (T + H - B) / 2, class: "unit", "text-anchor": "middle",
-                              transform: `rotate(-90 9 ${(T + H - B) / 2})`}, s.unit));
+  svg.appendChild(svgEl("text", {x: 11, y: (T + H - B) / 2, class: "unit", "text-anchor": "middle",
+                              transform: `rotate(-90 11 ${(T + H - B) / 2})`}, s.unit));
   svg.appendChild(svgEl("line", {x1: L, x2: L, y1: T, y2: H - B, class: "axis"}));
   for (const [kind, v] of [["warn", s.warn], ["fail", s.fail]]) {
     if (v === null || v === undefined) continue;
@@ -274,15 +288,26 @@ function chart(s, runs) {
   const pts = s.values.map((v, i) => [i, v]).filter(([, v]) => v !== null);
   svg.appendChild(svgEl("polyline", {points: pts.map(([i, v]) => `${x(i)},${y(v)}`).join(" "), class: "line"}));
   for (const [i, v] of pts) {
-    const c = svgEl("circle", {cx: x(i), cy: y(v), r: 3, class: `pt v-${runs[i].verdict}`});
+    const c = svgEl("circle", {cx: x(i), cy: y(v), r: 4, class: `pt v-${runs[i].verdict}`});
     c.appendChild(svgEl("title", {}, `${localIso(runs[i].started_at)}: ${v.toFixed(2)} ${s.unit} (${runs[i].verdict})`));
     svg.appendChild(c);
   }
-  if (runs.length) {
-    svg.appendChild(svgEl("text", {x: L, y: H - 2, class: "tick"}, localIso(runs[0].started_at).slice(5, 10)));
-    svg.appendChild(svgEl("text", {x: W - R, y: H - 2, class: "tick", "text-anchor": "end"},
-                       localIso(runs[runs.length - 1].started_at).slice(5, 10)));
+  // time axis: first, middle and last run's date (MM-DD) over its time (HH:MM)
+  svg.appendChild(svgEl("line", {x1: L, x2: W - R, y1: H - B, y2: H - B, class: "axis"}));
+  const marks = runs.length > 2 ? [0, Math.floor((runs.length - 1) / 2), runs.length - 1] :
+    [...runs.keys()];
+  for (const i of marks) {
+    const iso = localIso(runs[i].started_at), anchor = i === 0 ? "start" :
+      i === runs.length - 1 ? "end" : "middle";
+    const g = svgEl("g", {class: "xtick"});
+    g.appendChild(svgEl("line", {x1: x(i), x2: x(i), y1: H - B, y2: H - B + 4, class: "axis"}));
+    g.appendChild(svgEl("text", {x: x(i), y: H - B + 14, class: "tick date", "text-anchor": anchor},
+                        iso.slice(5, 10)));
+    g.appendChild(svgEl("text", {x: x(i), y: H - B + 26, class: "tick time", "text-anchor": anchor},
+                        iso.slice(11, 16)));
+    svg.appendChild(g);
   }
+  svg.dataset.name = s.name;
   return svg;
 }
 
@@ -299,6 +324,7 @@ async function loadTrend(name) {
   box.querySelector(".trend-note").textContent = enough ? `(last ${t.runs.length} runs)` :
     "(shown from the second run with a verdict on)";
   box.querySelector(".charts").replaceChildren(...(enough ? t.series.map(s => chart(s, t.runs)) : []));
+  pickControls(box, enough ? t.series.map(s => s.name) : []);
   if ((t.channels || []).length) againstControls(name, box, t);
 }
 
@@ -382,6 +408,49 @@ function scatter(a) {
   }
   return svg;
 }
+
+// On a phone one chart at a time (issue 23): the picker chooses which link error is shown.
+function pickControls(box, names) {
+  const pick = box.querySelector(".trend-pick");
+  const keep = pick.value;
+  pick.replaceChildren(...names.map(n => { const o = document.createElement("option");
+                                           o.value = o.textContent = n; return o; }));
+  pick.hidden = !names.length;
+  if (names.includes(keep)) pick.value = keep;
+  const show = () => box.querySelectorAll(".charts svg.chart").forEach(
+    svg => svg.classList.toggle("picked", svg.dataset.name === pick.value));
+  pick.onchange = show;
+  show();
+}
+
+// Start asks first (issue 23): every item of the pre-flight list ticked, then the run starts.
+function preflight(name, go) {
+  const dlg = document.getElementById("preflight");
+  dlg.querySelector(".pf-machine").textContent = name;
+  const list = dlg.querySelector(".pf-items"), ok = dlg.querySelector(".pf-start");
+  list.replaceChildren(...cfg.preflight.map(([key, text]) => {
+    const li = document.createElement("li"), label = document.createElement("label");
+    const box = document.createElement("input");
+    box.type = "checkbox"; box.value = key; box.className = "pf-" + key;
+    label.append(box, " ", text); li.appendChild(label); return li;
+  }));
+  const boxes = [...list.querySelectorAll("input")];
+  const update = () => { ok.disabled = !boxes.every(b => b.checked); };
+  boxes.forEach(b => b.addEventListener("change", update));
+  update();
+  ok.onclick = () => { dlg.close(); go(boxes.map(b => b.value)); };
+  dlg.querySelector(".pf-cancel").onclick = () => dlg.close();
+  dlg.showModal();
+}
+
+// Who is signed in (issue 23): the header names the person and role; the compensation
+// buttons say when the role may not use them (the daemon refuses anyway).
+window.rumbaMe = null;
+fetch("/api/me", {credentials: "same-origin"}).then(r => r.json()).then(me => {
+  window.rumbaMe = me;
+  document.body.dataset.role = me.role;
+  document.getElementById("who").textContent = `${me.name} · ${me.role}`;
+}).catch(() => {});
 
 document.getElementById("logout").addEventListener("click", async () => {
   await post("/logout");

@@ -85,6 +85,9 @@ class RunStatus:
         self.first_hit_at: float | None = None
         self.estimated_s: float | None = None
         self.verdict: dict[str, Any] | None = None
+        # what the probe is on now (issue 23): {"pose", "ball", "touch"} of the touch the
+        # controller is at — the next one in the program's table once a hit has arrived
+        self.probing: dict[str, Any] | None = None
         self._queues: set[asyncio.Queue] = set()
         self.listeners: list[Callable[[dict[str, Any]], None]] = []
         self.link_ok = True  # False after a lost link: the next run reconnects first
@@ -101,7 +104,14 @@ class RunStatus:
             "total": self.total, "elapsed_s": round(now - self.started_at, 1)
             if self.run_id else None, "eta_s": self.eta_s(now), "verdict": self.verdict,
             "busy": self.busy, "link_ok": self.link_ok,
+            "probing": self.probing if self.busy else None,
         }
+
+    def _probing(self, touch: Any) -> None:
+        """The pose, ball and touch the probe is on (a hit, or the table's next touch)."""
+        tid = getattr(touch, "id", touch)
+        if tid is not None:
+            self.probing = {"pose": tid.pose, "ball": tid.ball, "touch": tid.touch}
 
     def eta_s(self, now: float | None = None) -> float | None:
         """Time left: measured pace once touches arrive, else the program's estimate."""

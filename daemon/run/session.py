@@ -76,8 +76,9 @@ class Session(RunStatus):
         self.set_link_ok(True)
 
     # ----------------------------------------------------------------------------- commands
-    def start(self, trigger: str) -> str:
-        """Start a run now (returns its id) or raise ``Refused`` with the reason."""
+    def start(self, trigger: str, started_by: str = "") -> str:
+        """Start a run now (returns its id) or raise ``Refused`` with the reason;
+        ``started_by``: the person (an HMI account) who asked, journaled with the run."""
         if trigger not in ("cli", "rerun") and not getattr(self.setup.triggers, trigger, True):
             raise Refused(f"{self.setup.name}: trigger '{trigger}' is disabled in the config")
         if self.busy:
@@ -87,14 +88,16 @@ class Session(RunStatus):
         # a compensation being written refuses the run; the run holds the machine to its end
         lease = self.lease = run_lease.take(self.lease, self.store.path, self.setup.name, trigger)
         self.run_id = new_run_id()
-        lease.describe(f"run {self.run_id} (started by {trigger})")
+        lease.describe(f"run {self.run_id} (started by {started_by or trigger})")
         self.trigger = trigger
         self.done, self.total = 0, 0
         self.started_at, self.first_hit_at, self.estimated_s = time.time(), None, None
         self.verdict, self.reason, self._abort_reason = None, "", None
+        self.probing = None
         self._abort_state = State.ABORTED
         self.store.new_run(self.run_id, self.setup.name, trigger, plan=self.setup.plan.name,
-                           artefact=self.setup.artefact.name, dialect=self.setup.dialect)
+                           artefact=self.setup.artefact.name, dialect=self.setup.dialect,
+                           started_by=started_by)
         self._enter(State.PREPARE, "")
         self._task = asyncio.get_running_loop().create_task(self._run(self.run_id),
                                                             name=f"run-{self.run_id}")
@@ -320,6 +323,7 @@ class Session(RunStatus):
         run_id = self.run_id or prepared.job.run_id
         hits: list[ProbeHit] = []
         done0 = self.done
+        self._probing(prepared.job.touches.get(1))
         agen = self.link.run(prepared.job)
         try:
             while True:
@@ -339,6 +343,8 @@ class Session(RunStatus):
                 await self.temps.on_hit(run_id, hit.pose, hit.t_s)
                 hits.append(hit)
                 self.done = done0 + len(hits)
+                self._probing(hit if remap is not None else
+                              prepared.job.touches.get(own.seq + 1) or own)
                 if self.first_hit_at is None:
                     self.first_hit_at = time.time()
                     self._enter(State.CAPTURE)

@@ -15,6 +15,7 @@ import errno
 import logging
 import ssl
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 from aiohttp import web
@@ -44,6 +45,18 @@ def make_link(setup: MachineSetup) -> CncLink:
     from programs.dialects import get_dialect
 
     return registry_link(setup.link, dialect=get_dialect(setup.dialect))
+
+
+def _accounts(path: Path | None) -> Any:
+    """The HMI accounts of ``hmi.users_file`` (``daemon.hmi.users.Accounts``), or None."""
+    if path is None:
+        return None
+    from daemon.hmi.users import Accounts, UsersError
+
+    try:
+        return Accounts(path)
+    except UsersError as e:
+        raise ServiceError(f"hmi.users_file: {e}") from None
 
 
 def _connect_timeout(setup: MachineSetup) -> float:
@@ -143,7 +156,8 @@ class Service:
         app = create_app(self.sessions, self.store, cfg.hmi_token or "",  # type: ignore[arg-type]
                          secure_cookie=ctx is not None, secret=secret,
                          bind_host=cfg.hmi.host, public_origins=cfg.hmi.public_origins,
-                         stale_after_h=cfg.hmi.stale_after_h)
+                         stale_after_h=cfg.hmi.stale_after_h,
+                         accounts=_accounts(cfg.users_file))
         self._runner = web.AppRunner(app, access_log=None, handle_signals=False)
         await self._runner.setup()
         site = web.TCPSite(self._runner, cfg.hmi.host, cfg.hmi.port, ssl_context=ctx)

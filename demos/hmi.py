@@ -1,0 +1,161 @@
+"""`make demo-hmi`: the simulated CNC (OPC UA, Basic256Sha256 SignAndEncrypt + user/password),
+the daemon (`rumba run`, its own process) and its HMI, with an account made for this session:
+prints the URL and a one-time login (user ``demo``, engineer, a random password), then serves
+until Ctrl-C, which stops the daemon (SIGTERM: it ends a run cleanly) and the simulator.
+
+``python -m demos.hmi [--port P] [--out DIR] [--time-scale S]``
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import contextlib
+import os
+import secrets
+import shutil
+import signal
+import sys
+import tempfile
+from pathlib import Path
+
+from demos.e2e import ARTEFACT, CONFIG, ERRORS, MACHINE, PLAN, stop_process
+
+USER = "demo"
+
+
+def daemon_yaml(work: Path, url: str, pki: Path, server_cert: Path, port: int) -> str:
+    return f"""# written by demos/hmi.py (make demo-hmi)
+store: {{path: {work / 'journal.sqlite'}}}
+reports_dir: {work / 'reports'}
+hmi: {{host: 127.0.0.1, port: {port}, token_file: {work / 'hmi.token'}, users_file: users}}
+machines:
+  - name: demo-hmc
+    machine: {CONFIG / MACHINE}
+    artefact: {CONFIG / ARTEFACT}
+    plan: {CONFIG / PLAN}
+    dialect: fanuc
+    link:
+      transport: opcua
+      url: '{url}'
+      security: Basic256Sha256_SignAndEncrypt
+      certificate: {pki / 'client/cert.der'}
+      private_key: {pki / 'client/key.pem'}
+      server_certificate: {server_cert}
+      user: {{name: rumba, password_env: RUMBA_DEMO_OPCUA_PASSWORD}}
+    touch_timeout_s: 60
+    tolerances:
+      default_rotation_urad: {{warn: 30, fail: 60, drift_warn: 8, drift_fail: 15}}
+      default_translation_um: {{warn: 150, fail: 250}}
+      volumetric_max_um: {{warn: 150, fail: 250}}
+      residual_rms_um: 5
+      run_drift_um: 8
+"""
+
+
+def write_secrets(work: Path) -> str:
+    """The scripts' token and the demo account (engineer, random password); the password."""
+    from daemon.hmi.users import User, hash_password, write_users
+
+    token = work / "hmi.token"
+    token.write_text(secrets.token_urlsafe(24))
+    token.chmod(0o600)
+    password = secrets.token_urlsafe(12)
+    write_users(work / "users", {USER: User(USER, "engineer", hash_password(password))})
+    return password
+
+
+async def _banner(stdout: asyncio.StreamReader) -> str:
+    """The daemon's startup lines until it says where the HMI listens ('' if it exited)."""
+    while True:
+        line = (await stdout.readline()).decode()
+        if not line:
+            return ""
+        if line.startswith("rumba: HMI at "):
+            return line.split("rumba: HMI at ", 1)[1].strip()
+
+
+async def serve(work: Path, port: int, time_scale: float) -> int:
+    from contracts.opcua_certs import ensure_certificate
+    from simulators.controller import VirtualController
+    from simulators.frontends.opcua import OpcUaFrontend
+    from simulators.truth import TruthModel
+
+    pki = work / "pki"
+    await ensure_certificate(pki / "client/cert.der", pki / "client/key.pem",
+                             "urn:rumba-cnc:daemon", server=False)
+    (pki / "trusted").mkdir(parents=True, exist_ok=True)
+    shutil.copy(pki / "client/cert.der", pki / "trusted/daemon.der")
+    opcua_password = secrets.token_urlsafe(16)
+    truth = TruthModel.from_files(CONFIG / MACHINE, CONFIG / ARTEFACT, CONFIG / ERRORS)
+    ctrl = VirtualController(truth, time_scale=time_scale, dialect="fanuc")
+    sim = OpcUaFrontend(ctrl, cert_dir=pki / "server", users={"rumba": opcua_password},
+                        trusted_client_certs=[pki / "trusted"])
+    url = await sim.start()
+    stop = asyncio.Event()
+    loop = asyncio.get_running_loop()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        loop.add_signal_handler(sig, stop.set)
+    daemon = None
+    log = work / "daemon.log"
+    try:
+        cfg = work / "daemon.yaml"
+        cfg.write_text(daemon_yaml(work, url, pki, sim.server_certificate, port))
+        password = write_secrets(work)
+        env = {**os.environ, "RUMBA_DEMO_OPCUA_PASSWORD": opcua_password}
+        with log.open("wb") as err:
+            daemon = await asyncio.create_subprocess_exec(
+                sys.executable, "-m", "daemon.cli", "run", "--config", str(cfg),
+                cwd=Path(__file__).resolve().parents[1], env=env,
+                stdout=asyncio.subprocess.PIPE, stderr=err,
+                start_new_session=True)  # Ctrl-C reaches us; we stop the daemon in order
+        assert daemon.stdout is not None
+        (work / "daemon.pid").write_text(f"{daemon.pid}\n")
+        banner = asyncio.ensure_future(_banner(daemon.stdout))
+        waiter = asyncio.ensure_future(stop.wait())
+        await asyncio.wait({banner, waiter}, return_when=asyncio.FIRST_COMPLETED)
+        waiter.cancel()
+        if not banner.done():
+            banner.cancel()
+            print("stopped before the daemon was up")
+            return 130
+        hmi = banner.result()
+        if not hmi:
+            tail = log.read_text(errors="replace").strip().splitlines()[-5:]
+            print("error: the daemon exited during startup:\n  " + "\n  ".join(tail),
+                  file=sys.stderr)
+            return 1
+        print(f"simulated CNC (OPC UA, SignAndEncrypt) at {url}; machine errors {ERRORS}")
+        print(f"HMI:      {hmi}")
+        print(f"login:    user {USER}  password {password}   (engineer; made for this session)")
+        print(f"files:    {work} (journal, reports, daemon.log); more accounts: "
+              f"rumba users --file {work / 'users'} add NAME --role operator")
+        print("Ctrl-C stops the daemon and the simulated CNC", flush=True)
+        await stop.wait()
+        print("\nstopping …", flush=True)
+        return 0
+    finally:
+        if daemon is not None:
+            await stop_process(daemon)
+        with contextlib.suppress(Exception):
+            await sim.stop()
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            loop.remove_signal_handler(sig)
+        print("stopped: daemon and simulated CNC", flush=True)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m demos.hmi", description=__doc__)
+    ap.add_argument("--port", type=int, default=8470, help="HMI port (0: any free port)")
+    ap.add_argument("--time-scale", type=float, default=0.05,
+                    help="simulated machine time scale (1 = real time; default 0.05)")
+    ap.add_argument("--out", type=Path, help="folder for journal, reports and config "
+                                             "(default: a new temp folder, kept)")
+    args = ap.parse_args(argv)
+    out = args.out or Path(tempfile.mkdtemp(prefix="rumba-demo-hmi-"))
+    out.mkdir(parents=True, exist_ok=True)
+    return asyncio.run(serve(out.resolve(), args.port, args.time_scale))
+
+
+if __name__ == "__main__":
+    sys.exit(main())
