@@ -14,8 +14,10 @@ Two halves in one file:
   Pins: ``rumba-probe.x y z b c`` (float in, netted from ``joint.N.pos-fb``), ``out`` (bit out →
   ``motion.probe-input`` while probing), ``crash`` (bit out, stylus > 0.1 mm inside a ball: trips
   in any move), ``contacts`` (s32 out, rising edges), ``gap-um`` (float out, smallest
-  signed stylus-to-ball gap). Parameters: ``ball-K-present`` (bit rw, K = artefact order, all 1
-  at start; ``halcmd setp rumba-probe.ball-1-present 0`` removes ball 1 from the table).
+  signed stylus-to-ball gap), ``temp-x y z`` (float out, °C: the errors file's thermal
+  sensors warming from the component's start, issue 22). Parameters: ``ball-K-present`` (bit
+  rw, K = artefact order, all 1 at start; ``halcmd setp rumba-probe.ball-1-present 0``
+  removes ball 1 from the table).
 
 Contact (METHOD.md §1-2, thesis Eq. 3.1): the stylus sphere touches ball i when
 ``|tip_w − c_i| <= R_i + r − pretravel + n`` with ``tip_w`` the true tip centre in the last
@@ -82,9 +84,29 @@ def write_spec(truth: Any, path: Path | str, absent: tuple[str, ...] = ()) -> di
         "centre_noise_mm": [v * 1e-3 for v in probe.centre_noise_um],
         "absent": sorted({ids.index(b) for b in absent} | set(truth.absent)),
         "seed": int(truth.seed),
+        "thermal": _thermal(truth),
     }
     Path(path).write_text(json.dumps(spec, indent=1), encoding="utf-8")
     return spec
+
+
+def _thermal(truth: Any) -> dict:
+    """The structure sensors' warm-up (simulators/thermal.py) for the ``temp-x y z`` pins."""
+    th = truth.thermal
+    if th is None:
+        return {"ambient_c": 20.0, "start_state": 0.0, "axes": {}}
+    return {"ambient_c": th.ambient_c, "start_state": th.start_state,
+            "axes": {a: [w.rise_c, w.tau_s] for a, w in th.axes.items()}}
+
+
+def sensor_c(thermal: dict, axis: str, t_s: float) -> float:
+    """What the structure sensor on ``axis`` reads ``t_s`` after the component started (the
+    thermal state of simulators/thermal.py, warming from LinuxCNC's start: no drift here)."""
+    import math
+
+    rise, tau = thermal["axes"].get(axis.upper(), [0.0, 1.0])
+    s = 1.0 - (1.0 - thermal["start_state"]) * math.exp(-max(t_s, 0.0) / tau)
+    return thermal["ambient_c"] + rise * s
 
 
 class ProbeModel:
@@ -202,18 +224,24 @@ def main(argv: list[str] | None = None) -> int:
     for p in PLANE_PINS:
         comp.newpin(p, hal.HAL_FLOAT, hal.HAL_OUT)
     comp["plane-k"] = 1e6
+    thermal = spec.get("thermal") or {"ambient_c": 20.0, "start_state": 0.0, "axes": {}}
+    for a in "xyz":  # structure temperatures (issue 22): what a shop wires to its sensors
+        comp.newpin(f"temp-{a}", hal.HAL_FLOAT, hal.HAL_OUT)
     n = len(model.centres)
     for k in range(n):
         comp.newparam(f"ball-{k}-present", hal.HAL_BIT, hal.HAL_RW)
         comp[f"ball-{k}-present"] = bool(model.present[k])
     comp.ready()
     out, contacts, last, still_since = False, 0, None, time.monotonic()
+    t_ready = still_since
     try:
         while True:
             for k in range(n):
                 model.present[k] = bool(comp[f"ball-{k}-present"])
             q = tuple(comp[j] for j in JOINTS)
             now = time.monotonic()
+            for a in "xyz":
+                comp[f"temp-{a}"] = sensor_c(thermal, a, now - t_ready)
             if q != last:
                 last, still_since = q, now
             gap = model.gap_mm(*q)
