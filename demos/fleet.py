@@ -88,17 +88,17 @@ def daemon_yaml(work: Path, name: str, dialect: str, link: dict, dsn: str, mqtt_
     return path
 
 
-async def banner(proc: asyncio.subprocess.Process, name: str, timeout_s: float) -> str:
-    """Read a daemon's output until it says where its HMI listens; then keep draining it."""
+async def banner(proc: asyncio.subprocess.Process, name: str) -> str:
+    """Read a daemon's output until it says where its HMI listens (or it exits: then why);
+    then keep draining it. No clock: a loaded computer starts a daemon slowly."""
     assert proc.stdout is not None
-    async with asyncio.timeout(timeout_s):
-        while True:
-            line = (await proc.stdout.readline()).decode()
-            if not line:
-                raise RuntimeError(f"the daemon of {name} exited during startup (see its "
-                                   "daemon.log)")
-            if line.startswith("rumba: HMI at "):
-                break
+    while True:
+        line = (await proc.stdout.readline()).decode()
+        if not line:
+            raise DemoFailed(f"the daemon of {name} exited during startup (code "
+                             f"{await proc.wait()}; see its daemon.log)")
+        if line.startswith("rumba: HMI at "):
+            break
     asyncio.get_running_loop().create_task(_drain(proc.stdout))
     return line.split("rumba: HMI at ", 1)[1].strip()
 
@@ -125,6 +125,56 @@ demo gives up, naming where each machine stood. A busy machine only makes runs s
 
 class DemoStalled(Exception):
     """The fleet made no progress for ``STALL_S``; the message says where it stood."""
+
+
+class DemoFailed(Exception):
+    """A machine's run ended without a verdict, or its daemon exited; the message says why."""
+
+
+ENDED = ("DONE", "FAILED", "ABORTED", "INTERRUPTED")
+
+
+async def runs_ended(hmis: dict[str, str], token: str,
+                     procs: dict[str, asyncio.subprocess.Process] | None = None,
+                     stall_s: float = STALL_S, before: dict[str, str | None] | None = None
+                     ) -> dict[str, dict]:
+    """Wait on each daemon's own state of its run (its HMI's /api/status, bearer token) until
+    every machine's run has ended; the statuses. A run that ends FAILED, ABORTED or
+    INTERRUPTED, or a daemon that exits, fails at once with the reason (``DemoFailed``); a
+    slow run is waited for as long as its touches or states move (``DemoStalled`` only after
+    ``stall_s`` without any change): a busy computer is slow, not stuck. ``before``: each
+    machine's run id before the starts (default none: fresh journals)."""
+    import aiohttp
+
+    started: dict[str, str] = {}
+    last, moved = None, time.monotonic()
+    async with aiohttp.ClientSession(headers={"Authorization": f"Bearer {token}"}) as http:
+        while True:
+            for name, p in (procs or {}).items():
+                if p.returncode is not None:
+                    raise DemoFailed(f"{name}: the daemon exited (code {p.returncode}); see "
+                                     "its daemon.log")
+            now: dict[str, dict] = {}
+            for name, url in hmis.items():
+                async with http.get(url + "api/status") as r:
+                    now[name] = (await r.json())[name]
+            for name, st in now.items():
+                if st["run_id"] and st["run_id"] != (before or {}).get(name):
+                    started[name] = st["run_id"]
+                if name in started and not st["busy"] and st["state"] in ENDED[1:]:
+                    raise DemoFailed(f"{name}: run {started[name]} {st['state']}: "
+                                     f"{st['reason']}")
+            if len(started) == len(hmis) and all(not s["busy"] for s in now.values()):
+                return now
+            key = [(n, s["run_id"], s["state"], s["done"]) for n, s in sorted(now.items())]
+            if key != last:
+                last, moved = key, time.monotonic()
+            elif time.monotonic() - moved > stall_s:
+                where = ", ".join(f"{n} {s['state']} {s['done']}/{s['total']} touches"
+                                  for n, s in sorted(now.items()))
+                raise DemoStalled(f"no progress for {stall_s:g} s (no touch, no state change):"
+                                  f" {where}; see the daemon.log files")
+            await asyncio.sleep(0.2)
 
 
 async def fleet_in_store(dsn: str, names: list[str], progress: Callable[[], object],
@@ -210,7 +260,7 @@ async def demo(time_scale: float, out: Path, stay: bool) -> int:
                 await sub
 
         stack.push_async_callback(end_sub)
-        ctrls = {}
+        ctrls, hmis = {}, {}
         for name, dialect, transport in MACHINES:
             ctrl, link, stop = await start_cnc(dialect, transport, time_scale)
             stack.push_async_callback(stop)
@@ -224,12 +274,16 @@ async def demo(time_scale: float, out: Path, stay: bool) -> int:
                     sys.executable, "-m", "daemon.cli", "run", "--config", str(cfg), cwd=ROOT,
                     stdout=asyncio.subprocess.PIPE, stderr=log)
             procs.append(proc)
-            print(f"  {name}: {dialect} over {transport}; HMI at {await banner(proc, name, 90)}")
+            hmis[name] = await banner(proc, name)
+            print(f"  {name}: {dialect} over {transport}; HMI at {hmis[name]}")
         print(f"daemons up ({time.monotonic() - t0:.1f} s); the three CNCs raise their "
               "start-of-shift request at once")
         t1 = time.monotonic()
         for ctrl in ctrls.values():
             ctrl.raise_start_request()
+        # each daemon's own run state first (a failed run ends the demo at once, naming why),
+        # then the fleet store the journals drain to
+        await runs_ended(hmis, token, dict(zip(ctrls, procs, strict=True)))
         fleet = await fleet_in_store(pg.dsn, list(ctrls), lambda: [
             (len(c.touches), c.state) for c in ctrls.values()])
         for name, c in ctrls.items():
@@ -274,7 +328,7 @@ def main(argv: list[str] | None = None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     try:
         return asyncio.run(demo(args.time_scale, out, not args.exit))
-    except DemoStalled as e:
+    except (DemoStalled, DemoFailed) as e:
         print(f"demo-fleet: {e} (in {out})", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
