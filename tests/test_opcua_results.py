@@ -132,7 +132,7 @@ async def test_node_opcua_checks_types_calls_methods_and_gets_the_event(served):
     assert r["event"]["result"]["resultId"] == "run-live"
     assert r["event"]["result"]["evaluation"] == 2 and r["event"]["result"]["resultState"] == 1
     assert ["State", "CAPTURE"] in r["seen"] and ["DoneTouches", 3] in r["seen"]
-    assert ["MachineryItemState", "Executing"] in r["seen"]
+    assert ["MachineryItemState", "Executing"] in r["seen"], json.dumps(r["seen"])
     assert (r["after"]["LastResultId"], r["after"]["LastVerdict"],
             r["after"]["LastResultEvaluation"]) == ("run-live", "FAIL", 2)
     assert r["latest"]["resultId"] == "run-live" and r["latest"]["error"] == 0

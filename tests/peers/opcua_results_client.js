@@ -217,16 +217,20 @@ async function main() {
       // the check's state while the run goes on: every State and DoneTouches change seen
       const check0 = (await children((await children(machinesFolder))
         .find((r) => r.browseName.name === mname).nodeId)).find((r) => r.browseName.name === "Check");
+      const ready = [];  // every monitored item live before the test is told to run
       for (const r of await children(check0.nodeId)) {
         if (!["State", "DoneTouches", "TotalTouches", "RunId"].includes(r.browseName.name)) continue;
         const mi = ClientMonitoredItem.create(sub, { nodeId: r.nodeId, attributeId: AttributeIds.Value },
           { samplingInterval: 0, discardOldest: false, queueSize: 1000 }, TimestampsToReturn.Both);
         mi.on("changed", (dv) => seen.push([r.browseName.name, dv.value.value]));
+        ready.push(new Promise((res) => mi.once("initialized", res)));
       }
       const itemStateNode = await child(M.itemStateNode, 0, "CurrentState");
       const mi = ClientMonitoredItem.create(sub, { nodeId: itemStateNode, attributeId: AttributeIds.Value },
         { samplingInterval: 0, discardOldest: false, queueSize: 1000 }, TimestampsToReturn.Both);
       mi.on("changed", (dv) => seen.push(["MachineryItemState", dv.value.value && dv.value.value.text]));
+      ready.push(new Promise((res) => mi.once("initialized", res)));
+      await Promise.all(ready);
       emit({ event: "subscribed", state: M.state });
     }
     const ev = eventSeen ? await eventSeen : null;
