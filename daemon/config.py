@@ -27,6 +27,7 @@ from daemon.hosts import is_loopback
 from daemon.machines.setup import MachineEntry, MachineSetup, load_machines, resolve_path
 from daemon.mqtt.config import MqttFile
 from daemon.notify.config import NotifyFile
+from daemon.opcua.config import OpcUaServerFile
 
 
 class TlsFile(StrictModel):
@@ -84,6 +85,8 @@ class DaemonFile(StrictModel):
     can_panel: dict[str, Any] | None = None  # validated by drivers.can.panel
     mqtt: MqttFile | None = None  # live results out (daemon/mqtt/publisher.py)
     notify: NotifyFile | None = None  # webhook / e-mail notifications (daemon/notify/notifier.py)
+    opcua_server: OpcUaServerFile | None = None  # OPC UA results server (issue 25), off if absent
+    aqdef_dir: str | None = None  # an AQDEF (.dfq) file per finished run dropped here (issue 25)
     machines: list[MachineEntry] = Field(min_length=1)
 
     @model_validator(mode="after")
@@ -112,6 +115,8 @@ class DaemonConfig:
     store_dsn: str | None = None  # postgresql://… : the fleet store the journal drains to
     mqtt: Any = None  # daemon.mqtt.config.MqttConfig
     notify: Any = None  # daemon.notify.config.NotifyConfig
+    opcua_server: Any = None  # daemon.opcua.config.OpcUaServerConfig (issue 25)
+    aqdef_dir: Path | None = None  # issue 25: the AQDEF drop folder
     users_file: Path | None = None  # hmi.users_file: the HMI accounts
 
 
@@ -194,9 +199,17 @@ def load_daemon_config(path: Path | str) -> DaemonConfig:
 
         notify = load_notify(df.notify, base, f"{path}: notify", list(machines),
                              read_token_file)
+    opcua = None
+    if df.opcua_server is not None:
+        from daemon.opcua.config import load_opcua_server
+
+        opcua = load_opcua_server(df.opcua_server, base, f"{path}: opcua_server",
+                                  list(machines), read_token_file)
     return DaemonConfig(path, store_path, df.store.synchronous,
                         resolve_path(base, df.reports_dir), df.hmi, token, tls, df.can_panel,
-                        machines, dsn, mqtt, notify, users_file=users_file)
+                        machines, dsn, mqtt, notify, users_file=users_file, opcua_server=opcua,
+                        aqdef_dir=None if df.aqdef_dir is None else resolve_path(
+                            base, df.aqdef_dir))
 
 
 def config_from_dict(data: Any, path: Path) -> DaemonFile:

@@ -78,6 +78,9 @@ class Service:
         self._tasks: list[asyncio.Task] = []
         self.panel: Any = None
         self.fleet: FleetLink | None = None
+        self.opcua: Any = None  # daemon.opcua.server.ResultServer (issue 25)
+        self.opcua_url: str | None = None
+        self.aqdef: dict[str, Any] = {}  # machine -> daemon.service.aqdef_drop.AqdefDrop
 
     # ------------------------------------------------------------------------------ startup
     async def start(self) -> None:
@@ -104,6 +107,7 @@ class Service:
                       **self.session_kw}
                 self.sessions[name] = Session(setup, link, self.store, cfg.reports_dir, **kw)
             self.fleet.attach(self.sessions)
+            await self._start_results()
             if cfg.hmi.enabled:
                 await self._start_hmi()
             await self._start_panel()
@@ -121,6 +125,32 @@ class Service:
             if setup.rerun_interrupted and last and last[0].state == "INTERRUPTED":
                 log.info("%s: starting a new run after the interrupted one", name)
                 session.start("rerun")
+
+    async def _start_results(self) -> None:
+        """Issue 25: the AQDEF drop and the OPC UA results server, both optional, both
+        listening to the sessions' status (neither can block or fail a run)."""
+        cfg = self.config
+        if cfg.aqdef_dir is not None:
+            from daemon.service.aqdef_drop import AqdefDrop
+
+            for name, session in self.sessions.items():
+                self.aqdef[name] = AqdefDrop(cfg.aqdef_dir, session.setup, self.store)
+                session.listeners.append(self.aqdef[name].on_status)
+        if cfg.opcua_server is None:
+            return
+        from contracts.yaml_files import ConfigError
+        from daemon.opcua.server import OpcUaServerError, ResultServer
+
+        self.opcua = ResultServer(cfg.opcua_server, self.store, list(self.sessions))
+        try:
+            self.opcua_url = await self.opcua.start()
+        except (OpcUaServerError, ConfigError) as e:
+            raise ServiceError(f"{cfg.path}: {e}") from None
+        for name, session in self.sessions.items():
+            listener = self.opcua.listener(name)
+            session.listeners.append(listener)
+            listener(session.status())
+        log.info("OPC UA results server on %s", self.opcua_url)
 
     async def _stop_leftover(self, name: str, link: CncLink) -> None:
         """The controller may still run the interrupted program, whose results nobody reads
@@ -231,6 +261,9 @@ class Service:
         for link in self.links.values():
             with contextlib.suppress(Exception):
                 await link.close()
+        if self.opcua is not None:
+            with contextlib.suppress(Exception):
+                await self.opcua.stop()
         if self.fleet is not None:
             await self.fleet.close()
         if self.store is not None:
