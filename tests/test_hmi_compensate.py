@@ -27,8 +27,8 @@ THESIS = CONFIG / "machines/thesis_wcbxfzyt.yaml"
 
 
 @contextlib.asynccontextmanager
-async def world(tmp: Path, *, section: bool = True, wide: bool = True
-                ) -> AsyncIterator[Service]:
+async def world(tmp: Path, *, section: bool = True, wide: bool = True,
+                plan: str = "thesis_ch3_7poses") -> AsyncIterator[Service]:
     """The daemon (HMI on a free port) and the simulated CNC it probes over OPC UA; the machine
     file is the thesis one with its Siemens section (``wide``: guards widened so that EX0C
     −106 µm passes), or without the section."""
@@ -50,7 +50,7 @@ async def world(tmp: Path, *, section: bool = True, wide: bool = True
         elif not section:
             del data["controller_kinematics"]
         (tmp / "machine.yaml").write_text(yaml.safe_dump(data))
-        path = write_daemon_yaml(tmp, token=TOKEN,
+        path = write_daemon_yaml(tmp, token=TOKEN, plan=plan,
                                  link=f"{{transport: opcua, url: '{url}', security: none}}")
         path.write_text(path.read_text().replace(str(THESIS), str(tmp / "machine.yaml")))
         svc = Service(load_daemon_config(path))

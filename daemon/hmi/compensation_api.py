@@ -101,7 +101,8 @@ def proposal_dict(p: Proposal) -> dict[str, Any]:
     links = []
     for name, ident in p.plan.links_identified.items():
         value, unit = _um(name, ident)
-        links.append({"name": name, "unit": unit, "identified": value,
+        # rounded as the analysis JSON rounds links (4 decimals): the report's very figure
+        links.append({"name": name, "unit": unit, "identified": round(value, 4),
                       "compensable": _um(name, p.plan.links_compensable[name])[0],
                       "residual": _um(name, p.plan.links_residual[name])[0]})
     pl = p.plan
