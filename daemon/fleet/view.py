@@ -11,6 +11,8 @@ from html import escape
 from typing import Any
 from urllib.parse import quote
 
+from daemon.analysis.figures import DEFINITIONS, LABELS, VOLUMETRIC
+
 UNITS = {"urad": "µrad", "um": "µm"}
 VERDICTS = ("PASS", "WARN", "FAIL", "ERROR")
 _ENDED = ("DONE", "FAILED", "ABORTED", "INTERRUPTED")  # a run in no other state is running
@@ -256,5 +258,8 @@ def machine_page(name: str, machine: Mapping[str, Any] | None, runs: Sequence[Ma
             '<h2>Runs</h2><table class="runs"><thead><tr><th>Run</th><th>Started</th>'
             '<th>Trigger</th><th>State</th><th>Verdict</th><th>Summary</th>'
             '<th>Temperatures</th><th>Report</th>'
-            f"</tr></thead><tbody>{rows}</tbody></table></main>")
+            f"</tr></thead><tbody>{rows}</tbody></table>"
+            # issue 23: the summary's figure is defined beside it, as on every surface
+            f'<p class="definition">{_e(LABELS[VOLUMETRIC])}: {_e(DEFINITIONS[VOLUMETRIC])}.'
+            "</p></main>")
     return _page(f"rumba fleet — {name}", html)

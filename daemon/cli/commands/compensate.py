@@ -39,7 +39,9 @@ def _fmt(kind: str, model_value: float) -> str:
 
 
 def _link(name: str, v: float) -> str:
-    return f"{v * 1e6:+.2f} µrad" if name[1] in "ABC" else f"{v * 1e3:+.2f} µm"
+    # rounded to 4 decimals first, as the analysis JSON and the report round a link
+    return f"{round(v * 1e6, 4):+.2f} µrad" if name[1] in "ABC" else \
+        f"{round(v * 1e3, 4):+.2f} µm"
 
 
 def render(p: Proposal) -> list[str]:

@@ -14,6 +14,7 @@ from rich.table import Table
 
 from contracts.messages import ProbeHit
 from contracts.probing_log import ProbeLogError
+from daemon.analysis.figures import DEFINITIONS, LABELS, VOLUMETRIC
 from daemon.analysis.judge import Judgement, judge, volumetric_max_um
 from daemon.analysis.pipeline import PipelineError, RunAnalysis, analyse, row_to_hit
 from daemon.cli.main import UserError
@@ -21,6 +22,7 @@ from daemon.compensation.propose import ControllerModelError, controller_model
 from daemon.config import DaemonConfig, load_daemon_config
 from daemon.machines.setup import MachineSetup
 from daemon.reports.compensation import verification_of
+from daemon.store import baselines
 from daemon.store.journal import Store, StoreError
 from daemon.store.probing_csv import export_csv, journal_import, read_import
 
@@ -145,8 +147,9 @@ def _import(cfg: DaemonConfig, store: Store, args: argparse.Namespace) -> int:
 
 def _analyse(setup: MachineSetup, store: Store, hits: list[ProbeHit], run_id: str,
              path: str | Path) -> tuple[RunAnalysis, Judgement]:
-    # judged and recorded like a live run: against the last good run before it
-    ref = store.last_good(setup.name, before=run_id)
+    # judged and recorded like a live run: against the machine's baseline (issue 23)
+    base = baselines.reference(store, setup.name, before=run_id)
+    ref = (base[0].run_id, base[1]) if base else None
     try:
         # an import of old data never reads a live machine (issue 20): the journal's model,
         # not the HAL pins of whatever LinuxCNC happens to run on this PC
@@ -166,7 +169,7 @@ def _list(store: Store, machine: str | None, limit: int) -> None:
         console = Console(width=200)  # piped output: do not squeeze the tables to 80 columns
     t = Table(title="Runs (most recent first)")
     for h in ("started", "run", "machine", "trigger", "state", "verdict", "touches",
-              "max distortion µm", "reason / summary"):
+              f"{LABELS[VOLUMETRIC]} µm", "reason / summary"):
         t.add_column(h)
     for r in store.runs(machine, limit):
         a = store.analysis(r.id)
@@ -177,7 +180,15 @@ def _list(store: Store, machine: str | None, limit: int) -> None:
                   f"{r.hits}/{r.touch_total}", "—" if vmax is None else f"{vmax:.1f}",
                   r.reason or r.summary)
     console.print(t)
+    # issue 23: the figure's definition beside it, and each machine's drift baseline
+    console.print(f"{LABELS[VOLUMETRIC]}: {DEFINITIONS[VOLUMETRIC]}.", soft_wrap=True,
+                  markup=False, highlight=False)
     machines = [machine] if machine else sorted({r.machine for r in store.runs(None, 500)})
+    for m in machines:
+        b = baselines.current(store, m)
+        console.print(f"{m}: drift judged against baseline {b.describe()}" if b else
+                      f"{m}: drift not checked: no baseline", soft_wrap=True, markup=False,
+                      highlight=False)
     for m in machines:
         trend = store.trend(m, limit)
         if len(trend) < 2:
@@ -188,7 +199,7 @@ def _list(store: Store, machine: str | None, limit: int) -> None:
         tt.add_column("verdict")
         for n in names:
             tt.add_column(n, justify="right")
-        tt.add_column("max dist.", justify="right")
+        tt.add_column("max vol. dist. (probed poses)", justify="right")
         for x in trend:
             links = x.analysis.links
             v = volumetric_max_um(x.analysis)
