@@ -22,12 +22,13 @@ from contracts.yaml_files import StrictModel
 MODBUS_ADDRESS = re.compile(r"^(input|holding):([0-9]{1,5})$")
 OPCUA_ADDRESS = re.compile(r"^(ns=[0-9]{1,5};[isgb]=[^\x00-\x1f]{1,200}|/[^\x00-\x1f]{1,200})$")
 HAL_PIN = re.compile(r"^[A-Za-z0-9_.-]{1,100}$")
-# the macro variable a DNC program prints, per dialect family: Fanuc/Haas and LinuxCNC
-# #-variables (LinuxCNC also named parameters #<_name>), Siemens R parameters, Heidenhain Q
-MACRO_VARIABLE = {"fanuc": re.compile(r"^#[0-9]{1,5}$"),
-                  "linuxcnc": re.compile(r"^#([0-9]{1,5}|<_?[A-Za-z][A-Za-z0-9_]{0,30}>)$"),
-                  "siemens": re.compile(r"^R[0-9]{1,4}$"),
-                  "heidenhain": re.compile(r"^Q[0-9]{1,4}$")}
+# the macro variable a DNC program prints (DPRNT), per dialect family: Fanuc/Haas common
+# variables #100-#199, #500-#597, #700-#999 (a PMC ladder or macro writes the sensor there;
+# #598-#699 are rumba's verdict, counter and result ring); the other families' print commands
+# carry no temperature line yet (use a transmitter there)
+MACRO_VARIABLE = {"fanuc": re.compile(r"^#(1[0-9]{2}|5[0-8][0-9]|59[0-7]|[7-9][0-9]{2})$")}
+# what the program prints: RTEMP S|P<pose>|E <channel number> <°C> (gcode_templates/fanuc)
+PRINTED_LINE = re.compile(r"^RTEMP (S|E|P[0-9]{1,4}) ([0-9]{1,2}) (-?[0-9]{1,5}\.[0-9]{1,4})$")
 WORDS = {"int16": 1, "uint16": 1, "int32": 2, "float32": 2}
 
 
@@ -108,13 +109,25 @@ def check_address(ch: TemperatureChannel, transport: str, family: str) -> None:
         ok, form = HAL_PIN.fullmatch(ch.address), "a HAL pin name"
     elif transport == "serial":
         pat = MACRO_VARIABLE.get(family)
-        ok = pat.fullmatch(ch.address) if pat else None
-        form = f"a {family} macro variable the program prints"
+        if pat is None:
+            raise ValueError(f"the {family} programs print no temperature over DNC (Fanuc/"
+                             "Haas DPRNT only); use source: transmitter")
+        ok, form = (pat.fullmatch(ch.address),
+                    "a Fanuc common variable #100-#199, #500-#597 or #700-#999")
     else:
         raise ValueError(f"the {transport} link cannot read temperatures; use source: "
                          "transmitter")
     if not ok:
         raise ValueError(f"address {ch.address!r} is not {form}")
+
+
+def parse_printed(line: str) -> tuple[int, str, float]:
+    """An ``RTEMP`` line → (channel number, marker S/E/P<pose>, °C); ValueError when broken."""
+    m = PRINTED_LINE.fullmatch(line.strip())
+    if not m:
+        raise ValueError(f"temperature line {line.strip()[:60]!r} does not match "
+                         "'RTEMP S|E|P<pose> <channel> <value>'")
+    return int(m.group(2)), m.group(1), float(m.group(3))
 
 
 def decode_registers(regs: list[int], ch: TemperatureChannel) -> float:

@@ -87,7 +87,9 @@ class CncLink(abc.ABC):
         raise LinkError(f"the {type(self).__name__} cannot read temperature channel "
                         f"{channel.name} ({channel.address})")
 
-    def printed_temperatures(self) -> list[tuple[str, float, int | None]]:
-        """Temperatures the program printed since the last call (name, °C, pose), e.g. a DNC
-        program's macro-variable lines; polled links print none."""
+    def printed_temperatures(self) -> list[tuple[int, str, float]]:
+        """Temperatures the program printed since the last call: (channel number, 1-based
+        among the program's printed channels; marker S start, P<pose>, E end; °C), e.g. a DNC
+        program's macro-variable lines (``contracts.temperatures.parse_printed``); polled
+        links print none."""
         return []

@@ -44,12 +44,15 @@ class GeneratedProgram:
 
 
 def generate(machine: Machine, machine_file: MachineFile, artefact: Artefact, plan: Plan,
-             dialect: str, targets: Targets | None = None) -> GeneratedProgram:
+             dialect: str, targets: Targets | None = None,
+             temperature_vars: tuple[str, ...] = ()) -> GeneratedProgram:
     """Build, check (``programs.safety.SafetyError`` when unsafe), render and time a program;
     ``programs.geometry.ProgramError`` when the plan cannot become one. The cycle time is
-    computed once: the program's header prints the same estimate the result carries."""
+    computed once: the program's header prints the same estimate the result carries.
+    ``temperature_vars``: macro variables to print (temperature channels over DNC, issue 22)."""
     d = get_dialect(dialect)
     prog = build_program(machine, machine_file, artefact, plan, targets, two_speed=d.two_speed)
+    prog.temperature_vars = tuple(temperature_vars)
     report = check_program(prog)
     ct = estimate(prog)
     text = d.render(prog, ct)

@@ -123,6 +123,9 @@ class Program:
     # the spindle tilts (a swivel or fork head, issue 24): X Y Z command the head pivot with
     # TCPM and tool-length offset off, which every dialect states and sets (``tcpm_off``)
     tilted: bool = False
+    # macro variables the program prints at its start, at each pose and at its end (issue 22:
+    # temperature channels over DNC, ``RTEMP`` lines); checked by the dialect before printing
+    temperature_vars: tuple[str, ...] = ()
 
     @property
     def axis_letters(self) -> tuple[str, str, str, str, str]:

@@ -29,6 +29,7 @@ MODBUS_SCALE_C = 0.01
 TRANSMITTER_ADDRESS = {"X": 0, "Y": 1, "Z": 2}
 TRANSMITTER_SCALE_C = 0.1
 HAL_PIN = "rumba-probe.temp-{axis}"  # lower-case axis letter
+FANUC_VARIABLE = {"X": "#591", "Y": "#592", "Z": "#593"}  # common variables a DNC program prints
 
 
 def counts(value_c: float, scale_c: float) -> int:

@@ -117,7 +117,7 @@ async def test_channels_read_at_start_every_pose_and_end_agree_with_the_warmup(c
         await service.stop()
     assert session.state == State.IDLE, session.reason
     t_end = rig.ctrl.machine_time_s  # the program's end: nothing ran after it on this link
-    plan_poses = sorted({p for p in range(7)})
+    plan_poses = list(range(7))
     for name in ("spindle", "column", "broken"):
         mine = [r for r in readings if r.channel == name]
         assert [r.at for r in mine] == ["start", *["pose"] * 7, "end"], (name, mine)
@@ -231,3 +231,64 @@ async def test_modbus_rtu_transmitter_over_a_pty_pair(tmp_path):
         await fe.stop()
         os.killpg(proc.pid, signal.SIGTERM)
         proc.wait(5)
+
+
+@pytest.mark.asyncio
+@pytest.mark.parametrize("cnc", ["serial-pty"], indirect=True)
+@pytest.mark.parametrize("dialect", ["fanuc", "haas"])
+async def test_dnc_program_prints_the_macro_variable_at_start_every_pose_and_end(
+        cnc, tmp_path, dialect):
+    """Over plain DNC nothing can be polled: the program prints the control's common variable
+    (DPRNT, ``RTEMP`` lines) and the link parses them beside the result lines."""
+    rig, _, port = cnc
+    rig.ctrl.dialect = dialect
+    var = thermal.FANUC_VARIABLE["Z"]
+    channels = [{"name": "spindle", "address": var},
+                {"name": "column", "source": "transmitter", "address": "input:0",
+                 "scale": 0.1, "transmitter": {"host": "127.0.0.1", "port": port}}]
+    entry = machine_entry(rig.link, channels, {})
+    entry["dialect"] = dialect
+    cfg = load_daemon_config(write_config(tmp_path, entry))
+    service = Service(cfg)
+    await service.start()
+    try:
+        session = service.sessions["mill1"]
+        rig.ctrl.raise_start_request()
+        await wait_verdict_on_cnc(session, rig.ctrl, RUN_TIMEOUT_S)
+        readings = temperatures(service.store, session.run_id)
+        analysis = service.store.analysis(session.run_id)
+    finally:
+        await service.stop()
+    assert session.state == State.IDLE, session.reason
+    spindle = [r for r in readings if r.channel == "spindle"]
+    assert [(r.at, r.pose) for r in spindle] == [
+        ("start", None), *[("pose", p) for p in range(7)], ("end", None)], spindle
+    values = [r.value_c for r in spindle]
+    assert values[0] == pytest.approx(sensor("Z", 0.0), abs=5e-4)  # [53]: 3 decimals
+    assert values == sorted(values) and values[-1] - values[0] > 1.0, values
+    # each printed value is the sensor at some machine time of the run: on the warm-up curve
+    lo, hi = sensor("Z", 0.0), sensor("Z", 1e9)
+    assert all(lo - 5e-4 <= v <= hi for v in values)
+    column = [r for r in readings if r.channel == "column"]
+    assert [r.at for r in column] == ["start", *["pose"] * 7, "end"]
+    assert analysis.temperatures["spindle"]["source"] == f"spindle: serial {var}"
+
+
+def test_dnc_temperature_variable_cannot_inject_gcode():
+    """Only a Fanuc common variable outside rumba's own reaches the program text; anything else
+    is refused when the program is generated (and by the config before that)."""
+    from programs.dialects import get_dialect
+    from programs.geometry import ProgramError
+    from programs.model import Program
+
+    prog = Program.__new__(Program)
+    for bad in ("#593]M30", "#599", "#600", "#5021", "R21", "#1\nM30", "#<_t>"):
+        prog.temperature_vars = (bad,)
+        with pytest.raises(ProgramError, match="is not a fanuc variable"):
+            get_dialect("fanuc").temperature_prints(prog)
+    prog.temperature_vars = ("#593", "#100", "#750")
+    assert [t["var"] for t in get_dialect("haas").temperature_prints(prog)] == [
+        "#593", "#100", "#750"]
+    for other in ("siemens", "heidenhain", "linuxcnc"):
+        with pytest.raises(ProgramError, match="prints no temperature lines"):
+            get_dialect(other).temperature_prints(prog)

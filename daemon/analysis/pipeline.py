@@ -69,8 +69,11 @@ def prepare(setup: MachineSetup, run_id: str,
 
     try:
         targets = targets_from(last_good if setup.program_targets == "last_good" else None)
+        printed = tuple(ch.address for ch in setup.temperatures  # issue 22: DNC prints them
+                        if ch.source == "controller"
+                        and getattr(setup.link, "transport", "") == "serial")
         g = generate(setup.machine, setup.machine_file, setup.artefact, setup.plan,
-                     setup.dialect, targets)
+                     setup.dialect, targets, printed)
         for name in g.aux_files:  # they become files on the controller (and next to `gcode -o`)
             plain_name(name, f"{setup.dialect} auxiliary file")
     except SafetyError as e:

@@ -74,13 +74,19 @@ class TemperatureRecorder:
             await self.sample(run_id, "pose", pose, t_s)
 
     def take_printed(self, run_id: str, t_s: float) -> None:
-        """Journal what the program printed (a DNC macro variable line) since the last call."""
-        known = {ch.name for ch in self.channels}
-        for name, value, pose in self.link.printed_temperatures():
-            if name in known:
-                at = "start" if pose == 0 else "end" if pose < 0 else "pose"
-                self._journal(run_id, TemperatureReading(
-                    name, at, None if at != "pose" else pose - 1, t_s, value))
+        """Journal what the program printed since the last call (a DNC program's ``RTEMP``
+        lines: channel k is the k-th controller channel, the program prints them in order)."""
+        printed = [ch for ch in self.channels
+                   if ch.transmitter is None and self.link_name == "serial"]
+        for k, marker, value in self.link.printed_temperatures():
+            if not 1 <= k <= len(printed):
+                log.warning("%s %s: temperature line of channel %d ignored (the program "
+                            "prints %d)", self.machine, run_id, k, len(printed))
+                continue
+            at = {"S": "start", "E": "end"}.get(marker, "pose")
+            self._journal(run_id, TemperatureReading(
+                printed[k - 1].name, at, int(marker[1:]) if at == "pose" else None, t_s,
+                value))  # type: ignore[arg-type]
 
     def _journal(self, run_id: str, r: TemperatureReading) -> None:
         journal_temperature(self.store, run_id, r)

@@ -9,6 +9,7 @@ import re
 import time
 from collections import deque
 
+from contracts.temperatures import parse_printed
 from drivers.base import LinkError
 
 log = logging.getLogger("rumba.serial")
@@ -72,6 +73,7 @@ class _DncProtocol(asyncio.Protocol):
         self._overlong = False  # discarding the rest of an over-long line up to its newline
         self.overlong_lines = 0
         self.transport: asyncio.BaseTransport | None = None
+        self.temperatures: list[str] = []  # RTEMP lines of the running program (issue 22)
 
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
         self.transport = transport
@@ -148,6 +150,8 @@ class _DncProtocol(asyncio.Protocol):
                 self._refuse(line, "too soon after the last run's end (hold-off)")
             else:
                 self.requests.put_nowait((machine, line))
+        elif self.running and line.startswith("RTEMP"):
+            self.temperatures.append(line)  # a temperature, never a result (PrintedTemperatures)
         elif self.running:
             self.lines.put_nowait(line)
         else:
@@ -159,6 +163,25 @@ class _DncProtocol(asyncio.Protocol):
         self.lines.put_nowait(err)
         self.requests.put_nowait(err)
         self.xon.set()
+
+
+class PrintedTemperatures:
+    """The DNC link's temperatures (issue 22): the ``RTEMP`` lines its program printed."""
+
+    _proto: _DncProtocol | None
+
+    def printed_temperatures(self) -> list[tuple[int, str, float]]:
+        proto = self._proto
+        if proto is None:
+            return []
+        lines, proto.temperatures = proto.temperatures, []
+        out = []
+        for line in lines:
+            try:
+                out.append(parse_printed(line))
+            except ValueError as e:  # a reading garbled in transit: lost, said, never guessed
+                log.warning("serial: %s; reading dropped", e)
+        return out
 
 
 _OPENS = re.compile(rb"^\s*(?:N\d+\s+)?(?:IF\b(?!.*\bGOTO)|o\d+\s+if\b)", re.I)

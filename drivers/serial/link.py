@@ -34,6 +34,7 @@ from drivers.serial.lines import (  # noqa: F401 (re-exported: the link's public
     REQUEST_HOLDOFF_S,
     XOFF,
     XON,
+    PrintedTemperatures,
     _DncProtocol,
     cut_point,
     parse_request,
@@ -112,7 +113,7 @@ class _ThreadTransport:
             self.ser.close()
 
 
-class SerialDncLink(CncLink):
+class SerialDncLink(PrintedTemperatures, CncLink):
     """DNC drip-feed over RS-232 (or a serial server reached by ``socket://`` / ``rfc2217://``)."""
 
     capabilities = Capabilities(start_request=True, streams_blocks=True, loads_program=False,

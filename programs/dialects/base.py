@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import re
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -14,6 +15,7 @@ from contracts.jobs import VERDICT_CODES
 from contracts.messages import ProbeHit
 from contracts.result_lines import RESULT_FIELDS, RING_SLOTS, SLOT_FIELDS, parse_result_line
 from contracts.setup_files import SAFE_NAME
+from contracts.temperatures import MACRO_VARIABLE
 from programs.cycletime import CycleTime, estimate
 from programs.geometry import ProgramError
 from programs.model import Program, Touch
@@ -85,6 +87,8 @@ class Block:
     locate_feed: str = ""
     backoff: str = ""
     backoff_feed: str = ""
+    pose_start: int | None = None  # the first block of this plan pose (temperature prints)
+    last_touch: bool = False  # the program's last probing block (its end temperatures)
 
 
 class Dialect:
@@ -191,7 +195,10 @@ class Dialect:
         for b in program.artefact.balls:
             self.check_ball_id(b.id)
         last_pose = -2
+        prev_pose = -1
         for mv in program.moves:
+            start = mv.pose if mv.pose >= 0 and mv.pose != prev_pose else None
+            prev_pose = mv.pose if mv.pose >= 0 else prev_pose
             comment = ""
             if mv.kind == "rapid" and set(mv.words) & set(letters[3:]) and mv.pose != last_pose:
                 p = program.plan.poses[mv.pose]
@@ -218,7 +225,28 @@ class Dialect:
                        "backoff_feed": fmt(program.plan.feeds.approach_mm_min)}
             out.append(Block(mv.block, kind, self.words(mv.words, [mv.target[i] for i in idx]),
                              fmt(mv.feed_mm_min), f"{mv.dwell_s:.3f}", safe_text(comment),
-                             touch, **two))
+                             touch, **two, pose_start=start))
+        last = max((i for i, b in enumerate(out) if b.touch is not None), default=None)
+        if last is not None:  # printed before the last result line: the link has them when
+            out[last] = dataclasses.replace(out[last], last_touch=True)  # its run ends
+        return out
+
+    def temperature_prints(self, program: Program) -> list[dict]:
+        """The macro variables the program prints (issue 22), each checked against the
+        dialect's variable form (contracts.temperatures.MACRO_VARIABLE): nothing else reaches
+        the program text."""
+        if not program.temperature_vars:
+            return []
+        pat = MACRO_VARIABLE.get(self.name)
+        if pat is None:
+            raise ProgramError(f"the {self.name} dialect prints no temperature lines; read "
+                               "the channels through a transmitter")
+        out = []
+        for k, var in enumerate(program.temperature_vars, 1):
+            if not isinstance(var, str) or not pat.fullmatch(var):
+                raise ProgramError(f"temperature variable {var!r} is not a {self.name} "
+                                   "variable the program may print")
+            out.append({"k": k, "var": Code(var)})
         return out
 
     def backoff_words(self, offset_mm: np.ndarray) -> str:
@@ -245,6 +273,7 @@ class Dialect:
         return {"title": "RUMBA PROBING PROGRAM", "info": [safe_text(x) for x in info],
                 "tcpm_off": Code(self.tcpm_off) if program.tilted else "",
                 "blocks": self.blocks(program), "counter": Code(self.counter),
+                "temperatures": self.temperature_prints(program),
                 "miss_tol": fmt(MISS_TOL_MM), "r1": program.rotary[0], "r2": program.rotary[1]}
 
     def render(self, program: Program, cycle_time: CycleTime | None = None) -> str:
