@@ -292,3 +292,18 @@ def test_dnc_temperature_variable_cannot_inject_gcode():
     for other in ("siemens", "heidenhain", "linuxcnc"):
         with pytest.raises(ProgramError, match="prints no temperature lines"):
             get_dialect(other).temperature_prints(prog)
+
+
+@pytest.mark.parametrize(("dialect", "address", "message"), [
+    ("siemens", "R21", "the siemens programs print no temperature over DNC"),
+    ("fanuc", "#599", "is not a Fanuc common variable #100-#199, #500-#597 or #700-#999"),
+    ("haas", "#5021", "is not a Fanuc common variable"),
+])
+def test_dnc_channel_config_names_what_the_program_can_print(tmp_path, dialect, address,
+                                                             message):
+    link = {"transport": "serial", "url": "/dev/ttyS0", "baudrate": 9600}
+    entry = machine_entry(link, [{"name": "spindle", "address": address}], {})
+    entry["dialect"] = dialect
+    with pytest.raises(ConfigError) as e:
+        load_daemon_config(write_config(tmp_path, entry))
+    assert "machines.0.temperatures.0.address" in str(e.value) and message in str(e.value)
