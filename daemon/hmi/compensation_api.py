@@ -100,14 +100,12 @@ def proposal_dict(p: Proposal) -> dict[str, Any]:
                        "reason": why})
     links = []
     for name, ident in p.plan.links_identified.items():
-        value, unit = _um(name, ident)
-        # rounded as the analysis JSON rounds links (4 decimals): the report's very figure
+        value, unit = _um(name, ident)  # rounded as the analysis JSON: the report's figure
         links.append({"name": name, "unit": unit, "identified": round(value, 4),
                       "compensable": _um(name, p.plan.links_compensable[name])[0],
                       "residual": _um(name, p.plan.links_residual[name])[0]})
     pl = p.plan
-    # issue 23: link-caused before and predicted after, each defined (figures); "compensable"
-    # (the norm of what the changes reproduce) is no longer shown: it could exceed "before"
+    # issue 23: defined figures; "compensable" (could exceed "before") is no longer shown
     dist = {k: {"rms": float(v[0]), "max": float(v[1])} for k, v in (
         ("before", pl.distortion_before_um), ("after", pl.distortion_after_um))}
     return {"family": p.spec.family, "coverage_k": p.coverage_k, "values": values,
