@@ -36,6 +36,7 @@ MACHINES_FOLDER, MACHINE_IDENTIFICATION, ITEM_STATE_MACHINE = 1001, 1012, 1002
 ITEM_STATES = {"NotAvailable": 5005, "Executing": 5006, "NotExecuting": 5007}
 RESULT_MANAGEMENT, RESULT_READY_EVENT = 1004, 1002
 IDLE_STATES = ("IDLE", "ABORTED", "INTERRUPTED", "FAILED")
+NO_TIME = dt.datetime(1601, 1, 1, tzinfo=dt.UTC)  # OPC 10000-6 §5.2.2.5: encodes as 0, "no time"
 
 
 class OpcUaServerError(Exception):
@@ -184,7 +185,7 @@ class ResultServer:
                                ("Progress_percent", 0.0, ua.VariantType.Double),
                                ("LastResultId", "", ua.VariantType.String),
                                ("LastVerdict", "", ua.VariantType.String),
-                               ("LastVerdictTime", None, ua.VariantType.DateTime),
+                               ("LastVerdictTime", NO_TIME, ua.VariantType.DateTime),
                                ("LastResultEvaluation", 0, ua.VariantType.Int32)):
             m.vars[var] = await check.add_variable(ua.NodeId(f"{name}.Check.{var}", idx),
                                                    ua.QualifiedName(var, idx),

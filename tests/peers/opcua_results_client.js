@@ -5,7 +5,7 @@
 //
 //   node tests/peers/opcua_results_client.js ENDPOINT_URL --cert C.pem --key K.pem --app-uri URI
 //        [--user U --password P] [--security none] [--ids ID,ID,...] [--download ID]
-//        [--wait-event] [--machine NAME]
+//        [--wait-event] [--machine NAME] [--timeout MS]
 //
 // Output: JSON lines on stdout. {"event":"subscribed"} once the event subscription is live (the
 // test then ends a run), then one final {"ok":true,…} or {"ok":false,"error":…}. Exit 0 / 2.
@@ -46,6 +46,7 @@ function parseArgs(argv) {
     else if (a === "--download") o.download = v();
     else if (a === "--wait-event") o.waitEvent = true;
     else if (a === "--machine") o.machine = v();
+    else if (a === "--timeout") o.timeout = Number(v());
     else if (a.startsWith("--")) throw new Error(`unknown option ${a}`);
     else pos.push(a);
   }
