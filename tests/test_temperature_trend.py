@@ -64,6 +64,8 @@ def test_planted_slope_found_within_2u_with_r_and_the_plot(tmp_path, capsys):
     ref = stats.linregress([p.temperature_c for p in pts], [p.value for p in pts])
     assert f.slope == pytest.approx(ref.slope) and f.slope_std == pytest.approx(ref.stderr)
     assert f.r == pytest.approx(ref.rvalue)
+    assert f.slope_u95 == pytest.approx(stats.t.ppf(0.975, 28) * ref.stderr)
+    assert f"95 %: ± {f.slope_u95:.3g}, Student's t with 28 dof; 30 runs" in out
     assert abs(f.slope - 1.5) < 2 * f.slope_std
     assert f.r > 0.9 and f.n == 30
     assert (f"EX0C against spindle: r = {f.r:+.2f}, slope {f.slope:+.3g} ± {f.slope_std:.3g} "

@@ -31,13 +31,17 @@ class TempFit:
     slope: float | None
     slope_std: float | None
     unit: str  # the link's unit per °C, e.g. "µm/°C"
+    slope_u95: float | None = None  # expanded: Student's t(0.975, n − 2) · slope_std
+
 
     def text(self, link: str, channel: str) -> str:
         if self.slope is None or self.r is None:
             return f"{link} against {channel}: {self.n} runs with both, at least 3 needed"
         u = f" ± {self.slope_std:.3g}" if self.slope_std is not None else ""
+        u95 = (f"; 95 %: ± {self.slope_u95:.3g}, Student's t with {self.n - 2} dof"
+               if self.slope_u95 is not None else "")
         return (f"{link} against {channel}: r = {self.r:+.2f}, slope {self.slope:+.3g}{u} "
-                f"{self.unit} (OLS, u from the residual scatter; {self.n} runs)")
+                f"{self.unit} (u, OLS from the residual scatter{u95}; {self.n} runs)")
 
 
 def run_temperature(analysis: Analysis, channel: str) -> float | None:
@@ -78,4 +82,7 @@ def fit(pts: list[TempPoint], unit: str) -> TempFit:
     slope = sxy / sxx
     r = sxy / math.sqrt(sxx * syy) if syy > 0 else 0.0
     ssr = max(syy - slope * sxy, 0.0)
-    return TempFit(n, r, slope, math.sqrt(ssr / (n - 2) / sxx), f"{unit}/°C")
+    u = math.sqrt(ssr / (n - 2) / sxx)
+    from scipy.stats import t  # only here: the CLI's other commands stay fast
+
+    return TempFit(n, r, slope, u, f"{unit}/°C", float(t.ppf(0.975, n - 2)) * u)

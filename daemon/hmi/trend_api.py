@@ -51,4 +51,5 @@ def _against(rows: list, channel: str | None, link: str | None, channels: list[s
             "points": [{"run_id": p.run_id, "temperature_c": p.temperature_c,
                         "value": p.value, "std": p.std} for p in pts],
             "n": f.n, "r": f.r, "slope": f.slope, "slope_std": f.slope_std,
+            "slope_u95": f.slope_u95,
             "slope_unit": f.unit, "text": f.text(link, channel)}
