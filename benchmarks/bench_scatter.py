@@ -24,6 +24,7 @@ The shipped example log's verdict is checked by tests/test_gap_scatter.py.
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 import time
 from collections import defaultdict
@@ -73,11 +74,20 @@ def _links_covered(rep, truth) -> tuple[int, int]:
     return ok, n
 
 
+def _raw(on: bool, row: str, plan: str, seed: int, **values) -> None:
+    if on:  # one line per run: a row split over processes is summed afterwards
+        print("RUN " + json.dumps({"row": row, "plan": plan, "seed": seed, **values}),
+              flush=True)
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=50)
     ap.add_argument("--only", default="", help="comma list: null,harmonic,step")
     ap.add_argument("--plans", default="", help="comma list: shift-14,holdout-7+7")
+    ap.add_argument("--sigmas", default="5,10,15", help="null runs' index scatter, µrad")
+    ap.add_argument("--first", type=int, default=0, help="first seed (split a row in parts)")
+    ap.add_argument("--raw", action="store_true", help="also one JSON line per run (RUN …)")
     args = ap.parse_args()
     only = set(filter(None, args.only.split(","))) or {"null", "harmonic", "step"}
     machine, _ = load_machine(ROOT / "config/machines/thesis_wcbxfzyt.yaml")
@@ -99,10 +109,10 @@ def main() -> int:
               f"{'RMS ±30%':>8s} {'bias B':>7s} {'bias C':>7s} {'med B/C':>9s} "
               f"{'B,C ±2u':>9s} {'2u cover':>8s} {'false':>5s}")
         for name in plans:
-            for sigma in (5.0, 10.0, 15.0):
+            for sigma in (float(x) for x in args.sigmas.split(",")):
                 acc = defaultdict(list)
                 cov_ok = cov_n = 0
-                for s in range(n):
+                for s in range(args.first, args.first + n):
                     truth = _truth(artefact, 1000 * s + 3, sigma)
                     _, rep = _run(machine, artefact, plans, name, truth, 1000 * s + 3)
                     runs += 1
@@ -123,6 +133,9 @@ def main() -> int:
                     acc["bc"].append(c / sigma - 1)
                     o, k = _links_covered(rep, truth)
                     cov_ok, cov_n = cov_ok + o, cov_n + k
+                    _raw(args.raw, "null", name, s, sigma=sigma, b=b, c=c, cover=[o, k],
+                         effect=rep["verdict"]["effect"],
+                         u={a: (comps.get(f"index {a}") or {}).get("std") for a in "BC"})
                 print(f"{name:12s} {sigma:6.0f} {100 * np.mean(acc['ok']):10.0f}% "
                       f"{100 * np.mean(acc['b']):6.0f}% {100 * np.mean(acc['c']):6.0f}% "
                       f"{100 * np.mean(acc['rms']):7.0f}% {100 * np.mean(acc['bb']):+6.0f}% "
@@ -140,7 +153,7 @@ def main() -> int:
         for name in plans:
             named, under, both, ratio, own = [], [], [], [], []
             models: dict[str, int] = defaultdict(int)
-            for s in range(n):
+            for s in range(args.first, args.first + n):
                 truth = _truth(artefact, 1000 * s + 5, 8.0)
                 ph = np.random.default_rng(s).uniform(0, 2 * np.pi)
                 truth.effects = [(eff, np.array([0, 0, 0, 40 * np.cos(ph), 40 * np.sin(ph)]))]
@@ -154,6 +167,8 @@ def main() -> int:
                 own.append(v["holdout_rms_after_um"] / v["holdout_floor_after_um"])
                 if nm:
                     models[v["selected"][0].get("model", "slope + harmonics 1-2")] += 1
+                _raw(args.raw, "harmonic", name, s, named=nm, ratio=r, own=own[-1],
+                     model=v["selected"][0].get("model") if nm else None)
                 named.append(nm)
                 under.append(r <= 1.5)
                 both.append(nm and r <= 1.5)
@@ -166,7 +181,7 @@ def main() -> int:
         print(f"{'plan':12s} {'named':>6s} {'size err median µm':>18s} {'max':>6s}")
         for name in [k for k in plans if k == "shift-14"]:
             named, err = [], []
-            for s in range(n):
+            for s in range(args.first, args.first + n):
                 truth = _truth(artefact, 1000 * s + 7, 10.0)
                 poses = plans[name][0]
                 kb = knock(np.random.default_rng(s + 77), len(artefact.balls), len(poses))
@@ -176,6 +191,8 @@ def main() -> int:
                 named.append(step_named(rep, kb, artefact.ids))
                 if rep.get("ball_step"):
                     err.append(abs(rep["ball_step"]["size_um"] - kb.size_um))
+                _raw(args.raw, "step", name, s, named=named[-1],
+                     err=err[-1] if rep.get("ball_step") else None)
             print(f"{name:12s} {100 * np.mean(named):5.0f}% "
                   f"{np.median(err) if err else float('nan'):18.2f} "
                   f"{max(err) if err else float('nan'):6.2f}", flush=True)
