@@ -16,6 +16,10 @@ cd "$(dirname "${BASH_SOURCE[0]}")/.."
 
 # 2.183+ declare engines node>=22.13; the machine's Node is 20 (Debian's would be 18).
 NODE_OPCUA_VERSION=2.182.2
+# The official OPC UA companion nodesets (DI, IA, Machinery, Machinery Result …) as XML: the
+# daemon's OPC UA results server loads them (opcua_server.nodesets_dir, issue 25) and the node-opcua
+# peer checks the server against them. 2.182.0 is the version node-opcua 2.182.2 depends on.
+NODE_OPCUA_NODESETS_VERSION=2.182.0
 NODE_PREFIX=${RUMBA_PEERS_DIR:-.peers}/node
 
 ALL_PEERS=(socat mbpoll node-opcua chromium linuxcnc postgresql mosquitto)
@@ -68,8 +72,8 @@ apt_install() {  # apt_install PKG... (apt-get update first, once per run)
     >/dev/null
 }
 
-node_opcua_version() {
-  local pj=$NODE_PREFIX/node_modules/node-opcua/package.json
+node_opcua_version() {  # node_opcua_version [PACKAGE]: installed version of node-opcua (or PACKAGE)
+  local pj=$NODE_PREFIX/node_modules/${1:-node-opcua}/package.json
   [[ -f $pj ]] && node -p "require(process.argv[1]).version" "$(readlink -f "$pj")" 2>/dev/null || true
 }
 
@@ -77,7 +81,8 @@ install_peer() {
   local peer=$1 t0 pkgs
   t0=$(now)
   if [[ $peer == node-opcua ]]; then
-    if [[ $(node_opcua_version) == "$NODE_OPCUA_VERSION" ]]; then
+    if [[ $(node_opcua_version) == "$NODE_OPCUA_VERSION" &&
+          $(node_opcua_version node-opcua-nodesets) == "$NODE_OPCUA_NODESETS_VERSION" ]]; then
       log "node-opcua: already installed ($NODE_OPCUA_VERSION in $NODE_PREFIX) $(since "$t0")"
       return
     fi
@@ -86,8 +91,11 @@ install_peer() {
     fi
     mkdir -p "$NODE_PREFIX"
     npm install --prefix "$NODE_PREFIX" --no-audit --no-fund --save-exact --engine-strict \
-      --loglevel=error "node-opcua@$NODE_OPCUA_VERSION" >/dev/null
+      --loglevel=error "node-opcua@$NODE_OPCUA_VERSION" \
+      "node-opcua-nodesets@$NODE_OPCUA_NODESETS_VERSION" >/dev/null
     [[ $(node_opcua_version) == "$NODE_OPCUA_VERSION" ]] || { log "node-opcua: install failed"; exit 1; }
+    [[ $(node_opcua_version node-opcua-nodesets) == "$NODE_OPCUA_NODESETS_VERSION" ]] ||
+      { log "node-opcua-nodesets: install failed"; exit 1; }
     log "node-opcua: installed $NODE_OPCUA_VERSION into $NODE_PREFIX in $(since "$t0")"
     return
   fi
@@ -113,7 +121,7 @@ for p in "${peers[@]}"; do
   case $p in
     socat) v=$(socat -V | awk '/socat version/ && !v {v = $3} END {print v}') ;;
     mbpoll) v="mbpoll $(dpkg-query -W -f='${Version}' mbpoll), libmodbus $(pkg-config --modversion libmodbus)" ;;
-    node-opcua) v="node-opcua $(node_opcua_version) on node $(node --version)" ;;
+    node-opcua) v="node-opcua $(node_opcua_version), node-opcua-nodesets $(node_opcua_version node-opcua-nodesets) on node $(node --version)" ;;
     chromium) v="$(chromium --version 2>/dev/null | first_line); $(chromedriver --version | cut -d' ' -f1-2); $(pdftoppm -v 2>&1 | first_line)" ;;
     linuxcnc) v="linuxcnc-uspace $(dpkg-query -W -f='${Version}' linuxcnc-uspace)" ;;
     postgresql) v="postgresql $(dpkg-query -W -f='${Version}' postgresql)" ;;

@@ -191,6 +191,7 @@ async def _client(served: dict[str, Any]) -> Client:
     return c
 
 
+@pytest.mark.peer  # the official nodesets come with node-opcua's install
 @pytest.mark.asyncio(loop_scope="module")
 async def test_unknown_ids_filters_and_limits(served):
     c = await _client(served)
