@@ -124,3 +124,32 @@ def test_two_machines_need_a_machine_name(tmp_path, capsys):
     err = capsys.readouterr().err
     assert code == 2 and "--export-aqdef: name the machine with --machine" in err
     assert not (tmp_path / "x.dfq").exists()
+
+
+def _status(state: str, run_id: str | None) -> dict:
+    return {"state": state, "run_id": run_id}
+
+
+def test_the_drop_writes_one_file_per_judged_run_and_never_fails_a_run(tmp_path, caplog):
+    from daemon.service.aqdef_drop import AqdefDrop
+    from tests.daemon_helpers import thesis_setup
+
+    store = Store(tmp_path / "journal.sqlite")
+    fill(store, 2)
+    store.new_run("stopped", "mill1", "hmi", started_at=T0 + 86400 * 5)
+    store.set_state("stopped", "ABORTED", "stopped at the HMI")
+    drop = AqdefDrop(tmp_path / "spc", thesis_setup(), store)
+    for rid in ("r0001", "stopped"):
+        drop.on_status(_status("IDLE", None))
+        drop.on_status(_status("CAPTURE", rid))
+        drop.on_status(_status("IDLE" if rid != "stopped" else "ABORTED", rid))
+    assert drop.written == [tmp_path / "spc" / "mill1_r0001.dfq"]  # the aborted run: no file
+    f = read_aqdef(drop.written[0])
+    assert {v[0]["K0006"] for v in f.values.values()} == {"r0001"}
+    assert all(len(v) == 1 for v in f.values.values())
+    # a drop folder that cannot be written: logged, the session's listener returns normally
+    blocked = AqdefDrop(tmp_path / "spc" / "mill1_r0001.dfq" / "x", thesis_setup(), store)
+    blocked.on_status(_status("CAPTURE", "r0000"))
+    blocked.on_status(_status("IDLE", "r0000"))
+    assert blocked.written == [] and "AQDEF file of run r0000 not written" in caplog.text
+    store.close()
