@@ -192,3 +192,38 @@ async def test_two_machines_run_concurrently_with_one_session_each(tmp_path):
         assert runs[a].verdict == runs[b].verdict == "PASS"
     finally:
         await svc.stop()
+
+
+async def test_verify_operator_is_on_the_report_as_who_started_and_prepared(tmp_path, capsys):
+    """Issue 23 item 4: a person, not "cli", started the run: `--operator` goes to the
+    journal's run row and the report's Started by / Prepared by; a bad name is one line."""
+    import json
+
+    from daemon.store.journal import Store
+
+    path = write_daemon_yaml(tmp_path)
+    setup = thesis_setup()
+    rows = thesis_rows(setup)
+    got = await verify(str(path), "mill1", quiet=True, operator="Anna Berg",
+                       link_factory=lambda s: ReplayLink(rows, s.machine),
+                       prepare=prepare_from_rows(rows))
+    out, _ = capsys.readouterr()
+    assert got == 0
+    report = Path(out.strip().split("report: ")[1])
+    store = Store(tmp_path / "journal.sqlite")
+    try:
+        (run,) = store.runs("mill1")
+        assert run.started_by == "Anna Berg" and run.trigger == "cli"
+    finally:
+        store.close()
+    html = " ".join(report.read_text().split())
+    assert "Started by</th><td>Anna Berg (CLI)" in html
+    assert "Prepared by</td><td class=\"l\">Anna Berg</td>" in html
+    assert json.loads(report.with_suffix(".json").read_text())["run"]["id"] == run.id
+    for bad, why in (("a\x1bb", "not allowed"), ("unattended", "reserved")):
+        code, _, err = run_cli(["verify", "--config", str(path), "--machine", "mill1",
+                                "--operator", bad], capsys)
+        assert code == 2 and err.startswith("error: --operator: ") and why in err, err
+    code, _, err = run_cli(["verify", "--config", str(path), "--machine", "mill1", "--daemon",
+                            "--operator", "Anna Berg"], capsys)
+    assert code == 2 and "not with --daemon" in err

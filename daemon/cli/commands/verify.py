@@ -34,7 +34,7 @@ COLOURS = {"PASS": "bold green", "WARN": "bold yellow", "FAIL": "bold red",
 
 async def verify(cfg_path: str, machine: str, *, strict: bool = False, quiet: bool = False,
                  link_factory: LinkFactory = make_link, console: Console | None = None,
-                 **session_kw: Any) -> int:
+                 operator: str = "", **session_kw: Any) -> int:
     cfg = load_daemon_config(cfg_path)
     setup = cfg.machines.get(machine)
     if setup is None:
@@ -55,7 +55,7 @@ async def verify(cfg_path: str, machine: str, *, strict: bool = False, quiet: bo
         kw = {"analyse": journal_analyse(cfg.store_path), **session_kw}  # issue 13
         session = Session(setup, link, store, cfg.reports_dir, **kw)
         queue = session.subscribe()
-        run_id = session.start("cli")
+        run_id = session.start("cli", started_by=operator)
         stopped_by = _stop_on_signals(session, console)
         with Progress(TextColumn("[bold]{task.fields[state]:<10}"), BarColumn(),
                       MofNCompleteColumn(), TextColumn("touches  {task.fields[eta]}"),
@@ -202,7 +202,19 @@ async def verify_via_daemon(cfg_path: str, machine: str, *, strict: bool = False
 
 def cmd_verify(args: argparse.Namespace) -> int:
     logging.basicConfig(level=logging.WARNING, stream=sys.stderr)
+    operator = getattr(args, "operator", None)
+    if operator is not None:  # the journal's and the report's rules for a person's name
+        from daemon.compensation.names import BadName, validate_by
+
+        if args.daemon:
+            raise UserError("--operator: not with --daemon (the daemon's HMI account names "
+                            "the person who starts a run)")
+        try:
+            validate_by(operator, "--operator", allow_unattended=False)
+        except BadName as e:
+            raise UserError(str(e)) from None
     if args.daemon:
         return asyncio.run(verify_via_daemon(args.config, args.machine, strict=args.strict,
                                              quiet=args.quiet))
-    return asyncio.run(verify(args.config, args.machine, strict=args.strict, quiet=args.quiet))
+    return asyncio.run(verify(args.config, args.machine, strict=args.strict, quiet=args.quiet,
+                              operator=operator or ""))

@@ -17,6 +17,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--machine", required=True, help="machine name in daemon.yaml")
     p.add_argument("--strict", action="store_true", help="exit 1 on WARN too")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--operator", metavar="NAME",
+                   help="the person starting the run (on the report's 'Started by' and "
+                        "'Prepared by'; not with --daemon, whose HMI account names the person)")
     p.add_argument("--daemon", action="store_true",
                    help="ask the running daemon of this config (through its HMI API) instead "
                         "of driving the link from this process")
