@@ -11,6 +11,7 @@ import asyncio
 import pytest
 
 from daemon.run.session import Refused, Session, State
+from daemon.store import baselines
 from daemon.store.journal import Store
 from tests.daemon_helpers import thesis_rows, thesis_setup
 from tests.replay_link import Faults, ReplayLink, prepare_from_rows
@@ -149,12 +150,14 @@ async def test_program_ending_early_fails(env):
     assert env[2].run(run_id).hits == 50
 
 
-async def test_fail_verdict_and_drift_against_last_good(env):
+async def test_fail_verdict_and_drift_against_the_baseline(env):
     setup, _rows, store, _tmp = env
     s, link = make(env)
     first = s.start("hmi")
     await s.wait()
     assert store.run(first).verdict == "PASS"
+    assert any(r.startswith("drift not checked: no baseline") for r in s.verdict["reasons"])
+    baselines.confirm(store, setup.name, first, "Anna Berg")  # a person accepts it (issue 23)
     # the machine drifts: EB0C +26 → +56 µrad (drift 30 > drift_fail 20, |value| > warn 40)
     drifted = dict(__import__("tests.synth", fromlist=["x"]).THESIS_LINKS_UM_URAD, EB0C=56.0)
     link.rows = thesis_rows(setup, drifted, seed=1)
@@ -165,6 +168,8 @@ async def test_fail_verdict_and_drift_against_last_good(env):
     assert v["status"] == "FAIL" and link.verdicts[-1].status == "FAIL"
     assert any(r.startswith("EB0C drift") for r in v["reasons"])
     assert store.analysis(second).reference_run == first
+    assert s.verdict["baseline"]["run_id"] == first and s.verdict["baseline"]["by"] == \
+        "Anna Berg"
 
 
 async def test_disabled_trigger_is_refused(env):
