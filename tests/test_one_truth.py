@@ -23,8 +23,9 @@ from daemon.analysis.figures import DEFINITIONS, LABELS, VOLUMETRIC, link_label,
 from daemon.compensation.propose import controller_model, reidentify
 from daemon.store.drain import RUN_COLS
 from daemon.store.pg import PgStore, RunBatch
+from tests.browser import chromium
 from tests.cli_helpers import run_cli
-from tests.test_hmi_compensate import bearer, world
+from tests.test_hmi_compensate import TOKEN, bearer, world
 
 pytestmark = [pytest.mark.peer]
 
@@ -197,6 +198,20 @@ async def test_every_surface_tells_the_same_numbers_of_one_run(tmp_path, capsys)
         assert f"{shown} — " in out
         for n, (value, _) in links.items():
             assert re.search(rf"^\s+{n}\s+{re.escape(value)} ", out, re.M), (n, out)
+        # the HMI page itself, in Chromium: the card and the compensation panel
+        async with chromium(tmp_path / "profile") as cdp:
+            sid = await cdp.page()
+            await cdp.sign_in(sid, svc.hmi_url, TOKEN)
+            card = "document.querySelector('.machine')"
+            await cdp.wait_for(sid, f"{card}.querySelector('.summary').textContent"
+                                    f".includes({json.dumps(shown)})")
+            assert definition in await cdp.eval(
+                sid, f"{card}.querySelector('.definition').textContent")
+            assert f"baseline run {first} of " in await cdp.eval(
+                sid, f"{card}.querySelector('.baseline').textContent")
+            dist = f"{card}.querySelector('.comp .comp-dist').textContent"
+            await cdp.wait_for(sid, f"{dist}.includes({json.dumps(shown)})")
+            assert definition in await cdp.eval(sid, dist)
         # the fleet page (the run as the drainer copies it to PostgreSQL)
         fleet = flat(await fleet_page(tmp_path, store, run_id))
         assert shown in fleet and f"{LABELS[VOLUMETRIC]}: {definition}." in fleet
