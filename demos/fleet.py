@@ -27,6 +27,7 @@ import yaml
 
 from contracts.jobs import VERDICT_CODES
 from demos.e2e import CONFIG, ERRORS, MACHINE, PLAN, ROOT, stop_process
+from demos.limits import tolerances
 
 ARTEFACT = "artefacts/thesis_4ball.yaml"
 BAUD = 115_200  # a common DNC rate
@@ -77,11 +78,7 @@ def daemon_yaml(work: Path, name: str, dialect: str, link: dict, dsn: str, mqtt_
             "name": name, "machine": str(CONFIG / MACHINE), "artefact": str(CONFIG / ARTEFACT),
             "plan": str(CONFIG / PLAN), "dialect": dialect, "link": link,
             "touch_timeout_s": 60,
-            "tolerances": {
-                "default_rotation_urad": {"warn": 30, "fail": 60, "drift_warn": 8,
-                                          "drift_fail": 15},
-                "default_translation_um": {"warn": 150, "fail": 250},
-                "volumetric_max_um": {"warn": 150, "fail": 250}}}]}
+            "tolerances": tolerances()}]}  # the demo's shop limits, with their basis
     work.mkdir(parents=True, exist_ok=True)
     path = work / "daemon.yaml"
     path.write_text("# written by demos/fleet.py\n" + yaml.safe_dump(doc, sort_keys=False))

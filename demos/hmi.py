@@ -3,6 +3,11 @@ the daemon (`rumba run`, its own process) and its HMI, with an account made for 
 prints the URL and a one-time login (user ``demo``, engineer, a random password), then serves
 until Ctrl-C, which stops the daemon (SIGTERM: it ends a run cleanly) and the simulator.
 
+The demo machine FAILs its first check against the demo's shop limits (demos/limits.py); the
+compensation panel proposes $TC_CARR changes within the machine file's guards; once the
+engineer confirms, the reviewed program is loaded into the simulated SINUMERIK (what the
+operator does at the control) and the next check PASSes.
+
 ``python -m demos.hmi [--port P] [--out DIR] [--time-scale S]``
 """
 
@@ -19,7 +24,16 @@ import sys
 import tempfile
 from pathlib import Path
 
-from demos.e2e import ARTEFACT, CONFIG, ERRORS, MACHINE, PLAN, stop_process
+from demos.e2e import (
+    ARTEFACT,
+    CONFIG,
+    DIALECT,
+    ERRORS,
+    MACHINE,
+    PLAN,
+    stop_process,
+    tolerances_yaml,
+)
 
 USER = "demo"
 
@@ -34,7 +48,7 @@ machines:
     machine: {CONFIG / MACHINE}
     artefact: {CONFIG / ARTEFACT}
     plan: {CONFIG / PLAN}
-    dialect: fanuc
+    dialect: {DIALECT}
     link:
       transport: opcua
       url: '{url}'
@@ -44,13 +58,7 @@ machines:
       server_certificate: {server_cert}
       user: {{name: rumba, password_env: RUMBA_DEMO_OPCUA_PASSWORD}}
     touch_timeout_s: 60
-    tolerances:
-      default_rotation_urad: {{warn: 30, fail: 60, drift_warn: 8, drift_fail: 15}}
-      default_translation_um: {{warn: 150, fail: 250}}
-      volumetric_max_um: {{warn: 150, fail: 250}}
-      residual_rms_um: 5
-      run_drift_um: 8
-"""
+{tolerances_yaml()}"""
 
 
 def write_secrets(work: Path) -> str:
@@ -75,6 +83,23 @@ async def _banner(stdout: asyncio.StreamReader) -> str:
             return line.split("rumba: HMI at ", 1)[1].strip()
 
 
+async def load_compensations(ctrl, reports: Path) -> None:
+    """The operator at the control: each compensation program a confirmation writes into the
+    reports folder is loaded and run on the simulated SINUMERIK once it is idle."""
+    done: set[Path] = set(reports.glob("compensation_*.mpf"))
+    while True:
+        await asyncio.sleep(1.0)
+        for path in sorted(set(reports.glob("compensation_*.mpf")) - done):
+            if ctrl.request or ctrl.state in ("running", "hold"):
+                break  # a run is on the control: the operator waits for it to end
+            done.add(path)
+            await ctrl.load_program(path.read_text(encoding="utf-8"), DIALECT)
+            await ctrl.start()
+            state = await ctrl.wait_done(60)
+            print(f"operator: ran {path.name} on the control ({state}); start the next check "
+                  "to verify it", flush=True)
+
+
 async def serve(work: Path, port: int, time_scale: float) -> int:
     from contracts.opcua_certs import ensure_certificate
     from simulators.controller import VirtualController
@@ -88,7 +113,7 @@ async def serve(work: Path, port: int, time_scale: float) -> int:
     shutil.copy(pki / "client/cert.der", pki / "trusted/daemon.der")
     opcua_password = secrets.token_urlsafe(16)
     truth = TruthModel.from_files(CONFIG / MACHINE, CONFIG / ARTEFACT, CONFIG / ERRORS)
-    ctrl = VirtualController(truth, time_scale=time_scale, dialect="fanuc")
+    ctrl = VirtualController(truth, time_scale=time_scale, dialect=DIALECT)
     sim = OpcUaFrontend(ctrl, cert_dir=pki / "server", users={"rumba": opcua_password},
                         trusted_client_certs=[pki / "trusted"])
     url = await sim.start()
@@ -131,7 +156,9 @@ async def serve(work: Path, port: int, time_scale: float) -> int:
         print(f"files:    {work} (journal, reports, daemon.log); more accounts: "
               f"rumba users --file {work / 'users'} add NAME --role operator")
         print("Ctrl-C stops the daemon and the simulated CNC", flush=True)
+        operator = asyncio.ensure_future(load_compensations(ctrl, work / "reports"))
         await stop.wait()
+        operator.cancel()
         print("\nstopping …", flush=True)
         return 0
     finally:

@@ -50,7 +50,7 @@ def write_daemon_yaml(tmp: Path, *, token: str = "t0k3n-for-tests-0123456789",
                       link: str = "{transport: opcua, url: 'opc.tcp://127.0.0.1:4840', "
                                   "security: none}",
                       extra_machine: str = "", extra_top: str = "",
-                      plan: str = "thesis_ch3_7poses") -> Path:
+                      plan: str = "thesis_ch3_7poses", dialect: str = "fanuc") -> Path:
     """A daemon.yaml in ``tmp`` for machine ``mill1`` (thesis machine, shipped files)."""
     text = f"""
 store: {{path: {tmp / 'journal.sqlite'}}}
@@ -62,7 +62,7 @@ machines:
     machine: {CONFIG / 'machines/thesis_wcbxfzyt.yaml'}
     artefact: {CONFIG / 'artefacts/thesis_4ball.yaml'}
     plan: {CONFIG / f'plans/{plan}.yaml'}
-    dialect: fanuc
+    dialect: {dialect}
     link: {link}
     touch_timeout_s: 30
     tolerances:

@@ -323,7 +323,7 @@ def test_siemens_program_journals_the_closing_vector_and_rolls_back(tmp_path, ca
     vector the writer changes with a pivot is journaled too and restored by the rollback."""
     from tests.daemon_helpers import thesis_rows, thesis_setup
 
-    cfg = write_daemon_yaml(tmp_path)
+    cfg = write_daemon_yaml(tmp_path, dialect="siemens")  # the machine file's controller
     thesis = CONFIG / "machines/thesis_wcbxfzyt.yaml"
     data = yaml.safe_load(thesis.read_text())
     assert data["controller_kinematics"]["family"] == "siemens"

@@ -15,7 +15,7 @@ import aiohttp
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-pytestmark = [pytest.mark.peer]
+pytestmark = [pytest.mark.slow]
 
 
 async def _line(stdout: asyncio.StreamReader, lines: list[str]) -> str:

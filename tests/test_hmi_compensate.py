@@ -38,7 +38,7 @@ async def world(tmp: Path, *, section: bool = True, wide: bool = True,
 
     truth = TruthModel.from_files(THESIS, CONFIG / "artefacts/thesis_4ball.yaml",
                                   CONFIG / "errors/thesis_tableB2.yaml")
-    sim = OpcUaFrontend(VirtualController(truth, time_scale=0.03, dialect="fanuc"),
+    sim = OpcUaFrontend(VirtualController(truth, time_scale=0.03, dialect="siemens"),
                         security="none")
     url = await sim.start()
     try:
@@ -50,7 +50,7 @@ async def world(tmp: Path, *, section: bool = True, wide: bool = True,
         elif not section:
             del data["controller_kinematics"]
         (tmp / "machine.yaml").write_text(yaml.safe_dump(data))
-        path = write_daemon_yaml(tmp, token=TOKEN, plan=plan,
+        path = write_daemon_yaml(tmp, token=TOKEN, plan=plan, dialect="siemens",
                                  link=f"{{transport: opcua, url: '{url}', security: none}}")
         path.write_text(path.read_text().replace(str(THESIS), str(tmp / "machine.yaml")))
         svc = Service(load_daemon_config(path))

@@ -54,6 +54,25 @@ def spec_of(setup: MachineSetup) -> ControllerKinematics | None:
     return controller_kinematics(section, setup.machine, f"machine {setup.name}")
 
 
+# the controller family whose addresses each dialect's machine holds (daemon.yaml dialect)
+FAMILY_OF_DIALECT = {"fanuc": "fanuc", "haas": "haas", "siemens": "siemens",
+                     "heidenhain": "heidenhain", "linuxcnc": "linuxcnc"}
+
+
+def check_family(setup: MachineSetup, spec: ControllerKinematics) -> None:
+    """The machine file's controller addresses are of the configured controller (issue 23:
+    $TC_CARR values proposed for a machine configured as Fanuc), else ``CompensationRefused``
+    naming both."""
+    want = FAMILY_OF_DIALECT.get(str(setup.dialect), str(setup.dialect))
+    if spec.family != want:
+        example = spec.params[0].address if spec.params else ""
+        raise CompensationRefused(
+            f"machine {setup.name} is configured as {setup.dialect} (daemon.yaml dialect) but "
+            f"its machine file's controller_kinematics holds {spec.family} addresses "
+            f"({example}, …): give the {want} control's own parameters in the machine file "
+            "(or the right dialect); nothing is proposed")
+
+
 def guards_of(spec: ControllerKinematics) -> Guards:
     return Guards(spec.max_change_um * 1e-3, spec.max_change_urad * 1e-6,
                   spec.max_total_um * 1e-3)
@@ -238,6 +257,7 @@ def propose(setup: MachineSetup, store: Store, run_id: str) -> Proposal:
     if spec is None:
         raise CompensationRefused(f"machine {setup.name}: its machine file has no "
                                   "controller_kinematics section (nothing rumba may write)")
+    check_family(setup, spec)
     run = store.run(run_id)
     if run.machine != setup.name:
         raise CompensationRefused(f"run {run_id} is of machine {run.machine}, not "

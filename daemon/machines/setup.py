@@ -34,6 +34,9 @@ class LimitFile(StrictModel):
     fail: float | None = Field(None, gt=0)
     drift_warn: float | None = Field(None, gt=0)
     drift_fail: float | None = Field(None, gt=0)
+    # where these numbers come from (issue 23), e.g. "ISO 10791-6 K2 acceptance 25 µm" or
+    # "1/3 of the 0.10 mm position tolerance": printed beside the limit, never interpreted
+    source: str | None = Field(None, min_length=3, max_length=300)
 
     @model_validator(mode="after")
     def _order(self) -> LimitFile:
@@ -64,6 +67,10 @@ class TemperatureLimitFile(StrictModel):
 
 
 class TolerancesFile(StrictModel):
+    # what the limits are derived from (issue 23): the machine's accuracy class or acceptance
+    # protocol (ISO 230-1 / ISO 10791-6 tests) and the parts' tolerances; README "Choosing
+    # limits"
+    basis: str | None = Field(None, min_length=3, max_length=1000)
     links: dict[str, LimitFile] = {}
     default_translation_um: LimitFile | None = None
     default_rotation_urad: LimitFile | None = None
@@ -84,7 +91,16 @@ class TolerancesFile(StrictModel):
                           self.sphere_radius_spread_um, self.sphere_form_um, self.coverage_k,
                           self.run_drift_um, self.thermal_drift_um,
                           {k: (v.min_c, v.max_c, v.change_c)
-                           for k, v in self.temperatures.items()})
+                           for k, v in self.temperatures.items()},
+                          basis=self.basis or "", sources=self.sources())
+
+    def sources(self) -> dict[str, str]:
+        """Each limit's stated source by its key (``links.EX0C``, ``volumetric_max_um`` …)."""
+        named = {f"links.{k}": v for k, v in self.links.items()} | {
+            "default_translation_um": self.default_translation_um,
+            "default_rotation_urad": self.default_rotation_urad,
+            "volumetric_max_um": self.volumetric_max_um}
+        return {k: v.source for k, v in named.items() if v is not None and v.source}
 
 
 class TriggersFile(StrictModel):

@@ -34,3 +34,7 @@ class Tolerances:
     # per temperature channel (min_c, max_c, change_c), None where not limited: outside → WARN
     temperatures: dict[str, tuple[float | None, float | None, float | None]] = field(
         default_factory=dict)
+    # what the limits are derived from (tolerances.basis) and each limit's stated source by
+    # its key (``links.EX0C``, ``volumetric_max_um`` …): issue 23, README "Choosing limits"
+    basis: str = ""
+    sources: dict[str, str] = field(default_factory=dict)
