@@ -123,3 +123,47 @@ def test_drift_is_judged_against_the_baseline_not_the_last_pass(world, capsys):
     assert c.value == pytest.approx(a2.links["EB0C"].value - r0.links["EB0C"].value)
     assert not any(r.startswith(NO_BASELINE) for r in j.reasons)
     assert baselines.reference(store, "mill1", before="R0") is None  # never itself
+
+
+async def test_hmi_only_an_engineer_sets_it_and_the_account_names_the_person(
+        tmp_path, capsys, monkeypatch):
+    """On the HMI with accounts: an operator is refused (403, nothing journaled); an engineer
+    sets it and the journal names the account, not a name the page typed; the token (a
+    script) must type a person's name; bad input is a 4xx with the reason."""
+    from tests.test_hmi_users import PASSWORDS, TOKEN, accounts_service, jar_session, sign_in
+
+    svc = await accounts_service(tmp_path, capsys, monkeypatch)
+    url = svc.hmi_url + "api/machines/mill1/baseline"
+    try:
+        run_id = svc.sessions["mill1"].start("cli")
+        await svc.sessions["mill1"].wait()
+        assert svc.store.run(run_id).state == "DONE"
+        async with jar_session() as olga, jar_session() as erik, \
+                jar_session() as script:
+            _, csrf = await sign_in(olga, svc.hmi_url, "olga", PASSWORDS["olga"])
+            r = await olga.post(url, headers={"X-CSRF-Token": csrf},
+                                json={"run_id": run_id, "by": "olga"})
+            assert r.status == 403 and "needs an engineer or admin" in await r.text()
+            assert baselines.current(svc.store, "mill1") is None
+            r = await olga.get(url)  # looking is for everyone
+            assert r.status == 200 and (await r.json())["text"] == NO_BASELINE
+            _, csrf = await sign_in(erik, svc.hmi_url, "erik", PASSWORDS["erik"])
+            r = await erik.post(url, headers={"X-CSRF-Token": csrf},
+                                json={"run_id": run_id, "by": "Somebody Else"})
+            assert r.status == 200, await r.text()
+            b = baselines.current(svc.store, "mill1")
+            assert (b.run_id, b.by) == (run_id, "erik") and "engineer via password" in b.note
+            bearer = {"Authorization": f"Bearer {TOKEN}"}
+            for body, status, why in (
+                    ({"run_id": run_id}, 422, "by: give a name"),
+                    ({"run_id": "nope", "by": "Anna"}, 409, "run nope is not in the journal"),
+                    ({"run_id": 7, "by": "Anna"}, 422, "run_id: a run id"),
+                    ({"by": "Anna"}, 409, "no proposed baseline")):
+                r = await script.post(url, headers=bearer, json=body)
+                assert r.status == status and why in await r.text(), (body, await r.text())
+            r = await script.post(svc.hmi_url + "api/machines/mill9/baseline", headers=bearer,
+                                  json={"run_id": run_id, "by": "Anna"})
+            assert r.status == 404
+            assert [x.by for x in baselines.history(svc.store, "mill1")] == ["erik"]
+    finally:
+        await svc.stop()

@@ -3,8 +3,9 @@
 # Issue 23 item 2. ``GET /api/machines/NAME/baseline``: the baseline, a proposal waiting and
 # the last decisions. ``POST`` ``{"run_id": …, "by": "Anna Berg", "note": …}`` (``run_id``
 # left out: confirm the proposed one) journals the decision with the person's name and how
-# they were signed in (the access layer's identity, never only what the client sends). With
-# HMI accounts (item 5) the account's name and role replace the typed name.
+# they were signed in. Only an engineer or admin decides (item 5's roles); signed in with an
+# account, the account's name is the person (a typed "by" is ignored); with the shared token
+# (the token login or a script's bearer) the person types their name and the note says so.
 
 from __future__ import annotations
 
@@ -15,6 +16,7 @@ from typing import Any
 from aiohttp import web
 
 from daemon.compensation.names import BadName, validate_by
+from daemon.hmi.access import require
 from daemon.hmi.compensation_api import who
 from daemon.store import baselines
 from daemon.store.journal import RunIdError, Store, StoreError
@@ -46,8 +48,10 @@ def add_routes(app: web.Application, sessions_key: web.AppKey, store_key: web.Ap
         if not isinstance(body, dict):
             return web.json_response({"error": "expected a JSON object"}, status=400)
         store: Store = request.app[store_key]
+        ident = require(request, "engineer", "setting the drift baseline")
         try:
-            person = validate_by(body.get("by"), "by", allow_unattended=False)
+            person = ident.name if ident.via == "password" else \
+                validate_by(body.get("by"), "by", allow_unattended=False)
         except BadName as e:
             return web.json_response({"error": str(e)}, status=422)
         note = body.get("note", "")
@@ -65,8 +69,8 @@ def add_routes(app: web.Application, sessions_key: web.AppKey, store_key: web.Ap
             if not isinstance(run_id, str):
                 return web.json_response({"error": "run_id: a run id"}, status=422)
             try:
-                baselines.confirm(store, name, run_id, person,
-                                  (note + " " if note else "") + f"[{who(request)}]")
+                baselines.confirm(store, name, run_id, person, (note + " " if note else "")
+                                  + f"[{ident.role} via {ident.via}, {who(request)}]")
             except (StoreError, RunIdError) as e:
                 return web.json_response({"error": str(e)}, status=409)
         return web.json_response(view(store, name))
