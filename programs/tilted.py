@@ -37,7 +37,7 @@ from identification.kinematics import ChainState, Machine
 from programs.bodies import body_slack
 from programs.clearance import keepout_slack, tip_in_workpiece
 from programs.geometry import PoseFrame, ProgramError, pose_frame
-from programs.model import Program, Touch, ball_positions, chain_state, plan_visits
+from programs.model import Move, Program, Touch, ball_positions, chain_state, plan_visits
 from programs.tour import open_tour
 
 APPROACH_GAP_MM = 0.5  # as programs.toolpath: fed at approach feed to the start point
@@ -104,8 +104,6 @@ class _Path:
         self.park: tuple[int, float] | None = None  # (axis, value): rapids across up there
 
     def emit(self, kind: str, target: list[float | None], **kw: object) -> None:
-        from programs.model import Move
-
         new = [self.pos[i] if v is None else float(v) for i, v in enumerate(target)]
         letters = self.p.axis_letters
         words = tuple(letters[i] for i in range(5) if target[i] is not None and (
@@ -178,7 +176,7 @@ def _safe_level(prog: Program, balls_w: np.ndarray, u_w: np.ndarray, rs: float,
 
 
 def _pose(prog: Program, path: _Path, pf: PoseFrame, ip: int, rep: int, seq: int,
-          balls_w: np.ndarray, state: object, k: int, park: float, rs: float, clr: float,
+          balls_w: np.ndarray, state: ChainState, k: int, park: float, rs: float, clr: float,
           fmax: float, fast: float | None, backoff_mm: float) -> int:
     machine, art, plan = prog.machine, prog.artefact, prog.plan
     s = pf.spindle
@@ -188,7 +186,7 @@ def _pose(prog: Program, path: _Path, pf: PoseFrame, ip: int, rep: int, seq: int
         raise ProgramError(f"pose {ip}: the spindle {np.round(s, 4).tolist()} is almost "
                            f"perpendicular to the park axis {'XYZ'[k]}: cannot leave along it")
     level = _safe_level(prog, balls_w, u_w, rs, clr)
-    centres = pf.solve(machine, balls_w, state)  # type: ignore[arg-type]
+    centres = pf.solve(machine, balls_w, state)
     hz = [i for i in range(3) if i != k]
     here = np.array(path.pos[:3])
     order = open_tour(centres[:, hz], here[hz] if not np.isnan(here).any()
@@ -265,6 +263,7 @@ def _pose(prog: Program, path: _Path, pf: PoseFrame, ip: int, rep: int, seq: int
 
 
 def path_pos(path: _Path) -> np.ndarray:
+    """Where the path's X Y Z stand now."""
     return np.array(path.pos[:3], float)
 
 
