@@ -161,6 +161,8 @@ async def test_roles_journal_and_sessions(tmp_path, capsys, monkeypatch):
             assert (await r.json())["reason"].startswith("aborted by olga (hmi)")
             run = svc.store.run(run_id)
             assert run.started_by == "olga" and run.trigger == "hmi"
+            listed = (await (await olga.get(url + "api/runs?limit=1")).json())[0]
+            assert listed["id"] == run_id and listed["started_by"] == "olga"
             # an operator may not confirm or roll back a compensation
             for what, body in (("confirm", {"machine": "mill1", "run_id": run_id}),
                                ("rollback", {"machine": "mill1"})):

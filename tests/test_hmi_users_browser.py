@@ -125,6 +125,10 @@ async def test_operator_desktop_login_roles_preflight_live_pose_trend(tmp_path, 
             assert await cdp.eval(sid, f"{card}.querySelector('.probing').hidden")
             run = svc.store.runs("mill1", 1)[0]
             assert run.started_by == "olga"
+            who = await cdp.wait_for(sid, "[...document.querySelectorAll('#history tbody tr')]"
+                                          f".filter(r => r.dataset.run === '{run.id}')"
+                                          ".map(r => r.cells[2].textContent)[0]")
+            assert who == "olga (hmi)", who  # the "Last runs" row names the person
     finally:
         await svc.stop()
 

@@ -88,6 +88,7 @@ def _run_dict(r: Any, store: Store) -> dict[str, Any]:
     pdf = paths is not None and paths[0].with_suffix(".pdf").is_file()
     return {"id": r.id, "machine": r.machine, "trigger": r.trigger, "state": r.state,
             "reason": r.reason, "verdict": r.verdict, "summary": r.summary, "hits": r.hits,
+            "started_by": r.started_by,
             "touch_total": r.touch_total, "started_at": r.started_at, "ended_at": r.ended_at,
             "report": f"/reports/{r.id}.html" if paths else None,
             "pdf": f"/reports/{r.id}.pdf" if pdf else None}

@@ -126,7 +126,7 @@ function render(st) {
   if (st.run_id) {
     text = `${st.done} / ${st.total || "?"} touches`;
     if (running && st.eta_s !== null) text += ` — ${fmtDuration(st.eta_s)} left`;
-    if (running) text += ` — run ${st.run_id} (${st.trigger})`;
+    if (running) text += ` — run ${st.run_id} (${st.started_by || st.trigger})`;
   }
   if (!running && st.reason) text = st.reason;
   el.querySelector(".progress-text").textContent = text;
@@ -205,7 +205,9 @@ async function loadLastVerdicts() {
     const tr = document.createElement("tr");
     tr.dataset.run = run.id;
     tr.title = `run ${run.id}`;
-    const cells = [localIso(run.started_at), run.machine, run.trigger,
+    // issue 23: the person who started it beside how (hmi, cnc, can, cli)
+    const cells = [localIso(run.started_at), run.machine,
+                   run.started_by ? `${run.started_by} (${run.trigger})` : run.trigger,
                    run.state, run.verdict || "—", `${run.hits} / ${run.touch_total}`,
                    run.reason || run.summary || ""];
     cells.forEach((c, i) => {

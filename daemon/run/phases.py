@@ -79,6 +79,7 @@ class RunStatus:
         self.reason = ""
         self.run_id: str | None = None
         self.trigger = ""
+        self.started_by = ""  # the HMI account that started the current run ('' otherwise)
         self.done = 0
         self.total = 0
         self.started_at = 0.0
@@ -100,7 +101,8 @@ class RunStatus:
         now = time.time()
         return {
             "machine": self.setup.name, "state": str(self.state), "reason": self.reason,
-            "run_id": self.run_id, "trigger": self.trigger, "done": self.done,
+            "run_id": self.run_id, "trigger": self.trigger, "started_by": self.started_by,
+            "done": self.done,
             "total": self.total, "elapsed_s": round(now - self.started_at, 1)
             if self.run_id else None, "eta_s": self.eta_s(now), "verdict": self.verdict,
             "busy": self.busy, "link_ok": self.link_ok,

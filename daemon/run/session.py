@@ -89,7 +89,7 @@ class Session(RunStatus):
         lease = self.lease = run_lease.take(self.lease, self.store.path, self.setup.name, trigger)
         self.run_id = new_run_id()
         lease.describe(f"run {self.run_id} (started by {started_by or trigger})")
-        self.trigger = trigger
+        self.trigger, self.started_by = trigger, started_by
         self.done, self.total = 0, 0
         self.started_at, self.first_hit_at, self.estimated_s = time.time(), None, None
         self.verdict, self.reason, self._abort_reason = None, "", None
