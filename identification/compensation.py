@@ -21,6 +21,7 @@ import numpy as np
 from identification.estimate import Estimate
 from identification.kinematics import Machine, TopologyError
 from identification.model import Artefact, Centres, predict
+from identification.uncertainty import expanded_k
 
 PIVOT_STEP_MM = 1e-4  # finite-difference steps of the controller values
 ORIENTATION_STEP_RAD = 1e-6
@@ -52,7 +53,7 @@ class ParamChange:
     name: str
     kind: str
     delta: float
-    u_expanded: float  # expanded uncertainty (coverage_k), same unit
+    u_expanded: float  # expanded uncertainty (coverage_k's coverage, as the judge's), same unit
     observable: bool  # False: the data cannot see it; delta = 0
     note: str = ""
 
@@ -245,7 +246,9 @@ def plan_compensation(machine: Machine, artefact: Artefact, est: Estimate,
         ell_c = e @ (cn * (a[kept] @ ell))
     dp = a @ ell
     cov_l = est.cov[:n_l, :n_l]
-    u = coverage_k * np.sqrt(np.clip(np.diag(a @ cov_l @ a.T), 0.0, None))
+    # k at coverage_k's normal coverage for u on the estimate's dof: the judge's guard band
+    k = expanded_k(est.sigma_dof, coverage_k)
+    u = k * np.sqrt(np.clip(np.diag(a @ cov_l @ a.T), 0.0, None))
     changes = [ParamChange(p.name, p.kind, float(dp[i]) if i in kept else 0.0,
                            float(u[i]) if i in kept else 0.0, i in kept, notes.get(i, ""))
                for i, p in enumerate(params)]

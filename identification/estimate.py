@@ -19,6 +19,7 @@ from identification.estimate_scatter import visit_sandwich
 from identification.identifiability import RANK_TOL, identifiable_links
 from identification.kinematics import Machine
 from identification.model import Artefact, Centres, Layout, predict
+from identification.uncertainty import coverage_factor, t_variance_factor  # noqa: F401 (re-export)
 
 DEFAULT_SIGMA_UM = 1.0  # prior centre std when no probing repeatability is given
 ANGLE_LENGTH_MM = 1000.0  # an angle step counts as its effect at 1 m in the stop criterion
@@ -263,7 +264,8 @@ def estimate(
     if visit_scatter:
         dj = distance_rows(artefact, layout, p) if use_dist else (None, None, None)
         scatter = visit_sandwich(machine, artefact, layout, p, centres, sigma_mm, dj[1], dj[2])
-        cov = cov if scatter is None else scatter.cov
+        # the sandwich's components are estimated from the same residuals: same t widening
+        cov = cov if scatter is None else scatter.cov * t_variance_factor(sigma_dof)
     status, more = fit_status(cond, converged, max_iter)
     unobs, absorbed = unobservable(layout, ident.dropped if ident else {})
     return Estimate(
@@ -288,7 +290,9 @@ def a_posteriori(rw: np.ndarray, n_par: int, cov: np.ndarray, sig_um: np.ndarray
                  sigma_dof: float, given: bool
                  ) -> tuple[np.ndarray, np.ndarray, float, list[str]]:
     """(cov, σ, its dof, warnings): without a given σ the covariance and σ are scaled by the
-    variance factor of the weighted residuals ``rw`` (warned about when nothing is redundant)."""
+    variance factor of the weighted residuals ``rw`` (warned about when nothing is redundant),
+    and the covariance by ν/(ν−2), ν its dof: the stated u is the standard deviation of the
+    t distribution of a Type A estimate (GUM-S1 6.4.9.4, ``identification.uncertainty``)."""
     dof = rw.size - n_par
     warns: list[str] = []
     if not given:
@@ -297,6 +301,7 @@ def a_posteriori(rw: np.ndarray, n_par: int, cov: np.ndarray, sig_um: np.ndarray
             cov = cov * var
             sig_um = sig_um * np.sqrt(var)
             sigma_dof = min(sigma_dof, float(dof))
+            cov = cov * t_variance_factor(sigma_dof)
         else:
             warns.append("no redundancy (as many unknowns as equations): uncertainties are "
                          "those of a 1 µm centre repeatability, not a posteriori")
@@ -329,14 +334,3 @@ def unobservable(layout: Layout, dropped: dict[str, str]
         unobs.append(name)
         absorbed[name] = by
     return unobs, absorbed
-
-
-def coverage_factor(sigma_dof: float, coverage: float = 0.9973) -> float:
-    """k such that ±k·u covers ``coverage`` of an estimate whose u rests on a σ estimated
-    with ``sigma_dof`` degrees of freedom (Student t, GUM G.3); 3.0 for 99.73 % as ν → ∞.
-    With the 4-pose LinuxCNC plan (ν ≈ 8.3) it is 4.2: there a 3-u test fails a clean link
-    1.6 % of the time, a clean suite of 16 comparisons about one run in four."""
-    from scipy.stats import norm, t
-
-    q = 0.5 + coverage / 2.0
-    return float(norm.ppf(q) if not math.isfinite(sigma_dof) else t.ppf(q, sigma_dof))

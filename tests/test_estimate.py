@@ -1,5 +1,6 @@
 """The estimator: round trips on the thesis pose sets, scale, and rank-deficient pose sets."""
 
+import math
 from pathlib import Path
 
 import numpy as np
@@ -228,7 +229,8 @@ def test_uncertainties_are_calibrated_under_anisotropic_repeatability(thesis) ->
 
 def test_sigma_dof_and_coverage_factor(thesis) -> None:
     """The uncertainty says how many residual degrees of freedom its σ rests on, and the
-    coverage factor for "3 u" (99.73 %) widens with few of them (Student t, GUM G.3)."""
+    coverage factor for "3 u" (99.73 %) widens with few of them: the t quantile (GUM G.3) over
+    the t's standard deviation the stated u already is (GUM-S1, identification/uncertainty)."""
     from identification.estimate import coverage_factor
 
     m, a = thesis
@@ -239,5 +241,6 @@ def test_sigma_dof_and_coverage_factor(thesis) -> None:
     assert e.sigma_dof == pytest.approx(len(c) - e.layout.size / 3)
     assert estimate(m, a, c, sigma_um=0.5).sigma_dof == float("inf")
     assert coverage_factor(float("inf")) == pytest.approx(3.0, abs=1e-4)
-    assert coverage_factor(e.sigma_dof) == pytest.approx(3.42, abs=0.01)
-    assert coverage_factor(8.33) > 4.2 > coverage_factor(48) > 3.1
+    nu = e.sigma_dof  # 20.3: t quantile 3.42, the stated u is s·√(ν/(ν−2)) = 1.053 s
+    assert coverage_factor(nu) == pytest.approx(3.42 / math.sqrt(nu / (nu - 2)), abs=0.01)
+    assert coverage_factor(8.33) > 3.6 > coverage_factor(48) > 3.05

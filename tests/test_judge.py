@@ -53,13 +53,18 @@ def test_uncertainty_guard_band_warns_when_conformance_not_proven():
 
 
 def test_guard_band_widens_when_the_uncertainty_rests_on_few_residuals():
-    # 15 + 2 × 11.5 = 38 < 40: PASS with σ known; with σ from ν = 5 residual dof the 95.45 %
-    # factor is t(5) = 2.65 and 15 + 2.65 × 11.5 > 40 (GUM G.3)
-    a = analysis(eb0c=15.0, std=11.5)
+    # 15 + 2 × 12.3 = 39.6 < 40: PASS with σ known; with σ from ν = 5 residual dof the stated
+    # u is already the t's standard deviation (s·√(5/3), GUM-S1), and the 95.45 % factor is
+    # the t(5) quantile 2.65 over √(5/3) = 2.05: 15 + 2.05 × 12.3 > 40 (the old rule applied
+    # 2.65 to that u: ×1.29 too wide)
+    a = analysis(eb0c=15.0, std=12.3)
     assert judge(a, TOL).status == "PASS"
     j = judge(replace(a, estimation=Estimation(sigma_dof=5.0)), TOL)
-    assert j.status == "WARN" and "|value| + 2.65u" in j.reasons[0]
+    assert j.status == "WARN" and "|value| + 2.05u" in j.reasons[0], j.reasons
     assert judge(replace(a, estimation=Estimation(sigma_dof=500.0)), TOL).status == "PASS"
+    # 15 + 2.05 × 11.5 = 38.6: the old rule (15 + 2.65 × 11.5 = 45.5) warned here
+    assert judge(replace(analysis(eb0c=15.0, std=11.5), estimation=Estimation(sigma_dof=5.0)),
+                 TOL).status == "PASS"
 
 
 def test_drift_against_the_baseline_run():

@@ -8,7 +8,6 @@
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import Any
 
@@ -16,8 +15,8 @@ from daemon.analysis.figures import LABELS, VOLUMETRIC, run_figures, volumetric_
 from daemon.analysis.result import Analysis
 from daemon.analysis.verdict_text import duration_text
 from daemon.machines.tolerances import Limit, Tolerances
-from identification.estimate import coverage_factor
 from identification.outliers import REPROBE_REPEAT_BASE
+from identification.uncertainty import expanded_k
 
 STATUS_ORDER = {"PASS": 0, "WARN": 1, "FAIL": 2, "ERROR": 3}
 """ERROR: the measurement itself is not trusted (health limits), so no statement on the machine."""
@@ -99,12 +98,13 @@ def judge(analysis: Analysis, tol: Tolerances, last_good: Analysis | None = None
     checks: list[Check] = []
     ref_links = last_good.links if last_good is not None else {}
     ref_run = last_good.run_id if last_good is not None else None
-    # The guard band k·u at coverage_k's normal coverage (k = 2: 95.45 %), widened when u
-    # rests on a σ estimated from few residual degrees of freedom (Student t, GUM G.3).
+    # The guard band k·u at coverage_k's normal coverage (k = 2: 95.45 %) for the stated u,
+    # the standard deviation of a t on σ's residual dof (identification/uncertainty.py, one
+    # definition with the compensation's U): 2.02 at ν = 24, 3.67 for k = 3 at ν = 8.3.
     dof = analysis.estimation.sigma_dof if analysis.estimation is not None else None
     k = tol.coverage_k
-    if dof and k > 0:
-        k = coverage_factor(float(dof), math.erf(k / math.sqrt(2.0)))
+    if dof:
+        k = expanded_k(float(dof), k)
     for name, est in sorted(analysis.links.items()):
         lim = tol.links.get(name) or (
             tol.default_rotation_urad if est.unit == "urad" else tol.default_translation_um)
@@ -145,8 +145,9 @@ def judge(analysis: Analysis, tol: Tolerances, last_good: Analysis | None = None
 
 def decision_rule(k: float = 2.0) -> str:
     """The decision rule as the report states it (ISO 14253-1: how u enters the verdict)."""
-    return (f"ISO 14253-1 decision rule, guard band k·u with k = {k:g} (95 % coverage, widened "
-            "by Student's t when σ rests on few degrees of freedom): conformance zone "
+    return (f"ISO 14253-1 decision rule, guard band k·u with k = {k:g} (95 % coverage; u is "
+            "the standard deviation of the Student t of an a-posteriori σ, GUM-S1 6.4.9.4, "
+            "and k the t's quantile over it): conformance zone "
             "|value| + k·u < fail limit and |value| ≤ warn limit → PASS; undecided zone "
             "fail − k·u ≤ |value| ≤ fail (conformance not proven) or warn < |value| ≤ fail → "
             "WARN; non-conformance |value| > fail limit → FAIL (the measured value decides "
