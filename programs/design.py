@@ -9,10 +9,11 @@ plan is the sum of one block per visit, ``I_p = J_pᵀ W J_p`` (every ball of po
 at the nominal machine (5 µrad errors change J by ~1e-5 relative: identification/montecarlo.py).
 So a candidate grid is differentiated once and every plan is a sum of blocks.
 
-Drift: a linear thermal drift of the measured centres (three rates, µm/h per controller axis,
-the gap diagnosis' ``thermal_drift`` family) added as nuisance columns, with each visit at its
-time in the plan, gives the uncertainty the links keep when drift must be told apart from pose
-effects: a plan whose time order follows C (or B) confounds the two and inflates it.
+Drift: a thermal drift of the measured centres per controller axis — linear (three rates, the
+gap diagnosis' ``thermal_drift`` family) or a warm-up A·(1 − e^(−t/τ)) with τ estimated (issue
+22) — added as nuisance columns, with each visit at its time in the plan, gives the uncertainty
+the links keep when drift must be told apart from pose effects: a plan whose time order follows
+C (or B) confounds the two and inflates it.
 """
 
 from __future__ import annotations
@@ -105,18 +106,44 @@ def link_u_regular(design: Design, m: np.ndarray) -> np.ndarray:
     return np.sqrt(np.maximum(var, 0.0)) * design.unit
 
 
-def drift_u(design: Design, visits: Sequence[int], times_h: Sequence[float]) -> np.ndarray:
+WARMUP_TAU_H = (10 / 60, 30 / 60, 1.0)  # warm-up time constants searched (ISO 230-3: 10-60 min)
+
+
+def drift_columns(times_h: Sequence[float], tau_h: float | None = None) -> np.ndarray:
+    """(V, m) time functions of a drift per visit: a linear drift [t]; a warm-up
+    [1 − e^(−t/τ), (t/τ)·e^(−t/τ)] — its shape and its derivative by ln τ, so that τ, which
+    the estimator profiles (identification/drift.py), costs the links what it costs there
+    (over a run much shorter than τ the pair spans t and t²: a drift that bends)."""
+    t = np.asarray(times_h, float)
+    if tau_h is None:
+        return t[:, None]
+    x = t / tau_h
+    return np.column_stack([-np.expm1(-x), x * np.exp(-x)])
+
+
+def drift_u(design: Design, visits: Sequence[int], times_h: Sequence[float],
+            tau_h: float | None = None) -> np.ndarray:
     """Link uncertainty (µrad / µm) of the visits (candidate indices in run order, a repeat
-    allowed) with a linear drift of the centres (three rates) estimated alongside."""
+    allowed) with a drift of the centres per controller axis estimated alongside: linear
+    (three rates), or with ``tau_h`` a warm-up with its time constant (``drift_columns``)."""
     p = design.layout.size
     n3 = design.jw.shape[1]
     sig_mm = design.sigma_um[np.arange(n3) % 3] * 1e-3  # row r is axis r % 3 of its ball
     axis = np.tile(np.eye(3), (n3 // 3, 1)) / sig_mm[:, None]
-    j = np.vstack([np.hstack([design.jw[k], axis * float(t)])
-                   for k, t in zip(visits, times_h, strict=True)])
+    g = drift_columns(times_h, tau_h)
+    j = np.vstack([np.hstack([design.jw[k], np.kron(g[i][None, :], axis)])
+                   for i, k in enumerate(visits)])
     m = j.T @ j
     m[:p, :p] += design.prior
     return link_u(design, m)
+
+
+def drift_u_worst(design: Design, visits: Sequence[int], times_h: Sequence[float]
+                  ) -> np.ndarray:
+    """Per link, the largest ``drift_u`` of a linear drift and of a warm-up with τ of 10, 30
+    or 60 min estimated: what the order search protects the targets against."""
+    us = [drift_u(design, visits, times_h, tau) for tau in (None, *WARMUP_TAU_H)]
+    return np.max(np.array(us), axis=0)
 
 
 def max_links(machine: Machine, artefact: Artefact, poses: Sequence[tuple[float, float]]

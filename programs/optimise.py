@@ -33,7 +33,7 @@ from contracts.setup_files import MachineFile, Plan
 from identification.kinematics import Machine
 from identification.model import Artefact
 from programs.candidates import Candidates
-from programs.design import Design, build_design, drift_u, link_u, link_u_regular
+from programs.design import Design, build_design, drift_u_worst, link_u, link_u_regular
 from programs.plan_order import order_tour, unwrap_c
 
 MAX_STEPS = 60  # exchange steps (each the best of every drop / swap / revisit move)
@@ -311,11 +311,12 @@ def _order(s: _Search, visits: list[int], estimate: list[bool]
         return [x / 3600.0 for x in out] + [(t + vis[seq[-1]].t_in_s) / 3600.0]
 
     def penalty(order: list[int]) -> float:
-        """Worst target ratio with a linear drift estimated too (estimate visits only)."""
+        """Worst target ratio with a drift estimated too (estimate visits only): a linear
+        drift or a warm-up of τ 10-60 min, whichever costs the links most."""
         seq = [*order, order[0]]
         t = times(order)[:-1]
         keep = [i for i, v in enumerate(seq) if estimate[v]]
-        u = drift_u(s.d, [visits[seq[i]] for i in keep], [t[i] for i in keep])
+        u = drift_u_worst(s.d, [visits[seq[i]] for i in keep], [t[i] for i in keep])
         return float((u[s.tidx] / s.tval).max())
 
     order = order_tour(cost, c_un, penalty)

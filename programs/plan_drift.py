@@ -31,6 +31,11 @@ class DriftPlan:
     over_run_u_um: dict[str, tuple[float, float, float]]
     link_growth: dict[str, float]
     span_s: float
+    # τ itself: per axis, the separable fraction of the warm-up's bend (its derivative by ln τ,
+    # with the links, setup and the warm-ups fitted) and the drift over the run (µm) from
+    # which τ is known to ±50 % (u(ln τ) = 0.5); inf where the plan cannot see the bend
+    tau_separation: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    tau_from_um: tuple[float, float, float] = (float("inf"),) * 3
 
     def inseparable(self) -> list[str]:
         """"<shape> <axis>" the plan cannot separate from the links."""
@@ -46,6 +51,15 @@ class DriftPlan:
             out.append(f"{name}: {what} over the run ({self.span_s / 60:.1f} min) separable "
                        f"from the links, u X/Y/Z {'/'.join(f'{x:.2g}' for x in u)} µm; link u "
                        f"grows at most ×{self.link_growth[shape]:.2f} when it is estimated")
+        if "exponential" in self.separation and np.isfinite(min(self.tau_from_um)):
+            dull = [a for a, x in zip("XYZ", self.tau_separation, strict=True)
+                    if x < SEPARABLE_MIN]
+            out.append(f"{name}: τ ({TAU_S / 60:.0f} min) known to ±50 % only from a warm-up "
+                       f"of ≥ {'/'.join(f'{x:.2g}' for x in self.tau_from_um)} µm (X/Y/Z) over "
+                       "the run; below that the drift over the run is fitted with τ at a "
+                       "bound (a straight line when τ ≫ the run)"
+                       + (f"; the plan cannot tell the warm-up's bend from the links on "
+                          f"{'/'.join(dull)}" if dull else ""))
         bad = self.inseparable()
         if bad:
             out = [f"{name}: the plan cannot separate drift from links: {', '.join(bad)} "
@@ -82,7 +96,27 @@ def drift_plan(machine: Machine, artefact: Artefact, visits: Sequence[tuple[floa
                           for k in range(3))
         g = np.sqrt(np.diag(cov)[:nl] / np.maximum(np.diag(base)[:nl], 1e-300))
         growth[shape] = float(g.max()) if nl else 1.0
-    return DriftPlan(seps, us, growth, span)
+    tau_sep, tau_from = _tau(j, t, sig, layout.size)
+    return DriftPlan(seps, us, growth, span, tau_sep, tau_from)
+
+
+def _tau(j: np.ndarray, t: np.ndarray, sig: np.ndarray, n_par: int
+         ) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
+    """(separable fraction of each axis' warm-up bend, drift over the run from which τ is known
+    to ±50 %): the derivative of the normalised warm-up by ln τ per axis, beside the links, the
+    setup and the warm-ups themselves (identification/drift.py fits τ so, to first order)."""
+    model = DriftModel("exponential", ("X", "Y", "Z"), TAU_S)
+    cols = model.columns(t)
+    h = 1e-4
+    dcol = (DriftModel("exponential", model.axes, TAU_S * np.exp(h)).columns(t)
+            - DriftModel("exponential", model.axes, TAU_S * np.exp(-h)).columns(t)) / (2 * h)
+    sep = separation(np.concatenate([j, cols], axis=2), sig, dcol)
+    cov = _cov(np.concatenate([j, cols], axis=2), dcol, sig)
+    # coefficient of dcol = A·d(ln τ) with A the drift over the run in µm: u(ln τ) = u(c) / A
+    u_c = np.sqrt(np.diag(cov)[n_par + 3:])
+    tau_from = tuple(float(2.0 * u) if s >= SEPARABLE_MIN else float("inf")
+                     for u, s in zip(u_c, sep, strict=True))
+    return tuple(float(x) for x in sep), tau_from
 
 
 def _cov(j: np.ndarray, cols: np.ndarray, sig: np.ndarray) -> np.ndarray:

@@ -9,7 +9,9 @@ up to eight poses, by 2-opt beyond — among orders whose C values are not monot
 adjacent in C then lie far apart in time, so a linear drift and an effect of C are not
 confounded (with the revisit at the end measuring the drift itself: identification/gap).
 Among tours within ``TIE_FRACTION`` of the fastest, the one whose links lose least uncertainty
-to a drift estimated alongside (``programs.design.drift_u``) wins.
+to a drift estimated alongside wins — the worst of a linear drift and a warm-up with τ of 10,
+30 or 60 min and τ estimated (``programs.design.drift_u_worst``): a warm-up bends over the run,
+and an order whose time follows a quadratic in C or B confounds that bend with the links.
 """
 
 from __future__ import annotations

@@ -12,7 +12,7 @@ import numpy as np
 from contracts.setup_files import Plan, plan_from_dict
 from identification.kinematics import Machine
 from identification.model import Artefact
-from programs.design import build_design, drift_u, link_u, max_links
+from programs.design import build_design, drift_u_worst, link_u, max_links
 from programs.optimise import Chosen
 
 
@@ -36,7 +36,8 @@ def predicted_u(machine: Machine, artefact: Artefact, plan: Plan, links: Sequenc
                 sigma_um: Sequence[float], times_h: Sequence[float] | None = None
                 ) -> tuple[dict[str, float], dict[str, float] | None]:
     """Standard uncertainty per link (µrad / µm) of ``plan`` as the daemon estimates it; with
-    the visit times (hours, one per estimate visit) also with a linear drift estimated."""
+    the visit times (hours, one per estimate visit) also with a drift estimated (the worst of
+    a linear drift and a warm-up of τ 10-60 min, ``drift_u_worst``)."""
     visits = estimate_visits(plan)
     uniq = sorted(set(visits))
     d = build_design(machine, artefact, uniq, links, sigma_um)
@@ -46,7 +47,7 @@ def predicted_u(machine: Machine, artefact: Artefact, plan: Plan, links: Sequenc
     u = link_u(d, d.info_of(counts))
     du = None
     if times_h is not None:
-        du_arr = drift_u(d, [uniq.index(v) for v in visits], times_h)
+        du_arr = drift_u_worst(d, [uniq.index(v) for v in visits], times_h)
         du = {k: float(x) for k, x in zip(links, du_arr, strict=True)}
     return {k: float(x) for k, x in zip(links, u, strict=True)}, du
 

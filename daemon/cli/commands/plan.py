@@ -222,7 +222,8 @@ def _print(r: Outcome, dialect: object, sigma: object) -> None:
     if r.drift_u:
         worst = max(r.drift_u, key=lambda k: r.drift_u[k] / r.new_u[k])  # type: ignore[index]
         print(f"drift: the first pose is probed again at the end and the time order is not "
-              f"monotone in C; with a linear drift estimated too, u grows at most ×"
+              f"monotone in C; with a drift estimated too (linear, or a warm-up of τ 10-60 min"
+              f" and τ estimated), u grows at most ×"
               f"{r.drift_u[worst] / r.new_u[worst]:.2f} ({worst})")
     if r.drift is not None:
         for name, d in zip((ref.name, plan.name), r.drift, strict=True):
