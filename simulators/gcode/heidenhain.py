@@ -1,6 +1,6 @@
 """Heidenhain TNC conversational dialect: numbered lines, Q parameters, L moves, touch-probe
-cycles 0 (REF. PLANE), 1 (POLAR DATUM PLANE) and 4 (MEASURING IN 3-D), FN 9-12 jumps, FN 14 errors, FN 16 F-PRINT,
-FN 18 SYSREAD ID360 (last touch point).
+cycles 0 (REF. PLANE), 1 (POLAR DATUM PLANE) and 4 (MEASURING IN 3-D), FN 9-12 jumps, FN 14
+errors, FN 16 F-PRINT, FN 18 SYSREAD ID360 (last touch point).
 
 Touch-probe cycles behave as the TNC manuals describe them: the point given in ``0.1`` / ``1.2``
 is the PRE-POSITION, approached at the probe table's FMAX; the probe then moves along the
