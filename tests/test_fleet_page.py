@@ -38,7 +38,7 @@ def analysis(eaoc_urad: float, exoc_um: float) -> str:
 def run_row(run_id: str, machine: str, state: str, verdict: str | None, started: float,
             summary: str = "") -> tuple:
     return (run_id, machine, "shift", state, "", "plan.yaml", "ballbar", "fanuc", 280,
-            started, started + 240, verdict, summary, 0)
+            started, started + 240, verdict, summary, 0, "")  # started_by: the CNC's shift run
 
 
 async def seed(dsn: str, reports: Path, elsewhere: Path) -> dict[str, float]:
