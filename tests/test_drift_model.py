@@ -126,3 +126,35 @@ def test_separability_comes_from_time_not_geometry(shift):
 
     assert np.all(sep(poses, np.arange(5) * 30.0) < 1e-6)
     assert np.all(sep([*poses, poses[0]], np.arange(6) * 30.0) > 0.2)
+
+
+def test_the_links_u_carries_the_choice_among_drift_models(shift, monkeypatch):
+    """BIC chooses among 14 drift models; where others come close, their link estimates
+    differ from the chosen one's, and that spread (weighted by e^(−BIC/2), Burnham & Anderson
+    §4.3.2) is part of the links' u: never below the chosen model's own covariance, above it
+    by exactly the share."""
+    import identification.drift as drift
+
+    m, a = shift[:2]
+    seen = {}
+    real = drift._selection_share
+
+    def spy(*args):
+        seen["share"] = real(*args)
+        return seen["share"]
+
+    monkeypatch.setattr(drift, "_selection_share", spy)
+    grown = 0
+    for seed in range(4):
+        c = _centres(shift, seed, 6.0)
+        out = estimate_drift_aware(m, a, c)
+        assert out.status == "selected", out.message
+        share = seen["share"]
+        n = share.shape[0]
+        assert np.all(np.linalg.eigvalsh(share) >= -1e-18)  # a covariance: PSD
+        monkeypatch.setattr(drift, "_selection_share", lambda *args, n=n: np.zeros((n, n)))
+        alone = estimate_drift_aware(m, a, c).estimate
+        monkeypatch.setattr(drift, "_selection_share", spy)
+        np.testing.assert_allclose(out.estimate.cov, alone.cov + share, rtol=1e-9, atol=1e-24)
+        grown += bool(np.any(np.diag(share)[:3] > 1e-4 * np.diag(alone.cov)[:3]))
+    assert grown >= 1  # the competing models do move the links
