@@ -21,6 +21,7 @@ import pytest
 
 from daemon.analysis.figures import DEFINITIONS, LABELS, VOLUMETRIC, link_label, run_figures
 from daemon.compensation.propose import controller_model, reidentify
+from daemon.store import baselines
 from daemon.store.drain import RUN_COLS
 from daemon.store.pg import PgStore, RunBatch
 from tests.browser import chromium
@@ -212,6 +213,17 @@ async def test_every_surface_tells_the_same_numbers_of_one_run(tmp_path, capsys)
             dist = f"{card}.querySelector('.comp .comp-dist').textContent"
             await cdp.wait_for(sid, f"{dist}.includes({json.dumps(shown)})")
             assert definition in await cdp.eval(sid, dist)
+            # item 2 on the page: accept this run as the baseline (the dialogs answered)
+            btn = f"{card}.querySelector('.set-baseline')"
+            await cdp.wait_for(sid, f"!{btn}.hidden")
+            await cdp.eval(sid, "window.confirm = () => true; window.prompt = () => "
+                                "'Jo Keller'; true")
+            await cdp.eval(sid, f"{btn}.click(); true")
+            await cdp.wait_for(sid, f"{card}.querySelector('.message').textContent"
+                                    ".startsWith('Baseline now: run ')")
+            assert await cdp.eval(sid, f"{btn}.hidden")
+        b = baselines.current(store, "mill1")
+        assert (b.run_id, b.by) == (run_id, "Jo Keller") and "via token-login" in b.note
         # the fleet page (the run as the drainer copies it to PostgreSQL)
         fleet = flat(await fleet_page(tmp_path, store, run_id))
         assert shown in fleet and f"{LABELS[VOLUMETRIC]}: {definition}." in fleet

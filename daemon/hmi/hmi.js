@@ -83,6 +83,37 @@ async function post(url, body) {
   }
 }
 
+// issue 23: an engineer accepts the run just judged as the machine's drift baseline; the
+// daemon journals who and when (an account's own name; with the shared token, a typed one)
+function baselineButton(el, st, v) {
+  let btn = el.querySelector(".set-baseline");
+  if (!btn) {
+    btn = document.createElement("button");
+    btn.className = "btn set-baseline";
+    btn.textContent = "Accept this run as the drift baseline";
+    el.querySelector(".baseline").after(btn);
+    btn.addEventListener("click", async () => {
+      const me = window.rumbaMe || {}, name = el.dataset.machine, run = btn.dataset.run;
+      if (!confirm(`Make run ${run} the drift baseline of ${name}? Later runs' drift is ` +
+                   "judged against it.")) return;
+      const body = {run_id: run};
+      if (me.via !== "password") {
+        body.by = prompt("Your name (journaled with the baseline):") || "";
+        if (!body.by) return;
+      }
+      const r = await post(`/api/machines/${encodeURIComponent(name)}/baseline`, body);
+      el.querySelector(".message").textContent = r.ok ? `Baseline now: ${r.body.baseline.text}.`
+        : (r.body.error || "refused");
+      if (r.ok) { btn.hidden = true; btn.dataset.done = run; }
+    });
+  }
+  const me = window.rumbaMe;
+  const mine = st.verdict && v.status !== "ERROR" && st.run_id;
+  btn.dataset.run = mine || "";
+  btn.hidden = !(mine && me && me.may_compensate && btn.dataset.done !== mine &&
+                 !(v.baseline && v.baseline.run_id === mine));
+}
+
 function card(name) {
   if (cards[name]) return cards[name];
   const el = document.getElementById("machine-tpl").content.firstElementChild.cloneNode(true);
@@ -152,6 +183,7 @@ function render(st) {
       f => `${f.label}: ${f.definition}.`).join(" ");
     el.querySelector(".baseline").textContent = v.figures ? (v.baseline ?
       `Drift judged against baseline ${v.baseline.text}.` : "Drift not checked: no baseline.") : "";
+    baselineButton(el, st, v);
     // issue 22: the temperature channels read during the run, start → end
     let temps = el.querySelector(".temperatures");
     if (!temps) {
