@@ -37,7 +37,8 @@ def t(start: float, end: float, lo: float | None = None, hi: float | None = None
     ({"spindle": (18.0, None, None)}, {"spindle": t(17.2, 19.0)}, "WARN",
      "temperature spindle = +17.20 °C: machine outside its temperature range [18, ] °C"),
     ({"spindle": (None, None, 2.0)}, {}, "WARN",
-     "temperature limit not checked: channel not read (no reading in this run)"),
+     "temperature spindle: temperature limit not checked: channel not read (no reading in "
+     "this run)"),
     ({"spindle": (None, None, 2.0)},
      {"spindle": {"source": "x", "start_c": None, "end_c": None, "change_c": None,
                   "min_c": None, "max_c": None, "errors": ["opcua: BadNodeIdUnknown"]}},

@@ -8,6 +8,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Any
 
@@ -79,6 +80,8 @@ def _fmt_limit(warn: float | None, fail: float | None, unit: str, prefix: str = 
 
 
 def _reason(c: Check) -> str:
+    if math.isnan(c.value):  # nothing measured (a channel not read): the limit says why
+        return f"{c.quantity}: {c.limit}"
     std = f" ± {c.std:.2f}" if c.std else ""
     if c.reference is not None:
         return (f"{c.quantity}: {c.value:+.2f}{std} {c.unit} since baseline run "
