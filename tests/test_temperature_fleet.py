@@ -42,10 +42,10 @@ async def test_run_temperatures_on_the_machine_page(tmp_path):
         await store.close()
         assert runs[1]["temperatures"] == temps  # through jsonb, as stored
         async with serving(dsn, tmp_path) as url, aiohttp.ClientSession(
-                headers={"Authorization": f"Bearer {TOKEN}"}) as http:
-            async with http.get(f"{url}/machines/mill-t") as r:
-                page = await r.text()
-                assert r.status == 200, page
+                headers={"Authorization": f"Bearer {TOKEN}"}) as http, \
+                http.get(f"{url}/machines/mill-t") as r:
+            page = await r.text()
+            assert r.status == 200, page
         assert "<th>Temperatures</th>" in page
         # jsonb keeps its own key order: the channels in whatever order it gives them
         assert "column not read; spindle 20.5 → 24.1 °C" in page or \
