@@ -136,7 +136,7 @@ def analyse(setup: MachineSetup, hits: Sequence[ProbeHit], run_id: str = "run",
             controller: Machine | None = None) -> RunAnalysis:
     """Centres (sphere fit) → estimate (setup + identifiable links) → analyses, as the shared
     ``daemon.analysis.result.Analysis`` plus the run's identity and the reference run (the
-    last good run the verdict's drift is judged against, None when there is none).
+    machine's baseline run the verdict's drift is judged against, None when there is none).
     ``controller``: the model the controller runs when compensations were written to it
     (``daemon.compensation.propose.controller_model``), else the machine file's."""
     rows = [hit_to_row(run_id, h, setup.machine) for h in hits if h.triggered]
