@@ -270,6 +270,11 @@ CONVENTIONS = {
                "centre, mm, controller origin); the thesis' D, R of Eq. 4.4 are the negatives; "
                "local = ε − rigid part",
     "setup": "ball offsets in the last workpiece frame, probe offset in the last tool frame, µm",
+    "std": "standard uncertainty u; with σ from the residuals (estimation.sigma_dof = ν) the "
+           "standard deviation of the Student t of the estimate, s·√(ν/(ν−2)) (GUM-S1 "
+           "6.4.9.4): ±2u covers ≥ 95 %; the judge and the compensation expand it with the t "
+           "quantile over that factor (identification/uncertainty.py); with a drift model "
+           "(thermal) it also carries the model choice",
 }
 """What the numbers of an analysis mean (its JSON's ``conventions``)."""
 
