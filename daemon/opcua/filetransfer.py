@@ -13,7 +13,7 @@ from typing import Any
 
 from asyncua import Server, ua
 
-from daemon.store.journal import Store
+from daemon.opcua.source import ResultSource
 
 FILE_TYPE = ua.NodeId(ua.ObjectIds.FileType)
 MAX_READ = 1 << 20  # bytes per Read call (a client asking for more gets this much)
@@ -27,13 +27,14 @@ class _Open:
     pos: int = 0
 
 
-def report_file(store: Store, run_id: str) -> Path | None:
-    """The run's PDF report beside its HTML, else the HTML; None without a report."""
-    rep = store.report(run_id)
-    if rep is None:
+async def report_file(source: ResultSource, run_id: str) -> Path | None:
+    """The run's PDF report beside its HTML, else the HTML; None without a report (or when
+    the fleet store names a file this host does not have)."""
+    html = await source.report(run_id)
+    if html is None:
         return None
-    pdf = rep[0].with_suffix(".pdf")
-    return pdf if pdf.is_file() else (rep[0] if rep[0].is_file() else None)
+    pdf = html.with_suffix(".pdf")
+    return pdf if pdf.is_file() else (html if html.is_file() else None)
 
 
 def _result_id(opts: Any) -> str | None:
@@ -56,8 +57,8 @@ def _result_id(opts: Any) -> str | None:
 
 
 class ResultTransfer:
-    def __init__(self, server: Server, store: Store, node: Any, ns: int) -> None:
-        self.server, self.store, self.node, self.ns = server, store, node, ns
+    def __init__(self, server: Server, source: ResultSource, node: Any, ns: int) -> None:
+        self.server, self.source, self.node, self.ns = server, source, node, ns
         self.open: dict[int, _Open] = {}
 
     async def bind(self) -> None:
@@ -73,7 +74,7 @@ class ResultTransfer:
         if not isinstance(run_id, str):
             raise ua.UaStatusCodeError(ua.StatusCodes.BadInvalidArgument)
         try:
-            path = report_file(self.store, run_id)
+            path = await report_file(self.source, run_id)
         except Exception:  # an invalid run id
             path = None
         if path is None:

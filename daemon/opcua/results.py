@@ -19,7 +19,8 @@ from asyncua import ua
 
 from daemon.analysis.judge import volumetric_max_um
 from daemon.analysis.result import Analysis
-from daemon.store.journal import RunRow, Store
+from daemon.opcua.source import ResultSource
+from daemon.store.journal import RunRow
 
 NOT_PROVEN = "conformance not proven"
 STATE = {"DONE": 1, "IMPORTED": 1, "ABORTED": 3, "INTERRUPTED": 3, "FAILED": 4}
@@ -110,13 +111,13 @@ def metadata(run: RunRow, checks: list[dict[str, Any]] | None, machine_uri: str,
         FileFormat=["application/pdf", "text/html"] if has_file else None)
 
 
-def result(store: Store, run: RunRow, machine_uri: str, ns: int) -> Any:
+async def result(source: ResultSource, run: RunRow, machine_uri: str, ns: int) -> Any:
     """ResultDataType: metadata and content of ``run``."""
-    v = store.verdict(run.id)
-    has_file = store.report(run.id) is not None
+    v = await source.verdict(run.id)
+    has_file = await source.report(run.id) is not None
     return ua.ResultDataType(ResultMetaData=metadata(run, v["checks"] if v else None,
                                                      machine_uri, has_file),
-                             ResultContent=content(store.analysis(run.id), ns))
+                             ResultContent=content(await source.analysis(run.id), ns))
 
 
 # ------------------------------------------------------------------ GetResultIdListFiltered
@@ -177,16 +178,17 @@ def row_of(run: RunRow, checks: list[dict[str, Any]] | None) -> dict[str, Any]:
             "JobId": run.id}
 
 
-def filtered_ids(store: Store, machine: str, flt: Any, max_results: int) -> list[str]:
+async def filtered_ids(source: ResultSource, machine: str, flt: Any,
+                       max_results: int) -> list[str]:
     """Result ids of ``machine`` (newest first) matching ``flt`` (an empty ContentFilter
     matches all); at most ``max_results`` (0: no limit)."""
     elements = list(flt.Elements or []) if flt is not None else []
     out = []
-    for run in store.runs(machine, limit=1_000_000):
+    for run in await source.runs(machine, 1_000_000):
         if not elements:
             out.append(run.id)
         else:
-            v = store.verdict(run.id) if run.verdict else None
+            v = await source.verdict(run.id) if run.verdict else None
             if _element(elements, 0, row_of(run, v["checks"] if v else None)):
                 out.append(run.id)
         if max_results and len(out) >= max_results:

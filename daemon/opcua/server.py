@@ -26,7 +26,8 @@ from contracts.opcua_security import PasswordUsers, SecureServer
 from daemon.opcua import nodesets, results
 from daemon.opcua.config import IdentificationFile, OpcUaServerConfig
 from daemon.opcua.filetransfer import ResultTransfer
-from daemon.store.journal import Store, StoreError
+from daemon.opcua.source import JournalSource, ResultSource
+from daemon.store.journal import Store
 
 log = logging.getLogger("rumba.opcua")
 RUMBA_URI = "urn:rumba-cnc:results"  # rumba's own nodes (machine objects, the check's state)
@@ -65,8 +66,11 @@ class MachineNodes:
 
 
 class ResultServer:
-    def __init__(self, cfg: OpcUaServerConfig, store: Store, machines: list[str]) -> None:
-        self.cfg, self.store, self.names = cfg, store, machines
+    def __init__(self, cfg: OpcUaServerConfig, store: Store | ResultSource,
+                 machines: list[str]) -> None:
+        """``store``: the daemon's journal, or any ResultSource (the fleet store)."""
+        self.cfg, self.names = cfg, machines
+        self.source: ResultSource = JournalSource(store) if isinstance(store, Store) else store
         self.server: Server | None = None
         self.machines: dict[str, MachineNodes] = {}
         self.by_management: dict[ua.NodeId, MachineNodes] = {}
@@ -109,6 +113,29 @@ class ResultServer:
         for m in self.machines.values():
             self._tasks.append(asyncio.create_task(self._writer(m), name=f"opcua-{m.name}"))
         return self.endpoint
+
+    def follow(self, interval_s: float) -> None:
+        """Fleet mode (no session reports to this server): poll the source and raise the
+        ResultReadyEvent of each machine's newly finished run, update its last result."""
+        self._tasks.append(asyncio.create_task(self._follow(interval_s), name="opcua-follow"))
+
+    async def _follow(self, interval_s: float) -> None:
+        async def latest(name: str) -> str | None:
+            return next((r.id for r in await self.source.runs(name, 50) if r.final), None)
+
+        seen = {name: await latest(name) for name in self.machines}
+        while True:
+            await asyncio.sleep(interval_s)
+            for name, m in self.machines.items():
+                try:
+                    rid = await latest(name)
+                    if rid is not None and rid != seen[name]:
+                        seen[name] = rid
+                        await self._last_result(m, ready=rid)
+                except asyncio.CancelledError:
+                    raise
+                except Exception as e:  # the store restarting: try again next round
+                    log.warning("%s: OPC UA results: reading the store failed: %s", name, e)
 
     async def stop(self) -> None:
         for t in self._tasks:
@@ -163,7 +190,7 @@ class ResultServer:
                            ("ReleaseResultHandle", self._release),
                            ("AcknowledgeResults", self._acknowledge)):
             server.link_method(await rm.get_child([f"{res}:{method}"]), fn)
-        m.transfer = ResultTransfer(server, self.store, await rm.get_child(
+        m.transfer = ResultTransfer(server, self.source, await rm.get_child(
             [f"{res}:ResultTransfer"]), idx)
         await m.transfer.bind()
         await rm.write_attribute(ua.AttributeIds.EventNotifier, ua.DataValue(ua.Variant(
@@ -224,36 +251,34 @@ class ResultServer:
             raise ua.UaStatusCodeError(ua.StatusCodes.BadNodeIdUnknown)
         return m
 
-    def _answer(self, m: MachineNodes, run: Any, error: int = 0) -> list[ua.Variant]:
+    async def _answer(self, m: MachineNodes, run: Any, error: int = 0) -> list[ua.Variant]:
         if run is None:
             data = ua.ResultDataType(ResultMetaData=ua.ResultMetaDataType(ResultId=""))
         else:
-            data = results.result(self.store, run, m.uri, self.idx)
+            data = await results.result(self.source, run, m.uri, self.idx)
         return [ua.Variant(0, ua.VariantType.UInt32),  # no handles: results stay available
                 ua.Variant(data, ua.VariantType.ExtensionObject),
                 ua.Variant(error, ua.VariantType.Int32)]
 
     async def _latest(self, parent: ua.NodeId, timeout: ua.Variant) -> list[ua.Variant]:
         m = self._of(parent)
-        run = next((r for r in self.store.runs(m.name, limit=50) if r.final), None)
-        return self._answer(m, run, 0 if run else results.ERR_NO_RESULT)
+        run = next((r for r in await self.source.runs(m.name, 50) if r.final), None)
+        return await self._answer(m, run, 0 if run else results.ERR_NO_RESULT)
 
     async def _by_id(self, parent: ua.NodeId, rid: ua.Variant,
                      timeout: ua.Variant) -> list[ua.Variant]:
         m = self._of(parent)
-        try:
-            run = self.store.run(str(rid.Value))
-        except StoreError:
-            run = None
+        run = await self.source.run(str(rid.Value))
         if run is None or run.machine != m.name:
-            return self._answer(m, None, results.ERR_UNKNOWN_ID)
-        return self._answer(m, run)
+            return await self._answer(m, None, results.ERR_UNKNOWN_ID)
+        return await self._answer(m, run)
 
     async def _filtered(self, parent: ua.NodeId, flt: ua.Variant, ordered: ua.Variant,
                         max_results: ua.Variant, timeout: ua.Variant) -> list[ua.Variant]:
         m = self._of(parent)
         try:
-            ids = results.filtered_ids(self.store, m.name, flt.Value, int(max_results.Value or 0))
+            ids = await results.filtered_ids(self.source, m.name, flt.Value,
+                                             int(max_results.Value or 0))
             err = 0
         except results.FilterError as e:
             log.info("%s: GetResultIdListFiltered: %s", m.name, e)
@@ -309,9 +334,9 @@ class ResultServer:
             ITEM_STATES[item], self.ns[nodesets.MACHINERY_URI]), ua.VariantType.NodeId))
 
     async def _last_result(self, m: MachineNodes, ready: str | None = None) -> None:
-        run = next((r for r in self.store.runs(m.name, limit=50) if r.final), None)
+        run = next((r for r in await self.source.runs(m.name, 50) if r.final), None)
         if run is not None:
-            v = self.store.verdict(run.id)
+            v = await self.source.verdict(run.id)
             ev = results.evaluation(run.verdict, v["checks"] if v else None)
             when = dt.datetime.fromtimestamp(run.ended_at or run.started_at, dt.UTC)
             await m.vars["LastResultId"].write_value(ua.Variant(run.id, ua.VariantType.String))
@@ -321,11 +346,10 @@ class ResultServer:
             await m.vars["LastResultEvaluation"].write_value(ua.Variant(ev, ua.VariantType.Int32))
         if ready is None:
             return
-        try:
-            done = self.store.run(ready)
-        except StoreError:
+        done = await self.source.run(ready)
+        if done is None:
             return
-        data = results.result(self.store, done, m.uri, self.idx)
+        data = await results.result(self.source, done, m.uri, self.idx)
         for gen in m.events:
             gen.event.Result = data
             gen.event.Message = ua.LocalizedText(f"{m.name}: result {ready} ready "

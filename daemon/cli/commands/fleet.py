@@ -52,11 +52,56 @@ def cmd_fleet(args: argparse.Namespace) -> int:
     app = create_fleet_app(url.dsn or "", token, stale_after_h=args.stale_after_h,
                            reports_dirs=args.reports_dir, secure_cookie=ctx is not None,
                            secret=secret, bind_host=host, public_origins=args.public_origin)
-    asyncio.run(_serve(app, host, port, ctx))
+    opcua = _opcua_config(args.opcua) if args.opcua is not None else None
+    if args.opcua_poll_s <= 0:
+        raise UserError("--opcua-poll-s: expected a positive number of seconds")
+    asyncio.run(_serve(app, host, port, ctx, opcua, url.dsn or "", args.opcua_poll_s))
     return 0
 
 
-async def _serve(app: web.Application, host: str, port: int, ctx: object) -> None:
+def _opcua_config(path: object) -> object:
+    """The OPC UA results server's settings: daemon.yaml's opcua_server keys, in a file of
+    their own (relative paths from its folder); any machine name may carry identification."""
+    from pathlib import Path
+
+    from contracts.yaml_files import ConfigError, read_yaml, validate_file
+    from daemon.opcua.config import OpcUaServerFile, load_opcua_server
+
+    p = Path(str(path))
+    try:
+        f = validate_file(OpcUaServerFile, p, read_yaml(p))
+        return load_opcua_server(f, p.parent, str(p), list(f.machines), read_token_file)
+    except ConfigError as e:
+        raise UserError(str(e)) from None
+
+
+async def _start_opcua(cfg: object, dsn: str, poll_s: float) -> tuple[object, object]:
+    """The fleet store's machines over OPC UA: one endpoint for the shop (issue 25 item 4)."""
+    from contracts.yaml_files import ConfigError
+    from daemon.opcua.server import OpcUaServerError, ResultServer
+    from daemon.opcua.source import FleetSource
+    from daemon.store.journal import StoreError
+    from daemon.store.pg import PgStore
+
+    try:
+        pg = await PgStore.connect(dsn, app="rumba-fleet-opcua", migrate=False)
+    except StoreError as e:
+        raise UserError(str(e)) from None
+    source = FleetSource(pg)
+    server = ResultServer(cfg, source, await source.machines())  # type: ignore[arg-type]
+    try:
+        url = await server.start()
+    except (OpcUaServerError, ConfigError) as e:
+        await server.stop()
+        await pg.close()
+        raise UserError(f"--opcua: {e}") from None
+    server.follow(poll_s)
+    print(f"rumba fleet: OPC UA results {url}", flush=True)
+    return server, pg
+
+
+async def _serve(app: web.Application, host: str, port: int, ctx: object,
+                 opcua: object = None, dsn: str = "", poll_s: float = 5.0) -> None:
     stop = asyncio.Event()
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGINT, signal.SIGTERM):
@@ -72,7 +117,14 @@ async def _serve(app: web.Application, host: str, port: int, ctx: object) -> Non
     bound = runner.addresses[0][1] if runner.addresses else port
     scheme = "https" if ctx else "http"
     print(f"rumba fleet: {scheme}://{host}:{bound}/", flush=True)
+    server = pg = None
     try:
+        if opcua is not None:
+            server, pg = await _start_opcua(opcua, dsn, poll_s)
         await stop.wait()
     finally:
+        if server is not None:
+            await server.stop()  # type: ignore[attr-defined]
+        if pg is not None:
+            await pg.close()  # type: ignore[attr-defined]
         await runner.cleanup()
