@@ -37,7 +37,7 @@ sys.path.insert(0, str(ROOT))
 
 from contracts.setup_files import load_artefact, load_machine, load_plan  # noqa: E402
 from identification.effects import make_effect  # noqa: E402
-from identification.gap import diagnose  # noqa: E402
+from identification.gap import Options, diagnose  # noqa: E402
 from identification.gap.selfcheck_scatter import knock, step_named  # noqa: E402
 from identification.gap.simlog import Truth, simulate  # noqa: E402
 
@@ -57,12 +57,12 @@ def base_truth_setup(artefact, rng):
     return rng.normal(0.0, 0.2, (len(artefact.balls), 3)), rng.normal(0.0, 0.05, 3)
 
 
-def _run(machine, artefact, plans, name, truth, seed):
+def _run(machine, artefact, plans, name, truth, seed, options=None):
     poses, hold = plans[name]
     data = simulate(machine, artefact, poses, truth, STYLUS_R, NOISE_UM, seed=seed + 7919)
     hdata = None if hold is None else simulate(machine, artefact, hold, truth, STYLUS_R,
                                                NOISE_UM, seed=seed + 104729)
-    return data, diagnose(machine, artefact, data, STYLUS_R, holdout=hdata)
+    return data, diagnose(machine, artefact, data, STYLUS_R, holdout=hdata, options=options)
 
 
 def _links_covered(rep, truth) -> tuple[int, int]:
@@ -83,13 +83,13 @@ def _raw(on: bool, row: str, plan: str, seed: int, **values) -> None:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=50)
-    ap.add_argument("--only", default="", help="comma list: null,harmonic,step")
+    ap.add_argument("--only", default="", help="comma list: null,interval,harmonic,step")
     ap.add_argument("--plans", default="", help="comma list: shift-14,holdout-7+7")
     ap.add_argument("--sigmas", default="5,10,15", help="null runs' index scatter, µrad")
     ap.add_argument("--first", type=int, default=0, help="first seed (split a row in parts)")
     ap.add_argument("--raw", action="store_true", help="also one JSON line per run (RUN …)")
     args = ap.parse_args()
-    only = set(filter(None, args.only.split(","))) or {"null", "harmonic", "step"}
+    only = set(filter(None, args.only.split(","))) or {"null", "interval", "harmonic", "step"}
     machine, _ = load_machine(ROOT / "config/machines/thesis_wcbxfzyt.yaml")
     artefact = load_artefact(ROOT / "config/artefacts/thesis_4ball.yaml")
     annex = load_plan(ROOT / "config/plans/thesis_annexB_14poses.yaml")
@@ -144,6 +144,33 @@ def main() -> int:
                       f"{100 * np.mean(acc['uB']):3.0f}/{100 * np.mean(acc['uC']):3.0f}% "
                       f"{100 * cov_ok / cov_n:7.1f}% {int(np.sum(acc['false'])):5d}",
                       flush=True)
+    if "interval" in only:
+        # The components' stated uncertainty alone (no candidates: the null runs' components
+        # are the same unless an effect is selected): does σ̂ ± 2u, and the 95 % likelihood
+        # interval, hold the true repeatability?
+        print("\nnull runs, the index components' ± 2u and 95 % likelihood interval")
+        print(f"{'plan':12s} {'σ µrad':>6s} {'B ±2u':>6s} {'C ±2u':>6s} {'B ci95':>7s} "
+              f"{'C ci95':>7s} {'median B/C':>10s}")
+        opt = Options(families=())
+        for name in plans:
+            for sigma in (float(x) for x in args.sigmas.split(",")):
+                hit = defaultdict(list)
+                for s in range(args.first, args.first + n):
+                    truth = _truth(artefact, 1000 * s + 3, sigma)
+                    _, rep = _run(machine, artefact, plans, name, truth, 1000 * s + 3, opt)
+                    runs += 1
+                    comps = {c["component"]: c for c in rep["scatter"]["components"]}
+                    for ax in "BC":
+                        c = comps[f"index {ax}"]
+                        u, ci = c["std"], c["ci95"]
+                        hit[f"u{ax}"].append(u is not None and abs(c["sigma"] - sigma) <= 2 * u)
+                        hit[f"ci{ax}"].append(ci is not None and ci[0] <= sigma <= ci[1])
+                        hit[f"r{ax}"].append(c["sigma"] / sigma)
+                    _raw(args.raw, "interval", name, s, sigma=sigma,
+                         comps={ax: comps[f"index {ax}"] for ax in "BC"})
+                print(f"{name:12s} {sigma:6.0f} " + " ".join(
+                    f"{100 * np.mean(hit[k]):5.0f}%" for k in ("uB", "uC", "ciB", "ciC"))
+                      + f" {np.median(hit['rB']):5.2f}/{np.median(hit['rC']):4.2f}", flush=True)
     if "harmonic" in only:
         print("\n40 µrad 2nd-harmonic C positioning error under 8 µrad B/C index scatter")
         print(f"{'plan':12s} {'named':>6s} {'≤1.5 floor':>10s} {'both':>6s} "

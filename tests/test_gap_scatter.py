@@ -11,7 +11,7 @@ from contracts.yaml_files import ConfigError
 from identification.effects import make_effect, sub_models
 from identification.gap import Options, diagnose
 from identification.gap.simlog import simulate
-from identification.visit_scatter import arrange, estimate_components
+from identification.visit_scatter import arrange, estimate_components, restricted_nll
 from tests.gap_helpers import (
     CONFIG,
     MACHINE,
@@ -47,6 +47,14 @@ def test_reml_tells_a_rigid_visit_shift_from_independent_scatter():
     assert 1.5 < sigma["index"] < 2.6 and 0.35 < sigma["x"] < 0.65
     assert sigma["y"] < 0.2 and sigma["z"] < 0.2
     assert fit.p_value[0] < 1e-6 and fit.p_value[1] < 1e-3 and fit.p_value[2] > 0.01
+    # the 95 % likelihood interval: −2ℓ (others at their estimates) up by χ²₁(95 %) at both
+    # ends, longer upwards than downwards (σ̂ of 30 visits is skewed), 0 where σ = 0 fits
+    lo, hi = fit.ci95[0]
+    assert 0 < lo < sigma["index"] < hi and hi - sigma["index"] > sigma["index"] - lo
+    for end in (lo, hi):
+        at = np.where(np.arange(4) == 0, end, fit.sigma)
+        assert abs(restricted_nll(b, at, None) - fit.nll - 3.841) < 0.05
+    assert fit.ci95[2][0] == 0.0 and fit.ci95[2][1] > sigma["y"]
 
 
 def test_null_run_with_index_scatter_is_none_and_states_the_repeatability(setup):

@@ -57,8 +57,12 @@ class VisitScatter:
         for i, name in enumerate(self.fit.names):
             v, u, p = self.fit.sigma[i], self.fit.std[i], self.fit.p_value[i]
             unit = "urad" if name.startswith("index") else "um"
+            ci = self.fit.ci95[i] if self.fit.ci95 is not None else (np.nan, np.nan)
             out.append({"component": name, "sigma": round(float(v), 3),
                         "std": None if not np.isfinite(u) else round(float(u), 3),
+                        # the 95 % likelihood interval (σ̂ is skewed with a dozen visits)
+                        "ci95": None if np.isnan(ci[0]) else [round(float(ci[0]), 3),
+                                                              round(float(ci[1]), 3)],
                         "unit": unit, "stated": bool(self.fit.fixed[i]),
                         "p_value": None if not np.isfinite(p) else float(f"{p:.3g}"),
                         "detected": bool(self.fit.fixed[i] or (np.isfinite(p) and p < LR_ALPHA))})
@@ -79,6 +83,9 @@ class VisitScatter:
                     else f"centre scatter {name[-1]} per ball visit")
             how = "stated in the machine file" if stated else (
                 f"± {u:.2g}" if np.isfinite(u) else "estimated")
+            ci = self.fit.ci95[i] if self.fit.ci95 is not None else (np.nan, np.nan)
+            if not stated and np.isfinite(ci[0]):
+                how += f"; 95 % {ci[0]:.3g}-{ci[1]:.3g}"
             parts.append(f"{what} ≈ {v:.3g} {unit} (1σ, {how})")
         if not parts:
             return ("no per-visit scatter beyond the trigger noise detected "
