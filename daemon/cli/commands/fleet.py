@@ -6,6 +6,8 @@ from __future__ import annotations
 import argparse
 import asyncio
 import signal
+from pathlib import Path
+from typing import Any
 
 from aiohttp import web
 
@@ -59,15 +61,13 @@ def cmd_fleet(args: argparse.Namespace) -> int:
     return 0
 
 
-def _opcua_config(path: object) -> object:
+def _opcua_config(path: Path) -> Any:
     """The OPC UA results server's settings: daemon.yaml's opcua_server keys, in a file of
     their own (relative paths from its folder); any machine name may carry identification."""
-    from pathlib import Path
-
     from contracts.yaml_files import ConfigError, read_yaml, validate_file
     from daemon.opcua.config import OpcUaServerFile, load_opcua_server
 
-    p = Path(str(path))
+    p = path
     try:
         f = validate_file(OpcUaServerFile, p, read_yaml(p))
         return load_opcua_server(f, p.parent, str(p), list(f.machines), read_token_file)
@@ -75,7 +75,7 @@ def _opcua_config(path: object) -> object:
         raise UserError(str(e)) from None
 
 
-async def _start_opcua(cfg: object, dsn: str, poll_s: float) -> tuple[object, object]:
+async def _start_opcua(cfg: Any, dsn: str, poll_s: float) -> tuple[Any, Any]:
     """The fleet store's machines over OPC UA: one endpoint for the shop (issue 25 item 4)."""
     from contracts.yaml_files import ConfigError
     from daemon.opcua.server import OpcUaServerError, ResultServer
@@ -88,7 +88,7 @@ async def _start_opcua(cfg: object, dsn: str, poll_s: float) -> tuple[object, ob
     except StoreError as e:
         raise UserError(str(e)) from None
     source = FleetSource(pg)
-    server = ResultServer(cfg, source, await source.machines())  # type: ignore[arg-type]
+    server = ResultServer(cfg, source, await source.machines())
     try:
         url = await server.start()
     except (OpcUaServerError, ConfigError) as e:
@@ -101,7 +101,7 @@ async def _start_opcua(cfg: object, dsn: str, poll_s: float) -> tuple[object, ob
 
 
 async def _serve(app: web.Application, host: str, port: int, ctx: object,
-                 opcua: object = None, dsn: str = "", poll_s: float = 5.0) -> None:
+                 opcua: Any = None, dsn: str = "", poll_s: float = 5.0) -> None:
     stop = asyncio.Event()
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGINT, signal.SIGTERM):
@@ -124,7 +124,7 @@ async def _serve(app: web.Application, host: str, port: int, ctx: object,
         await stop.wait()
     finally:
         if server is not None:
-            await server.stop()  # type: ignore[attr-defined]
+            await server.stop()
         if pg is not None:
-            await pg.close()  # type: ignore[attr-defined]
+            await pg.close()
         await runner.cleanup()
