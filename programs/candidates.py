@@ -23,6 +23,7 @@ from contracts.messages import TOUCH_DIRECTIONS
 from contracts.setup_files import MachineFile, Plan, PoseFile
 from identification.kinematics import ChainState, Machine, frames, to_model
 from identification.model import Artefact
+from identification.touch_frame import rotation_z_to
 from programs.cycletime import estimate
 from programs.geometry import (
     SWEEP_STEP_DEG,
@@ -33,7 +34,7 @@ from programs.geometry import (
 )
 from programs.model import Targets, ball_positions
 from programs.safety import SafetyError, check_program
-from programs.tilted import head_tilts, park_value, rotation_z_to
+from programs.tilted import head_tilts, park_value
 from programs.toolpath import APPROACH_GAP_MM, build_program, clearance_margin
 
 

@@ -5,10 +5,10 @@ geometry, in the tool frame).
 At a fixed rotary pose the relative position r = tip − ball centre (foundation frame) is affine
 in the controller X Y Z (``programs.geometry.PoseFrame``), so a straight controller move is a
 straight stylus move and ``q = q_centre + J⁻¹ r`` is exact. The touches are those of
-``programs.toolpath`` carried into the tool frame: the pole against the spindle direction s at
-that pose, the four equator directions the machine X-Y diagonals turned by the smallest rotation
-taking z onto s (identical to today's where s = z), all four turned about s by the first of
-``EQUATOR_TURNS_DEG`` whose path is clear of the rods (a rod leaning along a diagonal blocks it).
+``programs.toolpath`` carried into the tool frame (``identification.touch_frame``): the pole
+against the spindle direction s at that pose, the four equator directions the machine X-Y
+diagonals turned by the smallest rotation taking z onto s (identical to today's where s = z),
+all four turned about s by the first of ``EQUATOR_TURNS_DEG`` whose path is clear of the rods.
 
 The path: before every index the park axis (the controller axis most along the spindle at the
 rotary home, Z on a vertical head) goes to its travel end, the rotary axes index there; the tip
@@ -32,8 +32,9 @@ import math
 
 import numpy as np
 
-from contracts.messages import TOUCH_DIRECTIONS, TouchId
+from contracts.messages import TouchId
 from identification.kinematics import ChainState, Machine
+from identification.touch_frame import EQUATOR_TURNS_DEG, equator_directions
 from programs.bodies import body_slack
 from programs.clearance import keepout_slack, tip_in_workpiece
 from programs.geometry import PoseFrame, ProgramError, pose_frame
@@ -41,33 +42,7 @@ from programs.model import Move, Program, Touch, ball_positions, chain_state, pl
 from programs.tour import open_tour
 
 APPROACH_GAP_MM = 0.5  # as programs.toolpath: fed at approach feed to the start point
-EQUATOR_TURNS_DEG = (0.0, 22.5, 45.0, 67.5)  # turns of the equator square about the spindle
 PARK_MIN_RATE = 0.2  # the park axis must move the tip at least this much along the spindle
-
-
-def rotation_z_to(s: np.ndarray) -> np.ndarray:
-    """Smallest rotation taking +z onto the unit vector s (identity for s = z)."""
-    z = np.array([0.0, 0.0, 1.0])
-    v = np.cross(z, s)
-    sn, c = float(np.linalg.norm(v)), float(z @ s)
-    if sn < 1e-12:
-        if c > 0:
-            return np.eye(3)
-        return np.diag([1.0, -1.0, -1.0])  # spindle pointing up: half turn about x
-    k = v / sn
-    kx = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
-    return np.eye(3) + sn * kx + (1.0 - c) * (kx @ kx)
-
-
-def equator_directions(spindle: np.ndarray, turn_deg: float = 0.0) -> dict[int, np.ndarray]:
-    """Touch directions 1-5 (tool relative to workpiece, foundation frame) at a spindle s."""
-    rz = rotation_z_to(spindle)
-    t = math.radians(turn_deg)
-    turn = np.array([[math.cos(t), -math.sin(t), 0.0], [math.sin(t), math.cos(t), 0.0],
-                     [0.0, 0.0, 1.0]])
-    out = {tt: rz @ turn @ np.asarray(TOUCH_DIRECTIONS[tt], float) for tt in (1, 2, 3, 4)}
-    out[5] = -spindle
-    return out
 
 
 def head_tilts(machine: Machine) -> bool:

@@ -12,6 +12,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from contracts.messages import TOUCH_DIRECTIONS
+from identification.kinematics import ChainState, frames, to_model
+from identification.touch_frame import EQUATOR_TURNS_DEG, equator_directions
 from simulators import visit_errors
 from simulators.faults import Fault
 from simulators.gcode import Alarm
@@ -69,6 +71,7 @@ class ProbeLatch:
     def __init__(self, truth: TruthModel, rng_seed: int) -> None:
         self.truth = truth
         self._nominal_cache: dict[tuple[float, float], np.ndarray] = {}
+        self._spindle_cache: dict[tuple[float, float], np.ndarray | None] = {}
         self.reseed(rng_seed)
 
     def reseed(self, seed: int) -> None:
@@ -89,7 +92,7 @@ class ProbeLatch:
         truth = self.truth
         length = float(np.linalg.norm(p1 - p0))
         u = (p1 - p0) / length
-        touch, direction = self._touch_number(u)
+        touch, direction = self._touch_number(u, b, c)
         ball = self._aimed_ball(p1, b, c)
         kinds = {f.kind for f in faults}
         # Where the rotary axes really stopped at this indexation (issue 21: index scatter).
@@ -126,15 +129,39 @@ class ProbeLatch:
             return 0.0  # no draw: the noise sequence of a continuous latch is unchanged
         return feed_mm_min / 60.0 * period_s * float(self._rng.uniform())
 
-    def _touch_number(self, u: np.ndarray) -> tuple[int, tuple[float, float, float]]:
+    def _touch_number(self, u: np.ndarray, b: float, c: float
+                      ) -> tuple[int, tuple[float, float, float]]:
         """Touch 1..5 from the move direction (controller X Y Z = tool relative to workpiece);
-        the pole comes against the spindle axis."""
+        the pole comes against the spindle axis. Where a head tilts the spindle (issue 24) the
+        touches are in the tool frame at that pose (``identification.touch_frame``, any of the
+        equator turns a tilted-probe program may use), so a visit's touches keep their numbers
+        and share the visit's centre scatter as on a table-table machine."""
         dirs = dict(TOUCH_DIRECTIONS)
         dirs[5] = tuple(-np.asarray(self.truth.machine.spindle_axis, float))
         best, k = max((float(np.dot(u, d)), k) for k, d in dirs.items())
         if best > 0.999:
             return k, tuple(float(x) for x in dirs[k])
+        s = self._tilted_spindle(b, c)
+        for turn in EQUATOR_TURNS_DEG if s is not None else ():
+            td = equator_directions(s, turn)
+            best, k = max((float(np.dot(u, d)), k) for k, d in td.items())
+            if best > 0.999:
+                return k, tuple(float(x) for x in td[k])
         return 0, tuple(float(x) for x in u)
+
+    def _tilted_spindle(self, b: float, c: float) -> np.ndarray | None:
+        """The nominal spindle direction at this indexation when a head tilts it, else None."""
+        key = (round(b, 6), round(c, 6))
+        if key not in self._spindle_cache:
+            m = self.truth.machine
+            r1, r2 = self.truth.rotary_letters
+            zero = np.zeros(1)
+            _, f_t = frames(m, to_model(m, {"X": zero, "Y": zero, "Z": zero,
+                                           r1: np.array([b]), r2: np.array([c])}), ChainState())
+            home = np.asarray(m.spindle_axis, float)
+            s = f_t[0, :3, :3] @ home
+            self._spindle_cache[key] = s if np.linalg.norm(np.cross(s, home)) > 1e-9 else None
+        return self._spindle_cache[key]
 
     def _aimed_ball(self, end: np.ndarray, b: float, c: float) -> int:
         key = (round(b, 6), round(c, 6))
