@@ -144,7 +144,7 @@ async def test_every_surface_tells_the_same_numbers_of_one_run(tmp_path, capsys)
         assert f"{LABELS[VOLUMETRIC]} {vol.value:.1f} µm {definition}" in page
         for n, (value, std) in links.items():
             assert f"{link_label(n, _spec(svc))} {value} {std}" in page, n
-        assert "EX0C — X offset of the C axis line, Siemens $TC_CARR" in page
+        assert "EX0C — X offset of the C axis line, Siemens $TC_CARR15[1] (c-x)" in page
         assert f"Drift baseline run {first} of " in page and "confirmed by Anna Berg" in page
         # the PDF (its text as pdftotext reads it)
         text = pdf_text(html_path.with_suffix(".pdf"))

@@ -115,13 +115,13 @@ def test_pdf_carries_the_html_sections_without_blank_bands(tmp_path):
     text = " ".join(text_of(pdf).split())
     for expected in ("Setup errors", "ball B1", "Probe and ball health", "Figures and their "
                      "definitions", "max volumetric distortion (probed poses)",
-                     "EX0C — X offset of the C axis line, Siemens $TC_CARR",
+                     "EX0C — X offset of the C axis line, Siemens $TC_CARR15[1] (c-x)",
                      "ISO 14253-1 decision rule", "Drift baseline", "none set: drift not "
                      "checked", "Probe", "stylus diameter", "Balls", "Prepared by",
                      "Checked by", "Approved by"):
         assert expected in text, expected
     html_text = " ".join(html.read_text().split())
-    for expected in ("EX0C — X offset of the C axis line, Siemens $TC_CARR",
+    for expected in ("EX0C — X offset of the C axis line, Siemens $TC_CARR15[1] (c-x)",
                      "ISO 14253-1 decision rule", "Approved by", "Setup errors"):
         assert expected in html_text, expected
     for k, img in enumerate(pages(pdf, tmp_path, dpi=50)):

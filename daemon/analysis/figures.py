@@ -129,12 +129,16 @@ def controller_term(iso: str, spec: Any) -> str | None:
     kind, axis = iso[1], iso[3]
     family = {"linuxcnc": "LinuxCNC", "fanuc": "Fanuc", "haas": "Haas", "siemens": "Siemens",
               "heidenhain": "Heidenhain"}.get(spec.family, spec.family)
-    for p in spec.params:
-        if (p.kind == "orientation" and p.component == iso) or (
-                p.kind == "pivot" and kind in "XYZ" and p.component == kind.lower()
-                and axis in p.axes):
-            return f"{family} {p.address} ({p.name})"
-    return None
+    # a pivot that moves this axis line alone holds its offset; else one that moves the other
+    # rotary axis alone (the relative offset, opposite sign: LinuxCNC's x-offset ≡ −EX0C); a
+    # pivot moving both lines together changes nothing the data can see
+    ranked = [p for p in spec.params if p.kind == "orientation" and p.component == iso]
+    if kind in "XYZ" and axis in "ABC":
+        pivots = [p for p in spec.params if p.kind == "pivot" and p.component == kind.lower()
+                  and len(p.axes) == 1]
+        ranked += [p for p in pivots if p.axes[0] == axis]
+        ranked += [p for p in pivots if p.axes[0] != axis]
+    return f"{family} {ranked[0].address} ({ranked[0].name})" if ranked else None
 
 
 def link_label(iso: str, spec: Any = None) -> str:
