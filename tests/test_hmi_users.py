@@ -192,6 +192,16 @@ async def test_roles_journal_and_sessions(tmp_path, capsys, monkeypatch):
                 await svc.sessions["mill1"].wait()
             assert svc.store.run(script_run).started_by == ""
             assert actions(svc.store, "mill1")[0].via == "bearer"
+            # the audit trail as the quality engineer reads it
+            code, out, _ = run_cli(["users", "--config", str(tmp_path / "daemon.yaml"), "log",
+                                    "--machine", "mill1"], capsys)
+            lines = out.splitlines()
+            assert code == 0 and len(lines) == 4, out
+            assert "mill1            start    token (admin, bearer)" in lines[0]
+            assert "rollback erik (engineer, password)  run -  refused: " in lines[1]
+            assert f"abort    olga (operator, password)  run {run_id}  ok" in lines[2]
+            assert lines[3].endswith(f"start    olga (operator, password)  run {run_id}  ok  "
+                                     "[pre-flight ticked: probe, balls, doors, area]")
             # a new password ends olga's session; removing erik ends his
             monkeypatch.setattr(sys, "stdin", io.StringIO("a-new-password-9\n"))
             code, _, _ = run_cli(["users", "--file", str(tmp_path / "users"), "passwd", "olga",

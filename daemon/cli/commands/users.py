@@ -36,7 +36,37 @@ def _password(args: argparse.Namespace, name: str) -> str:
     return first
 
 
+def print_log(args: argparse.Namespace) -> int:
+    """The HMI's audit trail, newest first: when, machine, action, person (role, how signed
+    in), run, outcome and the pre-flight list."""
+    import time
+
+    from daemon.config import load_daemon_config
+    from daemon.store.actions import actions
+    from daemon.store.journal import Store
+
+    if not args.config:
+        raise UserError("rumba users log reads the journal: give --config daemon.yaml")
+    if not 1 <= args.limit <= 10_000:
+        raise UserError("--limit: 1 to 10000")
+    store = Store(load_daemon_config(args.config).store_path)
+    try:
+        rows = actions(store, args.machine, args.limit)
+    finally:
+        store.close()
+    if not rows:
+        print("no HMI actions journaled" + (f" for {args.machine}" if args.machine else ""))
+    for a in rows:
+        when = time.strftime("%Y-%m-%d %H:%M:%S", time.localtime(a.at))
+        extra = f"  [{a.detail}]" if a.detail else ""
+        print(f"{when}  {a.machine:<16} {a.action:<8} {a.person} ({a.role}, {a.via})  "
+              f"run {a.run_id or '-'}  {a.outcome}{extra}")
+    return 0
+
+
 def cmd_users(args: argparse.Namespace) -> int:
+    if args.action == "log":
+        return print_log(args)
     path = users_path(args)
     try:
         users = read_users(path)

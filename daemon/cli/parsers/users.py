@@ -29,6 +29,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     rm = acts.add_parser("remove", help="remove an account (signs its sessions out)")
     rm.add_argument("name")
     acts.add_parser("list", help="the accounts and their roles (never the hashes)")
+    log = acts.add_parser("log", help="who started, aborted, confirmed or rolled back what on "
+                                      "the HMI (the journal's hmi_actions; needs --config)")
+    log.add_argument("--machine", help="only this machine")
+    log.add_argument("--limit", type=int, default=50, help="newest N actions (default 50)")
     for q in (add, pw):
         q.add_argument("--password-stdin", action="store_true",
                        help="read the password from the first line of stdin (scripts)")
