@@ -21,9 +21,9 @@ import numpy as np
 
 from contracts.messages import TOUCH_DIRECTIONS
 from contracts.setup_files import MachineFile, Plan, PoseFile
+from contracts.touch_frame import rotation_z_to
 from identification.kinematics import ChainState, Machine, frames, to_model
 from identification.model import Artefact
-from identification.touch_frame import rotation_z_to
 from programs.cycletime import estimate
 from programs.geometry import (
     SWEEP_STEP_DEG,

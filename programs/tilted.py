@@ -5,7 +5,7 @@ geometry, in the tool frame).
 At a fixed rotary pose the relative position r = tip − ball centre (foundation frame) is affine
 in the controller X Y Z (``programs.geometry.PoseFrame``), so a straight controller move is a
 straight stylus move and ``q = q_centre + J⁻¹ r`` is exact. The touches are those of
-``programs.toolpath`` carried into the tool frame (``identification.touch_frame``): the pole
+``programs.toolpath`` carried into the tool frame (``contracts.touch_frame``): the pole
 against the spindle direction s at that pose, the four equator directions the machine X-Y
 diagonals turned by the smallest rotation taking z onto s (identical to today's where s = z),
 all four turned about s by the first of ``EQUATOR_TURNS_DEG`` whose path is clear of the rods.
@@ -33,8 +33,8 @@ import math
 import numpy as np
 
 from contracts.messages import TouchId
+from contracts.touch_frame import EQUATOR_TURNS_DEG, equator_directions
 from identification.kinematics import ChainState, Machine
-from identification.touch_frame import EQUATOR_TURNS_DEG, equator_directions
 from programs.bodies import body_slack
 from programs.clearance import keepout_slack, tip_in_workpiece
 from programs.geometry import PoseFrame, ProgramError, pose_frame

@@ -12,8 +12,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from contracts.messages import TOUCH_DIRECTIONS
+from contracts.touch_frame import EQUATOR_TURNS_DEG, equator_directions
 from identification.kinematics import ChainState, frames, to_model
-from identification.touch_frame import EQUATOR_TURNS_DEG, equator_directions
 from simulators import visit_errors
 from simulators.faults import Fault
 from simulators.gcode import Alarm
@@ -133,7 +133,7 @@ class ProbeLatch:
                       ) -> tuple[int, tuple[float, float, float]]:
         """Touch 1..5 from the move direction (controller X Y Z = tool relative to workpiece);
         the pole comes against the spindle axis. Where a head tilts the spindle (issue 24) the
-        touches are in the tool frame at that pose (``identification.touch_frame``, any of the
+        touches are in the tool frame at that pose (``contracts.touch_frame``, any of the
         equator turns a tilted-probe program may use), so a visit's touches keep their numbers
         and share the visit's centre scatter as on a table-table machine."""
         dirs = dict(TOUCH_DIRECTIONS)
