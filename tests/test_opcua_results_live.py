@@ -3,10 +3,12 @@
 CNC raises its start-of-shift request once node-opcua (tests/peers/opcua_results_client.js) is
 subscribed; node-opcua sees the check running (state, touches), receives the ResultReadyEvent
 of the run with the verdict's ResultEvaluation, reads every run's result, downloads the run's
-PDF report; the run's AQDEF file lies in the drop folder."""
+PDF report; the run's AQDEF file lies in the drop folder. And PASS → OK, FAIL → NotOK and a
+constructed NotDecidable on live runs."""
 
 from __future__ import annotations
 
+import asyncio
 import hashlib
 from pathlib import Path
 
@@ -101,6 +103,64 @@ async def test_node_opcua_follows_a_live_run(tmp_path, transport):
         pdf = html.with_suffix(".pdf").read_bytes()
         assert lines[-1]["download"]["sha256"] == hashlib.sha256(pdf).hexdigest()
         assert lines[-1]["download"]["head"] == "%PDF-"
+    finally:
+        if service is not None:
+            await service.stop()
+        await rig.close()
+
+
+async def _one_run(tmp: Path, link: dict, ctrl: VirtualController,
+                   tolerance: dict | None) -> tuple[Service, str]:
+    """One start-of-shift run on a fresh service (the same probing noise every time)."""
+    path = await live_config(tmp, link)
+    if tolerance is not None:
+        doc = yaml.safe_load(path.read_text())
+        doc["machines"][0]["tolerances"]["links"] = tolerance
+        path.write_text(yaml.safe_dump(doc), encoding="utf-8")
+    service = Service(load_daemon_config(path))
+    await service.start()
+    ctrl.request = False
+    ctrl.reseed(NOISE_SEED)
+    session = service.sessions["mill1"]
+    before = session.run_id
+    ctrl.raise_start_request()
+    async with asyncio.timeout(180):
+        while session.run_id in (None, before) or session.busy:
+            await asyncio.sleep(0.05)
+    return service, session.run_id
+
+
+@pytest.mark.peer
+@pytest.mark.slow
+async def test_live_verdicts_map_to_ok_notok_and_not_decidable(tmp_path):
+    """Three runs with the same probing noise (so the same estimate): the plain tolerances
+    (PASS → OK), then a fail limit on EX0C between |v| and |v| + k·u (WARN "conformance not
+    proven" → NotDecidable), then one below |v| (FAIL → NotOK), read by node-opcua."""
+    need_node()
+    ctrl = VirtualController(make_truth())
+    ctrl.dialect = "fanuc"
+    rig = await start_rig("opcua", ctrl)
+    ids: list[str] = []
+    service: Service | None = None
+    try:
+        service, rid = await _one_run(tmp_path, rig.link, ctrl, None)
+        e = service.store.analysis(rid).links["EX0C"]
+        ids.append(rid)
+        for fail in (abs(e.value) + 0.5 * e.std, 0.5 * abs(e.value)):
+            await service.stop()
+            service = None
+            service, rid = await _one_run(tmp_path, rig.link, ctrl,
+                                          {"EX0C": {"fail": round(fail, 4)}})
+            ids.append(rid)
+        verdicts = [service.store.run(i).verdict for i in ids]
+        again = service.store.analysis(ids[1]).links["EX0C"]
+        assert again.value == pytest.approx(e.value, abs=1e-6)  # the same noise, the same v
+        assert verdicts == ["PASS", "WARN", "FAIL"], [service.store.verdict(i) for i in ids]
+        pki = {"key": tmp_path / "client" / "key.pem", "pem": tmp_path / "client" / "cert.pem"}
+        code, lines, err = await run_node(service.opcua_url, pki, "--ids", ",".join(ids))
+        assert code == 0 and lines[-1]["ok"], (lines[-1:], err[-3000:])
+        assert [lines[-1]["byId"][i]["evaluation"] for i in ids] == [1, 3, 2]
+        assert lines[-1]["notDecidable"] == [ids[1]]
     finally:
         if service is not None:
             await service.stop()
