@@ -1,8 +1,9 @@
 """The report for people: the PDF for filing (rendered to PNG with poppler's pdftoppm and read
-back with pdftotext: A4, three pages, not blank and without blank bands, with the verdict, what to do and the
-audit fields), the plain-language next step per verdict, the audit fields from the setup files
-and daemon.yaml ("not recorded" when absent), and the plots' axes (a unit on every axis, no
-offset notation, limits drawn, pose visits told apart, a reference arrow and colour legend)."""
+back with pdftotext: A4, three pages, not blank and without blank bands, with the verdict, what
+to do and the audit fields), the plain-language next step per verdict, the audit fields from
+the setup files and daemon.yaml ("not recorded" when absent), and the plots' axes (a unit on
+every axis, no offset notation, limits drawn, pose visits told apart, a reference arrow and
+colour legend)."""
 
 from __future__ import annotations
 
@@ -200,8 +201,8 @@ def test_audit_fields_come_from_the_setup_files_and_daemon_yaml(tmp_path):
     from contracts.yaml_files import ConfigError
 
     audit = report.audit_of(load_daemon_config(path).machines["mill1"])
-    assert dataclasses.astuple(audit)[:4] == ("HMC500 #2019-0417", "J. Keller (shift 1)", "DKD-K-15183 2024-117",
-                         "2024-11-05")
+    assert dataclasses.astuple(audit)[:4] == ("HMC500 #2019-0417", "J. Keller (shift 1)",
+                                              "DKD-K-15183 2024-117", "2024-11-05")
     # issue 23 item 4: the probe's qualification, the balls' diameters, the decision rule
     assert audit.probe == ("Renishaw OMP40-2 serial P-1234, stylus diameter 6 mm (plan "
                            "thesis-ch3-7poses), qualified on 2026-01-12 by A. Berg")
