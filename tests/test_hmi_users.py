@@ -180,7 +180,10 @@ async def test_roles_journal_and_sessions(tmp_path, capsys, monkeypatch):
                     for a in reversed(actions(svc.store, "mill1"))]
             assert rows == [("start", "olga", "operator", "password", "ok", run_id),
                             ("abort", "olga", "operator", "password", "ok", run_id),
+                            ("confirm", "olga", "operator", "password", "refused", run_id),
+                            ("rollback", "olga", "operator", "password", "refused", ""),
                             ("rollback", "erik", "engineer", "password", "refused", "")]
+            assert "needs an engineer or admin" in actions(svc.store, "mill1")[1].outcome
             start_row = actions(svc.store, "mill1")[-1]
             assert start_row.detail == "pre-flight ticked: probe, balls, doors, area"
             # the token is for scripts: a bearer start needs no pre-flight list
@@ -196,11 +199,13 @@ async def test_roles_journal_and_sessions(tmp_path, capsys, monkeypatch):
             code, out, _ = run_cli(["users", "--config", str(tmp_path / "daemon.yaml"), "log",
                                     "--machine", "mill1"], capsys)
             lines = out.splitlines()
-            assert code == 0 and len(lines) == 4, out
+            assert code == 0 and len(lines) == 6, out
             assert "mill1            start    token (admin, bearer)" in lines[0]
             assert "rollback erik (engineer, password)  run -  refused: " in lines[1]
-            assert f"abort    olga (operator, password)  run {run_id}  ok" in lines[2]
-            assert lines[3].endswith(f"start    olga (operator, password)  run {run_id}  ok  "
+            assert "rollback olga (operator, password)  run -  refused: signed in as olga " \
+                   "(operator): rolling back a compensation needs an engineer or admin" in lines[2]
+            assert f"abort    olga (operator, password)  run {run_id}  ok" in lines[4]
+            assert lines[5].endswith(f"start    olga (operator, password)  run {run_id}  ok  "
                                      "[pre-flight ticked: probe, balls, doors, area]")
             # a new password ends olga's session; removing erik ends his
             monkeypatch.setattr(sys, "stdin", io.StringIO("a-new-password-9\n"))

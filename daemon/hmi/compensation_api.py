@@ -18,7 +18,6 @@ from contracts.yaml_files import ConfigError
 from daemon.analysis.figures import figures_json
 from daemon.compensation import journal as cj
 from daemon.compensation.apply import ApplyError, Written, confirm, rollback
-from daemon.compensation.names import BadName, validate_by
 from daemon.compensation.propose import (
     CompensationRefused,
     ControllerModelError,
@@ -28,34 +27,15 @@ from daemon.compensation.propose import (
     spec_of,
     unit_of,
 )
-from daemon.hmi.access import COOKIE, IDENTITY_KEY, VIA_KEY, page_asset, require
+from daemon.hmi.access import page_asset
+from daemon.hmi.people import audit, require_journaled, who
 from daemon.run.session import Session
-from daemon.store.actions import record_action
 from daemon.store.journal import RunRow, Store, StoreError, validate_run_id
 
 FINISHED = ("DONE", "IMPORTED")  # a run that ended with an identification (not aborted)
 SCAN_RUNS = 50  # the last finished run is looked for among this many of the machine's runs
 LOCK_KEY = web.AppKey("compensation_lock", asyncio.Lock)
 log = logging.getLogger("rumba.hmi")
-
-
-def who(request: web.Request) -> str:
-    """Who confirms, as the access layer knows the client (never a name the client sends):
-    the person's account name when signed in with a password (issue 23),
-    ``hmi:<session id prefix>@<address>`` for a page signed in with the token,
-    ``hmi:token@<address>`` for a script with the bearer token."""
-    ident = request.get(IDENTITY_KEY)
-    if ident is not None and ident.via == "password":
-        name = ident.name
-    elif request.get(VIA_KEY) == "cookie":
-        sid = (request.cookies.get(COOKIE) or "").split(".")[0]
-        name = f"hmi:{sid[:8]}@{request.remote}"
-    else:
-        name = f"hmi:token@{request.remote}"
-    try:  # the same rules as --by: it is printed in the journal and the reports
-        return validate_by(name, "HMI session", allow_unattended=False)
-    except BadName as e:
-        raise web.HTTPBadRequest(text=str(e)) from None
 
 
 def _um(kind_or_link: str, model_value: float) -> tuple[float, str]:
@@ -295,22 +275,12 @@ def add_routes(app: web.Application, sessions_key: web.AppKey, store_key: web.Ap
         out, _ = await asyncio.to_thread(views(request).get, session)
         return web.json_response(out)
 
-    def audit(request: web.Request, machine: str, action: str, resp: web.Response,
-              run_id: str = "") -> web.Response:
-        """The person's confirm / rollback and its outcome in the HMI's audit trail."""
-        ident = request.get(IDENTITY_KEY)
-        outcome = "ok" if resp.status < 300 else \
-            f"refused: {json.loads(resp.text or '{}').get('error', resp.status)}"
-        record_action(request.app[store_key], machine, action,
-                      ident.name if ident else "token", ident.role if ident else "admin",
-                      ident.via if ident else "bearer", outcome[:500], run_id=run_id)
-        return resp
-
     async def post_confirm(request: web.Request) -> web.Response:
-        require(request, "engineer", "confirming a compensation")
         body = await _body(request, "machine", "run_id")
-        session = session_of(request, body["machine"], 422)
-        return audit(request, session.setup.name, "confirm",
+        session, store = session_of(request, body["machine"], 422), request.app[store_key]
+        require_journaled(request, store, session.setup.name, "engineer", "confirm",
+                          "confirming a compensation", body["run_id"])
+        return audit(request, store, session.setup.name, "confirm",
                      await confirm_body(request, body), body["run_id"])
 
     async def confirm_body(request: web.Request, body: dict[str, Any]) -> web.Response:
@@ -359,10 +329,11 @@ def add_routes(app: web.Application, sessions_key: web.AppKey, store_key: web.Ap
                                   "values": [v.as_dict() for v in p.values]})
 
     async def post_rollback(request: web.Request) -> web.Response:
-        require(request, "engineer", "rolling back a compensation")
         body = await _body(request, "machine")
-        session = session_of(request, body["machine"], 422)
-        return audit(request, session.setup.name, "rollback",
+        session, store = session_of(request, body["machine"], 422), request.app[store_key]
+        require_journaled(request, store, session.setup.name, "engineer", "rollback",
+                          "rolling back a compensation")
+        return audit(request, store, session.setup.name, "rollback",
                      await rollback_body(request, session))
 
     async def rollback_body(request: web.Request, session: Session) -> web.Response:
