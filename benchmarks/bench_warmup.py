@@ -4,8 +4,11 @@ plan ``rumba plan`` optimises for it, the truth warming up along Z (simulators/t
 does (drift-aware, identification/drift.py) and by the plain estimate. Prints per plan and
 warm-up: the share of (link, run) pairs within 2u of the truth with and without the drift model,
 the mean link bias in u, how often the drift model was selected, the share of runs whose fitted
-drift over the run is within 2u of the truth, and the mean reported link u relative to the plain
-estimate's (the null run's cost of the drift search).
+drift over the run is within 2u of the truth, the mean reported link u relative to the plain
+estimate's (the null run's cost of the drift search), the drift-aware coverage's standard error
+over runs, its mean signed error in u (bias), the spread of error/u (t_ν: √(ν/(ν−2)) before
+issue 22's GUM-S1 u, 1 after), the median ν of σ, and the link u over today's (the u the
+estimator stated before the t's ν/(ν−2) entered it: the issue's null-run criterion, ≤ 1.1).
 
 ``gap``: the gap diagnosis of a withheld warm-up 8 µm·(1 − e^(−t/900 s)) along Z on the
 annex-B 14-pose plan (identification/gap/simlog.py touches, 0.5 µm trigger noise): how often it
@@ -14,6 +17,7 @@ is named ``thermal_drift:Z`` (exponential) and the held-out RMS after it over th
     .venv/bin/python -m benchmarks.bench_warmup          (50 seeds per cell, ~10 min)
     .venv/bin/python -m benchmarks.bench_warmup 10       (10 seeds)
     .venv/bin/python -m benchmarks.bench_warmup gap 20   (the gap diagnosis, 20 seeds)
+    .venv/bin/python -m benchmarks.bench_warmup 50 optimised   (one plan: shift | optimised)
 """
 
 from __future__ import annotations
@@ -30,6 +34,7 @@ from daemon.analysis.identify import analyse_centres
 from daemon.analysis.touch_centres import rows_to_centres
 from daemon.cli.commands.plan import make_plan
 from identification.estimate import estimate
+from identification.uncertainty import t_variance_factor
 from simulators.errors_schema import errors_from_dict
 from simulators.offline import run_sync
 from simulators.thermal import ThermalState
@@ -59,6 +64,7 @@ def cell(machine, mf, art, plan, text: str, over_um: float, span_s: float, seeds
     want = {k: float(v) for k, v in truth.errors.links.items()}
     val = plan.indices("validate")
     cov_aware, cov_plain, bias, sel, drift_ok, u_ratio, over = [], [], [], [], [], [], []
+    z_aware, run_cov, dof, u_today = [], [], [], []
     for seed in range(seeds):
         res = run_sync(truth, text, "fanuc", seed=2000 + seed)
         if res.state != "done":
@@ -68,13 +74,21 @@ def cell(machine, mf, art, plan, text: str, over_um: float, span_s: float, seeds
             data = rows_to_centres(res.rows, art, plan.stylus_radius_mm)
         a = analyse_centres(machine, art, data, validate_poses=val)
         est_c = data.centres.subset(~np.isin(data.centres.pose, val))
-        plain = estimate(machine, art, est_c).links_si()
+        pe = estimate(machine, art, est_c)
+        plain = pe.links_si()
+        # today's u before issue 22 item 1: the same covariance without the t's ν/(ν−2)
+        old_f = np.sqrt(t_variance_factor(pe.sigma_dof))
+        n0 = len(cov_aware)
+        dof.append(a.estimation.sigma_dof or float("inf"))
         for k, v in a.links.items():
             cov_aware.append(abs(v.value - want.get(k, 0.0)) <= 2 * v.std)
+            z_aware.append((v.value - want.get(k, 0.0)) / v.std)
             pv, pu, _ = plain[k]
             cov_plain.append(abs(pv - want.get(k, 0.0)) <= 2 * pu)
             bias.append((pv - want.get(k, 0.0)) / pu)
             u_ratio.append(v.std / pu)
+            u_today.append(v.std / (pu / old_f))
+        run_cov.append(np.mean(cov_aware[n0:]))
         th = a.thermal
         selected = th is not None and th.status == "selected"
         sel.append(selected)
@@ -83,7 +97,12 @@ def cell(machine, mf, art, plan, text: str, over_um: float, span_s: float, seeds
             over.append(true_z["Z"])
             d = th.over_run_um.get("Z") if selected else None
             drift_ok.append(d is not None and abs(d.value - true_z["Z"]) <= 2 * d.std)
+    z = np.array(z_aware)
     return {"cov_aware": float(np.mean(cov_aware)), "cov_plain": float(np.mean(cov_plain)),
+            # the coverage's standard error over runs (a run's links are not independent)
+            "cov_se": float(np.std(run_cov, ddof=1) / np.sqrt(len(run_cov))),
+            "bias_aware_u": float(np.mean(z)), "z_std": float(np.std(z)),
+            "dof": float(np.median(dof)), "u_today": float(np.mean(u_today)),
             "bias_plain_u": float(np.mean(np.abs(bias))), "selected": float(np.mean(sel)),
             "drift_ok": float(np.mean(drift_ok)) if drift_ok else float("nan"),
             "u_ratio": float(np.mean(u_ratio)), "over_um": float(np.mean(over)) if over
@@ -140,9 +159,13 @@ def main(argv: tuple[str, ...] = ()) -> None:
     print(f"warm-up along Z, τ {TAU_S / 60:.0f} min from cold, {seeds} seeds per cell, "
           "Table B.2 links, thesis repeatability; 2u coverage over every (link, run)")
     print(f"{'plan':22s} {'warm-up':>8s} {'span':>6s} {'2u aware':>9s} {'2u plain':>9s} "
-          f"{'|bias|/u plain':>15s} {'selected':>9s} {'drift in 2u':>12s} {'u/u_plain':>10s}")
+          f"{'|bias|/u plain':>15s} {'selected':>9s} {'drift in 2u':>12s} {'u/u_plain':>10s}"
+          f" {'± se':>6s} {'bias/u':>7s} {'sd(z)':>6s} {'ν':>5s} {'u/u_today':>9s}")
     for label, plan, g in (("shift_start_14poses", r.reference, r.old),
                            (f"optimised ({len(r.plan.poses)} poses)", r.plan, r.new)):
+        if ("shift" in argv or "optimised" in argv) and label.split("_")[0].split(" ")[0] \
+                not in argv:
+            continue  # one plan only (two processes on a loaded box)
         span = _span(machine, mf, art, plan, g.text)
         for over in WARMUPS_UM:
             x = cell(machine, mf, art, plan, g.text, over, span, seeds)
@@ -151,7 +174,8 @@ def main(argv: tuple[str, ...] = ()) -> None:
                   f"{100 * x['cov_plain']:8.1f}% {x['bias_plain_u']:15.2f} "
                   f"{100 * x['selected']:8.0f}% "
                   f"{ok:>12s} "
-                  f"{x['u_ratio']:10.3f}", flush=True)
+                  f"{x['u_ratio']:10.3f} {100 * x['cov_se']:5.1f}% {x['bias_aware_u']:+7.2f} "
+                  f"{x['z_std']:6.2f} {x['dof']:5.1f} {x['u_today']:9.3f}", flush=True)
 
 
 if __name__ == "__main__":
