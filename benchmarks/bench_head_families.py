@@ -36,7 +36,7 @@ CFG = Path(__file__).resolve().parents[1] / "config"
 ARTEFACT = CFG / "artefacts/vertical_4ball.yaml"
 FAMILIES = {  # machine file, shipped plan, dialect of the run
     "swivel head B + table C": ("swivelhead_wcfxyzbt", "swivelhead_12poses", "siemens"),
-    "fork head A/C, bridge": ("forkhead_wxfyzcat", "forkhead_12poses", "heidenhain"),
+    "fork head A/C, bridge": ("forkhead_wxfyzcat", "forkhead_11poses", "heidenhain"),
     "nutating 45° table": ("nutating_wcbyfxzt", "nutating_12poses", "fanuc"),
 }
 

@@ -35,7 +35,7 @@ ARTEFACT = CONFIG / "artefacts/vertical_4ball.yaml"
 NOISE_SEED = 4
 FAMILIES = {"swivelhead": "swivelhead_wcfxyzbt", "forkhead": "forkhead_wxfyzcat",
             "nutating": "nutating_wcbyfxzt"}
-PLANS = {"swivelhead": "swivelhead_12poses", "forkhead": "forkhead_12poses",
+PLANS = {"swivelhead": "swivelhead_12poses", "forkhead": "forkhead_11poses",
          "nutating": "nutating_12poses"}
 # The rank computation (identification.identifiability: a link is kept when it raises the
 # numerical rank of the centre Jacobian beyond the setup columns) on each shipped plan.
@@ -143,9 +143,11 @@ def test_shipped_plan_builds_safe_and_touches_in_the_tool_frame(family):
         # the probing line runs along the touch direction through the ball centre
         u = np.array(t.end) - np.array(t.start)
         assert pf.jac @ u / np.linalg.norm(pf.jac @ u) == pytest.approx(d, abs=1e-9)
-    if prog.tilted:
-        tilted = [t for t in prog.touches if t.b_deg != 0]
-        assert tilted and all(abs(t.direction[2]) > 1e-3 for t in tilted if t.id.touch < 5)
+    if prog.tilted:  # at a tilted pose the equator leaves the machine X-Y plane
+        tilted = [t for t in prog.touches if t.b_deg != 0 and t.id.touch < 5]
+        assert tilted and any(abs(t.direction[2]) > 0.1 for t in tilted)
+        for pose in {t.id.pose for t in tilted}:
+            assert max(abs(t.direction[2]) for t in tilted if t.id.pose == pose) > 0.1
 
 
 @pytest.mark.parametrize("family", ["swivelhead", "forkhead"])
