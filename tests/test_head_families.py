@@ -240,3 +240,18 @@ def test_simulated_run_identifies_the_injected_links(family, dialect):
     want = yaml.safe_load(errors_path.read_text())["links"]
     for name, (value, std, _) in si.items():
         assert abs(value - want[name]) <= 3 * std, (name, value, want[name], std)
+
+
+def test_the_latch_numbers_tilted_touches_as_the_program_does():
+    """The simulator recognises a tilted touch in the tool frame: every touch of a visit keeps
+    its number (before: 0 for all, each drawing its own 'per-visit' centre scatter)."""
+    machine, mf, artefact, plan = _family("forkhead")
+    plan = plan.model_copy(update={"poses": plan.poses[:1]})  # A-30 C90
+    truth = TruthModel.build(machine, mf, artefact, load_errors(
+        CONFIG / f"errors/{FAMILIES['forkhead']}.yaml"))
+    prog = build_program(machine, mf, artefact, plan)
+    assert prog.tilted
+    res = run_sync(truth, get_dialect("fanuc").render(prog), "fanuc", seed=NOISE_SEED)
+    want = {t.id.seq: t.id.touch for t in prog.touches}
+    got = {t.seq: t.touch for t in res.controller.touches if t.triggered}
+    assert got == want
