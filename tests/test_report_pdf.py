@@ -283,3 +283,20 @@ def test_distortion_plot_has_a_reference_arrow_and_a_colour_legend(runs):
 def test_durations_read_the_same_everywhere():
     assert [duration_text(s) for s in (7.1, 119, 228, 7199, 18000)] == [
         "7 s", "119 s", "3.8 min", "120.0 min", "5.0 h"]
+
+
+def test_pdf_embeds_each_font_once_and_fonttools_stays_quiet(runs, caplog):
+    """Issue 23: "—", "•", "→" and ligatures ("fi") opened a second subset of DejaVu Sans and
+    DejaVu Sans Bold (4 embedded fonts for 2 faces); one subset each, and fontTools' table-
+    pruning chatter is not in the log."""
+    _s, _setup, (a, _j), html = runs
+    pdf = report.pdf_path(html).read_bytes()
+    # a subset is named by its prefix (ABCDEF+DejaVuSans: Type0 font and its CID font)
+    subsets = set(re.findall(rb"/BaseFont /([A-Z]{6}\+[A-Za-z0-9-]+)", pdf))
+    assert sorted(f.split(b"+")[1] for f in subsets) == [b"DejaVuSans", b"DejaVuSans-Bold"]
+    import logging
+    with caplog.at_level(logging.DEBUG):
+        write_pdf(report.pdf_path(html).with_name("again.pdf"), _s.run("R2"), a.data,
+                  json.loads(Path(html).with_suffix(".json").read_text()), AUDIT, {})
+    assert not [r for r in caplog.records if r.name.startswith("fontTools")
+                and r.levelno < logging.WARNING]

@@ -25,6 +25,7 @@ from matplotlib import image as mpimg
 from matplotlib.backends.backend_pdf import PdfPages
 from matplotlib.figure import Figure
 from matplotlib.patches import FancyBboxPatch
+from matplotlib.text import Text
 
 from daemon.analysis.result import Analysis
 from daemon.reports import temperatures
@@ -43,6 +44,8 @@ LINE_IN = 0.16  # one line of 8 pt text
 FOOTER_IN = 0.35
 FONT = 8
 PAGES = 3
+ONE_SUBSET = {"pdf.fonttype": 42, "ps.fonttype": 42}  # see write_pdf
+NO_LIGATURES = ("-liga", "-clig")
 STATUS_COLOURS = VERDICT_COLOURS
 
 
@@ -222,8 +225,11 @@ def write_pdf(path: Path, run: RunRow, analysis: Analysis, doc: dict[str, Any], 
     page2 = [p for p in (plots.get(k) for k in ("distortion", "cluster", "trend")) if p]
     links_in = (A4_IN[0] - 2 * MARGIN_IN) * _ratio(links) if links else 0.0
     bottom = A4_IN[1] - FOOTER_IN
-    # TrueType text (not Type 3): selectable, searchable and crisp in every viewer
-    with matplotlib.rc_context({"pdf.fonttype": 42}), PdfPages(path, metadata=meta) as pdf:
+    # TrueType text (not Type 3): selectable, searchable and crisp in every viewer. One subset
+    # per font (issue 23): matplotlib 3.11's PDF backend sizes its subsets by *ps*.fonttype
+    # (Type 3: 256 codes), so "—", "•", "→" opened a second copy of each font; at 42 the whole
+    # BMP fits one subset. Ligatures ("fi") are always put in a second subset: _save drops them.
+    with matplotlib.rc_context(ONE_SUBSET), PdfPages(path, metadata=meta) as pdf:
         fig = Figure(figsize=A4_IN)
         end = _page1(fig, run, analysis, doc, audit_rows(run, audit, analysis),
                      bottom - links_in - 0.15)
@@ -231,7 +237,7 @@ def write_pdf(path: Path, run: RunRow, analysis: Analysis, doc: dict[str, Any], 
             top = min(end + 0.1, bottom - links_in)
             _stack(fig, [links], top, top + links_in)
         _footer(fig, run, 1, generated)
-        pdf.savefig(fig)
+        _save(pdf, fig)
         fig = Figure(figsize=A4_IN)
         if page2:
             _stack(fig, page2, MARGIN_IN, bottom)
@@ -239,12 +245,19 @@ def write_pdf(path: Path, run: RunRow, analysis: Analysis, doc: dict[str, Any], 
             fig.text(0.5, 0.5, "no plots: the run has no distortion, cluster or trend data",
                      ha="center")
         _footer(fig, run, 2, generated)
-        pdf.savefig(fig)
+        _save(pdf, fig)
         fig = Figure(figsize=A4_IN)  # the HTML's sections below the plots, the approval block
         page3(_Page(fig), analysis, doc, audit, prepared_by, generated[:10])
         _footer(fig, run, 3, generated)
-        pdf.savefig(fig)
+        _save(pdf, fig)
     return path
+
+
+def _save(pdf: PdfPages, fig: Figure) -> None:
+    """One page, its text without ligatures (each would open a second subset of its font)."""
+    for t in fig.findobj(Text):
+        t.set_fontfeatures(NO_LIGATURES)
+    pdf.savefig(fig)
 
 
 def _ratio(png: bytes) -> float:
