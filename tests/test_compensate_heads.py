@@ -187,3 +187,19 @@ def test_linuxcnc_head_kins_pivot_length_is_not_observable(tmp_path: Path) -> No
     (ch,) = plan_compensation(machine, artefact, est, spec.to_math(), b, c).changes
     assert not ch.observable and ch.delta == 0.0
     assert "absorbed by the setup errors" in ch.note
+
+
+@pytest.mark.parametrize("name, terms", [
+    ("swivelhead", {"EX0C": "$TC_CARR15[1] (c-x)", "EA0B": "$TC_CARR9[1] (b-tilt-a)",
+                    "EB0C": "$TC_CARR10[1] (c-tilt-b)", "EC0Y": None}),
+    ("forkhead", {"EY0A": "$TC_CARR16[1] (a-y)", "EA0C": "$TC_CARR8[1] (c-tilt-a)",
+                  "EC0A": "$TC_CARR11[1] (a-tilt-c)", "EB0Z": None}),
+])
+def test_reports_name_the_head_carrier_values(name: str, terms: dict[str, str | None]) -> None:
+    """The report's controller term of a head link is the carrier value that holds it (a
+    squareness link has none)."""
+    from daemon.analysis.figures import controller_term
+
+    _, spec = load_controller_kinematics(CFG / f"machines/{HEADS[name][0]}.yaml")
+    for iso, want in terms.items():
+        assert controller_term(iso, spec) == (None if want is None else f"Siemens {want}"), iso
