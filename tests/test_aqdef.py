@@ -61,6 +61,10 @@ def test_a_year_of_daily_runs_round_trips(tmp_path, capsys):
     i, c = by_name[VOLUMETRIC[0]]
     assert (c["K2110"], c["K2111"]) == ("0.000", "400.000")
     assert "K2110" not in by_name[VOLUMETRIC[1]][1]  # no limit configured: none written
+    # issue 23: the report's names of the two figures, not the export's own wording
+    assert c["K2002"] == "max volumetric distortion (probed poses)"
+    assert by_name[VOLUMETRIC[1]][1]["K2002"] == ("max residual after the link errors "
+                                                  "(probed poses)")
     for i in f.characteristics:
         assert len(f.values[i]) == 365
     # every record: value, date/time, run id, machine, in run order

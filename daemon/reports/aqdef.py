@@ -22,6 +22,7 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+from daemon.analysis import figures
 from daemon.analysis.judge import volumetric_max_um
 from daemon.analysis.result import Analysis
 from daemon.machines.tolerances import Limit, Tolerances
@@ -67,10 +68,10 @@ def characteristics(runs: Sequence[TrendPoint], tol: Tolerances) -> list[Charact
                                       else tol.default_translation_um)
         kind = "orientation" if u == "urad" else "position"
         out.append(Characteristic(name, f"{name}: ISO 230-1 location error ({kind})", u, lim))
-    out.append(Characteristic(VOLUMETRIC[0], "volumetric distortion max: largest over the "
-                              "poses and balls", "um", tol.volumetric_max_um))
-    out.append(Characteristic(VOLUMETRIC[1], "volumetric distortion max left after the link errors",
-                              "um", None))
+    # issue 23: the report's own names of these figures (daemon/analysis/figures.py)
+    out.append(Characteristic(VOLUMETRIC[0], figures.LABELS[figures.VOLUMETRIC], "um",
+                              tol.volumetric_max_um))
+    out.append(Characteristic(VOLUMETRIC[1], figures.LABELS[figures.AFTER_LINKS], "um", None))
     return out
 
 
