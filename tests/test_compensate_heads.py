@@ -203,3 +203,55 @@ def test_reports_name_the_head_carrier_values(name: str, terms: dict[str, str | 
     _, spec = load_controller_kinematics(CFG / f"machines/{HEADS[name][0]}.yaml")
     for iso, want in terms.items():
         assert controller_term(iso, spec) == (None if want is None else f"Siemens {want}"), iso
+
+
+def test_rumba_compensate_proposes_the_head_carrier_values(tmp_path: Path, capsys) -> None:
+    """`rumba compensate` on an imported swivel-head run: the type M carrier's c-x takes EX0C,
+    the head's b-x/b-z and c-y are skipped with the reason, and the reviewed MPF names them."""
+    import dataclasses
+
+    from contracts.probing_log import write_log
+    from tests.cli_helpers import run_cli
+    from tests.synth import Truth, make_rows, thesis_noise, to_internal
+
+    links = {"EX0C": -40, "EA0C": -19, "EB0C": 26, "EA0B": 22, "EC0B": -23, "EC0Y": 17,
+             "EA0Z": -24, "EB0Z": -12}
+    mpath = CFG / f"machines/{HEADS['swivelhead'][0]}.yaml"
+    ppath = CFG / f"plans/{HEADS['swivelhead'][1]}.yaml"
+    doc = {"store": {"path": str(tmp_path / "journal.sqlite")},
+           "reports_dir": str(tmp_path / "reports"), "hmi": {"enabled": False},
+           "machines": [{"name": "mill1", "machine": str(mpath), "artefact": str(ARTEFACT),
+                         "plan": str(ppath), "dialect": "siemens",
+                         "link": {"transport": "serial", "url": "/dev/ttyS0", "baudrate": 9600,
+                                  "framing": "7E1"},
+                         "tolerances": {"default_rotation_urad": {"warn": 100, "fail": 200},
+                                        "default_translation_um": {"warn": 300, "fail": 500}}}]}
+    cfg = tmp_path / "daemon.yaml"
+    cfg.write_text(yaml.safe_dump(doc), encoding="utf-8")
+    m, _ = load_machine(mpath)
+    a = load_artefact(ARTEFACT)
+    plan = load_plan(ppath)
+    rng = np.random.default_rng(1)
+    truth = Truth(links=to_internal(links), balls_mm=rng.normal(0, 0.2, (4, 3)),
+                  tip_mm=rng.normal(0, 0.02, 3))
+    tn, cn = thesis_noise()
+    rows = make_rows(m, a, [(p.b_deg, p.c_deg) for p in plan.poses], truth,
+                     plan.stylus_radius_mm, tn, cn, seed=3)
+    log = tmp_path / "run.csv"
+    write_log(log, [dataclasses.replace(r, run_id="synth") for r in rows])
+    code, _, err = run_cli(["history", "--config", str(cfg), "--import", str(log), "--machine",
+                            "mill1"], capsys)
+    assert code == 0, err
+    code, out, err = run_cli(["compensate", "--config", str(cfg), "synth"], capsys)
+    assert code == 0, out + err
+    line = next(ln for ln in out.splitlines() if ln.strip().startswith("c-x"))
+    assert "$TC_CARR15[1]" in line and "apply" in line
+    delta_um = float(line.split("µm")[0].split()[-1])
+    assert abs(delta_um + 40.0) < 3.0, line  # EX0C −40 µm: the C line's x by −40 µm
+    for hidden in ("b-x", "b-z", "c-y"):
+        assert any(ln.strip().startswith(hidden) and "skipped" in ln for ln in out.splitlines()), \
+            (hidden, out)
+    program = Path(out.strip().splitlines()[-1].split("program: ")[1])
+    text = program.read_text()
+    assert program.suffix == ".mpf" and "$TC_CARR15[1]=-260.04" in text, text
+    assert "$TC_CARR18[1]=260.04" in text  # l4 = −l3 keeps the chain closed
