@@ -25,7 +25,7 @@ from tests.rig_helpers import make_truth, start_rig
 from tests.stop_helpers import Hold, held_session, until_reached, write_config
 
 TRANSPORTS = ("opcua", "modbus", "serial-pty")
-PHASES = ("PREPARE", "CAPTURE", "IDENTIFY", "REPORT", "WRITE-BACK")
+PHASES = ("PREPARE", "CAPTURE", "IDENTIFY", "WRITE-BACK")  # REPORT: after the run (report_job)
 OPERATOR = ("hmi", "CAN panel")  # session.abort(source): a person
 DAEMON = "the daemon stopping"  # session.interrupt(cause), as Service.stop (SIGTERM on rumba run)
 ROWS = ([(t, p, c) for t in TRANSPORTS for p in PHASES for c in (*OPERATOR, DAEMON)]

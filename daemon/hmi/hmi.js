@@ -202,6 +202,10 @@ function render(st) {
     const run = encodeURIComponent(st.verdict ? st.run_id : v.run_id);
     link(el.querySelector(".report"), v.report ? `/reports/${run}.html` : null);
     link(el.querySelector(".pdf"), v.pdf ? `/reports/${run}.pdf` : null);
+    // issue 23: the report is written after the run's end; say so until its links appear
+    reportState(el, v.report ? "" : v.report_state === "writing" ? "report being written…"
+      : v.report_state === "failed" ? `report not written: ${v.report_error || "see the log"}`
+      : "");
   } else if (!running) {
     el.querySelector(".badge").textContent = "none yet";
     el.querySelector(".badge").className = "badge none";
@@ -209,7 +213,14 @@ function render(st) {
     el.querySelector(".todo").hidden = true;
     link(el.querySelector(".report"), null);
     link(el.querySelector(".pdf"), null);
+    reportState(el, "");
   }
+}
+
+function reportState(el, text) {
+  const rs = el.querySelector(".report-state");
+  rs.textContent = text;
+  rs.hidden = !text;
 }
 
 // The row of a run in progress shows what its progress bar shows, from the same event.

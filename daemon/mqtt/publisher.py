@@ -31,6 +31,7 @@ from typing import Any
 
 import aiomqtt
 
+from daemon.analysis.figures import figures_json, run_figures
 from daemon.analysis.judge import volumetric_max_um
 from daemon.analysis.result import Analysis
 from daemon.mqtt.config import MqttConfig
@@ -63,7 +64,10 @@ def health_payload(analysis: Analysis) -> dict[str, Any]:
             "sphere_radius_dev_max_um": max(radius) if radius else None,
             "sphere_form_rms_max_um": max(form) if form else None,
             "stability_max_shift_um": analysis.stability.max_shift_um
-            if analysis.stability else None}
+            if analysis.stability else None,
+            # issue 23: the figures as the report shows them (rounded, name, unit, definition);
+            # volumetric_max_um above stays as it was for existing subscribers
+            "figures": figures_json(run_figures(analysis))}
 
 
 class MachinePublisher:
@@ -84,6 +88,7 @@ class MachinePublisher:
         self._task: asyncio.Task | None = None
         self._last_state: tuple | None = None
         self._run_health: dict[str, Any] = {}
+        self._told: tuple | None = None  # (run, report_state) the verdict was last sent with
 
     # ------------------------------------------------------------------------- enqueueing
     def publish(self, leaf: str, payload: dict[str, Any], *, retain: bool = False,
@@ -120,8 +125,30 @@ class MachinePublisher:
             self.publish("progress", {"run_id": st["run_id"], "done_touches": st["done"],
                                       "total_touches": st["total"], "eta_s": st["eta_s"]},
                          qos=0)
+        if st["state"] == "IDLE" and st["run_id"]:
+            self._report_end(st)
+
+    def _report_end(self, st: dict[str, Any]) -> None:
+        """Issue 23: the report is written after the run's end; the retained verdict is
+        published again once it is written (its file name) or failed (report_state)."""
+        v = st.get("verdict") or {}
+        told = (st["run_id"], v.get("report_state"))
+        if st["state"] == "IDLE" and told[1] in ("written", "failed") and told != self._told:
+            self._told = told
+            self._verdict(st)
 
     def _run_end(self, st: dict[str, Any]) -> None:
+        run_id = st["run_id"]
+        ok = self._verdict(st)
+        analysis = self.store.analysis(run_id) if ok else None
+        if analysis is not None:
+            self.publish("links", {"run_id": run_id, "links": link_payload(analysis)},
+                         retain=True)
+            self._run_health = {"run_id": run_id, **health_payload(analysis)}
+        self.publish_health()
+
+    def _verdict(self, st: dict[str, Any]) -> bool:
+        """The retained verdict message of the run ``st`` ended; whether it ended DONE."""
         run_id = st["run_id"]
         v = st.get("verdict") or {}
         ok = st["state"] == "IDLE" and v.get("status")
@@ -133,13 +160,10 @@ class MachinePublisher:
             # elsewhere and would tell the network how the shop PC is laid out
             "report": PurePath(v["report"]).name if v.get("report") else None,
             "run_state": "DONE" if st["state"] == "IDLE" else st["state"],
+            # issue 23: "writing" at the run's end, then "written" (report set) or "failed"
+            "report_state": v.get("report_state") if ok else None,
             "elapsed_s": st["elapsed_s"]}, retain=True)
-        analysis = self.store.analysis(run_id) if ok else None
-        if analysis is not None:
-            self.publish("links", {"run_id": run_id, "links": link_payload(analysis)},
-                         retain=True)
-            self._run_health = {"run_id": run_id, **health_payload(analysis)}
-        self.publish_health()
+        return bool(ok)
 
     def publish_health(self) -> None:
         extra = {}

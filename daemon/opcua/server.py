@@ -325,6 +325,9 @@ class ResultServer:
         if state not in IDLE_STATES:
             m.busy_run = st["run_id"]
         elif m.busy_run is not None:  # a run ended: its result is in the journal now
+            if ((st.get("verdict") or {}).get("report_state") == "writing"
+                    and st["run_id"] == m.busy_run):
+                return  # issue 23: "result ready" once its PDF is there (or failed)
             run_id, m.busy_run = m.busy_run, None
             await self._last_result(m, ready=run_id)
 

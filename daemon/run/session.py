@@ -1,7 +1,8 @@
 """One verification session per machine: the run state machine of DESIGN.md.
 
-IDLE → PREPARE → STREAM → CAPTURE → IDENTIFY → JUDGE → REPORT → WRITE-BACK → IDLE, or ABORTED /
-INTERRUPTED / FAILED with the phase and the cause (their meaning: run/phases.py READY_STATES).
+IDLE → PREPARE → STREAM → CAPTURE → IDENTIFY → JUDGE → WRITE-BACK → IDLE, or ABORTED /
+INTERRUPTED / FAILED with the phase and the cause (their meaning: run/phases.py READY_STATES);
+the report is written after the run's end, in a worker (run/report_job.py, issue 23).
 Each step is handed the previous step's result and the journal records it
 (raw hits before anything else looks at them); a probe that does not trigger, a hit that does not
 match the program, a silent controller or a lost link stop the run, and the next run reconnects
@@ -25,10 +26,9 @@ from daemon.analysis.figures import figures_json, run_figures
 from daemon.analysis.judge import Judgement, judge
 from daemon.analysis.result import Analysis
 from daemon.machines.setup import MachineSetup
-from daemon.reports.compensation import verification_of
 from daemon.reports.temperatures import temperature_lines
 from daemon.run import lease as run_lease
-from daemon.run import reprobe
+from daemon.run import report_job, reprobe
 from daemon.run.phases import ControllerSilent, Refused, RunFailed, RunStatus, State, new_run_id
 from daemon.run.temperatures import TemperatureRecorder
 from daemon.store import baselines
@@ -59,6 +59,7 @@ class Session(RunStatus):
         self._analyse = analyse
         self._prepare = prepare
         self._task: asyncio.Task | None = None
+        self._report_task: asyncio.Task | None = None  # the last run's report (report_job)
         self._abort_reason: str | None = None
         self._abort_state = State.ABORTED  # INTERRUPTED when the daemon stops under the run
         self.lease: Lease | None = None  # the machine lock of the current run (run/lease.py)
@@ -124,9 +125,12 @@ class Session(RunStatus):
         return True
 
     async def wait(self) -> dict[str, Any]:
-        """Wait for the current run to end; returns the final status."""
+        """Wait for the current run to end and its report to be written (or fail); returns
+        the final status (``rumba verify`` prints the report's path from it)."""
         if self._task is not None:
             await _await_run(self._task)
+        if self._report_task is not None:
+            await _await_run(self._report_task)
         return self.status()
 
     # ---------------------------------------------------------------------------------- run
@@ -148,13 +152,14 @@ class Session(RunStatus):
             analysis = await self._identify(run_id, hits, drift_ref)
             self._raise_if_stopped()
             judgement = self._judge(run_id, analysis, drift_ref)
-            await self._report(run_id, analysis, judgement)
             self._raise_if_stopped()
             self._enter(State.WRITE_BACK)
             await self._write_back(Verdict(judgement.status, run_id, judgement.summary,
                                            judgement.reasons), strict=True)
             self._raise_if_stopped()
             self.store.mark_written_back(run_id)
+            # issue 23: the report is rendered after the run's end is published, in a worker
+            self._report_task = report_job.start(self, run_id, analysis, judgement)
             self._enter(State.IDLE, "")
             if self.after_run is not None:
                 try:
@@ -298,24 +303,6 @@ class Session(RunStatus):
                         # issue 22: each temperature channel's start → end (the HMI card)
                         "temperatures": temperature_lines(analysis.data)}
         return j
-
-    async def _report(self, run_id: str, analysis: pipeline.RunAnalysis,
-                      judgement: Judgement) -> None:
-        """REPORT: the HTML, JSON and PDF report of the run, rendered from what the steps before
-        produced; the run record and the machine's trend are read here, the report itself
-        does not touch the journal."""
-        self._enter(State.REPORT)
-        from daemon.reports import report  # matplotlib import is slow: only when a run gets here
-        run, trend = self.store.run(run_id), self.store.trend(self.setup.name)
-        verified = verification_of(self.store, run, analysis.data)  # issue 13: before/after
-        paths = await asyncio.to_thread(report.write_report, self.reports_dir, run,
-                                        analysis.data, judgement, analysis.centre_rows, trend,
-                                        self.setup.tolerances,
-                                        report.audit_of(self.setup, self.baseline),
-                                        verified)
-        self.store.save_report(run_id, *paths)  # the PDF beside the HTML (report.pdf_path)
-        self.verdict["report"] = str(paths[0])  # type: ignore[index]  # set by _judge
-        self.verdict["pdf"] = str(report.pdf_path(paths[0]))  # type: ignore[index]
 
     async def _capture(self, prepared: pipeline.Prepared,
                        remap: Callable[[ProbeHit], ProbeHit] | None = None) -> list[ProbeHit]:

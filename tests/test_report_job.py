@@ -1,0 +1,85 @@
+"""The report off the run's critical path (issue 23 item 4): the verdict is journaled, written
+back and the run's end published before the report is rendered; the rendering's end is
+journaled and published; a failure keeps the verdict and says why; ``wait`` waits for it."""
+
+from __future__ import annotations
+
+import asyncio
+import threading
+
+import pytest
+
+from daemon.reports import report
+from daemon.run.session import Session
+from daemon.store.journal import Store
+from tests.daemon_helpers import thesis_rows, thesis_setup
+from tests.replay_link import Faults, ReplayLink, prepare_from_rows
+
+
+@pytest.fixture
+def env(tmp_path):
+    setup = thesis_setup()
+    rows = thesis_rows(setup)
+    store = Store(tmp_path / "j.sqlite")
+    link = ReplayLink(rows, setup.machine, faults=Faults())
+    s = Session(setup, link, store, tmp_path / "reports", prepare=prepare_from_rows(rows))
+    yield s, link, store
+    store.close()
+
+
+async def test_the_run_ends_and_the_verdict_is_written_back_before_the_report(env, monkeypatch):
+    s, link, store = env
+    entered, go_on = threading.Event(), threading.Event()
+    seen: list[dict] = []
+    real = report.write_report
+
+    def held(*a, **kw):
+        entered.set()
+        if not go_on.wait(60):
+            raise TimeoutError("the test never let the report go on")
+        return real(*a, **kw)
+
+    monkeypatch.setattr(report, "write_report", held)
+    s.listeners.append(lambda st: seen.append({**st, "verdict": dict(st["verdict"] or {})}))
+    run_id = s.start("hmi")
+    while not entered.is_set():  # the worker is rendering: where is the run?
+        await asyncio.sleep(0.01)
+        assert s._task is not None
+        if s._task.done() and s._report_task is None:
+            s._task.result()
+            pytest.fail("the run ended without starting its report")
+    run = store.run(run_id)
+    assert run.state == "DONE" and store.verdict(run_id)["written_back"]
+    assert [v.status for v in link.verdicts] == ["PASS"]
+    assert store.report(run_id) is None
+    st = s.status()
+    assert st["state"] == "IDLE" and not st["busy"]
+    assert st["verdict"]["report_state"] == "writing" and "report" not in st["verdict"]
+    go_on.set()
+    final = await s.wait()  # rumba verify: waits for the report, then prints its path
+    html, js = store.report(run_id)
+    assert html.is_file() and js.is_file() and report.pdf_path(html).is_file()
+    assert final["verdict"]["report"] == str(html)
+    assert final["verdict"]["report_state"] == "written"
+    assert seen[-1]["verdict"]["report_state"] == "written"  # published to the listeners
+    first_end = next(x for x in seen if x["state"] == "IDLE")
+    assert first_end["verdict"]["report_state"] == "writing"  # published before the report
+
+
+async def test_a_report_that_fails_keeps_the_verdict_and_says_why(env, monkeypatch):
+    s, link, store = env
+
+    def broken(*_a, **_kw):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(report, "write_report", broken)
+    run_id = s.start("hmi")
+    final = await s.wait()
+    assert final["state"] == "IDLE" and final["verdict"]["status"] == "PASS"
+    assert final["verdict"]["report_state"] == "failed"
+    assert "No space left on device" in final["verdict"]["report_error"]
+    assert "report not written" in final["reason"]
+    run = store.run(run_id)  # journaled: the run stays DONE with its verdict, the cause kept
+    assert run.state == "DONE" and run.verdict == "PASS" and store.report(run_id) is None
+    assert "report not written: OSError" in run.reason
+    assert [v.status for v in link.verdicts] == ["PASS"]
