@@ -6,8 +6,8 @@ the pivot errors before and after.
 ``python -m demos.compensate [--plan F] [--out DIR]`` (needs `bash .ci/install-peers.sh
 linuxcnc`; ~5 min with the default 7-pose plan, 3 min with linuxcnc_4poses). Exit 0 only
 when every compensable link of the first run is within its expanded uncertainty of zero after
-(k·u_c, both runs' u combined, k the 99.73 % Student t) and the compensable volumetric
-distortion fell by at least 90 %.
+(k·u_c, both runs' u combined, k the 99.73 % Student t) and the link-caused distortion RMS
+(daemon/analysis/figures.py) fell by at least 90 %.
 """
 
 from __future__ import annotations
@@ -21,6 +21,7 @@ from pathlib import Path
 
 import yaml
 
+from daemon.analysis import figures
 from demos.linuxcnc import ARTEFACT, CONFIG, ERRORS, MACHINE, run_demo, start_peer
 
 MACHINE_NAME = "lcnc-trt"
@@ -66,7 +67,7 @@ class Outcome:
     lines: list[str]
     before: dict[str, tuple[float, float]]  # compensable link → (value, std), µm / µrad
     after: dict[str, tuple[float, float]]
-    distortion_before_um: float  # compensable part, rms
+    distortion_before_um: float  # link-caused distortion RMS (daemon/analysis/figures.py)
     distortion_after_um: float
 
 
@@ -124,17 +125,24 @@ def judge(cfg: Path, run1: str, run2: str) -> Outcome:
         lines.append(f"{n}: before {v1:+.2f} ± {2 * u1:.2f} {unit}, after {v2:+.2f} ± "
                      f"{2 * u2:.2f} {unit} (U, k=2); |after| {'<=' if inside else '>'} "
                      f"{k:.2f}·u_c = {k * uc:.2f} {unit}")
-    d1 = p1.plan.distortion_compensable_um[0]
-    d2 = p2.plan.distortion_compensable_um[0]
+    # issue 23: the figures of daemon/analysis/figures.py, by their names and definitions:
+    # run 1's link-caused distortion and its predicted after compensation, against the
+    # link-caused distortion the verification run measures
+    f1, f2 = p1.figures(), p2.figures()
+    by1 = {f.key: f for f in f1}
+    by2 = {f.key: f for f in f2}
+    d1 = p1.plan.distortion_before_um[0]
+    d2 = p2.plan.distortion_before_um[0]
     fall = 1.0 - d2 / d1 if d1 > 0 else 0.0
     ok &= bool(comp) and fall >= 0.9
-    lines.append(f"compensable volumetric distortion (rms / max): before "
-                 f"{d1:.2f} / {p1.plan.distortion_compensable_um[1]:.2f} µm, after "
-                 f"{d2:.2f} / {p2.plan.distortion_compensable_um[1]:.2f} µm "
-                 f"({100 * fall:.1f} % less; ≥ 90 % required)")
-    lines.append("residual (not compensable) distortion: before "
-                 f"{p1.plan.distortion_after_um[0]:.2f}, after "
-                 f"{p2.plan.distortion_after_um[0]:.2f} µm rms")
+    for key in (figures.LINK_CAUSED_RMS, figures.LINK_CAUSED_MAX):
+        lines.append(f"{by1[key].text(1)} before; verification run: {by2[key].value:.1f} "
+                     f"{by2[key].unit}")
+    for key in (figures.PREDICTED_RMS, figures.PREDICTED_MAX):
+        lines.append(f"{by1[key].text(1)} (run 1's plan)")
+    lines.append(f"link-caused distortion RMS {100 * fall:.1f} % less (≥ 90 % required)")
+    for key in (figures.LINK_CAUSED_MAX, figures.PREDICTED_MAX):
+        lines.append(f"  {by1[key].label}: {by1[key].definition}")
     return Outcome(ok, lines, before, after, d1, d2)
 
 
