@@ -155,6 +155,17 @@ async def test_verify_through_the_running_daemon(tmp_path, capsys):
         out, err = capsys.readouterr()
         assert "PASS" in err and Path(out.split("report: ")[1].strip()).is_file()
         assert svc.store.runs()[0].trigger == "cli"
+        # issue 23: --operator names the person; journaled with the run and the start action
+        assert await verify_via_daemon(str(path), "mill1", quiet=True,
+                                       operator="Anna Berg") == 0
+        out, _ = capsys.readouterr()
+        assert Path(out.split("report: ")[1].strip()).is_file()  # waited for the report
+        run = svc.store.runs()[0]
+        assert (run.started_by, run.trigger) == ("Anna Berg", "cli")
+        from daemon.store.actions import actions
+        act = actions(svc.store, "mill1")[0]
+        assert (act.action, act.run_id, act.outcome) == ("start", run.id, "ok")
+        assert act.detail == "operator named by the script: Anna Berg"
         svc.sessions["mill1"].start("hmi")  # busy: the CLI request is refused with the reason
         with pytest.raises(Exception, match=r"in progress .*started by hmi.*cli request refused"):
             await verify_via_daemon(str(path), "mill1", quiet=True)
@@ -224,6 +235,3 @@ async def test_verify_operator_is_on_the_report_as_who_started_and_prepared(tmp_
         code, _, err = run_cli(["verify", "--config", str(path), "--machine", "mill1",
                                 "--operator", bad], capsys)
         assert code == 2 and err.startswith("error: --operator: ") and why in err, err
-    code, _, err = run_cli(["verify", "--config", str(path), "--machine", "mill1", "--daemon",
-                            "--operator", "Anna Berg"], capsys)
-    assert code == 2 and "not with --daemon" in err

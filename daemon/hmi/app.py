@@ -141,6 +141,11 @@ async def start(request: web.Request) -> web.Response:
         request.query.get("trigger") == "cli" else "hmi"
     checked = await _preflight(request)
     person = _identity(request).name if _identity(request).via == "password" else ""
+    named = _operator(request)  # issue 23: `rumba verify --daemon --operator NAME`
+    if isinstance(named, web.Response):
+        return named
+    if named:
+        person, checked = named, f"operator named by the script: {named}"
     try:
         run_id = s.start(trigger, started_by=person)
     except Refused as e:
@@ -148,6 +153,24 @@ async def start(request: web.Request) -> web.Response:
         return web.json_response({"error": str(e)}, status=409)
     _journal(request, s.setup.name, "start", "ok", run_id=run_id, detail=checked)
     return web.json_response({"run_id": run_id}, status=202)
+
+
+def _operator(request: web.Request) -> str | web.Response:
+    """The person a script with the bearer token names (``?operator=``), checked by the
+    journal's rules for a name; '' when none, a 400 answer when refused."""
+    name = request.query.get("operator")
+    if name is None:
+        return ""
+    if request.get(VIA_KEY) != "bearer":
+        return web.json_response({"error": "operator: for scripts with the bearer token only "
+                                           "(a signed-in person starts as themselves)"},
+                                 status=400)
+    from daemon.compensation.names import BadName, validate_by
+
+    try:
+        return validate_by(name, "operator", allow_unattended=False)
+    except BadName as e:
+        return web.json_response({"error": str(e)}, status=400)
 
 
 async def me(request: web.Request) -> web.Response:

@@ -136,6 +136,8 @@ def _verdict_exit(run_id: str, st: dict[str, Any], strict: bool, console: Consol
                   f"{v['summary']}")
     for r in v["reasons"]:
         console.print(f"  - {r}")
+    if v.get("report_state") == "failed":  # issue 23: the verdict stands, the report not
+        console.print(f"[bold magenta]report not written[/]: {v.get('report_error', '')}")
     if v.get("pdf"):
         print(f"for filing (PDF, A4): {v['pdf']}")
     if v.get("report"):  # the report's JSON is written beside its HTML (report.write_report)
@@ -147,8 +149,10 @@ def _verdict_exit(run_id: str, st: dict[str, Any], strict: bool, console: Consol
 
 
 async def verify_via_daemon(cfg_path: str, machine: str, *, strict: bool = False,
-                            quiet: bool = False, console: Console | None = None) -> int:
-    """Trigger the running daemon through its HMI API (bearer token) and follow its events.
+                            quiet: bool = False, console: Console | None = None,
+                            operator: str = "") -> int:
+    """Trigger the running daemon through its HMI API (bearer token) and follow its events;
+    ``operator``: the person journaled as starting the run (issue 23).
     SIGINT / SIGTERM abort that run on the daemon (HMI abort, same token, naming the signal)
     and return 128 + the signal number once the daemon reports the run ended."""
     import ssl
@@ -173,7 +177,9 @@ async def verify_via_daemon(cfg_path: str, machine: str, *, strict: bool = False
             events = await http.get(base + "api/events", ssl=ctx)
             if stopped_by:  # stopped before anything was started on the daemon
                 return 128 + int(stopped_by[0])
-            r = await http.post(base + f"api/machines/{machine}/start?trigger=cli", ssl=ctx)
+            params = {"trigger": "cli", **({"operator": operator} if operator else {})}
+            r = await http.post(base + f"api/machines/{machine}/start", params=params,
+                                ssl=ctx)
             body = await r.json()
             if r.status != 202:
                 raise UserError(body.get("error", f"daemon answered HTTP {r.status}"))
@@ -206,15 +212,12 @@ def cmd_verify(args: argparse.Namespace) -> int:
     if operator is not None:  # the journal's and the report's rules for a person's name
         from daemon.compensation.names import BadName, validate_by
 
-        if args.daemon:
-            raise UserError("--operator: not with --daemon (the daemon's HMI account names "
-                            "the person who starts a run)")
         try:
             validate_by(operator, "--operator", allow_unattended=False)
         except BadName as e:
             raise UserError(str(e)) from None
     if args.daemon:
         return asyncio.run(verify_via_daemon(args.config, args.machine, strict=args.strict,
-                                             quiet=args.quiet))
+                                             quiet=args.quiet, operator=operator or ""))
     return asyncio.run(verify(args.config, args.machine, strict=args.strict, quiet=args.quiet,
                               operator=operator or ""))

@@ -29,8 +29,11 @@ async def follow_run(events: aiohttp.ClientResponse, machine: str, run_id: str,
             continue
         bar.update(task, total=st["total"] or None, completed=st["done"], state=st["state"],
                    eta=eta_text(st))
+        if not st["busy"] and ((st.get("verdict") or {}).get("report_state") != "writing"
+                               or st["state"] != "IDLE"):
+            return st  # issue 23: after the run's end, until its report is written (or not)
         if not st["busy"]:
-            return st
+            bar.update(task, state="REPORT")
     raise UserError(f"the daemon closed its event stream before run {run_id} ended "
                     "(daemon stopped?); see `rumba history`")
 

@@ -19,7 +19,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--operator", metavar="NAME",
                    help="the person starting the run (on the report's 'Started by' and "
-                        "'Prepared by'; not with --daemon, whose HMI account names the person)")
+                        "'Prepared by'; with --daemon journaled by the daemon as well)")
     p.add_argument("--daemon", action="store_true",
                    help="ask the running daemon of this config (through its HMI API) instead "
                         "of driving the link from this process")
