@@ -84,7 +84,7 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=50)
     ap.add_argument("--only", default="", help="comma list: null,interval,harmonic,step")
-    ap.add_argument("--plans", default="", help="comma list: shift-14,holdout-7+7")
+    ap.add_argument("--plans", default="", help="comma list: shift-14,holdout-7+7,holdout-new")
     ap.add_argument("--sigmas", default="5,10,15", help="null runs' index scatter, µrad")
     ap.add_argument("--first", type=int, default=0, help="first seed (split a row in parts)")
     ap.add_argument("--raw", action="store_true", help="also one JSON line per run (RUN …)")
@@ -96,7 +96,12 @@ def main() -> int:
     all_p = [(p.b_deg, p.c_deg) for p in annex.poses]
     est = [(p.b_deg, p.c_deg) for p in annex.poses if p.role == "estimate"]
     val = [(p.b_deg, p.c_deg) for p in annex.poses if p.role == "validate"]
-    plans = {"shift-14": ([*all_p, all_p[0]], None), "holdout-7+7": (est, val)}
+    # holdout-new: the shipped hold-out plan, same indexations with interleaved roles so the
+    # estimate poses give 2C all six values 0/60/…/300° (config/plans/shift_holdout_14poses.yaml)
+    shp = load_plan(ROOT / "config/plans/shift_holdout_14poses.yaml")
+    plans = {"shift-14": ([*all_p, all_p[0]], None), "holdout-7+7": (est, val),
+             "holdout-new": ([(p.b_deg, p.c_deg) for p in shp.poses if p.role == "estimate"],
+                             [(p.b_deg, p.c_deg) for p in shp.poses if p.role == "validate"])}
     plans = {k: v for k, v in plans.items() if k in (args.plans or k).split(",")}
     n = args.seeds
     t0 = time.perf_counter()

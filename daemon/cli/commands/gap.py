@@ -22,6 +22,7 @@ from identification.gap import Options, TouchData, diagnose
 from identification.gap.chip_floor import message as chip_message
 from identification.gap.locate import shown_locations
 from identification.gap.outlier_visits import name as outlier_name
+from identification.harmonic_support import warnings as harmonic_warnings
 from identification.kinematics import Machine
 from identification.model import Artefact
 
@@ -169,6 +170,25 @@ def _load(path: str, artefact: Artefact) -> TouchData:
     return touches_from_rows(rows, artefact, path)
 
 
+def _indexations(data: TouchData) -> np.ndarray:
+    """One (b, c) per visit (repeat, pose) of a log."""
+    _, first = np.unique(np.c_[data.repeat, data.pose], axis=0, return_index=True)
+    return np.c_[data.b_deg[first], data.c_deg[first]]
+
+
+def _plan_warnings(machine: Machine, train_bc: np.ndarray, hold_bc: np.ndarray | None) -> None:
+    """Say which rotary positioning harmonics the estimate poses cannot identify (issue 21): a
+    candidate fitted there and judged on the hold-out would otherwise just under-perform."""
+    first, second = machine.rotary_axes
+
+    def axes(bc: np.ndarray) -> dict[str, np.ndarray]:
+        return {first: bc[:, 0], second: bc[:, 1]}
+
+    for m in harmonic_warnings(axes(train_bc), None if hold_bc is None else axes(hold_bc)):
+        print(f"warning: {m} — shipped plan with a hold-out that identifies orders 1-2: "
+              "config/plans/shift_holdout_14poses.yaml")
+
+
 def _selfcheck(args: argparse.Namespace) -> int:
     from identification.gap import selfcheck
 
@@ -252,11 +272,15 @@ def cmd_gap(args: argparse.Namespace) -> int:
             train_c = read(args.centres)
             for w in train_c.warnings:
                 print(f"warning: {w}")
-            rep = centres_input.diagnose_gap(
-                machine, train_c, read(args.holdout) if args.holdout else None, opts)
+            hold_c = read(args.holdout) if args.holdout else None
+            _plan_warnings(machine, train_c.indexations,
+                           None if hold_c is None else hold_c.indexations)
+            rep = centres_input.diagnose_gap(machine, train_c, hold_c, opts)
         else:
             train = _load(args.log, artefact)
             hold = _load(args.holdout, artefact) if args.holdout else None
+            _plan_warnings(machine, _indexations(train),
+                           None if hold is None else _indexations(hold))
             rep = diagnose(machine, artefact, train, stylus_r, hold, opts)
     except ProbeLogError as e:
         raise _user_error(str(e)) from None
