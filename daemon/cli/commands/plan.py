@@ -18,6 +18,8 @@ from contracts.setup_files import (
     load_machine,
     load_plan,
 )
+from identification.harmonic_support import warnings as harmonic_warnings
+from identification.kinematics import Machine
 from programs.dialects import get_dialect
 from programs.generate import GeneratedProgram, generate
 from programs.geometry import ProgramError
@@ -229,7 +231,24 @@ def _print(r: Outcome, dialect: object, sigma: object) -> None:
         for name, d in zip((ref.name, plan.name), r.drift, strict=True):
             for line in d.lines(name):
                 print(line)
+    _harmonic_warnings(plan, new.program.machine)
     c = r.chosen
     print(f"optimiser {r.optimiser_s:.1f} s: {c.builds} one-pose programs built and checked, "
           f"{len(c.excluded)} candidate poses refused by the safety check"
           + ("; stopped at its time budget" if c.stopped else ""))
+
+
+def _harmonic_warnings(plan: Plan, machine: Machine) -> None:
+    """A plan with validate poses: which rotary positioning harmonics its estimate poses cannot
+    identify for `rumba gap --holdout` (issue 21, ``identification.harmonic_support``)."""
+    val = [p for p in plan.poses if p.role == "validate"]
+    if not val:
+        return
+    est = [p for p in plan.poses if p.role != "validate"]
+    first, second = machine.rotary_axes
+
+    def axes(poses: list) -> dict[str, list[float]]:
+        return {first: [p.b_deg for p in poses], second: [p.c_deg for p in poses]}
+
+    for m in harmonic_warnings(axes(est), axes(val)):
+        print(f"warning (rumba gap --holdout): {m}")
