@@ -294,6 +294,21 @@ def _size(ch: ParamChange, value: float) -> str:
     return f"{value * 1e3:.1f} µm" if ch.kind == "pivot" else f"{value * 1e6:.1f} µrad"
 
 
+def worse_after(plan: CompensationPlan) -> list[str]:
+    """Issue 23: "predicted after compensation" must never exceed "before" silently. The
+    changes reproduce the projection of the link-caused displacements on what they can hold;
+    the remainder can still be larger (RMS or max) when the held part is ill-conditioned or
+    clipped, and such changes would make the machine worse: refused, with both figures."""
+    out = []
+    for i, what in enumerate(("RMS", "max")):
+        before, after = plan.distortion_before_um[i], plan.distortion_after_um[i]
+        if after > before + 1e-6:
+            out.append(f"predicted after compensation {what} {after:.1f} µm exceeds the "
+                       f"link-caused distortion {what} {before:.1f} µm before it: the "
+                       "changes would make the machine worse")
+    return out
+
+
 def check_guards(plan: CompensationPlan, guards: Guards) -> GuardResult:
     """Skip unobservable changes and those within their own expanded uncertainty; refuse the
     whole compensation when an accepted value or the pivot total is over its limit."""
@@ -317,6 +332,7 @@ def check_guards(plan: CompensationPlan, guards: Guards) -> GuardResult:
     if total > guards.max_total_mm:
         refused.append(f"total of the pivot changes {total * 1e3:.1f} µm is over the limit "
                        f"{guards.max_total_mm * 1e3:.1f} µm")
+    refused += worse_after(plan)
     if refused:
         skipped += [(ch, "refused with the whole compensation") for ch in proposed]
         return GuardResult([], skipped, refused, proposed)

@@ -299,3 +299,19 @@ def test_guard_refuses_a_total_over_its_limit() -> None:
     assert r.refused == ["total of the pivot changes 120.0 µm is over the limit 100.0 µm"]
     assert r.accepted == []
     assert check_guards(_plan(*chs[:2]), Guards()).ok
+
+
+def test_guard_refuses_a_plan_predicted_worse_after_than_before() -> None:
+    """Issue 23: "predicted after compensation" never silently exceeds "before" (the panel
+    showed before 55.0 / after 68.0 µm): refused with both figures, RMS and max apart."""
+    from identification.compensation import CompensationPlan
+
+    ok = ParamChange("EA0C", "orientation", -15e-6, 4e-6, True)
+    worse = CompensationPlan([ok], {}, {}, {}, (20.0, 55.0), (30.0, 40.0), (18.0, 68.0))
+    r = check_guards(worse, Guards())
+    assert not r.ok and r.accepted == []
+    assert r.refused == ["predicted after compensation max 68.0 µm exceeds the link-caused "
+                         "distortion max 55.0 µm before it: the changes would make the "
+                         "machine worse"]
+    better = CompensationPlan([ok], {}, {}, {}, (20.0, 55.0), (19.0, 50.0), (3.0, 9.0))
+    assert check_guards(better, Guards()).ok
