@@ -293,3 +293,31 @@ async def test_fleet_command_serves_the_store(fleet_db, tmp_path):
     finally:
         proc.terminate()
         assert await asyncio.wait_for(proc.wait(), 30) == 0  # SIGTERM: a clean stop
+
+
+def test_run_list_names_the_drift_baseline_and_a_report_being_written():
+    """Issue 23: each run says which baseline its drift was judged against (the verdict's
+    drift checks) or that there was none; a run whose report is still being written (after
+    the run's end) or failed says so instead of a bare "—"."""
+    import re
+
+    def run(i: str, **kw):
+        return {"id": i, "started_at": 1.7e9, "trigger": "cli", "state": "DONE",
+                "verdict": "PASS", "summary": "", "has_report": False, **kw}
+
+    checks = [{"quantity": "EX0C", "reference_run": None},
+              {"quantity": "EX0C drift", "reference_run": "R7", "reference": 1.0}]
+    runs = [run("a", checks=json.dumps(checks), reasons="[]", has_report=True),
+            run("b", checks="[]", reasons=json.dumps(["drift not checked: no baseline"])),
+            run("c", checks="[]", reasons="[]",
+                reason="verdict written back; report not written: OSError: disk full"),
+            run("d", checks="not json", reasons=None, state="CAPTURE", verdict=None)]
+    page = view.machine_page("mill-x", None, runs, [], 90)
+    assert "<th>Drift baseline</th>" in page
+    cells = re.findall(r'<td class="baseline">([^<]*)</td><td>(.*?)</td></tr>', page)
+    assert cells[0] == ("run R7", '<a class="report" href="/reports/a.html">report</a>')
+    assert cells[1] == ("drift not checked: no baseline",
+                        '<span class="report-writing">report being written</span>')
+    assert cells[2][1] == ('<span class="report-failed">report not written: OSError: disk '
+                           'full</span>')
+    assert cells[3] == ("—", "—")

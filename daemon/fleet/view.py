@@ -4,6 +4,7 @@ its own axis in its unit (µrad rotations and µm translations never share an ax
 
 from __future__ import annotations
 
+import json
 import math
 import time
 from collections.abc import Mapping, Sequence
@@ -12,6 +13,7 @@ from typing import Any
 from urllib.parse import quote
 
 from daemon.analysis.figures import DEFINITIONS, LABELS, VOLUMETRIC
+from daemon.analysis.judge import NO_BASELINE
 
 UNITS = {"urad": "µrad", "um": "µm"}
 VERDICTS = ("PASS", "WARN", "FAIL", "ERROR")
@@ -238,6 +240,34 @@ def temperatures_text(temps: Any) -> str:
     return "; ".join(out)
 
 
+def drift_baseline(run: Mapping[str, Any]) -> str:
+    """Issue 23: the baseline run the drift checks of ``run`` were judged against (from its
+    verdict's checks), "drift not checked: no baseline", or "—" (no drift limits, no verdict)."""
+    try:
+        checks = json.loads(run.get("checks") or "[]")
+        reasons = json.loads(run.get("reasons") or "[]")
+    except (TypeError, ValueError):  # another version's row: the page stays up
+        return "—"
+    refs = sorted({str(c["reference_run"]) for c in checks if isinstance(c, dict)
+                   and c.get("reference_run")})
+    if refs:
+        return "run " + ", ".join(refs)
+    return NO_BASELINE if isinstance(reasons, list) and NO_BASELINE in reasons else "—"
+
+
+def report_cell(run: Mapping[str, Any]) -> str:
+    """The report's link; until it is there (issue 23: written after the run's end) "being
+    written", or the journaled reason it was not."""
+    if run.get("has_report"):
+        return f'<a class="report" href="/reports/{_e(run["id"])}.html">report</a>'
+    reason = str(run.get("reason") or "")
+    if "report not written" in reason:
+        return f'<span class="report-failed">{_e(reason[reason.index("report not"):])}</span>'
+    if run.get("state") == "DONE":
+        return '<span class="report-writing">report being written</span>'
+    return "—"
+
+
 def machine_page(name: str, machine: Mapping[str, Any] | None, runs: Sequence[Mapping[str, Any]],
                  trend: Sequence[Mapping[str, Any]], days: int) -> str:
     limits = (machine or {}).get("limits") or {}
@@ -245,9 +275,9 @@ def machine_page(name: str, machine: Mapping[str, Any] | None, runs: Sequence[Ma
         f'<tr><td>{_e(r["id"])}</td><td>{_e(when(r["started_at"]))}</td>'
         f'<td>{_e(r["trigger"])}</td><td>{_e(r["state"])}</td>'
         f'<td>{_badge(r["verdict"] or ("ERROR" if r["state"] in _ENDED else None))}</td>'
-        f'<td>{_e(r["summary"])}</td><td>{_e(temperatures_text(r.get("temperatures")))}</td><td>'
-        + (f'<a class="report" href="/reports/{_e(r["id"])}.html">report</a>'
-           if r["has_report"] else "—") + "</td></tr>" for r in runs)
+        f'<td>{_e(r["summary"])}</td><td>{_e(temperatures_text(r.get("temperatures")))}</td>'
+        f'<td class="baseline">{_e(drift_baseline(r))}</td><td>{report_cell(r)}</td></tr>'
+        for r in runs)
     desc = ("" if machine is None else
             f'{_e(machine.get("site"))} · {_e(machine.get("dialect"))} / '
             f'{_e(machine.get("transport"))}')
@@ -257,7 +287,7 @@ def machine_page(name: str, machine: Mapping[str, Any] | None, runs: Sequence[Ma
             f'{trend_charts(trend, limits)}'
             '<h2>Runs</h2><table class="runs"><thead><tr><th>Run</th><th>Started</th>'
             '<th>Trigger</th><th>State</th><th>Verdict</th><th>Summary</th>'
-            '<th>Temperatures</th><th>Report</th>'
+            '<th>Temperatures</th><th>Drift baseline</th><th>Report</th>'
             f"</tr></thead><tbody>{rows}</tbody></table>"
             # issue 23: the summary's figure is defined beside it, as on every surface
             f'<p class="definition">{_e(LABELS[VOLUMETRIC])}: {_e(DEFINITIONS[VOLUMETRIC])}.'

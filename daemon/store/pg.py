@@ -214,10 +214,13 @@ class PgStore:
             "SELECT r.id, r.trigger, r.state, r.verdict, r.summary, r.started_at, r.ended_at,"
             " EXISTS (SELECT 1 FROM reports p WHERE p.run_id = r.id),"
             " (SELECT (e.analysis::jsonb)->'temperatures' FROM estimates e"
-            " WHERE e.run_id = r.id) FROM runs r"
+            " WHERE e.run_id = r.id),"
+            # issue 23: the drift checks name the baseline run; the reason a report failure
+            " (SELECT v.checks FROM verdicts v WHERE v.run_id = r.id),"
+            " (SELECT v.reasons FROM verdicts v WHERE v.run_id = r.id), r.reason FROM runs r"
             " WHERE r.machine=%s ORDER BY r.started_at DESC LIMIT %s", (machine, limit))
         keys = ("id", "trigger", "state", "verdict", "summary", "started_at", "ended_at",
-                "has_report", "temperatures")
+                "has_report", "temperatures", "checks", "reasons", "reason")
         return [dict(zip(keys, r, strict=True)) for r in rows]
 
     async def report_path(self, run_id: str) -> str | None:
