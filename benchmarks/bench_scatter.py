@@ -3,10 +3,12 @@
     OMP_NUM_THREADS=1 nice .venv/bin/python benchmarks/bench_scatter.py [--seeds 50]
 
 Thesis machine (Table B.2 links, random setup), 4-ball artefact, 0.5 µm touch noise, per-visit
-index errors of B and C (1σ each) drawn by ``simlog.simulate``; two plans: the 14-pose shift
-plan without repeats (annex-B indexations + the drift-check revisit of the first pose, one log,
-leave-one-pose-out) and the annex-B plan with a hold-out (seven estimate poses, the seven
-validate poses as a separate log). Per condition and plan, over ``--seeds`` seeds:
+index errors of B and C (1σ each) drawn by ``simlog.simulate``; three plans: the 14-pose shift
+plan without repeats (shift-14: annex-B indexations + the drift-check revisit of the first pose,
+one log, leave-one-pose-out), the annex-B plan with a hold-out (holdout-7+7: seven estimate
+poses, the seven validate poses as a separate log) and the shipped hold-out plan (holdout-new:
+config/plans/shift_holdout_14poses.yaml, the same indexations with interleaved roles). Per
+condition and plan, over ``--seeds`` seeds:
 
 * null runs at 5 / 10 / 15 µrad: share not ``unexplained``; share whose estimated B and C index
   repeatability are within 30 % of the truth (each axis, and their RMS); the bias of the
