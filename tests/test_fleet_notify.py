@@ -234,3 +234,34 @@ def test_notify_config_errors_name_the_key(tmp_path, notify, why):
     with pytest.raises(ConfigError, match=why) as e:
         load_daemon_config(path)
     assert "notify" in str(e.value)
+
+
+def test_the_notification_waits_for_the_report_and_is_never_lost():
+    """Issue 23: the report is written after the run's end. The FAIL notification waits for
+    it (its path), goes out without it when the report failed, and is sent without it when a
+    new run starts before the report was written (never lost)."""
+    from types import SimpleNamespace
+
+    from daemon.notify.notifier import RunWatcher
+
+    sent: list = []
+    notifier = SimpleNamespace(cfg=SimpleNamespace(on=("FAIL",)), site="s", notify=sent.append)
+    w = RunWatcher(notifier, "mill1")  # type: ignore[arg-type]
+
+    def st(state: str, run_id: str, report_state: str | None = None, report: str | None = None):
+        v = {"status": "FAIL", "summary": "x", "reasons": ["r"]} if state == "IDLE" else None
+        if v is not None and report_state:
+            v |= {"report_state": report_state, **({"report": report} if report else {})}
+        return {"state": state, "run_id": run_id, "reason": "", "verdict": v}
+
+    for s in (st("IDLE", ""), st("JUDGE", "A"), st("IDLE", "A", "writing")):
+        w.on_status(s)
+    assert sent == []  # the run ended; its report is being written
+    w.on_status(st("IDLE", "A", "written", "/r/A.html"))
+    assert [(n.run_id, n.report) for n in sent] == [("A", "/r/A.html")]
+    for s in (st("JUDGE", "B"), st("IDLE", "B", "writing"), st("IDLE", "B", "failed")):
+        w.on_status(s)
+    assert [(n.run_id, n.report) for n in sent[1:]] == [("B", None)]
+    for s in (st("JUDGE", "C"), st("IDLE", "C", "writing"), st("PREPARE", "D")):
+        w.on_status(s)  # D started before C's report was written: C is sent all the same
+    assert [(n.run_id, n.status, n.report) for n in sent[2:]] == [("C", "FAIL", None)]

@@ -153,14 +153,29 @@ class RunWatcher:
     def __init__(self, notifier: Notifier, machine: str) -> None:
         self.notifier, self.machine = notifier, machine
         self._last: tuple | None = None
+        self._waiting: dict[str, Any] | None = None  # a verdict whose report is being written
 
     def on_status(self, st: dict[str, Any]) -> None:
+        # issue 23: the report is written after the run's end; the notification waits for it
+        # (its path), and is sent without it when a new run starts first
+        w = self._waiting
+        if w is not None and (st["run_id"] != w["run_id"] or (st["verdict"] or {}).get(
+                "report_state") != "writing"):
+            self._waiting = None
+            self._send(st if st["run_id"] == w["run_id"] else w)
         key = (st["state"], st["run_id"])
         previous, self._last = self._last, key
         if previous is None or key == previous or not st["run_id"]:
             return
         if previous[0] in _ENDED or st["state"] not in _ENDED:
             return
+        v = st.get("verdict") or {}
+        if st["state"] == "IDLE" and v.get("report_state") == "writing":
+            self._waiting = {**st, "verdict": dict(v)}
+            return
+        self._send(st)
+
+    def _send(self, st: dict[str, Any]) -> None:
         v = st.get("verdict") or {}
         done = st["state"] == "IDLE" and v.get("status")
         status = v["status"] if done else "ERROR"
