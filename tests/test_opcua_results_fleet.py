@@ -106,9 +106,16 @@ async def test_a_run_reaching_the_store_raises_its_result_ready_event(fleet):
         store.save_analysis("m2-2", analysis(2))
         store.save_verdict("m2-2", "FAIL", [], [{"status": "FAIL", "limit": "x"}], "FAIL")
         store.set_state("m2-2", "DONE")
+        await fleet["drainer"].drain()  # issue 23: the run first, its report after it
+        html = fleet["store"].path.parent / "m2-2.html"
+        html.write_text("<html></html>")
+        html.with_suffix(".pdf").write_bytes(b"%PDF-1.4\n")
+        store.save_report("m2-2", html, html.with_suffix(".json"))
         await fleet["drainer"].drain()
         e = await asyncio.wait_for(handler.got.get(), 30)
         assert e.Result.ResultMetaData.ResultId == "m2-2"
+        # announced once its report reached the store, not when the run did
+        assert e.Result.ResultMetaData.HasTransferableDataOnFile
         assert int(e.Result.ResultMetaData.ResultEvaluation) == 2
         assert e.SourceName == "mill2"
 

@@ -14,6 +14,7 @@ import contextlib
 import datetime as dt
 import logging
 import socket
+import time
 from typing import Any
 
 from asyncua import Server, ua
@@ -29,6 +30,7 @@ from daemon.opcua.filetransfer import ResultTransfer
 from daemon.opcua.source import JournalSource, ResultSource
 from daemon.store.journal import Store
 
+REPORT_WAIT_S = 300.0  # a report not in the store by then is announced without its file
 log = logging.getLogger("rumba.opcua")
 RUMBA_URI = "urn:rumba-cnc:results"  # rumba's own nodes (machine objects, the check's state)
 APPLICATION_URI = "urn:rumba-cnc:daemon"
@@ -129,13 +131,25 @@ class ResultServer:
             for name, m in self.machines.items():
                 try:
                     rid = await latest(name)
-                    if rid is not None and rid != seen[name]:
+                    if rid is not None and rid != seen[name] and \
+                            not await self._report_pending(rid):
                         seen[name] = rid
                         await self._last_result(m, ready=rid)
                 except asyncio.CancelledError:
                     raise
                 except Exception as e:  # the store restarting: try again next round
                     log.warning("%s: OPC UA results: reading the store failed: %s", name, e)
+
+    async def _report_pending(self, run_id: str) -> bool:
+        """Issue 23: a daemon writes the report after the run's end (the store gets the run
+        first): a DONE run just ended without a report and without the journaled reason it
+        has none is announced once its PDF is there, at most REPORT_WAIT_S after its end."""
+        run = await self.source.run(run_id)
+        if run is None or run.state != "DONE" or await self.source.report(run_id) is not None:
+            return False
+        if "report not written" in (run.reason or ""):
+            return False
+        return time.time() - (run.ended_at or 0.0) < REPORT_WAIT_S
 
     async def stop(self) -> None:
         for t in self._tasks:
