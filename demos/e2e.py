@@ -70,6 +70,18 @@ machines:
 {tolerances_yaml()}"""
 
 
+
+async def settled_status(hmi: str, token: str, machine: str) -> dict:
+    """The machine's HMI status once its last run's report is written or failed (issue 23:
+    the verdict reaches the CNC first, the report is rendered after the run's end)."""
+    async with aiohttp.ClientSession(headers={"Authorization": f"Bearer {token}"}) as http:
+        while True:
+            async with http.get(hmi + "api/status") as r:
+                st = (await r.json())[machine]
+            if (st.get("verdict") or {}).get("report_state") != "writing":
+                return st
+            await asyncio.sleep(0.2)
+
 async def _hmi(stdout: asyncio.StreamReader, timeout_s: float) -> str:
     """Read the daemon's banner until it says where the HMI listens."""
     async with asyncio.timeout(timeout_s):
@@ -120,10 +132,7 @@ async def demo(time_scale: float, work: Path) -> int:
             while not (ctrl.done and ctrl.verdict):
                 await asyncio.sleep(0.1)
         verdict = VERDICT_NAMES.get(int(ctrl.verdict), str(ctrl.verdict))
-        async with aiohttp.ClientSession(
-                headers={"Authorization": f"Bearer {token}"}) as http, \
-                http.get(hmi + "api/status") as r:
-            st = (await r.json())["demo-hmc"]
+        st = await settled_status(hmi, token, "demo-hmc")
         v = st.get("verdict") or {}
         print(f"\nverdict on the CNC: {verdict} (code {ctrl.verdict}); simulated machine time "
               f"{ctrl.machine_time_s / 60:.1f} min, run {st['run_id']}: {st['done']} touches")
@@ -185,9 +194,7 @@ async def compensate_and_verify(cfg: Path, env: dict[str, str], ctrl, run_id: st
     ctrl.raise_start_request()
     while not (ctrl.done and ctrl.verdict):
         await asyncio.sleep(0.1)
-    async with aiohttp.ClientSession(headers={"Authorization": f"Bearer {token}"}) as http, \
-            http.get(hmi + "api/status") as r:
-        st = (await r.json())["demo-hmc"]
+    st = await settled_status(hmi, token, "demo-hmc")
     verdict = VERDICT_NAMES.get(int(ctrl.verdict), str(ctrl.verdict))
     v = st.get("verdict") or {}
     print(f"verification verdict: {verdict}, run {st['run_id']}: {v.get('summary', '')}")

@@ -98,7 +98,9 @@ async def demo(plan: Path, work: Path) -> int:
                     await asyncio.sleep(1.0)
                     async with http.get(hmi + "api/status") as r:
                         st = (await r.json())["lcnc-trt"]
-                    if not st["busy"]:
+                    # issue 23: the report is written after the run's end: wait for it too
+                    if not st["busy"] and (st.get("verdict") or {}).get(
+                            "report_state") != "writing":
                         break
         v = st.get("verdict") or {}
         code = _analog_out(peer.dir, 0)
