@@ -130,7 +130,7 @@ async def test_sse_progress_verdict_and_report(service):
         assert events.headers["Content-Type"].startswith("text/event-stream")
         r = await http.post(service.hmi_url + "api/machines/mill1/start")
         run_id = (await r.json())["run_id"]
-        seen_done, states = [], []
+        seen_done, states, ends = [], [], []
         async with asyncio.timeout(60):
             async for line in events.content:
                 if line.startswith(b"data: "):
@@ -138,8 +138,12 @@ async def test_sse_progress_verdict_and_report(service):
                     seen_done.append(st["done"])
                     states.append(st["state"])
                     if st["state"] == "IDLE" and st["run_id"] == run_id:
-                        break
+                        # issue 23: the run's end first, then its report (written after it)
+                        ends.append(st["verdict"]["report_state"])
+                        if ends[-1] != "writing":
+                            break
         events.close()
+        assert ends[0] == "writing" and ends[-1] == "written", ends
         assert "CAPTURE" in states and "IDENTIFY" in states
         progress = [d for d in seen_done if 0 < d < 140]
         assert len(progress) > 10 and progress == sorted(progress)
@@ -214,8 +218,11 @@ async def test_browser_start_progress_verdict_report(sim_service, tmp_path):
             run_id, "20200101T000000Z-0a0a"]
         assert await cdp.eval(sid, "window.rumbaNoReload") == 1
         await cdp.screenshot(sid, tmp_path / "hmi-done.png")
-        href = await cdp.eval(sid, "document.querySelector('.machine .report').href")
+        # issue 23: the card's link appears once the report is written (after the run's end)
+        href = await cdp.wait_for(sid, "!document.querySelector('.machine .report').hidden && "
+                                       "document.querySelector('.machine .report').href")
         assert href.endswith(".html")
+        assert await cdp.eval(sid, "document.querySelector('.machine .report-state').hidden")
         await cdp.call("Page.navigate", sid, url=href)
         await cdp.wait_for(sid, "document.readyState === 'complete' && "
                                 "document.title.startsWith('rumba run')")
