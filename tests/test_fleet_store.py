@@ -216,6 +216,18 @@ async def test_a_runs_link_estimate_reaches_the_fleet_with_its_analysis(pg, tmp_
     assert pg_rows(dsn, "SELECT run_id, html_path, json_path FROM reports") == [
         ("R1", str(tmp_path / "R1.html"), str(tmp_path / "R1.json"))]
     assert pg_rows(dsn, "SELECT analysis FROM estimates") == [('{"links": {}}',)]
+    # issue 23: the baseline decisions reach the fleet store, each once (the fleet numbers
+    # them: several daemons' local ids would collide)
+    for state, by, at in (("proposed", "rumba", 10.5), ("confirmed", "Anna Berg", 11.5)):
+        store.db.execute("INSERT INTO baselines (machine, run_id, state, by_person, at, note)"
+                         " VALUES ('mill1', 'R1', ?, ?, ?, 'after the service')", (state, by, at))
+        await drainer.drain()
+    store.save_verdict("R1", "PASS", [], [], "again")  # the run copied again: no duplicate
+    await drainer.drain()
+    assert pg_rows(dsn, "SELECT machine, run_id, state, by_person, at, note FROM baselines"
+                   " ORDER BY at") == [
+        ("mill1", "R1", "proposed", "rumba", 10.5, "after the service"),
+        ("mill1", "R1", "confirmed", "Anna Berg", 11.5, "after the service")]
     await drainer.stop()
     worker.close()
     store.close()

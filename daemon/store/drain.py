@@ -228,6 +228,10 @@ class Drainer:
         if "reports" in kinds:
             b.report = db.execute("SELECT html_path, json_path FROM reports WHERE run_id=?",
                                   (run_id,)).fetchone()
+        if "baselines" in kinds:  # issue 23: who proposed / confirmed this run as a baseline
+            b.baselines = db.execute("SELECT machine, run_id, state, by_person, at, note FROM"
+                                     " baselines WHERE run_id=? ORDER BY id",
+                                     (run_id,)).fetchall()
         assert self.pg is not None
         await self.pg.write_run(b)
         self.copied_hits += len(b.hits)

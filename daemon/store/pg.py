@@ -56,6 +56,7 @@ class RunBatch:
     link_estimate: tuple | None = None  # (model_key, estimate, plan, created_at)
     verdict: tuple | None = None  # (status, reasons, checks, written_back)
     report: tuple | None = None  # (html_path, json_path)
+    baselines: list[tuple] = field(default_factory=list)  # (machine, run_id, state, by, at, note)
 
 
 def _defaults(dsn: str, app: str, connect_timeout_s: float) -> str:
@@ -138,6 +139,14 @@ class PgStore:
                     await cur.executemany(
                         f"INSERT INTO centres ({', '.join(CENTRE_COLS)}) VALUES "
                         f"({', '.join(['%s'] * len(CENTRE_COLS))})", b.centres)
+            # issue 23: baseline decisions; the fleet store numbers them itself (several
+            # daemons' local ids would collide), a row already copied is not copied again
+            if b.baselines:
+                await cur.executemany(
+                    "INSERT INTO baselines (machine, run_id, state, by_person, at, note)"
+                    " SELECT %s, %s, %s, %s, %s, %s WHERE NOT EXISTS (SELECT 1 FROM baselines"
+                    " WHERE machine=%s AND run_id=%s AND state=%s AND at=%s)",
+                    [(*r, r[0], r[1], r[2], r[4]) for r in b.baselines])
             for table, row in (("estimates", (b.analysis,) if b.analysis is not None else None),
                                ("link_estimates", b.link_estimate), ("verdicts", b.verdict),
                                ("reports", b.report)):

@@ -141,7 +141,8 @@ CAPTURE_TRIGGERS: list[str] = [
           SELECT rumba_outbox_wake(); END"""
       for t, k in (("runs", "id"), ("centres", "run_id"), ("estimates", "run_id"),
                    ("link_estimates", "run_id"), ("verdicts", "run_id"),
-                   ("reports", "run_id"), ("machines", "name"))
+                   ("reports", "run_id"), ("machines", "name"),
+                   ("baselines", "run_id"))  # issue 23: a person's baseline decisions
       for op in ("INSERT", "UPDATE")),
     """CREATE TEMP TRIGGER IF NOT EXISTS outbox_hits_insert AFTER INSERT ON main.hits
        BEGIN INSERT INTO outbox(kind, key, hit_seq) VALUES ('hits', NEW.run_id, NEW.seq);
