@@ -7,7 +7,6 @@ the state machine on a replayed log, the fake LinuxCNC HAL of test_compensate_tr
 
 from __future__ import annotations
 
-import asyncio
 import dataclasses
 import json
 import re
@@ -96,11 +95,15 @@ async def test_the_unattended_path_reads_the_estimate_the_run_stored(tmp_path, c
                           prepare=prepare_from_rows(rows),
                           analyse=journal_analyse(conf.store_path), after_run=after_run)
         first = session.start("cnc")  # the controller's start of shift: unattended allowed
-        async with asyncio.timeout(120):
-            await session.wait()
-            while session.run_id == first or session.busy:  # the verification run follows
-                await asyncio.sleep(0.05)
+        # no deadline as the criterion: each step fails at once with its reason (the run's
+        # own end state, the compensation journal when no verification run followed)
+        await session.wait()
+        assert store.run(first).state == "DONE", store.run(first)
+        assert session.run_id != first, ("no verification run followed",
+                                         [(r.state, r.reason) for r in cj.rows(store, "lcnc")])
         second = session.run_id
+        await session.wait()  # the verification run, started by after_run in the first run
+        assert not session.busy, session.status()
         assert store.run(first).state == "DONE" and store.run(second).state == "DONE"
         (row,) = [r for r in cj.rows(store, "lcnc") if r.state == "applied"]
         assert row.run_id == first and row.confirmed_by == "unattended"
@@ -230,8 +233,7 @@ async def test_a_view_that_cannot_be_computed_never_fails_the_run(tmp_path, caps
                           prepare=prepare_from_rows(rows),
                           analyse=journal_analyse(conf.store_path))
         run_id = session.start("cli")
-        async with asyncio.timeout(120):
-            await session.wait()
+        await session.wait()  # the run's task ends on any end state: no deadline needed
         assert store.run(run_id).state == "DONE", store.run(run_id)
         assert store.db.execute("SELECT COUNT(*) FROM link_estimates").fetchone()[0] == 0
         monkeypatch.undo()  # the view is computed when asked, and stored then
