@@ -57,7 +57,7 @@ async def _unattended(cfg: Path) -> tuple[str, str]:
         second = session.run_id
         assert second != first, f"no verification run followed: {session.status()}"
         status = await session.wait()
-        assert status["state"] == "IDLE", status
+        assert status["state"] == "IDLE", (status.get("reason"), status)
     finally:
         await svc.stop()
     return first, second
