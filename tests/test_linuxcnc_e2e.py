@@ -128,7 +128,12 @@ async def test_verification_run_identifies_injected_links(lcnc, tmp_path: Path,
         # "within 3 standard uncertainties" at its 99.73 % coverage: u rests on a σ estimated
         # from the run's own residuals (4 poses: ν ≈ 8.3), so k = t(ν) ≈ 4.2, not 3 (GUM G.3);
         # with k = 3 a clean suite of 16 comparisons failed about one run in four (CI did).
-        k = coverage_factor(analysis.estimation.sigma_dof or math.inf)
+        # The run passes only if every link does: the 99.73 % is family-wise (Bonferroni over
+        # the links). At 99.73 % per link, 16 comparisons on a nondeterministic LinuxCNC fail
+        # ~4 % of clean runs (CI saw EC0B at 4.0 u once); the accuracy itself is the Monte
+        # Carlo's claim (benchmarks), this test checks the loop end to end.
+        k = coverage_factor(analysis.estimation.sigma_dof or math.inf,
+                            1.0 - 0.0027 / len(injected))
         for name, true_v in injected.items():
             v, u = links[name]["value"], links[name]["std"]
             assert abs(v - true_v) <= k * u, f"{name}: {v:.2f} vs {true_v} (u {u:.2f}, k {k:.2f})"
