@@ -7,8 +7,6 @@ kins modules cannot take a compensation: their one pin, the pivot length, is not
 
 from __future__ import annotations
 
-import copy
-import math
 from pathlib import Path
 
 import numpy as np
@@ -16,14 +14,14 @@ import pytest
 import yaml
 
 from contracts.setup_files import load_artefact, load_controller_kinematics, load_machine, load_plan
-from identification.compensation import apply_changes, plan_compensation
+from identification.compensation import plan_compensation
 from programs import compensation
 from programs.dialects import get_dialect
 from programs.toolpath import build_program
 from simulators.controller import VirtualController
 from simulators.errors_schema import errors_from_dict
 from simulators.truth import TruthModel
-from tests.test_compensate_sim import _feed, _identify, _loop, _read_back  # noqa: F401
+from tests.sim_world import compensate_and_check, identify, sim_loop, sim_world  # noqa: F401
 
 CFG = Path(__file__).resolve().parents[1] / "config"
 ARTEFACT = CFG / "artefacts/vertical_4ball.yaml"  # as tests/test_head_families_e2e.py
@@ -31,6 +29,7 @@ HEADS = {
     "swivelhead": ("swivelhead_wcfxyzbt", "swivelhead_12poses"),
     "forkhead": ("forkhead_wxfyzcat", "forkhead_11poses"),
 }
+pytestmark = pytest.mark.usefixtures("sim_loop")
 GUARDS = {"max_change_um": 200, "max_change_urad": 100, "max_total_um": 400}
 # Each family's address of the shipped Siemens section's values, in the section's order
 # (pivots first, then tilts): a Heidenhain kinematics table keeps a head axis' row (X Y Z of its
@@ -77,63 +76,17 @@ OBSERVABLE = {"swivelhead": {"c-x", "b-tilt-a", "b-tilt-c", "c-tilt-a", "c-tilt-
 @pytest.mark.parametrize("family", ["siemens", "heidenhain", "fanuc"])
 @pytest.mark.parametrize("name", sorted(HEADS))
 def test_head_compensation_through_the_simulator(tmp_path: Path, name: str, family: str) -> None:
-    mpath = _machine_file(tmp_path, name, family)
-    machine, mf = load_machine(mpath)
-    _, spec = load_controller_kinematics(mpath)
-    assert spec is not None and spec.family == family
-    artefact = load_artefact(ARTEFACT)
-    plan = load_plan(CFG / f"plans/{HEADS[name][1]}.yaml")
-    epath = CFG / f"errors/{HEADS[name][0]}.yaml"
-    truth = TruthModel.build(machine, mf, artefact,
-                             errors_from_dict(yaml.safe_load(epath.read_text())))
-    links_before = copy.deepcopy(truth.errors.links)
-    d = get_dialect(family)
-    prog = build_program(machine, mf, artefact, plan)
-    text, files = d.render(prog), d.aux_files(prog)
-    vc = VirtualController(truth, rng_seed=5, dialect=family)
-    assert vc.kinematics is not None
-    initial = vc.kinematics.values()
-
-    est1 = _identify(vc, family, text, files, machine, artefact, "before")
-    b = np.array([p.b_deg for p in plan.poses])
-    c = np.array([p.c_deg for p in plan.poses])
-    params = spec.to_math()
-    plan1 = plan_compensation(machine, artefact, est1, params, b, c)
+    w = sim_world(_machine_file(tmp_path, name, family), CFG / f"errors/{HEADS[name][0]}.yaml",
+                  CFG / f"plans/{HEADS[name][1]}.yaml", ARTEFACT, family)
     # the probing sees exactly these values; the others are left, with the reason
-    assert {ch.name for ch in plan1.changes if ch.observable} == OBSERVABLE[name]
-    assert all(ch.note and ch.delta == 0.0 for ch in plan1.changes if not ch.observable)
-    out = compensation.render(spec, plan1.changes, run_id="R1", machine=machine.name)
-    _feed(vc, family, out.text)
-    assert vc.kinematics.values() != initial
-    assert all(w.address in initial for w in vc.kinematics.audit)
-
-    model = apply_changes(machine, params, _read_back(spec, vc.kinematics))
-    est2 = _identify(vc, family, text, files, model, artefact, "after")
-    assert truth.errors.links == links_before  # the truth is not what was compensated
-
-    names = list(est1.layout.links)
-    assert names == list(est2.layout.links)
-    compensable = [k for k, n in enumerate(names)
-                   if abs(plan1.links_compensable[n]) > 2 * est1.std[k]
-                   and abs(plan1.links_residual[n]) < 0.1 * abs(plan1.links_identified[n])]
+    assert {ch.name for ch in w.plan1.changes if ch.observable} == OBSERVABLE[name]
+    assert all(ch.note and ch.delta == 0.0 for ch in w.plan1.changes if not ch.observable)
+    got = compensate_and_check(w)
     # injected head/table location errors the control keeps, nearly whole (EA0B of the swivel
     # head shares its visible effect with EA0Z, which no carrier value holds)
     held = {"swivelhead": {"EX0C", "EA0C", "EB0C", "EA0B", "EC0B"},
             "forkhead": {"EA0C", "EB0C", "EY0A", "EB0A", "EC0A"}}[name]
-    got = {names[k] for k in compensable}
-    assert got <= held and len(got) >= 4, plan1.links_compensable
-    for k in compensable:
-        u = math.hypot(est1.std[k], est2.std[k])  # two independent estimates (test_compensate_sim)
-        assert abs(est2.p[k]) <= 3 * u, (names[k], est1.p[k], est2.p[k], u)
-    plan2 = plan_compensation(model, artefact, est2, params, b, c)
-    before, after = plan1.distortion_compensable_um[0], plan2.distortion_compensable_um[0]
-    assert after <= 0.1 * before, (before, after)
-
-    back = compensation.render(spec, plan1.changes, run_id="R1", machine=machine.name,
-                               rollback=True)
-    _feed(vc, family, back.text)
-    for address, v in initial.items():
-        assert vc.kinematics.read(address) == pytest.approx(v, abs=1e-9), address
+    assert set(got) <= held and len(got) >= 4, w.plan1.links_compensable
 
 
 def test_siemens_head_programs_name_the_carrier_values(tmp_path: Path) -> None:
@@ -181,7 +134,7 @@ def test_linuxcnc_head_kins_pivot_length_is_not_observable(tmp_path: Path) -> No
     d = get_dialect("linuxcnc")
     prog = build_program(machine, mf, artefact, plan)
     vc = VirtualController(truth, rng_seed=5, dialect="linuxcnc")
-    est = _identify(vc, "linuxcnc", d.render(prog), d.aux_files(prog), machine, artefact, "r")
+    est = identify(vc, "linuxcnc", d.render(prog), d.aux_files(prog), machine, artefact, "r")
     b = np.array([p.b_deg for p in plan.poses])
     c = np.array([p.c_deg for p in plan.poses])
     (ch,) = plan_compensation(machine, artefact, est, spec.to_math(), b, c).changes
