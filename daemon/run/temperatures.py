@@ -1,10 +1,11 @@
 """A run's temperature channels (issue 22 item 3): read at the start, at every pose and at the
 end, each reading journaled on arrival; a channel that cannot be read is journaled with the
-reason and logged as a warning, never stops the run."""
+reason and logged as a warning, never stops the run nor holds it up."""
 
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import dataclasses
 import logging
 from typing import Any
@@ -18,10 +19,20 @@ from drivers.modbus.transmitter import Transmitter
 log = logging.getLogger("rumba.temperatures")
 
 READ_TIMEOUT_S = 3.0  # one sample of every channel; a silent sensor must not hold the run
+# a read that failed after waiting this long waited for an answer that did not come (a host
+# switched off but routable: no RST, the connect or the request times out); one refused at once
+# (an unknown node, a closed port) costs nothing and is tried again at the next pose
+NO_ANSWER_S = 0.5
 
 
 class TemperatureRecorder:
-    """The channels of one machine, read through its link or their transmitters."""
+    """The channels of one machine, read through its link or their transmitters.
+
+    The start sample is awaited (bounded by ``READ_TIMEOUT_S``) before the program; the pose
+    samples run beside the capture, never awaited by it (a transmitter switched off but still
+    routable held every pose up by the timeout); a channel that did not answer in time is
+    unreachable for the rest of the run — its pose readings are journaled as not read with
+    that reason, without waiting — and is tried again at the end, after the last touch."""
 
     def __init__(self, machine: str, channels: tuple[TemperatureChannel, ...], link: CncLink,
                  store: Store, link_name: str) -> None:
@@ -29,6 +40,8 @@ class TemperatureRecorder:
         self.link_name = link_name
         self._transmitters: dict[str, Transmitter] = {}
         self._last_pose: int | None = None
+        self._down: dict[str, str] = {}  # channel → why it is unreachable for this run
+        self._pending: dict[str, asyncio.Task[None]] = {}  # channel → its read in flight
 
     def sources(self) -> dict[str, str]:
         """Where each channel comes from (the run record's audit field)."""
@@ -46,38 +59,72 @@ class TemperatureRecorder:
             return await self._transmitter(ch).read(ch)
         return await self.link.read_temperature(ch)
 
+    def _polled(self) -> list[TemperatureChannel]:
+        return [ch for ch in self.channels
+                if ch.transmitter is not None or self.link_name != "serial"]
+
+    async def _read_one(self, run_id: str, ch: TemperatureChannel, at: str, pose: int | None,
+                        t_s: float) -> None:
+        """Read one channel and journal its value or why not (``at`` for the log)."""
+        loop = asyncio.get_running_loop()
+        t0 = loop.time()
+        try:
+            value = await asyncio.wait_for(self._read(ch), READ_TIMEOUT_S)
+        except asyncio.CancelledError:
+            raise
+        except Exception as e:
+            why = (f"no answer in {READ_TIMEOUT_S:g} s" if isinstance(e, TimeoutError)
+                   else str(e) or type(e).__name__)
+            if loop.time() - t0 >= NO_ANSWER_S and at != "end":
+                where = f"pose {pose}" if at == "pose" else at
+                self._down[ch.name] = f"{why} at {where}"
+                why += "; not read again until the end of the run"
+            log.warning("%s %s: temperature %s not read (%s): %s", self.machine, run_id,
+                        ch.name, at, why)
+            self._journal(run_id, TemperatureReading(ch.name, at, pose, t_s, None,
+                                                     why))  # type: ignore[arg-type]
+        else:
+            self._journal(run_id, TemperatureReading(ch.name, at, pose, t_s,
+                                                     float(value)))  # type: ignore[arg-type]
+
     async def sample(self, run_id: str, at: str, pose: int | None, t_s: float) -> None:
-        """Read every polled channel now and journal each value or why it failed."""
-        polled = [ch for ch in self.channels
-                  if ch.transmitter is not None or self.link_name != "serial"]
-        if not polled:
-            return
-        got = await asyncio.gather(*(asyncio.wait_for(self._read(ch), READ_TIMEOUT_S)
-                                     for ch in polled), return_exceptions=True)
-        for ch, value in zip(polled, got, strict=True):
-            if isinstance(value, asyncio.CancelledError):
-                raise value
-            if isinstance(value, BaseException):
-                why = (f"no answer in {READ_TIMEOUT_S:g} s" if isinstance(value, TimeoutError)
-                       else str(value) or type(value).__name__)
-                log.warning("%s %s: temperature %s not read (%s): %s", self.machine, run_id,
-                            ch.name, at, why)
-                self._journal(run_id, TemperatureReading(ch.name, at, pose, t_s, None, why))
+        """Read every polled channel now (an unreachable one too: the start and the end try
+        every channel) and journal each value or why it failed."""
+        await asyncio.gather(*(self._read_one(run_id, ch, at, pose, t_s)
+                               for ch in self._polled()))
+
+    def _sample_pose(self, run_id: str, pose: int, t_s: float) -> None:
+        """Start the pose's reads beside the capture; what cannot be read now is journaled
+        now with the reason (unreachable since …, or the last read still in flight)."""
+        for ch in self._polled():
+            busy = self._pending.get(ch.name)
+            if ch.name in self._down:
+                why = (f"not read: unreachable since {self._down[ch.name]}; tried again at "
+                       "the end of the run")
+            elif busy is not None and not busy.done():
+                why = "not read: the previous read of this channel is still waiting"
             else:
-                self._journal(run_id, TemperatureReading(ch.name, at, pose, t_s, float(value)))
+                self._pending[ch.name] = asyncio.get_running_loop().create_task(
+                    self._read_one(run_id, ch, "pose", pose, t_s),
+                    name=f"temperature-{self.machine}-{ch.name}")
+                continue
+            self._journal(run_id, TemperatureReading(ch.name, "pose", pose, t_s, None, why))
 
     async def on_hit(self, run_id: str, pose: int, t_s: float) -> None:
-        """After a journaled hit: the program's printed values, and a sample at a new pose."""
+        """After a journaled hit: the program's printed values, and a sample at a new pose
+        (started, not awaited)."""
         self.take_printed(run_id, t_s)
         if pose != self._last_pose:
             self._last_pose = pose
-            await self.sample(run_id, "pose", pose, t_s)
+            self._sample_pose(run_id, pose, t_s)
 
     def take_printed(self, run_id: str, t_s: float) -> None:
         """Journal what the program printed since the last call (a DNC program's ``RTEMP``
         lines: channel k is the k-th controller channel, the program prints them in order)."""
         printed = [ch for ch in self.channels
                    if ch.transmitter is None and self.link_name == "serial"]
+        if not printed:
+            return
         for k, marker, value in self.link.printed_temperatures():
             if not 1 <= k <= len(printed):
                 log.warning("%s %s: temperature line of channel %d ignored (the program "
@@ -99,13 +146,25 @@ class TemperatureRecorder:
 
     async def start(self, run_id: str, t_s: float) -> None:
         """Before the program: the first sample."""
+        self.abandon()
         self._last_pose = None
+        self._down.clear()
         await self.sample(run_id, "start", None, t_s)
 
     async def end(self, run_id: str, t_s: float) -> None:
-        """After the last touch (re-probes included): what was printed, the last sample."""
+        """After the last touch (re-probes included): what was printed, the pose reads still
+        in flight (each bounded by the timeout), the last sample of every channel."""
         self.take_printed(run_id, t_s)
+        pending, self._pending = list(self._pending.values()), {}
+        await asyncio.gather(*pending)
         await self.sample(run_id, "end", None, t_s)
+        await self.close()
+
+    def abandon(self) -> None:
+        """A run ended without its end sample (stopped, failed): no read outlives it."""
+        pending, self._pending = list(self._pending.values()), {}
+        for task in pending:
+            task.cancel()
 
     def with_summary(self, run_id: str, analysis: Any) -> Any:
         """``analysis`` (a ``pipeline.RunAnalysis``) with the run's summary in its data."""
@@ -116,5 +175,9 @@ class TemperatureRecorder:
                                                                       temperatures=temps))
 
     async def close(self) -> None:
-        for t in self._transmitters.values():
-            await t.close()
+        """Drop the transmitters' connections (the next run opens them again)."""
+        self.abandon()
+        transmitters, self._transmitters = list(self._transmitters.values()), {}
+        for t in transmitters:
+            with contextlib.suppress(Exception):
+                await t.close()

@@ -34,6 +34,9 @@ class Transmitter:
             ok = await client.connect()
         except OSError as e:
             ok, why = False, str(e)
+        except BaseException:  # the caller's timeout: nothing half-open stays behind
+            client.close()
+            raise
         else:
             why = ("connection refused or host unreachable" if c.host is not None
                    else "serial port missing, in use or not permitted")
@@ -47,8 +50,8 @@ class Transmitter:
             self._client = await self._connect()
         try:
             return await read_channel(self._client, ch, self.cfg.device_id, self.cfg.describe())
-        except LinkError:
-            await self.close()
+        except BaseException:  # failed, or given up on by the caller's timeout: a request
+            await self.close()  # left pending must not answer the next one
             raise
 
     async def close(self) -> None:
