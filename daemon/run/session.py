@@ -3,10 +3,12 @@
 IDLE → PREPARE → STREAM → CAPTURE → IDENTIFY → JUDGE → WRITE-BACK → IDLE, or ABORTED /
 INTERRUPTED / FAILED with the phase and the cause (their meaning: run/phases.py READY_STATES);
 the report is written after the run's end, in a worker (run/report_job.py, issue 23).
-Each step is handed the previous step's result and the journal records it
-(raw hits before anything else looks at them); a probe that does not trigger, a hit that does not
-match the program, a silent controller or a lost link stop the run, and the next run reconnects
-first; a second trigger during a run is refused with a reason; abort works from any source.
+The capture (run/capture.py) and the stopping and write-back steps (run/ending.py) are the
+session's own, in modules of their own. Each step is handed the previous step's result and the
+journal records it (raw hits before anything else looks at them); a probe that does not
+trigger, a hit that does not match the program, a silent controller or a lost link stop the
+run, and the next run reconnects first; a second trigger during a run is refused with a reason;
+abort works from any source.
 """
 
 from __future__ import annotations
@@ -28,8 +30,10 @@ from daemon.analysis.result import Analysis
 from daemon.machines.setup import MachineSetup
 from daemon.reports.temperatures import temperature_lines
 from daemon.run import lease as run_lease
-from daemon.run import report_job, reprobe
-from daemon.run.phases import ControllerSilent, Refused, RunFailed, RunStatus, State, new_run_id
+from daemon.run import report_job
+from daemon.run.capture import RunCapture
+from daemon.run.ending import ABORT_TIMEOUT_S, WRITE_BACK_TIMEOUT_S, await_run
+from daemon.run.phases import ControllerSilent, Refused, RunFailed, State, new_run_id
 from daemon.run.temperatures import TemperatureRecorder
 from daemon.store import baselines
 from daemon.store.journal import Store
@@ -40,12 +44,13 @@ from drivers.retry import with_backoff
 
 log = logging.getLogger("rumba.session")
 
-ABORT_TIMEOUT_S = 10.0
-WRITE_BACK_TIMEOUT_S = 30.0
+__all__ = ["ABORT_TIMEOUT_S", "RECONNECT_TIMEOUT_S", "WRITE_BACK_TIMEOUT_S", "Refused",
+           "Session", "State", "new_run_id"]
+
 RECONNECT_TIMEOUT_S = 3600.0 * 24  # keep trying; the HMI shows the link as down meanwhile
 
 
-class Session(RunStatus):
+class Session(RunCapture):
     """Runs verification programs on one machine through one link, one at a time."""
 
     def __init__(self, setup: MachineSetup, link: CncLink, store: Store, reports_dir: Path,
@@ -121,16 +126,16 @@ class Session(RunStatus):
         if self._abort_reason is None:  # the first stop names the cause; repeats change nothing
             self._abort_reason, self._abort_state = reason, state
         self._task.cancel()
-        await _await_run(self._task)
+        await await_run(self._task)
         return True
 
     async def wait(self) -> dict[str, Any]:
         """Wait for the current run to end and its report to be written (or fail); returns
         the final status (``rumba verify`` prints the report's path from it)."""
         if self._task is not None:
-            await _await_run(self._task)
+            await await_run(self._task)
         if self._report_task is not None:
-            await _await_run(self._report_task)
+            await await_run(self._report_task)
         return self.status()
 
     # ---------------------------------------------------------------------------------- run
@@ -198,48 +203,6 @@ class Session(RunStatus):
             await self._end(run_id, State.FAILED, f"internal error during {self.state}: "
                             f"{type(e).__name__}: {e}", stop=True)
 
-    def _raise_if_stopped(self) -> None:
-        """Stop here if a stop was asked whose cancellation a library swallowed: Python 3.11's
-        ``asyncio.wait_for`` returns a result that completed together with the cancel
-        (gh-86296), and the run went on to DONE after a SIGTERM on ``rumba verify``."""
-        task = asyncio.current_task()
-        if self._abort_reason is not None or (task is not None and task.cancelling()):
-            raise asyncio.CancelledError
-
-    async def _end(self, run_id: str, state: State, reason: str, *, stop: bool) -> None:
-        """Stop the controller, journal the end state with its reason, tell the CNC: in a task
-        of its own that a second cancellation (asyncio.run tearing the loop down after Ctrl-C)
-        cannot cut short; every step is bounded by its timeout. Re-raises that cancellation
-        once the end is recorded."""
-        async def finish() -> None:
-            why = await self._stop_controller() if stop else None
-            try:
-                self._enter(state, f"{reason}; controller abort failed: {why}" if why
-                            else reason)
-            except Exception as e:  # the journal gone must not hide the end of the run
-                log.error("%s %s: could not journal %s: %s", self.setup.name, run_id, state, e)
-            await self._write_back(Verdict("ERROR", run_id, reason), strict=False)
-
-        cleanup = asyncio.get_running_loop().create_task(finish(), name=f"end-{run_id}")
-        cancelled = False
-        while not cleanup.done():
-            try:
-                await asyncio.shield(cleanup)
-            except asyncio.CancelledError:
-                cancelled = True
-        cleanup.result()
-        if cancelled:
-            raise asyncio.CancelledError
-
-    async def _clear_leftover(self) -> None:
-        """Stop a program the last run left on the controller before loading a new one."""
-        try:
-            await asyncio.wait_for(self.link.abort(), ABORT_TIMEOUT_S)
-        except Exception as e:
-            raise LinkError(f"the program of the last run could not be stopped on the "
-                            f"controller: {e or type(e).__name__}") from None
-        self._controller_dirty = False
-
     async def _prepare_program(self, run_id: str, reference: tuple[str, Analysis] | None
                                ) -> pipeline.Prepared:
         """PREPARE: the checked program and its touch table (targets from the last good run)."""
@@ -250,27 +213,6 @@ class Session(RunStatus):
         self.store.set_state(run_id, "PREPARE", touch_total=self.total)
         self._enter(State.STREAM)
         return prepared
-
-    async def _reprobe(self, run_id: str, hits: list[ProbeHit],
-                       reference: tuple[str, Analysis] | None) -> list[ProbeHit]:
-        """Ball visits the outlier test names (a chip, dirt, a bad trigger) are probed again
-        after the program, their poses in one more checked program, up to ``reprobe_max``
-        rounds (``run/reprobe.py``); every hit is journaled, the analysis uses the clean visit."""
-        for rnd in range(1, self.setup.reprobe_max + 1):
-            try:
-                rp = await asyncio.to_thread(reprobe.plan_reprobe, self.setup, hits, run_id,
-                                             rnd, reference[1] if reference else None)
-            except pipeline.PipelineError as e:  # the faulty visits stay unrepaired: ERROR
-                log.warning("%s %s: no re-probe: %s", self.setup.name, run_id, e)
-                break
-            if rp is None:
-                break
-            log.info("%s %s: re-probe %d of %s", self.setup.name, run_id, rnd,
-                     "; ".join(rp.faults))
-            self.total += rp.prepared.job.touch_count
-            self.store.set_state(run_id, str(self.state), touch_total=self.total)
-            hits = hits + await self._capture(rp.prepared, rp.remap)
-        return hits
 
     async def _identify(self, run_id: str, hits: list[ProbeHit],
                         reference: tuple[str, Analysis] | None) -> pipeline.RunAnalysis:
@@ -304,87 +246,4 @@ class Session(RunStatus):
                         "temperatures": temperature_lines(analysis.data)}
         return j
 
-    async def _capture(self, prepared: pipeline.Prepared,
-                       remap: Callable[[ProbeHit], ProbeHit] | None = None) -> list[ProbeHit]:
-        """Stream one program and journal its hits (``remap``: a re-probe's identities)."""
-        run_id = self.run_id or prepared.job.run_id
-        hits: list[ProbeHit] = []
-        done0 = self.done
-        self._probing(prepared.job.touches.get(1))
-        agen = self.link.run(prepared.job)
-        try:
-            while True:
-                try:
-                    hit = await asyncio.wait_for(anext(agen), self.setup.touch_timeout_s)
-                except StopAsyncIteration:
-                    break
-                except TimeoutError:
-                    raise ControllerSilent(
-                        f"no probe result for {self.setup.touch_timeout_s:g} s after touch "
-                        f"{self.done} of {self.total}: controller silent (feed hold, RESET, "
-                        "alarm or lost results)") from None
-                own = prepared.complete(hit, time.time() - self.started_at)
-                hit = own if remap is None else remap(own)
-                self.store.journal_hit(run_id, hit)  # raw data first, always
-                self._raise_if_stopped()  # journaled, then stopped: nothing lost
-                await self.temps.on_hit(run_id, hit.pose, hit.t_s)
-                hits.append(hit)
-                self.done = done0 + len(hits)
-                self._probing(hit if remap is not None else
-                              prepared.job.touches.get(own.seq + 1) or own)
-                if self.first_hit_at is None:
-                    self.first_hit_at = time.time()
-                    self._enter(State.CAPTURE)
-                else:
-                    self._publish()
-                mismatch = prepared.mismatch(own)
-                if mismatch:
-                    raise RunFailed(mismatch)
-                if not hit.triggered:
-                    raise RunFailed(f"probe did not trigger at touch {hit.seq} (pose {hit.pose}, "
-                                    f"ball {hit.ball}, touch {hit.touch}): ball missing or "
-                                    "moved; run stopped")
-        finally:
-            with contextlib.suppress(Exception):
-                await agen.aclose()
-        if len(hits) != prepared.job.touch_count:
-            raise RunFailed(f"program ended after {len(hits)} of {prepared.job.touch_count} "
-                            "touches")
-        return hits
 
-    async def _stop_controller(self) -> str | None:
-        """Feed hold / reset / unload as the link's ``abort()`` does it; None when done, else
-        why not (kept: the next run stops the leftover program first)."""
-        try:
-            await asyncio.wait_for(self.link.abort(), ABORT_TIMEOUT_S)
-        except Exception as e:
-            self._controller_dirty = True
-            log.warning("%s: abort on the controller failed: %s", self.setup.name,
-                        str(e) or type(e).__name__)
-            return str(e) or type(e).__name__
-        self._controller_dirty = False
-        return None
-
-    async def _write_back(self, verdict: Verdict, strict: bool) -> None:
-        """Write the verdict where the CNC reads it; when ``strict`` a failure fails the run."""
-        if not self.link.capabilities.writes_verdict:
-            return
-        try:
-            await asyncio.wait_for(self.link.write_verdict(verdict), WRITE_BACK_TIMEOUT_S)
-        except Exception as e:
-            if strict:
-                raise LinkError(f"verdict {verdict.status} computed but not written back "
-                                f"to the controller: {e}") from None
-            log.warning("%s: could not write %s to the controller: %s", self.setup.name,
-                        verdict.status, e)
-
-
-async def _await_run(task: asyncio.Task) -> None:
-    """Wait for a run task to end, its own cancellation (an abort) included, but never swallow
-    the caller's: a service stopping while it waits on a stalled run must stop."""
-    try:
-        await asyncio.shield(task)
-    except asyncio.CancelledError:
-        current = asyncio.current_task()
-        if current is not None and current.cancelling():
-            raise
