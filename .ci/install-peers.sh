@@ -29,7 +29,10 @@ declare -A APT_PKGS=(
   [chromium]="chromium chromium-driver poppler-utils"  # poppler: pdftoppm renders report PDFs
   [postgresql]="postgresql"  # the tests start their own server (initdb + pg_ctl) in a temp dir
   [mosquitto]="mosquitto"  # the tests start their own broker on a free loopback port
-  [linuxcnc]="linuxcnc-uspace"
+  # -dev: halcompile and the kinematics headers, to build config/linuxcnc/xyzbc_head_kins.comp
+  # (the swivel-head kins module whose pins hold what probing sees, issue 24 item 5); the same
+  # version as linuxcnc-uspace (both from bookworm)
+  [linuxcnc]="linuxcnc-uspace linuxcnc-uspace-dev"
 )
 
 log() { printf 'install-peers: %s\n' "$*"; }

@@ -8,8 +8,9 @@ orientation (default 0; the writers of ``programs.compensation`` convert to the 
 
 Addresses per family:
 
-* ``linuxcnc``: a HAL pin (``xyzbc-trt-kins.x-offset``); no orientation parameters (trt kins
-  has none).
+* ``linuxcnc``: a HAL pin (``xyzbc-trt-kins.x-offset``); an orientation a pin holding the link
+  in degrees (``xyzbc-head-kins.ea0b-deg`` of config/linuxcnc/xyzbc_head_kins.comp; the shipped
+  trt kins have none).
 * ``fanuc``: a parameter number (``19700``, real type, mm / deg) or a macro variable (``#500``).
 * ``haas``: a setting number (``255``); no orientation parameters (MRZP settings are positions).
 * ``siemens``: ``$TC_CARR<n>[<k>]`` of tool carrier ``k``: a pivot an offset-vector component
@@ -224,7 +225,7 @@ def _param(family: str, machine: Machine, p: ParamFile, key: str) -> ControllerP
         if m is None or p.component not in machine.location_error_names():
             raise ValueError(f"{key}.component: {p.component!r} is not an orientation error of "
                              f"this machine (one of {_tilts(machine)})")
-        if family in ("linuxcnc", "haas"):
+        if family == "haas":
             raise ValueError(f"{key}.kind: a {family} control has no orientation parameter "
                              "(its kinematics holds pivot positions only)")
         axes = (m.group(2),)

@@ -71,7 +71,7 @@ class Outcome:
     distortion_after_um: float
 
 
-async def verification(cfg: Path, label: str) -> str:
+async def verification(cfg: Path, label: str, machine: str = MACHINE_NAME) -> str:
     """One verification run (``rumba verify``), identified against the controller model of
     the journal; its run id."""
     from daemon.cli.commands.verify import verify
@@ -81,11 +81,11 @@ async def verification(cfg: Path, label: str) -> str:
 
     t0 = time.monotonic()
     store_path = load_daemon_config(cfg).store_path
-    code = await verify(str(cfg), MACHINE_NAME, quiet=True,
+    code = await verify(str(cfg), machine, quiet=True,
                         analyse=journal_analyse(store_path))
     store = Store(store_path)
     try:
-        run_id = store.runs(MACHINE_NAME, 1)[0].id
+        run_id = store.runs(machine, 1)[0].id
     finally:
         store.close()
     print(f"{label}: run {run_id} exit {code} ({time.monotonic() - t0:.1f} s)")
@@ -94,7 +94,7 @@ async def verification(cfg: Path, label: str) -> str:
     return run_id
 
 
-def judge(cfg: Path, run1: str, run2: str) -> Outcome:
+def judge(cfg: Path, run1: str, run2: str, machine: str = MACHINE_NAME) -> Outcome:
     """Before/after from both runs re-identified against the controller model of their time."""
     from daemon.compensation.propose import propose
     from daemon.config import load_daemon_config
@@ -102,7 +102,7 @@ def judge(cfg: Path, run1: str, run2: str) -> Outcome:
     from identification.estimate import coverage_factor
 
     conf = load_daemon_config(cfg)
-    setup = conf.machines[MACHINE_NAME]
+    setup = conf.machines[machine]
     store = Store(conf.store_path)
     try:
         p1, p2 = propose(setup, store, run1), propose(setup, store, run2)

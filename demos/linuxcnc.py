@@ -124,14 +124,16 @@ async def demo(plan: Path, work: Path) -> int:
 
 def run_demo(prog: str, prefix: str, demo: Callable[[Path, Path], Awaitable[int]],
              errors: tuple[type[BaseException], ...], argv: list[str] | None = None, *,
-             description: str | None = None, raw_description: bool = False) -> int:
+             description: str | None = None, raw_description: bool = False,
+             default_plan: Path | None = None) -> int:
     """The command line of a LinuxCNC demo: ``--plan`` and ``--out`` (default: a new temp folder
     named ``prefix…``, kept), then ``demo(plan, out)``; an exception of ``errors`` (the peer
     missing, a demo step refused) ends as one line naming ``prog`` and exit code 2."""
     ap = argparse.ArgumentParser(prog=f"python -m {prog}", description=description,
                                  formatter_class=argparse.RawDescriptionHelpFormatter
                                  if raw_description else argparse.HelpFormatter)
-    ap.add_argument("--plan", type=Path, default=CONFIG / "plans/linuxcnc_7poses.yaml")
+    ap.add_argument("--plan", type=Path,
+                    default=default_plan or CONFIG / "plans/linuxcnc_7poses.yaml")
     ap.add_argument("--out", type=Path, help="folder for journal, reports and config "
                                              "(default: a new temp folder, kept)")
     args = ap.parse_args(argv)

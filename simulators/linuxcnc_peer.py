@@ -166,16 +166,25 @@ def _write_ini(src: Path, dst: Path, port: int, nc_dir: Path, probe_hal: Path | 
         elif section == "DISPLAY" and key == "PROGRAM_PREFIX":
             line = f"PROGRAM_PREFIX = {nc_dir}\n"
         out.append(line)
-        if section == "HAL" and key == "HALFILE" and "rumba_xyzbc.hal" in s and probe_hal:
+        if section == "HAL" and key == "HALFILE" and f"{src.stem}.hal" in s and probe_hal:
             out.append(f"HALFILE = {probe_hal}\n")
     dst.write_text("".join(out))
 
 
 def up(spec: Path | None = None, *, port: int | None = None, workdir: Path | None = None,
-       timeout_s: float = 60.0, lock_timeout_s: float = 120.0) -> Peer:
-    """Start LinuxCNC (with the HAL probe reading ``spec`` when given); wait for linuxcncrsh."""
+       timeout_s: float = 60.0, lock_timeout_s: float = 120.0, ini_name: str = INI_NAME) -> Peer:
+    """Start LinuxCNC (with the HAL probe reading ``spec`` when given); wait for linuxcncrsh.
+    ``ini_name``: the machine of config/linuxcnc/ (``rumba_swivelhead.ini``: the swivel head,
+    whose kins module is built and installed first, simulators/linuxcnc_headkins.py)."""
     if shutil.which("linuxcnc", path="/usr/bin:/bin") is None:
         raise PeerError("linuxcnc is not installed (bash .ci/install-peers.sh linuxcnc)")
+    if ini_name != INI_NAME:
+        from simulators.linuxcnc_headkins import HeadKinsError, ensure_installed
+
+        try:
+            ensure_installed()
+        except HeadKinsError as e:
+            raise PeerError(str(e)) from None
     lock = _lock(lock_timeout_s)
     try:
         others = lcnc_running()
@@ -206,8 +215,8 @@ def up(spec: Path | None = None, *, port: int | None = None, workdir: Path | Non
                       for i, j in enumerate("xyzbc")]
             lines += PLANE_HAL.splitlines()
             probe_hal.write_text("\n".join(lines) + "\n")
-        ini = cfg / INI_NAME
-        _write_ini(CONFIG / INI_NAME, ini, port, d / "nc_files", probe_hal)
+        ini = cfg / ini_name
+        _write_ini(CONFIG / ini_name, ini, port, d / "nc_files", probe_hal)
         env = {k: v for k, v in os.environ.items()
                if k not in ("DISPLAY", "WAYLAND_DISPLAY", "XAUTHORITY", "PYTHONPATH",
                             "VIRTUAL_ENV", "PYTHONHOME")}

@@ -123,8 +123,9 @@ BAD = [  # (document, key the message must name, a fragment of the reason)
     (_lcnc_with([_pivot("x", PIN, 1, axes=["B", "B"])]), "params.0.axes", "twice"),
     (_lcnc_with([{"name": "x", "kind": "pivot", "axes": ["B"], "component": "x",
                   "address": PIN}]), "controller_kinematics.params.0.value", "current value"),
-    (_lcnc_with([_tilt("t", PIN, "EA0C")]), "controller_kinematics.params.0.kind",
-     "no orientation"),
+    # a LinuxCNC orientation is a kins pin holding the link in deg (xyzbc_head_kins, issue 24)
+    (_lcnc_with([_tilt("t", PIN, "EA0A")]), "controller_kinematics.params.0.component",
+     "not an orientation error of this machine"),
     (_lcnc_with([_pivot("x", PIN, 1), _pivot("x", "a.b", 1)]), "params.1.name", "twice"),
     (_lcnc_with([_pivot("x", PIN, 1), _pivot("y", PIN, 1)]), "params.1.address", "already"),
     (_lcnc_with([_pivot("x", PIN, 1, closing="a.b", closing_value=0)]), "params.0.closing",
@@ -333,6 +334,21 @@ def test_siemens_axis_vector_component_is_the_tilted_vector(link, vector):
                  machine="m")
     assert out.values[0].address == address
     assert out.values[0].new == pytest.approx(tilted[j], abs=1e-12)
+
+
+def test_linuxcnc_orientation_pin_holds_the_link_in_degrees():
+    """xyzbc_head_kins (issue 24 item 5): a tilt pin holds the link in deg; the section's value
+    is µrad; rollback writes the old value back."""
+    pin = "xyzbc-head-kins.ea0c-deg"
+    ck = _section(LCNC, "linuxcnc", [_tilt("t", pin, "EA0C", value=10.0)])
+    change = [ParamChange("t", "orientation", 40e-6, 1e-6, True)]
+    (v,) = render(ck, change, run_id="R1", machine="m").values
+    assert (v.address, v.unit) == (pin, "deg")
+    assert v.old == pytest.approx(math.degrees(10e-6), abs=1e-6)
+    assert v.new == pytest.approx(math.degrees(50e-6), abs=1e-6)
+    assert f"setp {pin} 0.002865\n" in render(ck, change, run_id="R1", machine="m").text
+    (r,) = render(ck, change, run_id="R1", machine="m", rollback=True).values
+    assert (r.old, r.new) == (v.new, v.old)
 
 
 # ------------------------------------------------------------------ numbers, changes, headers

@@ -139,7 +139,9 @@ def expected_values(spec: ControllerKinematics, store: Store, machine: str
     """name → (address, value the controller should hold): the journal's last written value,
     else the machine file's."""
     current = cj.current_values(store, machine)
-    return {p.name: (p.address, current[p.name].new if p.name in current else float(p.value))
+    # an orientation's `value` is the held link in µrad; a LinuxCNC pin holds it in deg
+    return {p.name: (p.address, current[p.name].new if p.name in current else float(p.value)
+                     if p.kind == "pivot" else float(np.degrees(p.value * 1e-6)))
             for p in spec.params}
 
 

@@ -18,6 +18,7 @@ from programs.compensation.common import (
     CompensationOutput,
     Value,
     comment,
+    degrees,
     describe,
     filename,
     fmt_value,
@@ -35,8 +36,9 @@ MATCH_MM = 1e-6
 
 def render(spec: ControllerKinematics, changes: Sequence[ParamChange], *, run_id: str,
            machine: str, rollback: bool = False) -> CompensationOutput:
-    """halcmd lines setting the new pin values (``rollback``: the old ones back)."""
-    vals = values(spec, changes, rollback=rollback)
+    """halcmd lines setting the new pin values (``rollback``: the old ones back); an orientation
+    pin (xyzbc_head_kins) holds the link in degrees."""
+    vals = values(spec, changes, orientation=degrees, rollback=rollback)
     lines = [f"# {comment(title(run_id, machine, rollback))}",
              "# apply live: halcmd -f this file; keep after a restart: patch the HAL file"]
     for v in vals:
