@@ -1,6 +1,6 @@
 """Target 7: the issue-20 input surfaces, by their property tests run longer, and real-size logs."""
 
-# The tests of tests/test_inputs_fuzz.py and tests/test_inputs_fuzz_surfaces.py with their
+# The tests of tests/test_inputs_fuzz.py, _surfaces.py and _network.py with their
 # example counts raised (``n`` shared out; hypothesis derandomized: the same ``--cases`` gives
 # the same examples) and their tallies collected instead of asserted, plus logs of real size.
 
@@ -23,9 +23,10 @@ SLOW_SHARE = {"test_gcode_on_a_spindle_axis_that_is_no_direction": 0.5,
 
 def _tests() -> list[tuple[Any, Callable[..., None]]]:
     import tests.test_inputs_fuzz as t1
+    import tests.test_inputs_fuzz_network as t3
     import tests.test_inputs_fuzz_surfaces as t2
 
-    return [(m, f) for m in (t1, t2) for name, f in sorted(vars(m).items())
+    return [(m, f) for m in (t1, t2, t3) for name, f in sorted(vars(m).items())
             if name.startswith("test_") and inspect.isfunction(f)]
 
 
@@ -95,6 +96,7 @@ def fuzz(rng: random.Random, n: int) -> list[Tally]:
     from hypothesis import settings
 
     import tests.test_inputs_fuzz as t1
+    import tests.test_inputs_fuzz_network as t3
     import tests.test_inputs_fuzz_surfaces as t2
 
     tests = _tests()
@@ -109,7 +111,7 @@ def fuzz(rng: random.Random, n: int) -> list[Tally]:
     with tempfile.TemporaryDirectory(prefix="rumba-fuzz-inputs-") as d, \
             pytest.MonkeyPatch.context() as mp:
         tmp = Path(d)
-        for m in (t1, t2):
+        for m in (t1, t2, t3):
             mp.setattr(m, "Tally", Recorded)
             mp.setattr(m, "FUZZ", settings(t1.FUZZ, max_examples=per))
         mp.setattr(t1, "GEOMETRY_EXAMPLES", max(5, round(per * GEOMETRY_SHARE)))
