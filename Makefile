@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: install demo demo-hmi test test-linuxcnc demo-linuxcnc demo-compensate demo-fleet linuxcnc-up linuxcnc-down lint bench golden peers clean
+.PHONY: install demo demo-hmi test test-linuxcnc demo-linuxcnc demo-compensate demo-linuxcnc-head demo-fleet linuxcnc-up linuxcnc-down lint bench golden peers clean
 LCNC_ENV := .peers/linuxcnc.env
 
 $(BIN)/python:
@@ -54,6 +54,12 @@ demo-linuxcnc: $(STAMP)
 demo-compensate: $(STAMP)
 	bash .ci/install-peers.sh linuxcnc
 	$(BIN)/python -m demos.compensate
+
+# the same on a swivel head B + table C whose kinematics are rumba's own LinuxCNC kins module
+# (config/linuxcnc/xyzbc_head_kins.comp: built with halcompile and installed, as root)
+demo-linuxcnc-head: $(STAMP)
+	bash .ci/install-peers.sh linuxcnc
+	$(BIN)/python -m demos.compensate_head
 
 demo-fleet: $(STAMP)
 	bash .ci/install-peers.sh postgresql mosquitto
