@@ -22,13 +22,30 @@ from contracts.yaml_files import StrictModel
 MODBUS_ADDRESS = re.compile(r"^(input|holding):([0-9]{1,5})$")
 OPCUA_ADDRESS = re.compile(r"^(ns=[0-9]{1,5};[isgb]=[^\x00-\x1f]{1,200}|/[^\x00-\x1f]{1,200})$")
 HAL_PIN = re.compile(r"^[A-Za-z0-9_.-]{1,100}$")
-# the macro variable a DNC program prints (DPRNT), per dialect family: Fanuc/Haas common
-# variables #100-#199, #500-#597, #700-#999 (a PMC ladder or macro writes the sensor there;
-# #598-#699 are rumba's verdict, counter and result ring); the other families' print commands
-# carry no temperature line yet (use a transmitter there)
-MACRO_VARIABLE = {"fanuc": re.compile(r"^#(1[0-9]{2}|5[0-8][0-9]|59[0-7]|[7-9][0-9]{2})$")}
-# what the program prints: RTEMP S|P<pose>|E <channel number> <°C> (gcode_templates/fanuc)
-PRINTED_LINE = re.compile(r"^RTEMP (S|E|P[0-9]{1,4}) ([0-9]{1,2}) (-?[0-9]{1,5}\.[0-9]{1,4})$")
+# the macro variable a DNC program prints, per dialect family, restricted to the controls' user
+# ranges minus rumba's own (a PMC ladder, a PLC or a synchronous action copies the sensor there):
+# Fanuc/Haas common variables #100-#199, #500-#597, #700-#999 (DPRNT; #598-#699 are rumba's
+# verdict, counter and result ring); Sinumerik R parameters R5-R98 (WRITE like the result lines;
+# R4 verdict, R99 counter, R100-R187 ring); Heidenhain Q0-Q99, the TNC's "freely usable" range
+# (FN 16: F-PRINT like the result lines; Q100-Q199 are the TNC's, Q1575-Q1599 rumba's). LinuxCNC
+# has no print to a serial line: (PRINT,…)/(DEBUG,…) go to stderr or the GUI, (LOG,…) to a file;
+# its channels are HAL pins over the linuxcnc transport (check_address says so)
+MACRO_VARIABLE = {
+    "fanuc": re.compile(r"^#(1[0-9]{2}|5[0-8][0-9]|59[0-7]|[7-9][0-9]{2})$"),
+    "siemens": re.compile(r"^R([5-9]|[1-8][0-9]|9[0-8])$"),
+    "heidenhain": re.compile(r"^Q([0-9]|[1-9][0-9])$"),
+}
+VARIABLE_FORM = {"fanuc": "a Fanuc common variable #100-#199, #500-#597 or #700-#999",
+                 "siemens": "a Sinumerik R parameter R5-R98",
+                 "heidenhain": "a Heidenhain Q parameter Q0-Q99"}
+# what the program prints: RTEMP S|P<pose>|E <channel number> <°C> (gcode_templates/*/README.md);
+# the value as each control formats it: Fanuc DPRNT [53] 3 decimals, Sinumerik a REAL rounded to
+# 3 decimals in a string chain (no decimal point when whole), Heidenhain %.3LF
+PRINTED_LINE = re.compile(
+    r"^RTEMP +(S|E|P[0-9]{1,4}) +([0-9]{1,2}) +(-?[0-9]{1,5}(?:\.[0-9]{1,6})?)$", re.ASCII)
+# a printed value outside this is a sensor fault code (an open Pt100 reads 850 °C or −200 °C on
+# many transmitters, 3276.7 is int16's end at 0.1 °C), not a structure temperature
+PRINTED_RANGE_C = (-60.0, 200.0)
 WORDS = {"int16": 1, "uint16": 1, "int32": 2, "float32": 2}
 
 
@@ -109,11 +126,15 @@ def check_address(ch: TemperatureChannel, transport: str, family: str) -> None:
         ok, form = HAL_PIN.fullmatch(ch.address), "a HAL pin name"
     elif transport == "serial":
         pat = MACRO_VARIABLE.get(family)
+        if family == "linuxcnc":
+            raise ValueError("LinuxCNC prints nothing on a serial line ((PRINT,…) and "
+                             "(DEBUG,…) go to its stderr or GUI, (LOG,…) to a file): read the "
+                             "channel as a HAL pin over the linuxcnc transport, or use source: "
+                             "transmitter")
         if pat is None:
-            raise ValueError(f"the {family} programs print no temperature over DNC (Fanuc/"
-                             "Haas DPRNT only); use source: transmitter")
-        ok, form = (pat.fullmatch(ch.address),
-                    "a Fanuc common variable #100-#199, #500-#597 or #700-#999")
+            raise ValueError(f"the {family} programs print no temperature over DNC; use "
+                             "source: transmitter")
+        ok, form = pat.fullmatch(ch.address), VARIABLE_FORM[family]
     else:
         raise ValueError(f"the {transport} link cannot read temperatures; use source: "
                          "transmitter")
@@ -123,11 +144,19 @@ def check_address(ch: TemperatureChannel, transport: str, family: str) -> None:
 
 def parse_printed(line: str) -> tuple[int, str, float]:
     """An ``RTEMP`` line → (channel number, marker S/E/P<pose>, °C); ValueError when broken."""
-    m = PRINTED_LINE.fullmatch(line.strip())
+    m = PRINTED_LINE.fullmatch(line.strip(" \t\r\n"))
     if not m:
         raise ValueError(f"temperature line {line.strip()[:60]!r} does not match "
                          "'RTEMP S|E|P<pose> <channel> <value>'")
-    return int(m.group(2)), m.group(1), float(m.group(3))
+    k, value = int(m.group(2)), float(m.group(3))
+    lo, hi = PRINTED_RANGE_C
+    if k == 0:
+        raise ValueError(f"temperature line {line.strip()[:60]!r}: channel 0 (they count "
+                         "from 1)")
+    if not lo <= value <= hi:
+        raise ValueError(f"temperature line {line.strip()[:60]!r}: {m.group(3)} °C is outside "
+                         f"{lo:g}…{hi:g} °C (a sensor fault code, not a temperature)")
+    return k, m.group(1), value
 
 
 def decode_registers(regs: list[int], ch: TemperatureChannel) -> float:

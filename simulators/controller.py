@@ -30,7 +30,7 @@ from simulators.controller_kinematics import KinematicsStore
 from simulators.faults import FRONT_END_KINDS, FaultPlan
 from simulators.gcode import Alarm, BlockQueue, ProbeOutcome, make_interpreter, run
 from simulators.latch import ProbeLatch, TouchRecord
-from simulators.thermal import FANUC_VARIABLE
+from simulators.thermal import PRINTED_VARIABLES
 from simulators.truth import TruthModel
 
 __all__ = [  # the events and the touch types are re-exported: callers import them from here
@@ -296,8 +296,9 @@ class VirtualController(MachineSide):
         produced: a result line appears when the probing move is over, not when it starts."""
         dt, self._pending_s = self._pending_s, 0.0
         self.machine_time_s += dt
-        for axis, value in self.sensor_temperatures().items():  # as a PMC would keep them
-            dict.__setitem__(self.variables, FANUC_VARIABLE[axis], value)
+        for axis, value in self.sensor_temperatures().items():  # as a PMC / PLC keeps them
+            for names in PRINTED_VARIABLES:  # #59x, R9x, Q9x: one store, distinct names
+                dict.__setitem__(self.variables, names[axis], value)
         if self.time_scale > 0 and dt > 0:
             await asyncio.sleep(dt * self.time_scale)
         self._events.flush()

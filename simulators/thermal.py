@@ -30,6 +30,9 @@ TRANSMITTER_ADDRESS = {"X": 0, "Y": 1, "Z": 2}
 TRANSMITTER_SCALE_C = 0.1
 HAL_PIN = "rumba-probe.temp-{axis}"  # lower-case axis letter
 FANUC_VARIABLE = {"X": "#591", "Y": "#592", "Z": "#593"}  # common variables a DNC program prints
+SIEMENS_VARIABLE = {"X": "R91", "Y": "R92", "Z": "R93"}  # R parameters a DNC program prints
+HEIDENHAIN_VARIABLE = {"X": "Q91", "Y": "Q92", "Z": "Q93"}  # Q parameters a DNC program prints
+PRINTED_VARIABLES = (FANUC_VARIABLE, SIEMENS_VARIABLE, HEIDENHAIN_VARIABLE)
 
 
 def counts(value_c: float, scale_c: float) -> int:

@@ -66,4 +66,10 @@ class Heidenhain(Dialect):
             fmt_ = ("RUMBA %.0LF %.0LF %.0LF " + b.id
                     + " %.0LF %.0LF %.4LF %.4LF %.4LF %.4LF %.4LF\\n")
             out[f"RUMBA_{b.id}.A"] = f'"{fmt_}", ' + ", ".join(q) + ";\n"
+        if program.temperature_vars:  # issue 22: pose Q1591, channel Q1592, value Q1593
+            self.temperature_prints(program)  # checked before any file is written
+            for marker, head, args in (("S", "S", ""), ("P", "P%.0LF", "Q1591, "),
+                                       ("E", "E", "")):
+                out[f"RTEMP_{marker}.A"] = (f'"RTEMP {head} %.0LF %.3LF\\n", {args}'
+                                             "Q1592, Q1593;\n")
         return out
