@@ -18,7 +18,11 @@ Addresses per family:
   ``closing_value``) naming the vector component that keeps the chain closed (it receives the
   opposite change, Siemens: "I4 = −(I2 + I3)"); an orientation a rotary-axis vector component
   (v1 ``n`` = 7-9, v2 10-12) with ``vector``, the control's nominal vector of that axis (a table
-  axis' vector is reversed on Siemens), the component being the one the tilt moves.
+  axis' vector is reversed on Siemens), the component being the one the tilt moves. An inclined
+  axis (issue 24: the nutating B ``[0, 0.7071, 0.7071]``) has its tilts in its own frame R0
+  (``identification.kinematics.axis_frame``): a tilt about R0·x can move two or three components
+  of the vector, the others named in ``also``; each is written as its nominal value plus the
+  first-order change (``ControllerParamSpec.vector_values``).
 * ``heidenhain``: kinematics-table ``row/column``: a pivot column X/Y/Z (its component), an
   orientation SPA/SPB/SPC (the error's rotation: EA… → SPA).
 
@@ -36,6 +40,13 @@ from typing import TYPE_CHECKING, Annotated, Literal
 from pydantic import Field, field_validator
 
 from contracts.setup_types import Bounded, Vec3, safe_name
+from contracts.siemens_carrier import (
+    carr_component,
+    check_carr,
+    check_vector,
+    siemens_tilt,
+    tilt_components,
+)
 from contracts.yaml_files import ConfigError, StrictModel
 from identification.kinematics import Machine
 
@@ -46,13 +57,9 @@ FAMILIES = ("linuxcnc", "fanuc", "haas", "siemens", "heidenhain")
 _HAL_PIN = re.compile(r"\A[A-Za-z0-9_][A-Za-z0-9_.-]{0,46}\Z")  # HAL_NAME_LEN 47
 _NUMBER = re.compile(r"\A[1-9][0-9]{0,4}\Z")
 _MACRO = re.compile(r"\A#[1-9][0-9]{0,4}\Z")
-_CARR = re.compile(r"\A\$TC_CARR([1-9][0-9]?)\[([1-9][0-9]{0,2})\]\Z")
 _HEIDENHAIN = re.compile(r"\A(0|[1-9][0-9]{0,3})/(X|Y|Z|SPA|SPB|SPC)\Z")
 _ORIENTATION = re.compile(r"\AE([ABC])0([ABCXYZ])\Z")
 _COMPONENTS = "xyz"
-# Siemens tool-carrier offset vectors: first index n of the x component → vector name
-_CARR_VECTORS = {1: "l1", 4: "l2", 15: "l3", 18: "l4"}
-_CARR_AXES = {7: "v1", 10: "v2"}
 
 
 class GuardsFile(StrictModel):
@@ -78,6 +85,9 @@ class ParamFile(StrictModel):
     closing: Annotated[str, Field(min_length=1, max_length=48)] | None = None
     closing_value: Bounded | None = None
     vector: Vec3 | None = None
+    # Siemens orientation of an inclined axis: the other axis-vector components the tilt moves
+    also: Annotated[list[Annotated[str, Field(min_length=1, max_length=48)]],
+                    Field(min_length=1, max_length=2)] | None = None
     _n = field_validator("name")(safe_name)
 
 
@@ -106,6 +116,31 @@ class ControllerParamSpec:
     closing: str | None = None
     closing_value: float | None = None
     vector: tuple[float, float, float] | None = None
+    also: tuple[str, ...] = ()
+    # Siemens orientation: the link's rotation axis in the machine frame (R0·e_i of an inclined
+    # axis, e_i of a principal one); None: e_i
+    tilt_axis: tuple[float, float, float] | None = None
+
+    def vector_values(self, rad: float) -> list[tuple[str, float]]:
+        """Siemens orientation: (address, value) of each axis-vector component it writes, the
+        nominal ``vector`` tilted by the held link ``rad`` to first order, v + θ·(t × v)."""
+        if self.vector is None:
+            raise ValueError(f"{self.name}: no axis vector (not a Siemens orientation)")
+        moved = dict(tilt_components(self.component, self.vector, self.tilt_axis))
+        out = []
+        for address in (self.address, *self.also):
+            j = carr_component(address)
+            out.append((address, self.vector[j] + moved.get(j, 0.0) * rad))
+        return out
+
+    def held_rad(self, value: float) -> float:
+        """Siemens orientation: the held link (rad) a value of ``address`` stands for (the
+        inverse of ``vector_values`` on its first component)."""
+        if self.vector is None:
+            raise ValueError(f"{self.name}: no axis vector (not a Siemens orientation)")
+        j = carr_component(self.address)
+        factor = dict(tilt_components(self.component, self.vector, self.tilt_axis))[j]
+        return (value - self.vector[j]) / factor
 
     def to_math(self) -> ControllerParam:
         from identification.compensation import ControllerParam  # the math's own type
@@ -152,7 +187,7 @@ def _check_address(family: str, p: ParamFile, address: str, what: str) -> None:
         if not _NUMBER.fullmatch(address):
             raise ValueError(f"{what}: {address!r} is not a setting number (e.g. 255)")
     elif family == "siemens":
-        _check_carr(p, address, what)
+        check_carr(p, address, what)
     else:
         m = _HEIDENHAIN.fullmatch(address)
         if not m:
@@ -164,47 +199,9 @@ def _check_address(family: str, p: ParamFile, address: str, what: str) -> None:
             raise ValueError(f"{what}: column {col} does not hold {p.component} (use {want})")
 
 
-def _check_carr(p: ParamFile, address: str, what: str) -> None:
-    m = _CARR.fullmatch(address)
-    if not m:
-        raise ValueError(f"{what}: {address!r} is not a tool-carrier value $TC_CARR<n>[<k>]")
-    n = int(m.group(1))
-    table = _CARR_VECTORS if p.kind == "pivot" else _CARR_AXES
-    first = next((f for f in table if f <= n < f + 3), None)
-    if first is None:
-        kinds = "offset vectors l1-l4 (n 1-6, 15-20)" if p.kind == "pivot" else \
-            "rotary-axis vectors v1, v2 (n 7-12)"
-        raise ValueError(f"{what}: $TC_CARR{n} is not one of the {kinds} a {p.kind} uses")
-    comp = _COMPONENTS[n - first]
-    if p.kind == "pivot" and comp != p.component:
-        raise ValueError(f"{what}: $TC_CARR{n} is the {comp} component of {table[first]}, "
-                         f"not {p.component}")
-    if p.kind == "orientation" and p.vector is not None:
-        moved = siemens_tilt(p.component, p.vector)
-        if moved[0] != n - first:
-            raise ValueError(f"{what}: {p.component} tilts the {_COMPONENTS[moved[0]]} component "
-                             f"of the axis vector, $TC_CARR{n} is its {comp} component")
-
-
-def siemens_tilt(link: str, vector: tuple[float, ...] | list[float]) -> tuple[int, float]:
-    """(component index, factor): a small rotation θ of ``link`` (e.g. EA0C, about x) moves the
-    axis vector ``vector`` by θ·(e_i × v): that component gets ``factor``·θ (rad)."""
-    m = _ORIENTATION.fullmatch(link)
-    if m is None:
-        raise ValueError(f"{link!r} is not an orientation error name")
-    i = "ABC".index(m.group(1))
-    e = [0.0, 0.0, 0.0]
-    e[i] = 1.0
-    v = [float(x) for x in vector]
-    cross = (e[1] * v[2] - e[2] * v[1], e[2] * v[0] - e[0] * v[2], e[0] * v[1] - e[1] * v[0])
-    j = max(range(3), key=lambda k: abs(cross[k]))
-    if abs(cross[j]) < 0.5:
-        raise ValueError(f"{link} does not tilt an axis of vector {v}")
-    return j, cross[j]
-
-
 def _param(family: str, machine: Machine, p: ParamFile, key: str) -> ControllerParamSpec:
     rotary = machine.rotary_axes
+    tilt_axis: tuple[float, float, float] | None = None
     if p.kind == "pivot":
         if p.component not in _COMPONENTS:
             raise ValueError(f"{key}.component: a pivot moves x, y or z, got {p.component!r}")
@@ -237,16 +234,15 @@ def _param(family: str, machine: Machine, p: ParamFile, key: str) -> ControllerP
             if p.vector is None:
                 raise ValueError(f"{key}.vector: the control's nominal vector of axis "
                                  f"{axes[0]} is needed, e.g. [0, 0, -1]")
-            nonzero = [x for x in p.vector if x != 0]
-            if len(nonzero) != 1 or abs(nonzero[0]) != 1:
-                raise ValueError(f"{key}.vector: expected a principal unit vector, got "
-                                 f"{p.vector}")
-            direction = machine.axes[axes[0]].direction
-            if any(abs(abs(a) - abs(b)) > 1e-9 for a, b in zip(p.vector, direction, strict=True)):
-                raise ValueError(f"{key}.vector: {p.vector} is not along axis {axes[0]} "
-                                 f"({list(direction)})")
+            if axes[0] not in rotary:
+                raise ValueError(f"{key}.axes: {axes[0]} is not a rotary axis of this machine "
+                                 f"{rotary}")
+            tilt_axis = check_vector(p, key, machine, axes[0])
         elif p.vector is not None:
             raise ValueError(f"{key}.vector: only a Siemens orientation takes an axis vector")
+    if p.also is not None and not (family == "siemens" and p.kind == "orientation"):
+        raise ValueError(f"{key}.also: only a Siemens orientation (inclined axis) takes "
+                         "further vector components")
     for a in axes:
         if a not in rotary:
             raise ValueError(f"{key}.axes: {a} is not a rotary axis of this machine {rotary}")
@@ -264,7 +260,8 @@ def _param(family: str, machine: Machine, p: ParamFile, key: str) -> ControllerP
     _check_address(family, p, p.address, f"{key}.address")
     value = p.value if p.value is not None else 0.0
     return ControllerParamSpec(p.name, p.kind, axes, p.component, p.address, value, p.closing,
-                               p.closing_value, tuple(p.vector) if p.vector else None)
+                               p.closing_value, tuple(p.vector) if p.vector else None,
+                               tuple(p.also or ()), tilt_axis)
 
 
 def _tilts(machine: Machine) -> list[str]:
@@ -285,7 +282,9 @@ def controller_kinematics(section: ControllerKinematicsFile, machine: Machine,
             if p.name in seen:
                 raise ValueError(f"{key}.{i}.name: {p.name!r} is used twice")
             seen[p.name] = p.address
-            pairs = [(spec.address, spec.value, f"{key}.{i}.address")]
+            pairs = [(spec.address, spec.value, f"{key}.{i}.address"),
+                     *((a, spec.value, f"{key}.{i}.also.{k} address")
+                       for k, a in enumerate(spec.also))]
             if spec.closing is not None:
                 pairs.append((spec.closing, spec.closing_value or 0.0, f"{key}.{i}.closing"))
             for address, value, where in pairs:
@@ -308,4 +307,5 @@ def controller_kinematics(section: ControllerKinematicsFile, machine: Machine,
 
 
 __all__ = ["FAMILIES", "ControllerKinematics", "ControllerKinematicsFile", "ControllerParamSpec",
-           "GuardsFile", "ParamFile", "controller_kinematics", "siemens_tilt"]
+           "GuardsFile", "ParamFile", "carr_component", "controller_kinematics", "siemens_tilt",
+           "tilt_components"]

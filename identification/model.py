@@ -18,6 +18,7 @@ from identification.kinematics import (
     ChainState,
     Machine,
     MotionErrorFn,
+    axis_frame,
     axis_htm,
     frames,
     rotary_columns,
@@ -218,7 +219,10 @@ def _rot1(index: int, angle: float) -> np.ndarray:
 
 def _location_derivatives(axis: Axis, links: Mapping[str, float]) -> dict[str, np.ndarray]:
     """Exact d(L)/d(e) of the location HTM L = Trans(t)·Rot_x(a)·Rot_y(b)·Rot_z(c) of ``axis``
-    at the current link values, per ISO name (4×4, the same for every centre)."""
+    at the current link values, per ISO name (4×4, the same for every centre); on an inclined
+    axis conjugated by its frame R0 as ``kinematics._location_htm`` does (before, the
+    derivative of EC0B of the nutating B was taken about z, not R0·z: cos 0.73 with the
+    finite difference, a wrong Gauss-Newton direction and covariance for that link)."""
     e = np.zeros(6)
     slot = {}
     for name in axis.location_error_names():
@@ -238,6 +242,11 @@ def _location_derivatives(axis: Axis, links: Mapping[str, float]) -> dict[str, n
             f[k - 3] = f[k - 3] @ _GEN[k - 3]  # d Rot_k / d angle = Rot_k · K_k
             d = t @ f[0] @ f[1] @ f[2]
         out[name] = d
+    r0 = axis_frame(axis)
+    if r0 is not None:  # an inclined axis' errors act in its frame: L = H0·L'·H0ᵀ (issue 24)
+        h = np.eye(4)
+        h[:3, :3] = r0
+        out = {name: h @ d @ h.T for name, d in out.items()}
     return out
 
 

@@ -19,7 +19,7 @@ import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from contracts.controller_kinematics import ControllerKinematics, siemens_tilt
+from contracts.controller_kinematics import ControllerKinematics
 from contracts.setup_files import load_controller_kinematics
 
 
@@ -55,9 +55,8 @@ class KinematicsStore:
                 values[p.address] = float(p.value)
                 if p.closing is not None:
                     values[p.closing] = float(p.closing_value or 0.0)
-            elif spec.family == "siemens":  # the axis-vector component the tilt moves
-                assert p.vector is not None  # the section requires it
-                values[p.address] = siemens_tilt(p.component, p.vector)[1] * p.value * 1e-6
+            elif spec.family == "siemens":  # the axis-vector components the tilt moves
+                values.update(p.vector_values(p.value * 1e-6))
             else:  # Fanuc parameter / Heidenhain SPA-SPC: the held link in degrees
                 values[p.address] = math.degrees(p.value * 1e-6)
         return cls(spec.family, values)

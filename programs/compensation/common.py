@@ -54,8 +54,9 @@ class CompensationOutput:
     values: list[Value]
 
 
-Orientation = Callable[[ControllerParamSpec, float], tuple[float, str]]
-"""A family's orientation unit: (spec, link in rad) → (control value, unit)."""
+Orientation = Callable[[ControllerParamSpec, float], list[tuple[str, float, str]]]
+"""A family's orientation writes: (spec, link in rad) → [(address, control value, unit)] (a
+Siemens tilt of an inclined axis moves several axis-vector components)."""
 
 
 def fixed(v: float, decimals: int = 6) -> str:
@@ -73,9 +74,9 @@ def fmt_value(v: float, unit: str) -> str:
     return fixed(v, 9 if unit == "1" else 6)
 
 
-def degrees(spec: ControllerParamSpec, rad: float) -> tuple[float, str]:
+def degrees(spec: ControllerParamSpec, rad: float) -> list[tuple[str, float, str]]:
     """An orientation as the held link's angle in degrees (Fanuc, Heidenhain)."""
-    return math.degrees(rad), "deg"
+    return [(spec.address, math.degrees(rad), "deg")]
 
 
 def check_header(run_id: str, machine: str) -> None:
@@ -115,7 +116,7 @@ def values(spec: ControllerKinematics, changes: Sequence[ParamChange], *,
         row[2] += new - old
 
     for p in spec.params:  # a section built by hand, not by the loader: no injection either
-        for address in (p.address, p.closing or "x"):
+        for address in (p.address, p.closing or "x", *p.also):
             if not _ADDRESS.fullmatch(address) or not SAFE_NAME.fullmatch(p.name):
                 raise CompensationError(f"{p.name!r}: address {address!r} or name not plain")
     for c in changes:
@@ -139,9 +140,10 @@ def values(spec: ControllerKinematics, changes: Sequence[ParamChange], *,
             if orientation is None:
                 raise CompensationError(f"{c.name}: a {spec.family} control has no "
                                         "orientation parameter")
-            old, unit = orientation(p, p.value * 1e-6)
-            new, _ = orientation(p, p.value * 1e-6 + c.delta)
-            add(p.name, p.address, old, new, unit)
+            olds = orientation(p, p.value * 1e-6)
+            news = orientation(p, p.value * 1e-6 + c.delta)
+            for (address, old, unit), (_, new, _) in zip(olds, news, strict=True):
+                add(p.name, address, old, new, unit)
     out = []
     for address, (names, old, new, unit) in table.items():
         # as written (finite and in range, or refused here): the journal holds what the

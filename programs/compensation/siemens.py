@@ -5,7 +5,9 @@ swivel table) gets the opposite change so the chain stays closed, changes on one
 adding up. An orientation is a rotary-axis vector component: the nominal unit vector ``v``
 (``vector`` of the section, reversed for a table axis) tilted by the held link θ becomes
 v + θ·(e_i × v) to first order, so the component the tilt moves is written as ±θ (unit-less,
-9 decimals; the nominal components stay). Each line carries its old value as a comment.
+9 decimals; the nominal components stay). An inclined axis' tilt (about R0·e_i, issue 24) moves
+two or three components: each is written as its nominal value plus its change
+(``ControllerParamSpec.vector_values``). Each line carries its old value as a comment.
 The carrier is re-selected (TCARR / CYCLE800) after the program for the values to act.
 """
 
@@ -15,11 +17,7 @@ import re
 from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
-from contracts.controller_kinematics import (
-    ControllerKinematics,
-    ControllerParamSpec,
-    siemens_tilt,
-)
+from contracts.controller_kinematics import ControllerKinematics, ControllerParamSpec
 from programs.compensation.common import (
     CompensationOutput,
     comment,
@@ -33,11 +31,9 @@ if TYPE_CHECKING:
     from identification.compensation import ParamChange
 
 
-def vector_component(spec: ControllerParamSpec, rad: float) -> tuple[float, str]:
-    """The axis-vector component holding a tilt of ``rad`` (first order)."""
-    assert spec.vector is not None  # the section requires it for a Siemens orientation
-    _, factor = siemens_tilt(spec.component, spec.vector)
-    return factor * rad, "1"
+def vector_component(spec: ControllerParamSpec, rad: float) -> list[tuple[str, float, str]]:
+    """The axis-vector components holding a tilt of ``rad`` (first order)."""
+    return [(address, v, "1") for address, v in spec.vector_values(rad)]
 
 
 def render(spec: ControllerKinematics, changes: Sequence[ParamChange], *, run_id: str,
