@@ -8,6 +8,7 @@ and Pearson's correlation coefficient r."""
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -44,15 +45,40 @@ class TempFit:
                 f"{self.unit} (u, OLS from the residual scatter{u95}; {self.n} runs)")
 
 
+def mean_over_run(pose_c: Sequence[float | None], start_c: float | None,
+                  end_c: float | None) -> float | None:
+    """A run's temperature: the mean of its per-pose readings, else of its start and end."""
+    values = [float(v) for v in pose_c if v is not None]
+    if not values:
+        values = [float(v) for v in (start_c, end_c) if v is not None]
+    return sum(values) / len(values) if values else None
+
+
 def run_temperature(analysis: Analysis, channel: str) -> float | None:
     """The channel's mean over the run's readings (per pose, else start and end)."""
     t: dict[str, Any] | None = (analysis.temperatures or {}).get(channel)
     if not t:
         return None
-    values = [p["value_c"] for p in t.get("per_pose", []) if p.get("value_c") is not None]
-    if not values:
-        values = [v for v in (t.get("start_c"), t.get("end_c")) if v is not None]
-    return sum(values) / len(values) if values else None
+    return mean_over_run([p.get("value_c") for p in t.get("per_pose", [])], t.get("start_c"),
+                         t.get("end_c"))
+
+
+def fleet_points(rows: Sequence[Mapping[str, Any]], link: str) -> tuple[list[TempPoint], str]:
+    """One point per run from the fleet store's raw readings (daemon/store/pg_temperatures.py
+    ``readings``): the same run temperature and link value as ``points``, for ``fit``."""
+    out, unit = [], ""
+    for row in rows:
+        est = (row.get("links") or {}).get(link)
+        temp = mean_over_run(row.get("pose_c") or [], row.get("start_c"), row.get("end_c"))
+        if not isinstance(est, Mapping) or temp is None:
+            continue
+        value, std = est.get("value"), est.get("std")
+        if not isinstance(value, (int, float)) or not math.isfinite(value):
+            continue  # another version's row costs its point, never the view
+        unit = "µrad" if est.get("unit") == "urad" else "µm"
+        out.append(TempPoint(str(row["run_id"]), temp, float(value),
+                             float(std) if isinstance(std, (int, float)) else None))
+    return out, unit
 
 
 def points(trend: list[Any], link: str, channel: str) -> tuple[list[TempPoint], str]:

@@ -15,6 +15,7 @@ from a request.
 from __future__ import annotations
 
 import contextlib
+import re
 import time
 from collections.abc import Awaitable, Callable, Iterable, Sequence
 from importlib import resources
@@ -25,11 +26,13 @@ import psycopg
 from aiohttp import web
 
 from contracts.setup_types import SAFE_NAME
-from daemon.fleet import view
+from daemon.analysis.temperature_trend import fit, fleet_points
+from daemon.fleet import temperature_view, view
 from daemon.hmi.access import secured_app
 from daemon.hmi.app import REPORT_CSP, run_id_ok
 from daemon.hmi.auth import Auth
 from daemon.hmi.limits import HmiLimits, int_param
+from daemon.store import pg_temperatures
 from daemon.store.journal import StoreError
 from daemon.store.pg import PgStore
 from daemon.store.url import redact
@@ -106,6 +109,67 @@ async def machine(request: web.Request) -> web.Response:
     return _html(view.machine_page(name, m, runs, trend, days))
 
 
+LINK_NAME = re.compile(r"[A-Z0-9]{1,16}")  # a location error's name, e.g. EX0C
+
+
+async def _against(request: web.Request) -> dict[str, Any]:
+    """Issue 22 item 4: the chosen link against the chosen channel over the machine's runs
+    (query ``channel``, ``link``, ``days``; the first of each by default), fitted as ``rumba
+    history --against-temperature`` fits it."""
+    name = request.match_info["machine"]
+    if not SAFE_NAME.fullmatch(name):
+        raise web.HTTPNotFound(text="no such machine (names are 1-32 of A-Z a-z 0-9 _ . -)")
+    days = int_param(request, "days", DAYS_DEFAULT, 1, DAYS_MAX)
+    channel, link = request.query.get("channel"), request.query.get("link")
+    if channel is not None and not SAFE_NAME.fullmatch(channel):
+        raise web.HTTPBadRequest(text="channel: 1-32 of A-Z a-z 0-9 _ . -")
+    if link is not None and not LINK_NAME.fullmatch(link):
+        raise web.HTTPBadRequest(text="link: a location error's name, e.g. EX0C")
+    since = time.time() - days * 86400.0
+
+    async def load(s: PgStore) -> tuple:
+        names = await pg_temperatures.channels(s.conn, name)
+        ch = channel if channel is not None else (names[0] if names else None)
+        rows = (await pg_temperatures.readings(s.conn, name, since, ch)
+                if ch in names else [])
+        return names, ch, rows
+
+    names, ch, rows = await _reader(request).call(load, ([], None, []))
+    if not names:
+        raise web.HTTPNotFound(text=f"no temperature readings of machine {name!r} in the "
+                                    "fleet store")
+    if ch not in names:
+        raise web.HTTPNotFound(text=f"machine {name!r} has no readings of channel {ch!r} "
+                                    f"(channels: {', '.join(names)})")
+    links = temperature_view.links_of(rows)
+    lk = link if link is not None else (links[0] if links else "")
+    if link is not None and link not in links:
+        raise web.HTTPNotFound(text=f"no run of {name!r} in the last {days} days has link "
+                                    f"{link} (links: {', '.join(links) or 'none'})")
+    pts, unit = fleet_points(rows, lk)
+    unit = unit or ("µrad" if lk[1:2] in ("A", "B", "C") else "µm")
+    return {"name": name, "channel": ch, "link": lk, "channels": names, "links": links,
+            "rows": rows, "points": pts, "fit": fit(pts, unit), "unit": unit, "days": days}
+
+
+async def against_temperature(request: web.Request) -> web.Response:
+    d = await _against(request)
+    return _html(temperature_view.page(d["name"], d["channel"], d["link"], d["channels"],
+                                       d["links"], d["rows"], d["points"], d["fit"],
+                                       d["unit"], d["days"]))
+
+
+async def against_temperature_json(request: web.Request) -> web.Response:
+    d = await _against(request)
+    f = d["fit"]
+    return web.json_response({
+        "machine": d["name"], "channel": d["channel"], "link": d["link"], "unit": d["unit"],
+        "n": f.n, "r": f.r, "slope": f.slope, "slope_std": f.slope_std,
+        "slope_u95": f.slope_u95, "slope_unit": f.unit, "text": f.text(d["link"], d["channel"]),
+        "points": [{"run_id": p.run_id, "temperature_c": p.temperature_c, "value": p.value,
+                    "std": p.std} for p in d["points"]]})
+
+
 def inside(path: Path, roots: Sequence[Path]) -> bool:
     """Whether ``path`` (symlinks resolved) lies in one of ``roots``."""
     real = path.resolve()
@@ -158,5 +222,8 @@ def create_fleet_app(dsn: str, token: str, *, stale_after_h: float = 26.0,
     app.router.add_get("/fleet.css", fleet_css)
     app.router.add_get("/api/fleet", fleet_json)
     app.router.add_get("/machines/{machine:[^/]{1,64}}", machine)
+    app.router.add_get("/machines/{machine:[^/]{1,64}}/temperature", against_temperature)
+    app.router.add_get("/api/machines/{machine:[^/]{1,64}}/temperature",
+                       against_temperature_json)
     app.router.add_get("/reports/{run_id:[A-Za-z0-9_.-]{1,64}}.html", report)
     return app

@@ -281,6 +281,9 @@ def machine_page(name: str, machine: Mapping[str, Any] | None, runs: Sequence[Ma
     desc = ("" if machine is None else
             f'{_e(machine.get("site"))} · {_e(machine.get("dialect"))} / '
             f'{_e(machine.get("transport"))}')
+    against = (f'<p><a class="against-temperature" href="/machines/{_e(name)}/temperature">'
+               "Link errors against temperature</a></p>"  # issue 22, when a run has readings
+               if any(r.get("temperatures") for r in runs) else "")
     html = (f'<header><p><a href="/">← fleet</a></p><h1>{_e(name)}</h1>'
             f'<p class="sub">{desc}</p></header><main>'
             f'<h2>Trend, last {days} days (limits: dashed amber warn, red fail)</h2>'
@@ -288,7 +291,7 @@ def machine_page(name: str, machine: Mapping[str, Any] | None, runs: Sequence[Ma
             '<h2>Runs</h2><table class="runs"><thead><tr><th>Run</th><th>Started</th>'
             '<th>Trigger</th><th>State</th><th>Verdict</th><th>Summary</th>'
             '<th>Temperatures</th><th>Drift baseline</th><th>Report</th>'
-            f"</tr></thead><tbody>{rows}</tbody></table>"
+            f"</tr></thead><tbody>{rows}</tbody></table>{against}"
             # issue 23: the summary's figure is defined beside it, as on every surface
             f'<p class="definition">{_e(LABELS[VOLUMETRIC])}: {_e(DEFINITIONS[VOLUMETRIC])}.'
             "</p></main>")

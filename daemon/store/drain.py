@@ -23,6 +23,7 @@ from typing import Any
 
 import psycopg
 
+from daemon.store import pg_temperatures
 from daemon.store.journal import Store, StoreError
 from daemon.store.pg import (
     CENTRE_COLS,
@@ -33,7 +34,7 @@ from daemon.store.pg import (
     RunBatch,
     RunIdCollision,
 )
-from daemon.store.schema import CAPTURE_TRIGGERS
+from daemon.store.schema import CAPTURE_TRIGGERS, QUEUE_TEMPERATURES
 from daemon.store.url import redact
 
 log = logging.getLogger("rumba.drain")
@@ -62,6 +63,7 @@ class Drainer:
         store.db.create_function("rumba_outbox_wake", 0, self._wake_soon, deterministic=False)
         for stmt in CAPTURE_TRIGGERS:
             store.db.execute(stmt)
+        store.db.execute(QUEUE_TEMPERATURES)
 
     def _wake_soon(self) -> None:
         # Called by SQLite inside the writing statement (any thread): set the event later, in
@@ -210,6 +212,11 @@ class Drainer:
             seqs = [s for s in json.loads(kinds["hits"]) if s is not None]
             b.hits = db.execute(f"SELECT {', '.join(HIT_COLS)} FROM hits WHERE run_id=? AND"
                                 " seq BETWEEN ? AND ?", (run_id, min(seqs), max(seqs))).fetchall()
+        if "temperatures" in kinds:  # issue 22: the raw readings, journaled like hits
+            seqs = [s for s in json.loads(kinds["temperatures"]) if s is not None]
+            b.temperatures = db.execute(
+                f"SELECT {', '.join(pg_temperatures.TEMP_COLS)} FROM temperatures WHERE"
+                " run_id=? AND seq BETWEEN ? AND ?", (run_id, min(seqs), max(seqs))).fetchall()
         if "centres" in kinds:
             b.centres = db.execute(f"SELECT {', '.join(CENTRE_COLS)} FROM centres WHERE"
                                    " run_id=?", (run_id,)).fetchall()

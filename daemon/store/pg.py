@@ -18,6 +18,7 @@ from typing import Any
 import psycopg
 from psycopg import conninfo
 
+from daemon.store import pg_temperatures
 from daemon.store.journal import StoreError
 from daemon.store.schema import MIGRATIONS, SCHEMA_VERSION, for_postgres
 from daemon.store.url import redact
@@ -57,6 +58,7 @@ class RunBatch:
     verdict: tuple | None = None  # (status, reasons, checks, written_back)
     report: tuple | None = None  # (html_path, json_path)
     baselines: list[tuple] = field(default_factory=list)  # (machine, run_id, state, by, at, note)
+    temperatures: list[tuple] = field(default_factory=list)  # pg_temperatures.TEMP_COLS
 
 
 def _defaults(dsn: str, app: str, connect_timeout_s: float) -> str:
@@ -139,6 +141,7 @@ class PgStore:
                     await cur.executemany(
                         f"INSERT INTO centres ({', '.join(CENTRE_COLS)}) VALUES "
                         f"({', '.join(['%s'] * len(CENTRE_COLS))})", b.centres)
+            await pg_temperatures.insert(cur, b.temperatures)  # issue 22: raw readings
             # issue 23: baseline decisions; the fleet store numbers them itself (several
             # daemons' local ids would collide), a row already copied is not copied again
             if b.baselines:

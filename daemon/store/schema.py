@@ -147,4 +147,17 @@ CAPTURE_TRIGGERS: list[str] = [
     """CREATE TEMP TRIGGER IF NOT EXISTS outbox_hits_insert AFTER INSERT ON main.hits
        BEGIN INSERT INTO outbox(kind, key, hit_seq) VALUES ('hits', NEW.run_id, NEW.seq);
        SELECT rumba_outbox_wake(); END""",
+    # issue 22: temperature readings, journaled on arrival like hits and copied like them
+    """CREATE TEMP TRIGGER IF NOT EXISTS outbox_temperatures_insert AFTER INSERT ON
+       main.temperatures BEGIN INSERT INTO outbox(kind, key, hit_seq)
+       VALUES ('temperatures', NEW.run_id, NEW.seq); SELECT rumba_outbox_wake(); END""",
 ]
+# Readings journaled before their trigger existed (a daemon upgraded while runs waited in the
+# outbox for the fleet store): queued with their run when the drainer starts, once each — no
+# schema step, the table is in both engines since migration 8 and only the fleet mode's
+# connection has an outbox to fill. Runs already copied keep their summary in the analysis.
+QUEUE_TEMPERATURES = """INSERT INTO outbox(kind, key, hit_seq)
+    SELECT 'temperatures', t.run_id, t.seq FROM temperatures t
+    WHERE t.run_id IN (SELECT key FROM outbox WHERE kind != 'machines')
+    AND NOT EXISTS (SELECT 1 FROM outbox o WHERE o.kind = 'temperatures'
+                    AND o.key = t.run_id AND o.hit_seq = t.seq)"""
