@@ -69,9 +69,14 @@ def write_config(tmp: Path, link: dict[str, Any], *, plan: dict | None = None,
     return path
 
 
+REPORT_JOB = "report job"
+"""Not a phase: the report worker after the run's end (daemon/run/report_job.py), held as one."""
+
+
 class Hold:
-    """Holds a run in one phase: the step signals ``reached`` and waits to be released (a
-    worker thread for PREPARE / IDENTIFY / REPORT, a coroutine for WRITE-BACK)."""
+    """Holds a run in one phase, or its report job: the step signals ``reached`` and waits to
+    be released (a worker thread for PREPARE / IDENTIFY / the report job, a coroutine for
+    WRITE-BACK)."""
 
     def __init__(self, phase: str | None) -> None:
         self.phase = phase
@@ -120,10 +125,11 @@ class Hold:
 
 def held_session(setup: Any, link: Any, store: Any, reports: Path, hold: Hold,
                  monkeypatch: Any) -> Session:
-    """A session whose PREPARE / IDENTIFY / REPORT / WRITE-BACK step ``hold`` can stop in."""
+    """A session whose PREPARE / IDENTIFY / WRITE-BACK step, or report job after the run's
+    end, ``hold`` can stop in."""
     from daemon.reports import report
 
-    monkeypatch.setattr(report, "write_report", hold.in_thread("REPORT", report.write_report))
+    monkeypatch.setattr(report, "write_report", hold.in_thread(REPORT_JOB, report.write_report))
     s = Session(setup, link, store, reports,
                 prepare=hold.in_thread("PREPARE", pipeline.prepare),
                 analyse=hold.in_thread("IDENTIFY", pipeline.analyse))

@@ -252,6 +252,8 @@ def test_the_notification_waits_for_the_report_and_is_never_lost():
         v = {"status": "FAIL", "summary": "x", "reasons": ["r"]} if state == "IDLE" else None
         if v is not None and report_state:
             v |= {"report_state": report_state, **({"report": report} if report else {})}
+            if report_state == "failed":
+                v["report_error"] = "OSError: disk full"
         return {"state": state, "run_id": run_id, "reason": "", "verdict": v}
 
     for s in (st("IDLE", ""), st("JUDGE", "A"), st("IDLE", "A", "writing")):
@@ -261,7 +263,10 @@ def test_the_notification_waits_for_the_report_and_is_never_lost():
     assert [(n.run_id, n.report) for n in sent] == [("A", "/r/A.html")]
     for s in (st("JUDGE", "B"), st("IDLE", "B", "writing"), st("IDLE", "B", "failed")):
         w.on_status(s)
-    assert [(n.run_id, n.report) for n in sent[1:]] == [("B", None)]
+    assert [(n.run_id, n.report, n.report_error) for n in sent[1:]] == \
+        [("B", None, "OSError: disk full")]
+    assert "Report: not written: OSError: disk full" in sent[1].text()  # says why
     for s in (st("JUDGE", "C"), st("IDLE", "C", "writing"), st("PREPARE", "D")):
         w.on_status(s)  # D started before C's report was written: C is sent all the same
-    assert [(n.run_id, n.status, n.report) for n in sent[2:]] == [("C", "FAIL", None)]
+    assert [(n.run_id, n.status, n.report, n.report_error) for n in sent[2:]] == \
+        [("C", "FAIL", None, "")]

@@ -308,10 +308,13 @@ def test_run_list_names_the_drift_baseline_and_a_report_being_written():
     checks = [{"quantity": "EX0C", "reference_run": None},
               {"quantity": "EX0C drift", "reference_run": "R7", "reference": 1.0}]
     runs = [run("a", checks=json.dumps(checks), reasons="[]", has_report=True),
-            run("b", checks="[]", reasons=json.dumps(["drift not checked: no baseline"])),
-            run("c", checks="[]", reasons="[]",
-                reason="verdict written back; report not written: OSError: disk full"),
-            run("d", checks="not json", reasons=None, state="CAPTURE", verdict=None)]
+            run("b", checks="[]", reasons=json.dumps(["drift not checked: no baseline"]),
+                report_state="writing"),
+            # the report job's own row (migration 10), not the run's reason, says why
+            run("c", checks="[]", reasons="[]", reason="", report_state="failed",
+                report_error="OSError: disk full"),
+            run("d", checks="not json", reasons=None, state="CAPTURE", verdict=None),
+            run("e", checks="[]", reasons="[]", reason="report not written: in the reason")]
     page = view.machine_page("mill-x", None, runs, [], 90)
     assert "<th>Drift baseline</th>" in page
     cells = re.findall(r'<td class="baseline">([^<]*)</td><td>(.*?)</td></tr>', page)
@@ -321,3 +324,4 @@ def test_run_list_names_the_drift_baseline_and_a_report_being_written():
     assert cells[2][1] == ('<span class="report-failed">report not written: OSError: disk '
                            'full</span>')
     assert cells[3] == ("—", "—")
+    assert cells[4] == ("—", "—")  # a DONE run without a report job: nothing to tell of

@@ -13,6 +13,7 @@ from asyncua import Client, ua
 
 from daemon.opcua.server import ResultServer
 from daemon.opcua.source import FleetSource
+from daemon.store import report_jobs
 from daemon.store.drain import Drainer
 from daemon.store.journal import Store
 from daemon.store.pg import PgStore
@@ -102,23 +103,40 @@ async def test_a_run_reaching_the_store_raises_its_result_ready_event(fleet):
         sub = await c.create_subscription(50, handler)
         await sub.subscribe_events(c.nodes.server, c.get_node(ua.NodeId(1002, res)))
         store = fleet["store"]
-        store.new_run("m2-2", "mill2", "cnc", state="DONE")
-        store.save_analysis("m2-2", analysis(2))
-        store.save_verdict("m2-2", "FAIL", [], [{"status": "FAIL", "limit": "x"}], "FAIL")
-        store.set_state("m2-2", "DONE")
+
+        def ended(run_id: str, status: str, checks: list) -> None:
+            """A run's end as a daemon journals it: judged, its report job begun, DONE."""
+            store.new_run(run_id, "mill2", "cnc", state="WRITE-BACK")
+            store.save_analysis(run_id, analysis(2))
+            store.save_verdict(run_id, status, [], checks, status)
+            report_jobs.begin(store, run_id)
+            store.set_state(run_id, "DONE")
+
+        ended("m2-2", "FAIL", [{"status": "FAIL", "limit": "x"}])
         await fleet["drainer"].drain()  # issue 23: the run first, its report after it
         html = fleet["store"].path.parent / "m2-2.html"
         html.write_text("<html></html>")
         html.with_suffix(".pdf").write_bytes(b"%PDF-1.4\n")
-        store.save_report("m2-2", html, html.with_suffix(".json"))
+        report_jobs.written(store, "m2-2", html, html.with_suffix(".json"))
         await fleet["drainer"].drain()
         e = await asyncio.wait_for(handler.got.get(), 30)
         assert e.Result.ResultMetaData.ResultId == "m2-2"
-        # announced once its report reached the store, not when the run did
+        # announced once its report job ended (the report reached the store), not when the
+        # run did
         assert e.Result.ResultMetaData.HasTransferableDataOnFile
         assert int(e.Result.ResultMetaData.ResultEvaluation) == 2
         assert e.SourceName == "mill2"
-
+        # a report job that failed: announced at once (no fixed wait), the reason told
+        ended("m2-3", "PASS", [])
+        await fleet["drainer"].drain()
+        report_jobs.failed(store, "m2-3", "OSError: [Errno 28] No space left on device")
+        await fleet["drainer"].drain()
+        e = await asyncio.wait_for(handler.got.get(), 30)
+        assert e.Result.ResultMetaData.ResultId == "m2-3"
+        assert not e.Result.ResultMetaData.HasTransferableDataOnFile
+        assert "report not written: OSError: [Errno 28] No space left on device" in \
+            e.Message.Text, e.Message.Text
+        assert handler.got.empty()  # m2-2 once, m2-3 once
 
 def test_a_bad_opcua_file_stops_rumba_fleet_with_one_line(tmp_path, capsys):
     from daemon.cli.main import main as cli_main

@@ -11,6 +11,7 @@ import pytest
 
 from daemon.reports import report
 from daemon.run.session import Session
+from daemon.store import report_jobs
 from daemon.store.journal import Store
 from tests.daemon_helpers import thesis_rows, thesis_setup
 from tests.replay_link import Faults, ReplayLink, prepare_from_rows
@@ -52,11 +53,15 @@ async def test_the_run_ends_and_the_verdict_is_written_back_before_the_report(en
     assert run.state == "DONE" and store.verdict(run_id)["written_back"]
     assert [v.status for v in link.verdicts] == ["PASS"]
     assert store.report(run_id) is None
+    job = report_jobs.get(store, run_id)  # journaled before the run's end was published
+    assert job is not None and job.state == "writing" and job.ended_at is None
     st = s.status()
     assert st["state"] == "IDLE" and not st["busy"]
     assert st["verdict"]["report_state"] == "writing" and "report" not in st["verdict"]
     go_on.set()
     final = await s.wait()  # rumba verify: waits for the report, then prints its path
+    job = report_jobs.get(store, run_id)
+    assert job is not None and job.state == "written" and job.reason == ""
     html, js = store.report(run_id)
     assert html.is_file() and js.is_file() and report.pdf_path(html).is_file()
     assert final["verdict"]["report"] == str(html)
@@ -78,8 +83,58 @@ async def test_a_report_that_fails_keeps_the_verdict_and_says_why(env, monkeypat
     assert final["state"] == "IDLE" and final["verdict"]["status"] == "PASS"
     assert final["verdict"]["report_state"] == "failed"
     assert "No space left on device" in final["verdict"]["report_error"]
-    assert "report not written" in final["reason"]
-    run = store.run(run_id)  # journaled: the run stays DONE with its verdict, the cause kept
+    assert final["reason"] == ""  # the run's reason is the run's: it ended DONE
+    run = store.run(run_id)  # journaled: the run stays DONE with its verdict
     assert run.state == "DONE" and run.verdict == "PASS" and store.report(run_id) is None
-    assert "report not written: OSError" in run.reason
+    assert run.reason == ""
+    job = report_jobs.get(store, run_id)  # the report job's own row says why
+    assert job is not None and job.state == "failed" and job.ended_at is not None
+    assert job.reason.startswith("OSError: [Errno 28] No space left on device"), job.reason
     assert [v.status for v in link.verdicts] == ["PASS"]
+
+
+async def test_a_daemon_stopping_under_the_report_journals_it_failed_and_leaves_nothing(
+        env, monkeypatch):
+    """Service.stop → Session.shutdown: the report is given its bounded wait, then cancelled;
+    the job ends failed naming the stop (never left 'writing'), the run DONE with its verdict
+    written back, no task of the session left running."""
+    s, link, store = env
+    entered, go_on = threading.Event(), threading.Event()
+    real = report.write_report
+
+    def held(*a, **kw):
+        entered.set()
+        go_on.wait(60)  # released after the shutdown: the stop does not wait for it
+        return real(*a, **kw)
+
+    monkeypatch.setattr(report, "write_report", held)
+    run_id = s.start("hmi")
+    while not entered.is_set():
+        await asyncio.sleep(0.01)
+        assert not (s._task.done() and s._report_task is None), s.status()
+    try:
+        await s.shutdown("the daemon stopping", report_wait_s=0.05)
+    finally:
+        go_on.set()
+    assert s._task.done() and s._report_task.done()
+    job = report_jobs.get(store, run_id)
+    assert job is not None and job.state == "failed"
+    assert job.reason == "the daemon stopped while it was being written"
+    assert s.status()["verdict"]["report_state"] == "failed"
+    run = store.run(run_id)
+    assert (run.state, run.verdict, run.reason) == ("DONE", "PASS", "")
+    assert store.verdict(run_id)["written_back"] and store.report(run_id) is None
+    assert [v.status for v in link.verdicts] == ["PASS"]
+
+
+async def test_a_report_job_a_crash_left_writing_is_failed_at_the_next_start(tmp_path):
+    store = Store(tmp_path / "j.sqlite")
+    try:
+        store.new_run("R1", "mill1", "cnc", state="DONE")
+        report_jobs.begin(store, "R1")  # then kill -9
+        assert report_jobs.mark_abandoned(store) == ["R1"]
+        job = report_jobs.get(store, "R1")
+        assert job is not None and (job.state, job.reason) == ("failed", report_jobs.ABANDONED)
+        assert report_jobs.mark_abandoned(store) == []  # once
+    finally:
+        store.close()

@@ -5,7 +5,13 @@ Each row holds a run in its phase, stops it, and checks: the journal row ABORTED
 RESET the link reports) or INTERRUPTED (the daemon stopping, a lost link, a controller gone
 silent) naming the phase and the cause, the controller no longer running the program, and the
 next run on the same session, link and simulator taking a new program (its first hit
-journaled). The module ends with a complete run per transport on the same simulators."""
+journaled). The report is no phase: it is written after the run's end (daemon/run/report_job.py),
+so its rows stop the run's report job instead — a person's abort (HMI, CAN panel, Ctrl-C on
+``rumba verify``) finds no run to abort and the report is finished; the daemon stopping
+(SIGTERM on ``rumba run``: ``Session.shutdown``) gives it its bounded wait, then journals it
+failed with the reason; either way the verdict stays journaled and written back, nothing is
+left running or 'writing'. The module ends with a complete run per transport on the same
+simulators."""
 
 from __future__ import annotations
 
@@ -16,22 +22,28 @@ import threading
 import pytest
 import pytest_asyncio
 
+from contracts.jobs import VERDICT_CODES
 from daemon.config import load_daemon_config
 from daemon.run.session import State
 from daemon.service.service import make_link
+from daemon.store import report_jobs
 from daemon.store.journal import Store
 from simulators.controller import VirtualController
 from tests.rig_helpers import make_truth, start_rig
-from tests.stop_helpers import Hold, held_session, until_reached, write_config
+from tests.stop_helpers import REPORT_JOB, Hold, held_session, until_reached, write_config
 
 TRANSPORTS = ("opcua", "modbus", "serial-pty")
-PHASES = ("PREPARE", "CAPTURE", "IDENTIFY", "WRITE-BACK")  # REPORT: after the run (report_job)
+PHASES = ("PREPARE", "CAPTURE", "IDENTIFY", "WRITE-BACK")
 OPERATOR = ("hmi", "CAN panel")  # session.abort(source): a person
 DAEMON = "the daemon stopping"  # session.interrupt(cause), as Service.stop (SIGTERM on rumba run)
+SIGINT = "Ctrl-C (SIGINT)"  # rumba verify's signal handler: session.abort(source)
 ROWS = ([(t, p, c) for t in TRANSPORTS for p in PHASES for c in (*OPERATOR, DAEMON)]
-        + [(t, "CAPTURE", c) for t in TRANSPORTS for c in ("cnc", "link loss")])
-SHORT = {"CAN panel": "CAN", DAEMON: "daemon-stop", "link loss": "link-loss"}
-PARAMS = [pytest.param(t, p, c, id=f"{t}-{p}-{SHORT.get(c, c)}") for t, p, c in ROWS]
+        + [(t, "CAPTURE", c) for t in TRANSPORTS for c in ("cnc", "link loss")]
+        + [(t, REPORT_JOB, c) for t in TRANSPORTS for c in (*OPERATOR, SIGINT, DAEMON)])
+SHORT = {"CAN panel": "CAN", DAEMON: "daemon-stop", "link loss": "link-loss", SIGINT: "SIGINT",
+         REPORT_JOB: "report-job"}
+PARAMS = [pytest.param(t, p, c, id=f"{t}-{SHORT.get(p, p)}-{SHORT.get(c, c)}")
+          for t, p, c in ROWS]
 
 
 @pytest_asyncio.fixture(scope="module", loop_scope="module")
@@ -99,6 +111,46 @@ def _diagnose(rig) -> str:
     return f"control {rig.ctrl.state}, resets {getattr(rig.ctrl, 'resets', '?')}{tape}"
 
 
+async def _stop_report_job(session, rig, store, run_id: str, trigger: str, hold: Hold) -> None:
+    """Stop the run's report job while the worker writes it, then check what is left: the run
+    DONE with its verdict journaled and written back (the controller read it), the job ended —
+    finished after a person's abort (there is no run to abort), failed naming the stop when
+    the daemon stops — and nothing running or 'writing'."""
+    assert session.state == State.IDLE and not session.busy  # the run ended before its report
+    if trigger == DAEMON:
+        try:  # the wait is short here: the held worker never finishes before its release
+            await session.shutdown(trigger, report_wait_s=0.1)
+        finally:
+            hold.release()
+    else:
+        try:
+            assert not await session.abort(trigger)  # nothing runs: the HMI answers 409
+        finally:
+            hold.release()
+        async with asyncio.timeout(60):
+            await session.wait()
+    row, verdict = store.run(run_id), store.verdict(run_id)
+    assert (row.state, row.reason) == ("DONE", ""), row.reason
+    assert verdict is not None and verdict["written_back"] and row.verdict == verdict["status"]
+    if rig.transport.startswith("serial"):
+        await _dnc_program_ended(rig, verdict_sent=True)
+    assert rig.ctrl.verdict == VERDICT_CODES[verdict["status"]] != VERDICT_CODES["ERROR"], \
+        (rig.ctrl.verdict, verdict["status"])
+    job = report_jobs.get(store, run_id)
+    assert session._report_task is not None and session._report_task.done()
+    st = session.status()
+    assert st["state"] == "IDLE" and not st["busy"]
+    if trigger == DAEMON:
+        assert job is not None and job.state == "failed", job
+        assert job.reason == "the daemon stopped while it was being written"
+        assert store.report(run_id) is None
+        assert st["verdict"]["report_state"] == "failed"
+    else:
+        assert job is not None and (job.state, job.reason) == ("written", ""), job
+        html, _ = store.report(run_id)
+        assert html.is_file() and st["verdict"]["report"] == str(html)
+
+
 def _expected(transport: str, phase: str, trigger: str) -> tuple[str, str]:
     if trigger in OPERATOR:
         return "ABORTED", f"aborted by {trigger} during {phase}"
@@ -122,14 +174,17 @@ async def test_every_stop_leaves_a_defined_state_and_the_next_run_starts(
     try:
         run1 = session.start("hmi")
         await until_reached(session, hold, diagnose=lambda: _diagnose(rig))
-        await _stop(session, rig, link, trigger, hold)
-        hold.release()
-        state, why = _expected(transport, phase, trigger)
-        row = store.run(run1)
-        assert (row.state, session.state) == (state, State(state)), row.reason
-        assert row.reason.startswith(why) or why in row.reason, row.reason
-        if transport.startswith("serial"):
-            await _dnc_program_ended(rig, verdict_sent=trigger in (*OPERATOR, DAEMON))
+        if phase == REPORT_JOB:
+            await _stop_report_job(session, rig, store, run1, trigger, hold)
+        else:
+            await _stop(session, rig, link, trigger, hold)
+            hold.release()
+            state, why = _expected(transport, phase, trigger)
+            row = store.run(run1)
+            assert (row.state, session.state) == (state, State(state)), row.reason
+            assert row.reason.startswith(why) or why in row.reason, row.reason
+            if transport.startswith("serial"):
+                await _dnc_program_ended(rig, verdict_sent=trigger in (*OPERATOR, DAEMON))
         if trigger != "link loss":  # the reset reached the control: nothing runs there
             assert rig.ctrl.state not in ("running", "hold"), rig.ctrl.state
         # The next run: the controller takes its program (a first hit), then it is stopped

@@ -257,13 +257,13 @@ def drift_baseline(run: Mapping[str, Any]) -> str:
 
 def report_cell(run: Mapping[str, Any]) -> str:
     """The report's link; until it is there (issue 23: written after the run's end) "being
-    written", or the journaled reason it was not."""
+    written", or why it was not — from the run's report job (migration 10), never its reason."""
     if run.get("has_report"):
         return f'<a class="report" href="/reports/{_e(run["id"])}.html">report</a>'
-    reason = str(run.get("reason") or "")
-    if "report not written" in reason:
-        return f'<span class="report-failed">{_e(reason[reason.index("report not"):])}</span>'
-    if run.get("state") == "DONE":
+    if run.get("report_state") == "failed":
+        why = str(run.get("report_error") or "see the daemon's log")
+        return f'<span class="report-failed">report not written: {_e(why)}</span>'
+    if run.get("report_state") == "writing":
         return '<span class="report-writing">report being written</span>'
     return "—"
 

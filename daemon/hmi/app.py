@@ -42,6 +42,7 @@ from daemon.hmi.limits import HmiLimits, int_param
 from daemon.hmi.trend_api import trend_handler
 from daemon.hmi.users import Accounts
 from daemon.run.session import Refused, Session
+from daemon.store import report_jobs
 from daemon.store.actions import record_action
 from daemon.store.journal import Store, StoreError, validate_run_id
 
@@ -86,7 +87,10 @@ def _session(request: web.Request) -> Session:
 def _run_dict(r: Any, store: Store) -> dict[str, Any]:
     paths = store.report(r.id)
     pdf = paths is not None and paths[0].with_suffix(".pdf").is_file()
+    job = report_jobs.get(store, r.id)  # migration 10: the report's end, not the run's reason
     return {"id": r.id, "machine": r.machine, "trigger": r.trigger, "state": r.state,
+            "report_state": job.state if job else None,
+            "report_error": job.reason if job and job.state == report_jobs.FAILED else "",
             "reason": r.reason, "verdict": r.verdict, "summary": r.summary, "hits": r.hits,
             "started_by": r.started_by,
             "touch_total": r.touch_total, "started_at": r.started_at, "ended_at": r.ended_at,

@@ -2,7 +2,7 @@
 "use strict";
 const csrf = document.querySelector('meta[name="csrf-token"]').content;
 const cfg = JSON.parse(document.querySelector('meta[name="rumba-config"]').content);
-const RUNNING = new Set(["PREPARE", "STREAM", "CAPTURE", "IDENTIFY", "JUDGE", "REPORT", "WRITE-BACK"]);
+const RUNNING = new Set(["PREPARE", "STREAM", "CAPTURE", "IDENTIFY", "JUDGE", "WRITE-BACK"]);
 const cards = {};
 const live = {};  // machine → its latest status event (the run in progress overrides the table)
 const journaled = {};  // machine → the last verdict in its history (shown while the daemon has none)
@@ -10,7 +10,7 @@ const MEANING = {
   "IDLE": "ready", "PREPARE": "generating the program and checking it against limits",
   "STREAM": "sending the program, waiting for the first touch", "CAPTURE": "probing",
   "IDENTIFY": "identifying setup and link errors", "JUDGE": "comparing with the tolerances",
-  "REPORT": "writing the report", "WRITE-BACK": "sending the verdict to the CNC",
+  "WRITE-BACK": "sending the verdict to the CNC",
   "ABORTED": "run aborted", "FAILED": "run failed",
   "INTERRUPTED": "run interrupted (link lost, controller silent or daemon stopped)",
 };
@@ -203,9 +203,7 @@ function render(st) {
     link(el.querySelector(".report"), v.report ? `/reports/${run}.html` : null);
     link(el.querySelector(".pdf"), v.pdf ? `/reports/${run}.pdf` : null);
     // issue 23: the report is written after the run's end; say so until its links appear
-    reportState(el, v.report ? "" : v.report_state === "writing" ? "report being written…"
-      : v.report_state === "failed" ? `report not written: ${v.report_error || "see the log"}`
-      : "");
+    reportState(el, v.report ? "" : reportText(v.report_state, v.report_error));
   } else if (!running) {
     el.querySelector(".badge").textContent = "none yet";
     el.querySelector(".badge").className = "badge none";
@@ -215,6 +213,11 @@ function render(st) {
     link(el.querySelector(".pdf"), null);
     reportState(el, "");
   }
+}
+
+function reportText(state, error) {
+  return state === "writing" ? "report being written…"
+    : state === "failed" ? `report not written: ${error || "see the log"}` : "";
 }
 
 function reportState(el, text) {
@@ -267,6 +270,8 @@ async function loadLastVerdicts() {
       const a = document.createElement("a"); a.href = href; a.textContent = label;
       a.target = "_blank"; a.rel = "noopener"; td.appendChild(a);
     }
+    // the run's report job (its own record, not the run's reason): being written, or why not
+    if (!run.report) td.textContent = reportText(run.report_state, run.report_error);
     tr.appendChild(td);
     return tr;
   }));
@@ -277,6 +282,7 @@ async function loadLastVerdicts() {
     if (run.verdict) {
       journaled[run.machine] = {status: run.verdict, summary: run.summary, reasons: [],
                                 report: run.report, pdf: run.pdf, run_id: run.id,
+                                report_state: run.report_state, report_error: run.report_error,
                                 at: run.ended_at || run.started_at};
     }
   }

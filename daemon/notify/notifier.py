@@ -44,6 +44,7 @@ class Notification:
     run_id: str | None = None
     reasons: list[str] = field(default_factory=list)
     report: str | None = None
+    report_error: str = ""  # why the report was not written (its report job failed)
 
     def subject(self) -> str:
         what = ("morning check missed" if self.event == "missed_check" else self.status)
@@ -58,6 +59,8 @@ class Notification:
         lines += [f"  - {r}" for r in self.reasons]
         if self.report:
             lines.append(f"Report: {self.report}")
+        elif self.report_error:
+            lines.append(f"Report: not written: {self.report_error}")
         return "\n".join(lines) + "\n"
 
 
@@ -185,7 +188,9 @@ class RunWatcher:
             "verdict", self.machine, status,
             v.get("summary", "") if done else f"run {st['state'].lower()}: {st['reason']}",
             time.time(), self.notifier.site, st["run_id"],
-            list(v.get("reasons", [])) if done else [], v.get("report")))
+            list(v.get("reasons", [])) if done else [], v.get("report"),
+            # the report job's end (daemon/store/report_jobs.py), never the run's reason
+            str(v.get("report_error") or "") if v.get("report_state") == "failed" else ""))
 
 
 def deadline_on(day_t: float, hh: int, mm: int) -> float:

@@ -14,7 +14,6 @@ import contextlib
 import datetime as dt
 import logging
 import socket
-import time
 from typing import Any
 
 from asyncua import Server, ua
@@ -30,7 +29,6 @@ from daemon.opcua.filetransfer import ResultTransfer
 from daemon.opcua.source import JournalSource, ResultSource
 from daemon.store.journal import Store
 
-REPORT_WAIT_S = 300.0  # a report not in the store by then is announced without its file
 log = logging.getLogger("rumba.opcua")
 RUMBA_URI = "urn:rumba-cnc:results"  # rumba's own nodes (machine objects, the check's state)
 APPLICATION_URI = "urn:rumba-cnc:daemon"
@@ -142,14 +140,13 @@ class ResultServer:
 
     async def _report_pending(self, run_id: str) -> bool:
         """Issue 23: a daemon writes the report after the run's end (the store gets the run
-        first): a DONE run just ended without a report and without the journaled reason it
-        has none is announced once its PDF is there, at most REPORT_WAIT_S after its end."""
-        run = await self.source.run(run_id)
-        if run is None or run.state != "DONE" or await self.source.report(run_id) is not None:
-            return False
-        if "report not written" in (run.reason or ""):
-            return False
-        return time.time() - (run.ended_at or 0.0) < REPORT_WAIT_S
+        first): a run is announced once its report job has ended — written (its PDF is
+        there) or failed (at once, with the reason) — never after a fixed wait. A job a
+        daemon's crash left 'writing' is failed by that daemon's next start
+        (``report_jobs.mark_abandoned``); a run without a job (an import, an older daemon)
+        has no report to wait for."""
+        job = await self.source.report_job(run_id)
+        return job is not None and job[0] == "writing"
 
     async def stop(self) -> None:
         for t in self._tasks:
@@ -367,9 +364,11 @@ class ResultServer:
         if done is None:
             return
         data = await results.result(self.source, done, m.uri, self.idx)
+        job = await self.source.report_job(ready)
+        why = f"; report not written: {job[1]}" if job and job[0] == "failed" else ""
         for gen in m.events:
             gen.event.Result = data
             gen.event.Message = ua.LocalizedText(f"{m.name}: result {ready} ready "
-                                                 f"({done.verdict or done.state})", "en")
+                                                 f"({done.verdict or done.state}){why}", "en")
             gen.event.Severity = 500
             await gen.trigger()

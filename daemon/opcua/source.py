@@ -1,7 +1,7 @@
 """Where the OPC UA results server reads runs: a daemon's own SQLite journal, or the PostgreSQL
 fleet store every daemon of a shop drains to (issue 25 item 4: one endpoint for the shop).
 
-Both answer the same five questions, asynchronously (the fleet store is psycopg's async
+Both answer the same six questions, asynchronously (the fleet store is psycopg's async
 connection; the journal's SQLite calls are quick and stay on the event loop as everywhere
 in the daemon)."""
 
@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import Any, Protocol
 
 from daemon.analysis.result import Analysis
+from daemon.store import report_jobs
 from daemon.store.journal import RunRow, Store, StoreError, validate_run_id
 
 
@@ -21,6 +22,7 @@ class ResultSource(Protocol):
     async def verdict(self, run_id: str) -> dict[str, Any] | None: ...
     async def analysis(self, run_id: str) -> Analysis | None: ...
     async def report(self, run_id: str) -> Path | None: ...
+    async def report_job(self, run_id: str) -> tuple[str, str] | None: ...
 
 
 class JournalSource:
@@ -47,6 +49,14 @@ class JournalSource:
     async def report(self, run_id: str) -> Path | None:
         rep = self.store.report(run_id)
         return rep[0] if rep else None
+
+    async def report_job(self, run_id: str) -> tuple[str, str] | None:
+        """(state, reason) of the run's report job (writing, written, failed); None: none."""
+        try:
+            job = report_jobs.get(self.store, run_id)
+        except StoreError:
+            return None
+        return (job.state, job.reason) if job else None
 
 
 _RUN = ("SELECT id, machine, trigger, state, reason, plan, artefact, dialect, touch_total,"
@@ -96,3 +106,11 @@ class FleetSource:
     async def report(self, run_id: str) -> Path | None:
         path = await self.pg.report_path(run_id)
         return Path(path) if path else None
+
+    async def report_job(self, run_id: str) -> tuple[str, str] | None:
+        try:
+            validate_run_id(run_id)
+        except StoreError:
+            return None
+        job = await self.pg.report_job(run_id)
+        return (str(job[0]), str(job[1])) if job else None

@@ -2,14 +2,16 @@
 
 # The verdict is journaled, judged, written back to the CNC and the run's end (DONE) published
 # before anything is rendered: the machine goes back to production ~2 s earlier (plots and PDF
-# take 2.2 s of CPU, more on a loaded shop PC). The rendering then runs in a thread; its end is
-# journaled (written: the ``reports`` row; failed: the run's reason, the verdict kept) and
-# published (``verdict["report_state"]``: writing → written | failed), so every surface that
-# links to the report waits for it or says it is being written.
+# take 2.2 s of CPU, more on a loaded shop PC). The rendering then runs in a thread; the job is
+# journaled apart from the run (``report_jobs``, daemon/store/report_jobs.py: writing → written
+# with the ``reports`` row | failed with its reason; the run's row and verdict untouched) and
+# published (``verdict["report_state"]``, ``verdict["report_error"]``), so every surface that
+# links to the report waits for it or says why it is not there.
 
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import logging
 from pathlib import Path
 from types import ModuleType
@@ -19,6 +21,7 @@ from daemon.analysis import pipeline
 from daemon.analysis.judge import Judgement
 from daemon.machines.setup import MachineSetup
 from daemon.reports.compensation import verification_of
+from daemon.store import report_jobs
 from daemon.store.journal import Store
 
 
@@ -31,14 +34,14 @@ class Session(Protocol):
     baseline: Any
     verdict: dict[str, Any] | None
     run_id: str | None
-    reason: str
 
     def _publish(self) -> None: ...
 
 
 log = logging.getLogger("rumba.session")
 
-WRITING, WRITTEN, FAILED = "writing", "written", "failed"
+WRITING, WRITTEN, FAILED = report_jobs.WRITING, report_jobs.WRITTEN, report_jobs.FAILED
+STOPPED = "the daemon stopped while it was being written"
 
 
 def start(session: Session, run_id: str, analysis: pipeline.RunAnalysis,
@@ -47,6 +50,7 @@ def start(session: Session, run_id: str, analysis: pipeline.RunAnalysis,
     (a failure is journaled and published, the verdict stays)."""
     verdict = session.verdict if session.verdict is not None else {}
     verdict["report_state"] = WRITING
+    report_jobs.begin(session.store, run_id)  # journaled before the run's end is published
     baseline = session.baseline  # the next run replaces the session's own
     return asyncio.get_running_loop().create_task(
         _write(session, run_id, verdict, analysis, judgement, baseline),
@@ -65,13 +69,13 @@ async def _write(session: Session, run_id: str, verdict: dict, analysis: pipelin
                                         analysis.data, judgement, analysis.centre_rows, trend,
                                         setup.tolerances, report.audit_of(setup, baseline),
                                         verified)
-        store.save_report(run_id, *paths)  # journaled: the PDF beside the HTML (pdf_path)
+        report_jobs.written(store, run_id, *paths)  # the PDF beside the HTML (pdf_path)
         verdict["report"] = str(paths[0])
         verdict["pdf"] = str(report.pdf_path(paths[0]))
         verdict["report_state"] = WRITTEN
         log.info("%s %s report written: %s", setup.name, run_id, paths[0])
     except asyncio.CancelledError:
-        _failed(session, run_id, verdict, "the daemon stopped while it was being written")
+        _failed(session, run_id, verdict, STOPPED)
         raise
     except Exception as e:  # the verdict stands; the report's absence is said, with why
         log.exception("%s %s: report not written", setup.name, run_id)
@@ -87,13 +91,26 @@ def _report_module() -> ModuleType:
 
 
 def _failed(session: Session, run_id: str, verdict: dict, why: str) -> None:
+    """The verdict stands; the job's end and why, journaled and published (not the run's
+    reason: the run ended DONE, its report is another matter)."""
     verdict["report_state"] = FAILED
-    verdict["report_error"] = why[:300]
-    if session.run_id == run_id:  # the HMI card shows the reason beside the verdict
-        session.reason = f"report not written: {why[:300]}"
+    verdict["report_error"] = " ".join(why.split())[:report_jobs.REASON_CHARS]
     try:
-        session.store.set_state(run_id, "DONE", f"verdict written back; report not "
-                                f"written: {why[:300]}")
+        report_jobs.failed(session.store, run_id, why)
     except Exception as e:  # the journal gone: the log keeps it
         log.error("%s %s: could not journal the report failure: %s", session.setup.name,
                   run_id, e)
+
+
+async def settle(task: asyncio.Task | None, wait_s: float) -> None:
+    """The daemon stops: let a report being written finish for ``wait_s`` (rendering takes
+    seconds), then cancel it — journaled failed, "the daemon stopped while it was being
+    written" — so no job is left 'writing' and the journal is closed after it."""
+    if task is None or task.done():
+        return
+    try:
+        await asyncio.wait_for(asyncio.shield(task), wait_s)
+    except TimeoutError:
+        task.cancel()
+        with contextlib.suppress(asyncio.CancelledError):
+            await task

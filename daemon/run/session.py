@@ -48,6 +48,9 @@ __all__ = ["ABORT_TIMEOUT_S", "RECONNECT_TIMEOUT_S", "WRITE_BACK_TIMEOUT_S", "Re
            "Session", "State", "new_run_id"]
 
 RECONNECT_TIMEOUT_S = 3600.0 * 24  # keep trying; the HMI shows the link as down meanwhile
+# a report renders in seconds (2.2 s of CPU); a stop waits that long for it, within systemd's
+# default 90 s stop timeout, before journaling it "not written"
+REPORT_STOP_WAIT_S = 30.0
 
 
 class Session(RunCapture):
@@ -119,6 +122,13 @@ class Session(RunCapture):
         """Stop the current run because the daemon stops (``cause``): INTERRUPTED, as a crash
         would leave it (``rerun_interrupted`` runs it again at the next start)."""
         return await self._cancel(State.INTERRUPTED, f"interrupted by {cause}")
+
+    async def shutdown(self, cause: str, report_wait_s: float = REPORT_STOP_WAIT_S) -> None:
+        """The daemon stops (``cause``): the run INTERRUPTED, then the last run's report let
+        finish for ``report_wait_s`` and else cancelled, journaled failed with the reason
+        (``report_job.settle``): nothing is left running or 'writing' when the journal closes."""
+        await self.interrupt(cause)
+        await report_job.settle(self._report_task, report_wait_s)
 
     async def _cancel(self, state: State, reason: str) -> bool:
         if not self.busy or self._task is None:

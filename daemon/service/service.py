@@ -26,6 +26,7 @@ from daemon.machines.setup import MachineSetup
 from daemon.run.session import Refused, Session
 from daemon.run.unattended import after_run
 from daemon.service.fleet_link import FleetLink
+from daemon.store import report_jobs
 from daemon.store.journal import Store
 from drivers.base import CncLink, LinkError
 
@@ -91,6 +92,9 @@ class Service:
         self.interrupted = self.store.mark_interrupted()
         for rid in self.interrupted:
             log.warning("run %s was interrupted (daemon stopped mid-run); hits kept", rid)
+        for rid in report_jobs.mark_abandoned(self.store):
+            log.warning("run %s: its report was being written when the daemon stopped; "
+                        "journaled not written (the run and its verdict are kept)", rid)
         try:
             for name, setup in cfg.machines.items():
                 link = self.link_factory(setup)
@@ -252,7 +256,7 @@ class Service:
                 await t
         for s in self.sessions.values():
             with contextlib.suppress(Exception):
-                await s.interrupt("the daemon stopping")
+                await s.shutdown("the daemon stopping")  # its report: finished or failed
         if self.panel is not None:
             with contextlib.suppress(Exception):
                 await self.panel.close()

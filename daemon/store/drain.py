@@ -235,6 +235,9 @@ class Drainer:
         if "reports" in kinds:
             b.report = db.execute("SELECT html_path, json_path FROM reports WHERE run_id=?",
                                   (run_id,)).fetchone()
+        if "report_jobs" in kinds:  # the report's own end (migration 10), apart from the run
+            b.report_job = db.execute("SELECT state, reason, started_at, ended_at FROM"
+                                      " report_jobs WHERE run_id=?", (run_id,)).fetchone()
         if "baselines" in kinds:  # issue 23: who proposed / confirmed this run as a baseline
             b.baselines = db.execute("SELECT machine, run_id, state, by_person, at, note FROM"
                                      " baselines WHERE run_id=? ORDER BY id",

@@ -43,7 +43,8 @@ class RunIdCollision(StoreError):
 _RUN_ROW_COLS = {"estimates": ("analysis",),
                  "link_estimates": ("model_key", "estimate", "plan", "created_at"),
                  "verdicts": ("status", "reasons", "checks", "written_back"),
-                 "reports": ("html_path", "json_path")}
+                 "reports": ("html_path", "json_path"),
+                 "report_jobs": ("state", "reason", "started_at", "ended_at")}
 
 
 @dataclass
@@ -57,6 +58,7 @@ class RunBatch:
     link_estimate: tuple | None = None  # (model_key, estimate, plan, created_at)
     verdict: tuple | None = None  # (status, reasons, checks, written_back)
     report: tuple | None = None  # (html_path, json_path)
+    report_job: tuple | None = None  # (state, reason, started_at, ended_at)
     baselines: list[tuple] = field(default_factory=list)  # (machine, run_id, state, by, at, note)
     temperatures: list[tuple] = field(default_factory=list)  # pg_temperatures.TEMP_COLS
 
@@ -152,7 +154,7 @@ class PgStore:
                     [(*r, r[0], r[1], r[2], r[4]) for r in b.baselines])
             for table, row in (("estimates", (b.analysis,) if b.analysis is not None else None),
                                ("link_estimates", b.link_estimate), ("verdicts", b.verdict),
-                               ("reports", b.report)):
+                               ("reports", b.report), ("report_jobs", b.report_job)):
                 if row is not None:  # one row per run, replaced by a newer copy
                     cols = _RUN_ROW_COLS[table]
                     await cur.execute(
@@ -229,11 +231,20 @@ class PgStore:
             " WHERE e.run_id = r.id),"
             # issue 23: the drift checks name the baseline run; the reason a report failure
             " (SELECT v.checks FROM verdicts v WHERE v.run_id = r.id),"
-            " (SELECT v.reasons FROM verdicts v WHERE v.run_id = r.id), r.reason FROM runs r"
+            " (SELECT v.reasons FROM verdicts v WHERE v.run_id = r.id), r.reason,"
+            # the report job (migration 10): being written, or why it was not
+            " j.state, j.reason FROM runs r LEFT JOIN report_jobs j ON j.run_id = r.id"
             " WHERE r.machine=%s ORDER BY r.started_at DESC LIMIT %s", (machine, limit))
         keys = ("id", "trigger", "state", "verdict", "summary", "started_at", "ended_at",
-                "has_report", "temperatures", "checks", "reasons", "reason")
+                "has_report", "temperatures", "checks", "reasons", "reason", "report_state",
+                "report_error")
         return [dict(zip(keys, r, strict=True)) for r in rows]
+
+    async def report_job(self, run_id: str) -> tuple[str, str] | None:
+        """(state, reason) of the run's report job (migration 10); None: it had none."""
+        rows = await self._all("SELECT state, reason FROM report_jobs WHERE run_id=%s",
+                               (run_id,))
+        return (rows[0][0], rows[0][1]) if rows else None
 
     async def report_path(self, run_id: str) -> str | None:
         rows = await self._all("SELECT html_path FROM reports WHERE run_id=%s", (run_id,))

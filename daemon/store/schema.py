@@ -112,6 +112,25 @@ MIGRATIONS: list[list[str]] = [
             by_person TEXT NOT NULL, at REAL NOT NULL, note TEXT NOT NULL DEFAULT '')""",
         "CREATE INDEX baselines_machine ON baselines(machine, id)",
     ],
+    [  # 10: a run's report job (daemon/store/report_jobs.py), no longer in the run's reason:
+        # writing → written | failed with its reason, started and ended. A journal of before
+        # keeps its reports (written) and its "report not written" reasons (failed, with the
+        # cause after the old prefix, 42 characters; the run's reason kept as it was); a DONE
+        # run with neither had no job to tell of (no row).
+        """CREATE TABLE report_jobs (
+            run_id TEXT PRIMARY KEY REFERENCES runs(id), state TEXT NOT NULL,
+            reason TEXT NOT NULL DEFAULT '', started_at REAL NOT NULL, ended_at REAL)""",
+        """INSERT INTO report_jobs (run_id, state, reason, started_at, ended_at)
+            SELECT p.run_id, 'written', '', COALESCE(r.ended_at, r.started_at), r.ended_at
+            FROM reports p JOIN runs r ON r.id = p.run_id""",
+        """INSERT INTO report_jobs (run_id, state, reason, started_at, ended_at)
+            SELECT id, 'failed',
+            CASE WHEN reason LIKE 'verdict written back; report not written: %'
+            THEN substr(reason, 43) ELSE reason END, COALESCE(ended_at, started_at), ended_at
+            FROM runs
+            WHERE state = 'DONE' AND reason LIKE '%report not written%'
+            AND id NOT IN (SELECT run_id FROM reports)""",
+    ],
 ]
 SCHEMA_VERSION = len(MIGRATIONS)
 
@@ -142,7 +161,8 @@ CAPTURE_TRIGGERS: list[str] = [
       for t, k in (("runs", "id"), ("centres", "run_id"), ("estimates", "run_id"),
                    ("link_estimates", "run_id"), ("verdicts", "run_id"),
                    ("reports", "run_id"), ("machines", "name"),
-                   ("baselines", "run_id"))  # issue 23: a person's baseline decisions
+                   ("baselines", "run_id"),  # issue 23: a person's baseline decisions
+                   ("report_jobs", "run_id"))
       for op in ("INSERT", "UPDATE")),
     """CREATE TEMP TRIGGER IF NOT EXISTS outbox_hits_insert AFTER INSERT ON main.hits
        BEGIN INSERT INTO outbox(kind, key, hit_seq) VALUES ('hits', NEW.run_id, NEW.seq);

@@ -22,7 +22,7 @@ from daemon.compensation.propose import ControllerModelError, controller_model
 from daemon.config import DaemonConfig, load_daemon_config
 from daemon.machines.setup import MachineSetup
 from daemon.reports.compensation import verification_of
-from daemon.store import baselines
+from daemon.store import baselines, report_jobs
 from daemon.store.journal import Store, StoreError
 from daemon.store.probing_csv import export_csv, journal_import, read_import
 
@@ -136,8 +136,9 @@ def _import(cfg: DaemonConfig, store: Store, args: argparse.Namespace) -> int:
         html, json_path = report.write_report(
             cfg.reports_dir, run, a.data, j, a.centre_rows, trend, setup.tolerances,
             report.audit_of(setup), verification_of(store, run, a.data))
-        store.save_report(run_id, html, json_path)
+        report_jobs.written(store, run_id, html, json_path)
     except OSError as e:
+        report_jobs.failed(store, run_id, f"{type(e).__name__}: {e.strerror or e}")
         raise UserError(f"run {run_id} imported ({j.summary}), but its report cannot be "
                         f"written in {cfg.reports_dir}: {e.strerror or e}") from None
     # every file written, the HTML last on its own "report:" line (scripts read it from there)
