@@ -138,3 +138,59 @@ async def test_a_report_job_a_crash_left_writing_is_failed_at_the_next_start(tmp
         assert report_jobs.mark_abandoned(store) == []  # once
     finally:
         store.close()
+
+
+async def test_sigterm_on_rumba_run_under_the_report_stops_the_daemon_cleanly(tmp_path,
+                                                                           monkeypatch):
+    """``rumba run``'s SIGTERM handler stops the service (``serve`` → ``Service.stop``) while
+    a report is being written: the stop returns, the report job is journaled failed naming
+    the stop before the journal closes, the verdict written back, no report task left; the
+    next start finds nothing left 'writing'."""
+    from daemon.config import load_daemon_config
+    from daemon.run import session as session_mod
+    from daemon.service.service import Service
+    from tests.daemon_helpers import write_daemon_yaml
+
+    cfg = load_daemon_config(write_daemon_yaml(tmp_path))
+    setup = thesis_setup()
+    rows = thesis_rows(setup)
+    links: list[ReplayLink] = []
+    entered, go_on = threading.Event(), threading.Event()
+    real = report.write_report
+
+    def held(*a, **kw):
+        entered.set()
+        go_on.wait(60)
+        return real(*a, **kw)
+
+    def factory(s):
+        links.append(ReplayLink(rows, s.machine))
+        return links[-1]
+
+    monkeypatch.setattr(report, "write_report", held)
+    monkeypatch.setattr(session_mod, "REPORT_STOP_WAIT_S", 0.1)  # the worker is held anyway
+    svc = Service(cfg, factory, prepare=prepare_from_rows(rows))
+    await svc.start()
+    try:
+        s = svc.sessions["mill1"]
+        run_id = s.start("hmi")
+        while not entered.is_set():
+            await asyncio.sleep(0.01)
+            assert not (s._task.done() and s._report_task is None), s.status()
+    finally:
+        try:
+            await svc.stop()
+        finally:
+            go_on.set()
+    assert not [t for t in asyncio.all_tasks() if t.get_name().startswith("report-")
+                and not t.done()]
+    assert [v.status for v in links[0].verdicts] == ["PASS"]
+    store = Store(cfg.store_path)
+    try:
+        job = report_jobs.get(store, run_id)
+        assert job is not None and job.state == "failed"
+        assert job.reason == "the daemon stopped while it was being written"
+        assert store.run(run_id).state == "DONE" and store.verdict(run_id)["written_back"]
+        assert report_jobs.mark_abandoned(store) == []  # the next start: nothing left writing
+    finally:
+        store.close()

@@ -123,12 +123,14 @@ class Session(RunCapture):
         would leave it (``rerun_interrupted`` runs it again at the next start)."""
         return await self._cancel(State.INTERRUPTED, f"interrupted by {cause}")
 
-    async def shutdown(self, cause: str, report_wait_s: float = REPORT_STOP_WAIT_S) -> None:
+    async def shutdown(self, cause: str, report_wait_s: float | None = None) -> None:
         """The daemon stops (``cause``): the run INTERRUPTED, then the last run's report let
-        finish for ``report_wait_s`` and else cancelled, journaled failed with the reason
-        (``report_job.settle``): nothing is left running or 'writing' when the journal closes."""
+        finish for ``report_wait_s`` (default ``REPORT_STOP_WAIT_S``) and else cancelled,
+        journaled failed with the reason (``report_job.settle``): nothing is left running or
+        'writing' when the journal closes."""
         await self.interrupt(cause)
-        await report_job.settle(self._report_task, report_wait_s)
+        await report_job.settle(self._report_task, REPORT_STOP_WAIT_S if report_wait_s is None
+                                else report_wait_s)
 
     async def _cancel(self, state: State, reason: str) -> bool:
         if not self.busy or self._task is None:
