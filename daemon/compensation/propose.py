@@ -139,16 +139,17 @@ def expected_values(spec: ControllerKinematics, store: Store, machine: str
     """name → (address, value the controller should hold): the journal's last written value,
     else the machine file's."""
     current = cj.current_values(store, machine)
-    # an orientation's `value` is the held link in µrad; a LinuxCNC pin holds it in deg
-    return {p.name: (p.address, current[p.name].new if p.name in current else float(p.value)
-                     if p.kind == "pivot" else float(np.degrees(p.value * 1e-6)))
+    return {p.name: (p.address, current[p.name].new if p.name in current else float(p.value))
             for p in spec.params}
 
 
 def check_hal_agrees(setup: MachineSetup, spec: ControllerKinematics, store: Store) -> None:
     from drivers.linuxcnc import halkins
 
-    want = expected_values(spec, store, setup.name)
+    # the section's (and journal's) orientation values are µrad of the held link; the kins
+    # pin holds it in deg (xyzbc_head_kins, programs/compensation/linuxcnc.py)
+    want = {n: (a, v if spec.param(n).kind == "pivot" else float(np.degrees(v * 1e-6)))
+            for n, (a, v) in expected_values(spec, store, setup.name).items()}
     try:
         got = halkins.read_pins([a for a, _ in want.values()])
     except halkins.HalError as e:
