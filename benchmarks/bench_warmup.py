@@ -1,29 +1,45 @@
-"""Warm-up during the morning check (issue 22): simulated runs of the 14-pose shift plan and of the
-plan ``rumba plan`` optimises for it, the truth warming up along Z (simulators/thermal.py, τ =
-15 min from cold) by 0, 5, 10 and 20 µm over the estimate's span, each analysed as the daemon
-does (drift-aware, identification/drift.py) and by the plain estimate. Prints per plan and
-warm-up: the share of (link, run) pairs within 2u of the truth with and without the drift model,
-the mean link bias in u, how often the drift model was selected, the share of runs whose fitted
-drift over the run is within 2u of the truth, the mean reported link u relative to the plain
-estimate's (the null run's cost of the drift search), the drift-aware coverage's standard error
-over runs, its mean signed error in u (bias), the spread of error/u (t_ν: √(ν/(ν−2)) before
-issue 22's GUM-S1 u, 1 after), the median ν of σ, and the link u over today's (the u the
-estimator stated before the t's ν/(ν−2) entered it: the issue's null-run criterion, ≤ 1.1).
+"""Warm-up during the morning check (issue 22): Monte Carlo of the drift-aware estimate.
 
-``gap``: the gap diagnosis of a withheld warm-up 8 µm·(1 − e^(−t/900 s)) along Z on the
+Simulated runs of the 14-pose shift plan and of the plan ``rumba plan`` optimises for it, on the
+thesis machine (Table B.2 links, thesis touch and centre repeatability) with the rotary axes'
+index scatter (``INDEX_URAD`` 1σ on B and C per indexation, issue 21) and a warm-up from cold
+δ(t) = A·(1 − e^(−t/τ)) (simulators/thermal.py) whose drift over the estimate's span is 0, 5, 10
+or 20 µm, τ drawn log-uniform in 10-60 min and the direction uniform on the sphere (one τ for
+the three axes: one thermal state). Every run draws its own seed, a hash of (plan, warm-up,
+index): no two cells share noise. Each run is analysed as the daemon does (drift-aware,
+identification/drift.py) and by the plain estimate. Prints per plan and warm-up:
+
+- 2u coverage over every (link, run) pair, drift-aware and plain, each with its binomial
+  standard error (pairs as if independent) and its run-clustered one (the links of a run share
+  its σ̂ and its drift fit: the standard deviation of the per-run coverage over √N);
+- bias: the mean (estimate − truth)/u of the drift-aware links, ± its clustered standard error,
+  and sd(z) the spread of (estimate − truth)/u;
+- how often a drift model was selected (on the null rows: falsely), the share of fitted
+  (run, axis) drifts over the run within 2u of the truth, the share of (run, axis) with a true
+  drift ≥ 2 µm the selected model left out;
+- u/u_plain, the reported link u over the plain estimate's (the cost of the drift search), and
+  u/u_today, over the u stated before issue 22 (the same covariance without the t's ν/(ν−2)):
+  the issue's null-run criterion, ≤ 1.1.
+
+``gap``: the gap diagnosis of a withheld warm-up 8 µm·(1 − e^(−t/900 s)) along Z (or X, Y) on the
 annex-B 14-pose plan (identification/gap/simlog.py touches, 0.5 µm trigger noise): how often it
 is named ``thermal_drift:Z`` (exponential) and the held-out RMS after it over the noise floor.
 
-    .venv/bin/python -m benchmarks.bench_warmup          (50 seeds per cell, ~10 min)
-    .venv/bin/python -m benchmarks.bench_warmup 10       (10 seeds)
-    .venv/bin/python -m benchmarks.bench_warmup gap 20   (the gap diagnosis, 20 seeds)
+    .venv/bin/python -m benchmarks.bench_warmup 200          (200 runs per cell, ~1 h per plan)
     .venv/bin/python -m benchmarks.bench_warmup 50 optimised   (one plan: shift | optimised)
+    .venv/bin/python -m benchmarks.bench_warmup 200 shift 0 5  (some warm-ups only, µm)
+    .venv/bin/python -m benchmarks.bench_warmup 50 shift 0 index=0   (no index scatter)
+    .venv/bin/python -m benchmarks.bench_warmup gap 50 X (the gap diagnosis, 50 seeds, along X)
 """
 
 from __future__ import annotations
 
+import hashlib
+import json
+import math
 import sys
 import warnings
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -37,7 +53,7 @@ from identification.estimate import estimate
 from identification.uncertainty import t_variance_factor
 from simulators.errors_schema import errors_from_dict
 from simulators.offline import run_sync
-from simulators.thermal import ThermalState
+from simulators.thermal import AxisWarmup, ThermalState
 from simulators.truth import TruthModel
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -46,136 +62,228 @@ MACHINE = C / "machines/thesis_wcbxfzyt.yaml"
 ARTEFACT = C / "artefacts/thesis_4ball.yaml"
 TARGETS = C / "plans/targets/shift_start.yaml"
 ERRORS = C / "errors/thesis_tableB2.yaml"
-TAU_S = 900.0
+TAU_RANGE_S = (600.0, 3600.0)  # the issue's 10-60 min (ISO 230-3), drawn log-uniform
+INDEX_URAD = 4.0  # B and C index repeatability 1σ: R = 4σ ≈ 16 µrad (3.3″), a good trunnion
 WARMUPS_UM = (0.0, 5.0, 10.0, 20.0)
+MISSED_UM = 2.0  # a true drift component this large the selected model should carry
 
 
-def _truth(machine, mf, art, over_um: float, span_s: float) -> TruthModel:
+def run_seed(plan: str, over_um: float, i: int) -> int:
+    """The run's seed: a hash of (plan, warm-up, index), so no two cells share noise draws
+    (Python's ``hash`` is salted per process: not reproducible)."""
+    h = hashlib.sha256(f"{plan}|{over_um:g}|{i}".encode()).digest()
+    return int.from_bytes(h[:4], "little")
+
+
+def draw_warmup(seed: int, over_um: float, span_s: float) -> ThermalState | None:
+    """The run's thermal state: τ log-uniform in ``TAU_RANGE_S``, a direction uniform on the
+    sphere, amplitudes such that the drift over ``span_s`` from cold is ``over_um`` along it.
+    Built directly, not through the errors file: 20 µm over the optimised plan's 101 s with
+    τ = 60 min needs A ≈ 720 µm, past the file's ±500 µm (an over-run drift that large comes
+    from a fast warm-up; over so short a run only its curvature depends on τ)."""
+    if not over_um:
+        return None
+    rng = np.random.default_rng([seed, 22])
+    tau = float(math.exp(rng.uniform(*np.log(TAU_RANGE_S))))
+    d = rng.normal(size=3)
+    d /= np.linalg.norm(d)
+    amp = ThermalState.amplitude_for(over_um, span_s, tau)
+    return ThermalState({a: AxisWarmup(float(amp * d[k]), tau) for k, a in enumerate("XYZ")})
+
+
+def _truth(machine, mf, art, thermal: ThermalState | None, seed: int,
+           index_urad: float = INDEX_URAD) -> TruthModel:
     e = yaml.safe_load(ERRORS.read_text())
-    if over_um:
-        e["thermal"] = {"axes": {"Z": {"amplitude_um": ThermalState.amplitude_for(
-            over_um, span_s, TAU_S), "tau_s": TAU_S}}}
-    return TruthModel.build(machine, mf, art, errors_from_dict(e))
+    if index_urad:
+        e["indexing"] = {"repeatability_urad": {"B": index_urad, "C": index_urad}}
+    # the truth's seed drives the index scatter draws (simulators/visit_errors.py)
+    truth = TruthModel.build(machine, mf, art, errors_from_dict(e), seed=seed)
+    return truth if thermal is None else replace(truth, thermal=thermal)
 
 
-def cell(machine, mf, art, plan, text: str, over_um: float, span_s: float, seeds: int
-         ) -> dict[str, float]:
-    truth = _truth(machine, mf, art, over_um, span_s)
+def _se(per_run: list[float]) -> float:
+    """Run-clustered standard error of a mean over runs (equal cluster sizes)."""
+    return float(np.std(per_run, ddof=1) / np.sqrt(len(per_run))) if len(per_run) > 1 else 0.0
+
+
+def run_one(machine, mf, art, plan, text: str, name: str, over_um: float, span_s: float,
+            i: int, index_urad: float = INDEX_URAD) -> dict:
+    """Run ``i`` of the cell (plan ``name``, warm-up ``over_um``): per link whether it is within
+    2u (drift-aware, plain), its error/u and u ratios; the drift selection and fit."""
+    seed = run_seed(name, over_um, i)
+    truth = _truth(machine, mf, art, draw_warmup(seed, over_um, span_s), seed, index_urad)
     want = {k: float(v) for k, v in truth.errors.links.items()}
+    res = run_sync(truth, text, "fanuc", seed=seed)
+    if res.state != "done":
+        raise RuntimeError(f"{name} {over_um} µm run {i} (seed {seed}): {res.state} {res.alarm}")
     val = plan.indices("validate")
-    cov_aware, cov_plain, bias, sel, drift_ok, u_ratio, over = [], [], [], [], [], [], []
-    z_aware, run_cov, dof, u_today = [], [], [], []
-    for seed in range(seeds):
-        res = run_sync(truth, text, "fanuc", seed=2000 + seed)
-        if res.state != "done":
-            raise RuntimeError(f"seed {seed}: {res.state} {res.alarm}")
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            data = rows_to_centres(res.rows, art, plan.stylus_radius_mm)
-        a = analyse_centres(machine, art, data, validate_poses=val)
-        est_c = data.centres.subset(~np.isin(data.centres.pose, val))
-        pe = estimate(machine, art, est_c)
-        plain = pe.links_si()
-        # today's u before issue 22 item 1: the same covariance without the t's ν/(ν−2)
-        old_f = np.sqrt(t_variance_factor(pe.sigma_dof))
-        n0 = len(cov_aware)
-        dof.append(a.estimation.sigma_dof or float("inf"))
-        for k, v in a.links.items():
-            cov_aware.append(abs(v.value - want.get(k, 0.0)) <= 2 * v.std)
-            z_aware.append((v.value - want.get(k, 0.0)) / v.std)
-            pv, pu, _ = plain[k]
-            cov_plain.append(abs(pv - want.get(k, 0.0)) <= 2 * pu)
-            bias.append((pv - want.get(k, 0.0)) / pu)
-            u_ratio.append(v.std / pu)
-            u_today.append(v.std / (pu / old_f))
-        run_cov.append(np.mean(cov_aware[n0:]))
-        th = a.thermal
-        selected = th is not None and th.status == "selected"
-        sel.append(selected)
-        if over_um and truth.thermal is not None:
-            true_z = truth.thermal.over_run_um(float(est_c.t_s.min()), float(est_c.t_s.max()))
-            over.append(true_z["Z"])
-            d = th.over_run_um.get("Z") if selected else None
-            drift_ok.append(d is not None and abs(d.value - true_z["Z"]) <= 2 * d.std)
-    z = np.array(z_aware)
-    return {"cov_aware": float(np.mean(cov_aware)), "cov_plain": float(np.mean(cov_plain)),
-            # the coverage's standard error over runs (a run's links are not independent)
-            "cov_se": float(np.std(run_cov, ddof=1) / np.sqrt(len(run_cov))),
-            "bias_aware_u": float(np.mean(z)), "z_std": float(np.std(z)),
-            "dof": float(np.median(dof)), "u_today": float(np.mean(u_today)),
-            "bias_plain_u": float(np.mean(np.abs(bias))), "selected": float(np.mean(sel)),
-            "drift_ok": float(np.mean(drift_ok)) if drift_ok else float("nan"),
-            "u_ratio": float(np.mean(u_ratio)), "over_um": float(np.mean(over)) if over
-            else 0.0}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        data = rows_to_centres(res.rows, art, plan.stylus_radius_mm)
+    a = analyse_centres(machine, art, data, validate_poses=val)
+    est_c = data.centres.subset(~np.isin(data.centres.pose, val))
+    pe = estimate(machine, art, est_c)
+    plain = pe.links_si()
+    # today's u before issue 22 item 1: the same covariance without the t's ν/(ν−2)
+    old_f = float(np.sqrt(t_variance_factor(pe.sigma_dof)))
+    rec: dict = {"plan": name, "warmup_um": over_um, "i": i, "seed": seed,
+                 "dof": a.estimation.sigma_dof or float("inf"), "aware": [], "plain": [],
+                 "z": [], "u_ratio": [], "u_today": [], "drift": [], "missed": [],
+                 "over_um": 0.0, "sandwich": pe.visit_scatter is not None}
+    for k, v in a.links.items():
+        err = v.value - want.get(k, 0.0)
+        pv, pu, _ = plain[k]
+        rec["aware"].append(bool(abs(err) <= 2 * v.std))
+        rec["z"].append(err / v.std)
+        rec["plain"].append(bool(abs(pv - want.get(k, 0.0)) <= 2 * pu))
+        rec["u_ratio"].append(v.std / pu)
+        rec["u_today"].append(v.std / (pu / old_f))
+    th = a.thermal
+    rec["selected"] = bool(th is not None and th.status == "selected")
+    if over_um and truth.thermal is not None:
+        true = truth.thermal.over_run_um(float(est_c.t_s.min()), float(est_c.t_s.max()))
+        rec["over_um"] = float(np.linalg.norm(list(true.values())))
+        rec["tau_s"] = truth.thermal.axes["X"].tau_s
+        fitted = th.over_run_um if rec["selected"] else {}
+        for ax, tv in true.items():
+            d = fitted.get(ax)
+            if d is not None:  # a fitted axis: its drift over the run within 2u
+                rec["drift"].append(bool(abs(d.value - tv) <= 2 * d.std))
+            if abs(tv) >= MISSED_UM:  # a sizeable true drift the model left out
+                rec["missed"].append(d is None)
+    return rec
+
+
+def summarise(recs: list[dict]) -> dict:
+    """One cell's figures from its runs (see the module doc)."""
+    n = len(recs)
+    aware = [float(np.mean(r["aware"])) for r in recs]
+    plain = [float(np.mean(r["plain"])) for r in recs]
+    zrun = [float(np.mean(r["z"])) for r in recs]
+    z = np.concatenate([r["z"] for r in recs])
+    drift = [x for r in recs for x in r["drift"]]
+    missed = [x for r in recs for x in r["missed"]]
+    p_a, p_p = float(np.mean(aware)), float(np.mean(plain))
+    return {"plan": recs[0]["plan"], "warmup_um": recs[0]["warmup_um"], "runs": n,
+            "links": len(z) // n,
+            "cov_aware": p_a, "cov_aware_se_binom": math.sqrt(p_a * (1 - p_a) / len(z)),
+            "cov_aware_se_run": _se(aware),
+            "cov_plain": p_p, "cov_plain_se_binom": math.sqrt(p_p * (1 - p_p) / len(z)),
+            "cov_plain_se_run": _se(plain),
+            "bias_u": float(np.mean(z)), "bias_se_run": _se(zrun), "z_std": float(np.std(z)),
+            "dof": float(np.median([r["dof"] for r in recs])),
+            "selected": float(np.mean([r["selected"] for r in recs])),
+            "drift_ok": float(np.mean(drift)) if drift else float("nan"),
+            "drift_pairs": len(drift),
+            "missed": float(np.mean(missed)) if missed else float("nan"),
+            "u_ratio": float(np.mean(np.concatenate([r["u_ratio"] for r in recs]))),
+            "u_today": float(np.mean(np.concatenate([r["u_today"] for r in recs]))),
+            "over_um": float(np.mean([r["over_um"] for r in recs]))}
 
 
 def _span(machine, mf, art, plan, text: str) -> float:
     """The estimate's span (first to last estimate-pose centre) of one drift-free run."""
-    res = run_sync(_truth(machine, mf, art, 0.0, 1.0), text, "fanuc", seed=1)
+    res = run_sync(_truth(machine, mf, art, None, 1), text, "fanuc", seed=1)
     data = rows_to_centres(res.rows, art, plan.stylus_radius_mm)
     c = data.centres.subset(~np.isin(data.centres.pose, plan.indices("validate")))
     return float(c.t_s.max() - c.t_s.min())
 
 
-def gap(seeds: int) -> None:
+def gap(seeds: int, axis: str = "Z") -> None:
+    """The withheld warm-up 8 µm·(1 − e^(−t/900 s)) along ``axis`` (module doc)."""
     from identification.effects import make_effect
     from identification.gap import diagnose
     from identification.gap.simlog import simulate
     from tests.gap_helpers import STYLUS_R, annex_b_setup, gap_truth
 
     machine, artefact, poses = annex_b_setup()
-    eff = make_effect("thermal_drift", "Z", machine, model="exponential")
+    eff = make_effect("thermal_drift", axis, machine, model="exponential")
     named, exp, ratios, amp_ok = 0, 0, [], 0
     for seed in range(seeds):
         truth = gap_truth(artefact, seed=seed, effects=[(eff, np.array([8.0, 0.25]))])
         data = simulate(machine, artefact, poses, truth, STYLUS_R, 0.5, seed=seed)
         rep = diagnose(machine, artefact, data, STYLUS_R)
         v = rep["verdict"]
-        ok = (v["effect"], v["axis"]) == ("thermal_drift", "Z")
+        ok = (v["effect"], v["axis"]) == ("thermal_drift", axis)
         named += ok
         sel = v["selected"][0] if v["selected"] else {}
         exp += ok and sel.get("model") == "exponential"
         ratio = v["holdout_rms_after_um"] / rep["noise_floor_um"]
         ratios.append(ratio)
-        a = sel.get("params", {}).get("drift_Z_amplitude")
+        a = sel.get("params", {}).get(f"drift_{axis}_amplitude")
         amp_ok += bool(a and abs(a["value"] - 8.0) <= 2 * a["std"])
         print(f"seed {seed}: {v['effect']}:{v['axis']} {sel.get('model', '')} after/floor "
               f"{ratio:.2f} {v['message'][:90]}", flush=True)
     r = np.array(ratios)
-    print(f"withheld warm-up 8 µm·(1 − e^(−t/900 s)) Z, annex-B 14 poses, {seeds} seeds: named "
-          f"thermal_drift:Z {named}/{seeds} (exponential {exp}), amplitude within 2u "
+    print(f"withheld warm-up 8 µm·(1 − e^(−t/900 s)) {axis}, annex-B 14 poses, {seeds} seeds: "
+          f"named thermal_drift:{axis} {named}/{seeds} (exponential {exp}), amplitude within 2u "
           f"{amp_ok}/{seeds}; held-out RMS after / floor median {np.median(r):.2f}, max "
           f"{r.max():.2f}, ≤ 1.5 in {int(np.sum(r <= 1.5))}/{seeds}")
 
 
+def _row(x: dict) -> str:
+    ok = "" if not x["warmup_um"] else f"{100 * x['drift_ok']:.1f}%"
+    miss = "" if not x["warmup_um"] else f"{100 * x['missed']:.1f}%"
+    return (f"{x['plan']:22s} {x['warmup_um']:5.0f}µm {x['over_um']:6.1f} "
+            f"{100 * x['cov_aware']:6.1f}% ±{100 * x['cov_aware_se_binom']:.1f}/"
+            f"{100 * x['cov_aware_se_run']:.1f} "
+            f"{100 * x['cov_plain']:6.1f}% ±{100 * x['cov_plain_se_binom']:.1f}/"
+            f"{100 * x['cov_plain_se_run']:.1f} "
+            f"{x['bias_u']:+6.3f}±{x['bias_se_run']:.3f} {x['z_std']:5.2f} "
+            f"{100 * x['selected']:6.1f}% {ok:>7s} {miss:>7s} "
+            f"{x['u_ratio']:7.3f} {x['u_today']:7.3f} {x['dof']:5.1f}")
+
+
+def _print_table(recs: list[dict]) -> None:
+    print(f"{'plan':22s} {'warm':>7s} {'|δ|':>6s} {'2u aware':>17s} {'2u plain':>17s} "
+          f"{'bias/u ± se':>12s} {'sd(z)':>5s} {'select':>7s} {'δ in 2u':>7s} {'missed':>7s} "
+          f"{'u/plain':>7s} {'u/today':>7s} {'ν':>5s}   N")
+    cells: dict[tuple[str, float], list[dict]] = {}
+    for r in recs:
+        cells.setdefault((r["plan"], r["warmup_um"]), []).append(r)
+    for key in sorted(cells, key=lambda k: (not k[0].startswith("shift"), k[1])):
+        x = summarise(cells[key])
+        print(_row(x) + f" {x['runs']:4d}", flush=True)
+
+
 def main(argv: tuple[str, ...] = ()) -> None:
-    seeds = next((int(a) for a in argv if a.isdigit()), 50)
+    nums = [a for a in argv if a.replace(".", "", 1).isdigit()]
+    runs = int(nums[0]) if nums else 50
     if "gap" in argv:
-        gap(seeds)
+        gap(runs, next((a for a in argv if a in ("X", "Y", "Z")), "Z"))
         return
+    if "summary" in argv:  # the table of a record file written by ``out=``
+        path = Path(argv[-1])
+        _print_table([json.loads(line) for line in path.read_text().splitlines() if line])
+        return
+    warmups = tuple(float(a) for a in nums[1:]) or WARMUPS_UM
+    index_urad = next((float(a[6:]) for a in argv if a.startswith("index=")), INDEX_URAD)
+    out = next((Path(a[4:]) for a in argv if a.startswith("out=")), None)
     machine, mf = load_machine(MACHINE)
     art = load_artefact(ARTEFACT)
     r = make_plan(MACHINE, ARTEFACT, TARGETS, "fanuc")
-    print(f"warm-up along Z, τ {TAU_S / 60:.0f} min from cold, {seeds} seeds per cell, "
-          "Table B.2 links, thesis repeatability; 2u coverage over every (link, run)")
-    print(f"{'plan':22s} {'warm-up':>8s} {'span':>6s} {'2u aware':>9s} {'2u plain':>9s} "
-          f"{'|bias|/u plain':>15s} {'selected':>9s} {'drift in 2u':>12s} {'u/u_plain':>10s}"
-          f" {'± se':>6s} {'bias/u':>7s} {'sd(z)':>6s} {'ν':>5s} {'u/u_today':>9s}")
-    for label, plan, g in (("shift_start_14poses", r.reference, r.old),
-                           (f"optimised ({len(r.plan.poses)} poses)", r.plan, r.new)):
-        if ("shift" in argv or "optimised" in argv) and label.split("_")[0].split(" ")[0] \
-                not in argv:
-            continue  # one plan only (two processes on a loaded box)
-        span = _span(machine, mf, art, plan, g.text)
-        for over in WARMUPS_UM:
-            x = cell(machine, mf, art, plan, g.text, over, span, seeds)
-            ok = "" if over == 0 else f"{100 * x['drift_ok']:.0f}%"
-            print(f"{label:22s} {over:6.0f}µm {span:5.0f}s {100 * x['cov_aware']:8.1f}% "
-                  f"{100 * x['cov_plain']:8.1f}% {x['bias_plain_u']:15.2f} "
-                  f"{100 * x['selected']:8.0f}% "
-                  f"{ok:>12s} "
-                  f"{x['u_ratio']:10.3f} {100 * x['cov_se']:5.1f}% {x['bias_aware_u']:+7.2f} "
-                  f"{x['z_std']:6.2f} {x['dof']:5.1f} {x['u_today']:9.3f}", flush=True)
+    print(f"{runs} independent runs per cell; warm-up from cold, τ log-uniform "
+          f"{TAU_RANGE_S[0] / 60:.0f}-{TAU_RANGE_S[1] / 60:.0f} min, direction uniform; index "
+          f"scatter {index_urad:g} µrad 1σ on B and C; Table B.2 links, thesis repeatability. "
+          "Coverage ± binomial / run-clustered se", flush=True)
+    plans = []
+    for name, plan, g in (("shift_start_14poses", r.reference, r.old),
+                          (f"optimised_{len(r.plan.poses)}poses", r.plan, r.new)):
+        if ("shift" in argv or "optimised" in argv) and not any(
+                name.startswith(a) for a in argv):
+            continue  # one plan only (one process per core)
+        plans.append((name, plan, g.text, _span(machine, mf, art, plan, g.text)))
+    recs: list[dict] = []
+    # run i of every cell before run i + 1 of any: stopped early, the cells have equal N
+    for i in range(runs):
+        for name, plan, text, span in plans:
+            for over in warmups:
+                rec = run_one(machine, mf, art, plan, text, name, over, span, i, index_urad)
+                recs.append(rec)
+                if out is not None:
+                    with out.open("a") as f:
+                        f.write(json.dumps(rec) + "\n")
+    _print_table(recs)
 
 
 if __name__ == "__main__":

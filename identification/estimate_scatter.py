@@ -48,14 +48,32 @@ def visits_of(centres: Centres) -> np.ndarray:
 
 def visit_sandwich(machine: Machine, artefact: Artefact, layout: Layout, p: np.ndarray,
                    centres: Centres, sigma_mm: np.ndarray, dist_jac: np.ndarray | None,
-                   dist_std_mm: np.ndarray | None) -> VisitScatterCov | None:
+                   dist_std_mm: np.ndarray | None, extra_cols: np.ndarray | None = None,
+                   offset_mm: np.ndarray | None = None) -> VisitScatterCov | None:
     """The sandwich covariance of the weighted estimate at ``p`` (weights 1/σ² per axis,
-    ``sigma_mm``), or None when the run shows no index scatter (or has too few visits)."""
+    ``sigma_mm``), or None when the run shows no index scatter (or has too few visits).
+    ``extra_cols`` (K, 3, m): more fitted columns (mm per unit; a TCP drift, issue 22), whose
+    parameters come last in the covariance; ``offset_mm`` (K, 3): their fitted effect, taken
+    off the centres (a drift moves every ball of a visit together, as an index error does:
+    left in the residuals it would read as index scatter)."""
     visit = visits_of(centres)
     if len(np.unique(visit)) < 4 or len(machine.rotary_axes) < 2:
         return None
     pred, jac = predict(machine, artefact, layout, p, centres, jacobian=True)
-    y = (centres.xyz_mm - pred) * 1e3
+    n_base = jac.shape[2]
+    scale = np.ones(n_base)
+    if extra_cols is not None:
+        # an extra column (a τ derivative, µm per s) can be 1e-9 of a link's: scaled to the
+        # links' median norm, or the pseudo-inverse below would drop it as rank-deficient
+        norm = np.linalg.norm(jac.reshape(-1, n_base), axis=0)
+        en = np.linalg.norm(extra_cols.reshape(-1, extra_cols.shape[2]), axis=0)
+        f = np.where(en > 0, en / np.median(norm[norm > 0]), 1.0)
+        scale = np.concatenate([scale, f])
+        jac = np.concatenate([jac, extra_cols / f], axis=2)
+        if dist_jac is not None and dist_jac.size:
+            dist_jac = np.hstack([dist_jac, np.zeros((dist_jac.shape[0], extra_cols.shape[2]))])
+    off = 0.0 if offset_mm is None else offset_mm
+    y = (centres.xyz_mm - pred - off) * 1e3
     x = jac * 1e3
     z = np.zeros((len(centres), 3, 2))
     for k in range(2):
@@ -82,7 +100,7 @@ def visit_sandwich(machine: Machine, artefact: Artefact, layout: Layout, p: np.n
         a_mat = a_mat + dj.T @ dj
         meat = meat + dj.T @ dj
     a_inv = np.linalg.pinv(a_mat, rcond=1e-12)
-    cov = a_inv @ meat @ a_inv
+    cov = a_inv @ meat @ a_inv / np.outer(scale, scale)
     comps = {n: (float(fit.sigma[i]), float(fit.std[i]), float(fit.p_value[i]))
              for i, n in enumerate(names)}
     return VisitScatterCov(cov, comps)
