@@ -64,23 +64,27 @@ class TouchTable:
 
     def named(self, seq: int, axes: dict[str, float], triggered: bool, **fields: Any) -> ProbeHit:
         """The hit of touch ``seq`` as a transport reporting only (seq, axes) delivers it (OPC UA,
-        Modbus): identity from the program and the touch's nominal approach direction, as a
-        printed result line carries them; pose -1 and no ball for a seq not in the table.
+        Modbus): identity and approach direction from the program (a tilted touch's direction
+        is in the tool frame, issue 24: the log is true), the nominal direction of its touch
+        number when the program gives none; pose -1 and no ball for a seq not in the table.
         ``fields`` (``t_s=…``, ``raw=…``) are passed to ``ProbeHit``."""
         info = self._by_seq.get(seq)
         if info is None:
             return ProbeHit(seq=seq, pose=-1, ball="", touch=0, axes=axes, triggered=triggered,
                             **fields)
         t = info.id
+        direction = info.direction if info.direction != _NONE else \
+            TOUCH_DIRECTIONS.get(t.touch, _NONE)
         return ProbeHit(seq=seq, pose=t.pose, ball=t.ball, touch=t.touch, repeat=t.repeat,
-                        axes=axes, triggered=triggered,
-                        direction=TOUCH_DIRECTIONS.get(t.touch, _NONE), **fields)
+                        axes=axes, triggered=triggered, direction=direction, **fields)
 
     def fill(self, hit: ProbeHit, **changes: Any) -> ProbeHit:
         """``hit`` with only what it lacks taken from the program: identity when it has no ball,
-        approach direction when zero, commanded pose when both rotary values are zero, feed
-        when zero (what the transport or result line reported is kept); ``changes`` are
-        applied as given. Filling twice changes nothing."""
+        commanded pose when both rotary values are zero, feed when zero (what the transport or
+        result line reported is kept); the approach direction is the program's whenever it has
+        one — no transport reports a direction, a result line only implies its touch number's
+        nominal diagonal, which a tilted touch (issue 24) is not. ``changes`` are applied as
+        given. Filling twice changes nothing."""
         info = self._by_seq.get(hit.seq)
         if info is not None:
             t = info.id
@@ -89,7 +93,7 @@ class TouchTable:
                 changes.setdefault("ball", t.ball)
                 changes.setdefault("touch", t.touch)
                 changes.setdefault("repeat", t.repeat)
-            if hit.direction == _NONE:
+            if info.direction != _NONE and hit.direction != info.direction:
                 changes.setdefault("direction", info.direction)
             if hit.b_cmd_deg == 0.0 and hit.c_cmd_deg == 0.0:
                 changes.setdefault("b_cmd_deg", info.b_cmd_deg)

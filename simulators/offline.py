@@ -62,8 +62,10 @@ def touches_to_rows(vc: VirtualController, run_id: str) -> list[LogRow]:
         direction = t.direction
         if t.seq in ids:
             rep, pose, ball, touch = ids[t.seq]
-            # As the daemon logs it (contracts/touch_table.py): the nominal direction of that touch.
-            direction = TOUCH_DIRECTIONS.get(touch, t.direction)
+            # As the daemon logs it (contracts/touch_table.py): the program's direction of that
+            # touch, the one the latch recognised (a tilted touch's in the tool frame, issue 24).
+            direction = t.direction if touch == t.touch else TOUCH_DIRECTIONS.get(touch,
+                                                                                  t.direction)
         else:
             pose, ball, touch = poses[key], truth.artefact.ids[t.ball], t.touch
             rep = seen.get((pose, ball, touch), 0)

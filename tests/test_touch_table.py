@@ -23,10 +23,14 @@ def test_table_by_seq_and_no_duplicate() -> None:
         TouchTable([TouchId(1, 0, "B1", 1), TouchId(1, 0, "B2", 1)])
 
 
-def test_named_gives_identity_and_nominal_direction() -> None:
+def test_named_gives_identity_and_the_programs_direction() -> None:
+    # the program's approach (a tilted touch's is in the tool frame, issue 24), not the
+    # touch number's nominal diagonal; that only when the program gives none
     hit = TABLE.named(2, AXES, True, t_s=1.5, raw="slot 1")
     assert (hit.pose, hit.ball, hit.touch, hit.repeat, hit.t_s) == (0, "B1", 2, 0, 1.5)
-    assert hit.direction == TOUCH_DIRECTIONS[2] and hit.feed_mm_min == 0.0
+    assert hit.direction == DIR and hit.feed_mm_min == 0.0
+    bare = TouchTable([TouchId(1, 0, "B1", 2, 0)]).named(1, AXES, True)
+    assert bare.direction == TOUCH_DIRECTIONS[2]
     stray = TABLE.named(7, AXES, True)
     assert (stray.pose, stray.ball, stray.touch, stray.direction) == (-1, "", 0, (0.0, 0.0, 0.0))
 
@@ -39,9 +43,9 @@ def test_fill_keeps_what_was_reported_and_is_idempotent() -> None:
     assert TABLE.fill(full) == full
     printed = ProbeHit(seq=1, pose=0, ball="B1", touch=1, axes=AXES, triggered=True,
                        b_cmd_deg=29.9, c_cmd_deg=45.1, direction=TOUCH_DIRECTIONS[1])
-    kept = TABLE.fill(printed)
-    assert (kept.b_cmd_deg, kept.direction, kept.feed_mm_min) == (29.9, TOUCH_DIRECTIONS[1],
-                                                                   500.0)
+    kept = TABLE.fill(printed)  # the line's nominal diagonal is not what the program did
+    assert (kept.b_cmd_deg, kept.direction, kept.feed_mm_min) == (29.9, DIR, 500.0)
+    assert TABLE.fill(kept) == kept
 
 
 def test_complete_takes_the_program_side_and_mismatch_names_the_difference() -> None:
