@@ -1,6 +1,7 @@
 """Cycle time of the thesis 14-pose plan (4 balls, rapid 20 m/min, probing 300 mm/min) against
 its targets (≤ 10 min, ≤ 1.5 × the lower bound) and generation + safety-check time of the
-175-pose plan. Run: ``python -m benchmarks cycletime``."""
+175-pose plan; the head families' shipped plans per dialect (issue 24: straight transits at rapid
+where the rapid is a straight line). Run: ``python -m benchmarks cycletime``."""
 
 from __future__ import annotations
 
@@ -48,6 +49,27 @@ def main() -> None:
           f"({report.segments} segments), render 4 dialects {t3 - t2:.2f} s "
           f"({', '.join(f'{k} {len(v) / 1e6:.1f} MB' for k, v in texts.items())}); "
           f"{ct.summary()}")
+
+    heads()
+
+
+def heads() -> None:
+    """Issue 24 item 3: the head families' shipped plans, cycle time per dialect with the
+    checked straight transits at the max feed (before) and at rapid where the dialect's rapid
+    is a straight line (after: Siemens RTLION, Heidenhain L FMAX, LinuxCNC G0)."""
+    art = load_artefact(CONFIG / "artefacts" / "vertical_4ball.yaml")
+    for mname, pname in (("swivelhead_wcfxyzbt", "swivelhead_12poses"),
+                         ("forkhead_wxfyzcat", "forkhead_11poses"),
+                         ("nutating_wcbyfxzt", "nutating_12poses")):
+        machine, mf = load_machine(CONFIG / "machines" / f"{mname}.yaml")
+        prog = build_program(machine, mf, art, load_plan(CONFIG / "plans" / f"{pname}.yaml"))
+        before = estimate(prog)
+        print(f"{pname}: {len(prog.touches)} touches, before (transits at "
+              f"{mf.dynamics.max_feed_mm_min:g} mm/min): {before.summary()}")
+        for name in sorted(DIALECTS):
+            d = get_dialect(name)
+            after = estimate(prog, d.linear_rapid)
+            print(f"  {name:<10} {'rapid' if d.linear_rapid else 'feed ':<5} {after.summary()}")
 
 
 if __name__ == "__main__":

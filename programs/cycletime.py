@@ -52,8 +52,9 @@ def _index_s(prog: Program, a: np.ndarray, b: np.ndarray) -> float:
     return delta / dyn.rotary_rapid_deg_min * 60.0 + dyn.rotary_clamp_s
 
 
-def estimate(prog: Program) -> CycleTime:
-    """Estimate and lower bound (seconds) of a generated program."""
+def estimate(prog: Program, linear_rapid: bool = False) -> CycleTime:
+    """Estimate and lower bound (seconds) of a generated program; ``linear_rapid``: the
+    dialect renders the checked straight transits (``Move.linear_rapid``) as rapids."""
     dyn = prog.machine_file.dynamics
     parts = {"rapid": 0.0, "linear": 0.0, "probe": 0.0, "index": 0.0, "dwell": 0.0}
     pos = np.full(5, np.nan)
@@ -72,7 +73,7 @@ def estimate(prog: Program) -> CycleTime:
             if np.any(np.abs(tgt[3:] - pos[3:]) > 1e-12):
                 parts["index"] += _index_s(prog, pos[3:], tgt[3:])
             dist = float(np.linalg.norm(tgt[:3] - pos[:3]))
-            if mv.feed_mm_min > 0:
+            if mv.feed_mm_min > 0 and not (linear_rapid and mv.linear_rapid):
                 parts["linear"] += dist / mv.feed_mm_min * 60.0
             else:
                 parts["rapid"] += dist / dyn.rapid_mm_min * 60.0

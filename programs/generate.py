@@ -54,6 +54,6 @@ def generate(machine: Machine, machine_file: MachineFile, artefact: Artefact, pl
     prog = build_program(machine, machine_file, artefact, plan, targets, two_speed=d.two_speed)
     prog.temperature_vars = tuple(temperature_vars)
     report = check_program(prog)
-    ct = estimate(prog)
+    ct = estimate(prog, d.linear_rapid)
     text = d.render(prog, ct)
     return GeneratedProgram(prog, d, text, d.aux_files(prog), report, ct)

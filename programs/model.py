@@ -103,6 +103,9 @@ class Move:
     dwell_s: float = 0.0
     locate_feed_mm_min: float = 0.0
     backoff_mm: float = 0.0
+    # A feed move whose straight line was checked (tilted-probe transits, issue 24): a dialect
+    # whose rapid is a straight line (``Dialect.linear_rapid``) renders it as a rapid
+    linear_rapid: bool = False
 
 
 @dataclass

@@ -91,7 +91,8 @@ class _Path:
 
     def go(self, q: np.ndarray, fmax: float, **kw: object) -> None:
         """To controller X Y Z ``q``: a rapid when one axis moves (or two at the park value),
-        else a linear move at the max feed."""
+        else a linear move at the max feed that a dialect with straight-line rapids renders as
+        a rapid (``Move.linear_rapid``: its straight path is the one checked)."""
         here = np.array(self.pos[:3])
         changed = [i for i in range(3) if not abs(q[i] - here[i]) <= 1e-9]
         if not changed:
@@ -102,7 +103,7 @@ class _Path:
             self.emit("rapid", [*(q[i] if i in changed else None for i in range(3)), None, None],
                       **kw)
         else:
-            self.emit("feed", [*q, None, None], feed_mm_min=fmax, **kw)
+            self.emit("feed", [*q, None, None], feed_mm_min=fmax, linear_rapid=True, **kw)
 
 
 def build_tilted(prog: Program, frames_: list[PoseFrame], two_speed_feed: float | None,
@@ -229,7 +230,7 @@ def _pose(prog: Program, path: _Path, pf: PoseFrame, ip: int, rep: int, seq: int
                       locate_feed_mm_min=fast or 0.0, backoff_mm=backoff_mm if fast else 0.0,
                       **kw)
             path.emit("retract", [*(corner if tt < 5 else clear), None, None],
-                      feed_mm_min=fmax, **kw)
+                      feed_mm_min=fmax, linear_rapid=True, **kw)  # checked straight: _RADIAL
         path.go(at(h * s), fmax, **kw0)  # up along the spindle to the safe level; the next
         # ball's entry is at the same level: across in the plane ⊥ s, above every keep-out
     here = path_pos(path)  # up the park axis: every point above the safe level stays above it

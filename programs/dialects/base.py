@@ -115,6 +115,12 @@ class Dialect:
     # (a safety precondition, after the modal line), ``tcpm_note`` what the header says.
     tcpm_off = ""
     tcpm_note = ""
+    # Is a multi-axis rapid a straight line on this control (issue 24)? Then the checked
+    # straight transits of a tilted-probe program (``Move.linear_rapid``) run as rapids, after
+    # ``linear_rapid_on`` (the block that makes it so, if the control has one); else they stay
+    # linear moves at the max feed — a non-linear rapid would leave the checked line.
+    linear_rapid = False
+    linear_rapid_on = ""
 
     def __init__(self) -> None:
         self._template = _env().get_template(f"{self.name}/program.j2")
@@ -211,8 +217,9 @@ class Dialect:
                 comment = (f"SEQ {t.id.seq} REP {t.id.repeat} POSE {t.id.pose} BALL {t.id.ball}"
                            f" TOUCH {t.id.touch}")
             idx = [letters.index(w) for w in mv.words]
-            kind = {"retract": "linear" if mv.feed_mm_min else "rapid",
-                    "feed": "linear"}.get(mv.kind, mv.kind)
+            rapid = mv.linear_rapid and self.linear_rapid  # a checked straight line
+            kind = {"retract": "linear" if mv.feed_mm_min and not rapid else "rapid",
+                    "feed": "rapid" if rapid else "linear"}.get(mv.kind, mv.kind)
             two = {}
             if mv.kind == "probe" and mv.locate_feed_mm_min > 0 and mv.touch is not None:
                 if not self.two_speed:
@@ -272,6 +279,8 @@ class Dialect:
                      "X Y Z COMMAND THE HEAD PIVOT: NO TOOL LENGTH OFFSET, NO TILTED PLANE"]
         return {"title": "RUMBA PROBING PROGRAM", "info": [safe_text(x) for x in info],
                 "tcpm_off": Code(self.tcpm_off) if program.tilted else "",
+                "linear_rapid_on": Code(self.linear_rapid_on) if self.linear_rapid and any(
+                    mv.linear_rapid for mv in program.moves) else "",
                 "blocks": self.blocks(program), "counter": Code(self.counter),
                 "temperatures": self.temperature_prints(program),
                 "miss_tol": fmt(MISS_TOL_MM), "r1": program.rotary[0], "r2": program.rotary[1]}
@@ -279,7 +288,7 @@ class Dialect:
     def render(self, program: Program, cycle_time: CycleTime | None = None) -> str:
         """The program text (LF line ends; transports convert); ``cycle_time``: the program's
         estimate when the caller has it (``programs.generate``), else computed here."""
-        ct = cycle_time if cycle_time is not None else estimate(program)
+        ct = cycle_time if cycle_time is not None else estimate(program, self.linear_rapid)
         return self._template.render(**self.context(program, ct))
 
     def aux_files(self, program: Program) -> dict[str, str]:

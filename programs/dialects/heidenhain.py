@@ -16,6 +16,7 @@ class Heidenhain(Dialect):
 
     name, extension, counter, slot_prefix, slot_base = "heidenhain", "h", "Q1599", "Q", 1600
     tcpm_off, tcpm_note = "M129", "M128 FUNCTION TCPM MUST BE OFF - M129 BELOW"
+    linear_rapid = True  # L ... FMAX: a straight line at rapid traverse
     result_channel = "FN 16 F-PRINT to RUMBA_RES.TXT next to the program"
     print_base = 1580
     verdict_variable = VERDICT_VARIABLES["heidenhain"]

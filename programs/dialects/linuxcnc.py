@@ -16,6 +16,7 @@ class LinuxCNC(Dialect):
 
     name, extension, counter, slot_prefix, slot_base = "linuxcnc", "ngc", "#3999", "#", 4000
     tcpm_off, tcpm_note = "G49", "TCP KINEMATICS MUST BE OFF - IDENTITY JOINT MODE, G49 BELOW"
+    linear_rapid = True  # G0 is a coordinated straight line: every axis arrives together
     log_file = "rumba_results.log"
     result_channel = f"(LOG,…) lines in {log_file} (LinuxCNC's working directory)"
     verdict_variable = VERDICT_VARIABLES["linuxcnc"]

@@ -12,6 +12,9 @@ class Siemens(Dialect):
 
     name, extension, counter, slot_prefix, slot_base = "siemens", "mpf", "R99", "R", 100
     tcpm_off, tcpm_note = "TRAFOOF", "TRAORI MUST BE OFF - TRAFOOF BELOW"
+    # RTLION: G0 interpolates linearly, all path axes arrive together (SINUMERIK programming
+    # manual 12/2019 §2.9; RTLIOF, or MD20730 G0_LINEAR_MODE = 0, would make it non-linear)
+    linear_rapid, linear_rapid_on = True, "RTLION"
     result_channel = "WRITE to the file RUMBA_RES (part-program memory)"
     verdict_variable = VERDICT_VARIABLES["siemens"]
 

@@ -30,7 +30,8 @@ _IF = re.compile(r"^IF\s*(.+?)\s+(GOTOF|GOTOB|GOTO|GOTOC)\s+(\w+)$", re.IGNORECA
 _CALL = re.compile(r"^(WRITE|MSG|SETAL)\s*\((.*)\)$", re.IGNORECASE)
 _ADDRESS_WORD = re.compile(r"\s*([A-Z]+)\s*(=\s*(?:\([^;]*?\)|\"[^\"]*\"|[^\s]+)|"
                            r"[-+]?(?:\d+\.?\d*|\.\d+))", re.IGNORECASE)
-_SKIP_WORDS = {"STOPRE", "SUPA", "TRAFOOF", "CFC", "FFWOF", "SOFT", "BRISK", "G601", "G602"}
+_SKIP_WORDS = {"STOPRE", "SUPA", "TRAFOOF", "RTLION", "CFC", "FFWOF", "SOFT", "BRISK", "G601",
+               "G602"}
 _MODAL_NOOP = {17.0, 40.0, 60.0, 64.0, 94.0, 500.0, 53.0, 153.0, 54.0, 55.0, 56.0, 57.0}
 _DIRECT_ADDR = set("GMFNXYZABCSTDHR")
 
