@@ -1,5 +1,6 @@
 """The "sim world" of the compensation tests: a machine file, its truth, a simulated control
-probed, identified, and the compensation planned — shared by test_compensate_sim/_heads."""
+probed, identified, and the compensation planned — shared by test_compensate_sim, _heads and
+_nutating."""
 
 from __future__ import annotations
 
@@ -14,7 +15,7 @@ import numpy as np
 import pytest
 import yaml
 
-from contracts.controller_kinematics import ControllerKinematics, siemens_tilt
+from contracts.controller_kinematics import ControllerKinematics
 from contracts.setup_files import load_artefact, load_controller_kinematics, load_machine, load_plan
 from daemon.analysis.touch_centres import rows_to_centres
 from identification.compensation import (
@@ -80,9 +81,8 @@ def read_back(spec: ControllerKinematics, store: KinematicsStore) -> list[ParamC
         v = store.read(p.address)
         if p.kind == "pivot":
             delta = v - p.value
-        elif spec.family == "siemens":
-            assert p.vector is not None
-            delta = v / siemens_tilt(p.component, p.vector)[1] - p.value * 1e-6
+        elif spec.family == "siemens":  # from its vector component (an inclined axis too)
+            delta = p.held_rad(v) - p.value * 1e-6
         else:
             delta = math.radians(v) - p.value * 1e-6
         out.append(ParamChange(p.name, p.kind, delta, 0.0, True))
@@ -148,12 +148,12 @@ def sim_world(mpath: Path, epath: Path, ppath: Path, artefact_path: Path, family
                     initial, est1, b, c, params, plan1)
 
 
-def compensate_and_check(w: SimWorld) -> list[str]:
+def compensate_and_check(w: SimWorld) -> tuple[list[str], compensation.CompensationOutput]:
     """Write the planned values to the control, probe again against the controller model it
     now holds, and check what the write-back promised: the truth untouched, each compensable
     link (well identified, nearly all of it compensable) measured at zero within k = 3, the
     compensable distortion down to a tenth, and a rollback restoring every value. Returns the
-    compensable links' names."""
+    compensable links' names and the write-back as rendered."""
     out = compensation.render(w.spec, w.plan1.changes, run_id="R1", machine=w.machine.name)
     feed(w.vc, w.family, out.text)
     assert w.vc.kinematics.values() != w.initial
@@ -184,4 +184,4 @@ def compensate_and_check(w: SimWorld) -> list[str]:
     feed(w.vc, w.family, back.text)
     for address, v in w.initial.items():
         assert w.vc.kinematics.read(address) == pytest.approx(v, abs=1e-9), address
-    return [names[k] for k in compensable]
+    return [names[k] for k in compensable], out

@@ -81,7 +81,7 @@ def test_head_compensation_through_the_simulator(tmp_path: Path, name: str, fami
     # the probing sees exactly these values; the others are left, with the reason
     assert {ch.name for ch in w.plan1.changes if ch.observable} == OBSERVABLE[name]
     assert all(ch.note and ch.delta == 0.0 for ch in w.plan1.changes if not ch.observable)
-    got = compensate_and_check(w)
+    got, _ = compensate_and_check(w)
     # injected head/table location errors the control keeps, nearly whole (EA0B of the swivel
     # head shares its visible effect with EA0Z, which no carrier value holds)
     held = {"swivelhead": {"EX0C", "EA0C", "EB0C", "EA0B", "EC0B"},

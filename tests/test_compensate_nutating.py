@@ -6,30 +6,18 @@ measures the compensable links at zero, rollback restores every value."""
 
 from __future__ import annotations
 
-import asyncio
-import copy
 import math
-from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
 import pytest
 import yaml
 
-from contracts.controller_kinematics import ControllerKinematics
-from contracts.setup_files import load_artefact, load_controller_kinematics, load_machine, load_plan
+from contracts.setup_files import load_controller_kinematics
 from contracts.yaml_files import ConfigError
-from daemon.analysis.touch_centres import rows_to_centres
-from identification.compensation import ParamChange, apply_changes, plan_compensation
-from identification.estimate import estimate
+from identification.compensation import ParamChange
 from programs import compensation
-from programs.dialects import get_dialect
-from programs.toolpath import build_program
-from simulators.controller import VirtualController
-from simulators.controller_kinematics import KinematicsStore
-from simulators.errors_schema import errors_from_dict
-from simulators.offline import touches_to_rows
-from simulators.truth import TruthModel
+from tests.sim_world import compensate_and_check, sim_loop, sim_world  # noqa: F401
 
 CFG = Path(__file__).resolve().parents[1] / "config"
 MACHINE = CFG / "machines/nutating_wcbyfxzt.yaml"
@@ -72,117 +60,20 @@ def _machine_file(tmp: Path, family: str) -> Path:
     return out
 
 
-_LOOP: list[asyncio.AbstractEventLoop] = []  # one per test: a controller's events bind to it
-
-
-@pytest.fixture(autouse=True)
-def _loop() -> Iterator[None]:
-    _LOOP.append(asyncio.new_event_loop())
-    yield
-    _LOOP.pop().close()
-
-
-def _run(vc: VirtualController, text: str, dialect: str, files: dict | None = None) -> str:
-    async def go() -> str:
-        await vc.load_program(text, dialect, files)
-        await vc.start()
-        return await vc.wait_done(60)
-
-    return _LOOP[-1].run_until_complete(go())
-
-
-def _feed(vc: VirtualController, family: str, text: str) -> None:
-    """The write-back as the control takes it: a program (Siemens MPF, Fanuc G10 L52), or the
-    Heidenhain page's rows entered by hand."""
-    if family in ("fanuc", "siemens"):
-        assert _run(vc, text, family) == "done", vc.alarm
-        return
-    lines = text.splitlines()
-    head = next(i for i, ln in enumerate(lines) if ln.split()[:1] == ["row/col"])
-    for line in lines[head + 1:]:
-        f = line.split()
-        vc.operator_entry(f[0], float(f[3]))
-
-
-def _read_back(spec: ControllerKinematics, store: KinematicsStore) -> list[ParamChange]:
-    """The controller model the control holds: read value − file value, in model units (a
-    Siemens tilt from its first vector component)."""
-    out = []
-    for p in spec.params:
-        v = store.read(p.address)
-        if p.kind == "pivot":
-            delta = v - p.value
-        elif spec.family == "siemens":
-            delta = p.held_rad(v) - p.value * 1e-6
-        else:
-            delta = math.radians(v) - p.value * 1e-6
-        out.append(ParamChange(p.name, p.kind, delta, 0.0, True))
-    return out
-
-
-def _identify(vc, family, text, files, machine, artefact, run_id):
-    assert _run(vc, text, family, files) == "done", vc.alarm
-    data = rows_to_centres(touches_to_rows(vc, run_id), artefact, vc.truth.stylus_radius_mm)
-    with np.errstate(all="ignore"):
-        return estimate(machine, artefact, data.centres, None)
+pytestmark = pytest.mark.usefixtures("sim_loop")
 
 
 @pytest.mark.parametrize("family", ["siemens", "heidenhain", "fanuc"])
 def test_nutating_compensation_through_the_simulator(tmp_path: Path, family: str) -> None:
-    mpath = _machine_file(tmp_path, family)
-    machine, mf = load_machine(mpath)
-    _, spec = load_controller_kinematics(mpath)
-    assert spec is not None and spec.family == family
-    artefact = load_artefact(ARTEFACT)
-    plan = load_plan(PLAN)
-    truth = TruthModel.build(machine, mf, artefact,
-                             errors_from_dict(yaml.safe_load(ERRORS.read_text())))
-    links_before = copy.deepcopy(truth.errors.links)
-    d = get_dialect(family)
-    prog = build_program(machine, mf, artefact, plan)
-    text, files = d.render(prog), d.aux_files(prog)
-    vc = VirtualController(truth, rng_seed=5, dialect=family)
-    assert vc.kinematics is not None
-    initial = vc.kinematics.values()
-
-    est1 = _identify(vc, family, text, files, machine, artefact, "before")
-    b = np.array([p.b_deg for p in plan.poses])
-    c = np.array([p.c_deg for p in plan.poses])
-    params = spec.to_math()
-    plan1 = plan_compensation(machine, artefact, est1, params, b, c)
-    assert {ch.name for ch in plan1.changes if ch.observable} == OBSERVABLE
-    assert all(ch.note and ch.delta == 0.0 for ch in plan1.changes if not ch.observable)
-    out = compensation.render(spec, plan1.changes, run_id="R1", machine=machine.name)
+    w = sim_world(_machine_file(tmp_path, family), ERRORS, PLAN, ARTEFACT, family)
+    assert {ch.name for ch in w.plan1.changes if ch.observable} == OBSERVABLE
+    assert all(ch.note and ch.delta == 0.0 for ch in w.plan1.changes if not ch.observable)
+    got, out = compensate_and_check(w)
     if family == "siemens":  # the inclined B's EA0B moves v1's y and z together
         written = {v.address for v in out.values}
         assert {"$TC_CARR8[1]", "$TC_CARR9[1]", "$TC_CARR7[1]"} <= written, written
-    _feed(vc, family, out.text)
-    assert vc.kinematics.values() != initial
-    assert all(w.address in initial for w in vc.kinematics.audit)
-
-    model = apply_changes(machine, params, _read_back(spec, vc.kinematics))
-    est2 = _identify(vc, family, text, files, model, artefact, "after")
-    assert truth.errors.links == links_before  # the truth is not what was compensated
-
-    names = list(est1.layout.links)
-    compensable = [k for k, n in enumerate(names)
-                   if abs(plan1.links_compensable[n]) > 2 * est1.std[k]
-                   and abs(plan1.links_residual[n]) < 0.1 * abs(plan1.links_identified[n])]
-    got = {names[k] for k in compensable}
     # the injected EA0B (18 µrad) and EC0B (−23 µrad) are among them: the inclined axis' tilts
-    assert {"EA0B", "EC0B", "EX0C"} <= got <= {"EX0C", "EA0C", "EB0C", "EA0B", "EC0B"}, got
-    for k in compensable:
-        u = math.hypot(est1.std[k], est2.std[k])  # two independent estimates
-        assert abs(est2.p[k]) <= 3 * u, (names[k], est1.p[k], est2.p[k], u)
-    plan2 = plan_compensation(model, artefact, est2, params, b, c)
-    before, after = plan1.distortion_compensable_um[0], plan2.distortion_compensable_um[0]
-    assert after <= 0.1 * before, (before, after)
-
-    back = compensation.render(spec, plan1.changes, run_id="R1", machine=machine.name,
-                               rollback=True)
-    _feed(vc, family, back.text)
-    for address, v in initial.items():
-        assert vc.kinematics.read(address) == pytest.approx(v, abs=1e-9), address
+    assert {"EA0B", "EC0B", "EX0C"} <= set(got) <= {"EX0C", "EA0C", "EB0C", "EA0B", "EC0B"}, got
 
 
 def test_an_inclined_axis_vector_is_the_exactly_tilted_vector() -> None:
