@@ -271,3 +271,36 @@ def test_bad_public_origin_is_one_line(tmp_path):
         f"token: {TOKEN}}}", f"token: {TOKEN}, public_origins: ['rumba.local/x']}}"))
     with pytest.raises(ConfigError, match=r"hmi.public_origins: .*expected http\(s\)://host"):
         load_daemon_config(path)
+
+
+@pytest.mark.peer
+async def test_a_report_jobs_end_shows_in_the_history_and_on_the_card(service, tmp_path):
+    """The report job's own record (migration 10), not the run's reason: a journaled run whose
+    report failed says why in its history row and on its machine's card (the daemon has no
+    live verdict yet); one still being written says so."""
+    from daemon.store import report_jobs
+
+    store, now = service.store, time.time()
+    for rid, status, ago in (("20200101T000000Z-0a0a", "FAIL", 7200),
+                             ("20200101T000000Z-0b0b", "WARN", 3600)):
+        store.new_run(rid, "mill1", "cnc", state="WRITE-BACK", started_at=now - ago)
+        store.save_verdict(rid, status, ["r"], [], status)
+        report_jobs.begin(store, rid)
+        store.set_state(rid, "DONE")
+    report_jobs.failed(store, "20200101T000000Z-0a0a", "OSError: [Errno 28] disk full")
+    async with chromium(tmp_path / "profile") as cdp:
+        sid = await cdp.page()
+        await cdp.sign_in(sid, service.hmi_url, TOKEN)
+        rows = "[...document.querySelectorAll('#history tbody tr')]"
+        cells = await cdp.wait_for(sid, f"{rows}.length === 2 && {rows}.map(r => "
+                                        "[r.dataset.run, r.cells[6].textContent, "
+                                        "r.cells[7].textContent])")
+        assert cells == [
+            ["20200101T000000Z-0b0b", "WARN", "report being written…"],
+            ["20200101T000000Z-0a0a", "FAIL", "report not written: OSError: [Errno 28] disk "
+                                              "full"]], cells
+        # the card shows the last journaled verdict (WARN) with its report job's state
+        card = await cdp.wait_for(sid, "document.querySelector('.machine .badge').textContent"
+                                       " === 'WARN' && document.querySelector("
+                                       "'.machine .report-state').textContent")
+        assert card == "report being written…"
