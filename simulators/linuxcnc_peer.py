@@ -1,6 +1,7 @@
 """Start and stop the LinuxCNC sim machine of config/linuxcnc/ headless, with the HAL probe.
 
     python -m simulators.linuxcnc_peer up [--errors F] [--artefact F] [--absent B2] [--dir D]
+                                          [--ini rumba_swivelhead.ini --machine F]
         → prints LCNC_DIR=… LCNC_PORT=… LCNC_PID=… LCNC_INI=… LCNC_LOG=… (shell lines)
     python -m simulators.linuxcnc_peer down DIR
 
@@ -178,6 +179,8 @@ def up(spec: Path | None = None, *, port: int | None = None, workdir: Path | Non
     whose kins module is built and installed first, simulators/linuxcnc_headkins.py)."""
     if shutil.which("linuxcnc", path="/usr/bin:/bin") is None:
         raise PeerError("linuxcnc is not installed (bash .ci/install-peers.sh linuxcnc)")
+    if "/" in ini_name or not (CONFIG / ini_name).is_file():
+        raise PeerError(f"no machine {ini_name!r} in {CONFIG}")
     if ini_name != INI_NAME:
         from simulators.linuxcnc_headkins import HeadKinsError, ensure_installed
 
@@ -362,6 +365,8 @@ def main(argv: list[str] | None = None) -> int:
     u.add_argument("--absent", action="append", default=[], help="ball id not on the table")
     u.add_argument("--dir", type=Path, help="work folder (default: a new /tmp/rumba-lcnc.*)")
     u.add_argument("--port", type=int)
+    u.add_argument("--ini", default=INI_NAME, help="machine of config/linuxcnc/ (e.g. "
+                   "rumba_swivelhead.ini with --machine/--errors of linuxcnc_swivelhead)")
     dn = sub.add_parser("down", help="stop the instance of DIR and clean its leftovers")
     dn.add_argument("dir", type=Path)
     a = ap.parse_args(argv)
@@ -380,8 +385,10 @@ def main(argv: list[str] | None = None) -> int:
         if created:
             (d / ".created-by-linuxcnc-peer").touch()
         write_spec(truth, spec, tuple(a.absent))
-        peer = up(spec, port=a.port, workdir=d)
+        peer = up(spec, port=a.port, workdir=d, ini_name=a.ini)
     except (ConfigError, ValueError, PeerError) as e:
+        if a.dir is None and "d" in locals():
+            shutil.rmtree(d, ignore_errors=True)  # the folder this call made, nothing started
         print(f"linuxcnc_peer: {e}", file=sys.stderr)
         return 2
     # The flock dies with this process: a shell-driven peer relies on lcnc_running() instead.
