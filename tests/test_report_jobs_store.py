@@ -132,3 +132,24 @@ async def test_report_jobs_reach_the_fleet_store_and_its_run_list(pg, tmp_path: 
     finally:
         await drainer.stop()
         store.close()
+
+
+def test_rumba_history_lists_a_failed_report_jobs_reason(tmp_path: Path, capsys) -> None:
+    from daemon.config import load_daemon_config
+    from tests.cli_helpers import run_cli
+    from tests.daemon_helpers import write_daemon_yaml
+
+    cfg = write_daemon_yaml(tmp_path)
+    store = Store(load_daemon_config(cfg).store_path)
+    try:
+        store.new_run("R1", "mill1", "cnc", state="WRITE-BACK")
+        store.save_verdict("R1", "PASS", [], [], "PASS: all within limits")
+        report_jobs.begin(store, "R1")
+        store.set_state("R1", "DONE")
+        report_jobs.failed(store, "R1", "OSError: disk full")
+    finally:
+        store.close()
+    code, out, err = run_cli(["history", "--config", str(cfg)], capsys)
+    assert code == 0, err
+    line = next(ln for ln in out.splitlines() if "R1" in ln)
+    assert "PASS: all within limits; report not written: OSError: disk full" in line, out

@@ -175,11 +175,14 @@ def _list(store: Store, machine: str | None, limit: int) -> None:
     for r in store.runs(machine, limit):
         a = store.analysis(r.id)
         vmax = volumetric_max_um(a) if a else None
+        job = report_jobs.get(store, r.id)  # the report's end is its job's, not the run's
+        why = (f"; report not written: {job.reason}" if job and job.state == "failed"
+               and "report not written" not in r.reason else "")
         t.add_row(time.strftime("%Y-%m-%d %H:%M", time.localtime(r.started_at)), r.id,
                   r.machine, r.trigger, r.state,
                   f"[{STYLE.get(r.verdict or '', 'white')}]{r.verdict or '—'}[/]",
                   f"{r.hits}/{r.touch_total}", "—" if vmax is None else f"{vmax:.1f}",
-                  r.reason or r.summary)
+                  (r.reason or r.summary) + why)
     console.print(t)
     # issue 23: the figure's definition beside it, and each machine's drift baseline
     console.print(f"{LABELS[VOLUMETRIC]}: {DEFINITIONS[VOLUMETRIC]}.", soft_wrap=True,
