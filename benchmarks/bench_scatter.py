@@ -14,7 +14,10 @@ condition and plan, over ``--seeds`` seeds:
   repeatability are within 30 % of the truth (each axis, and their RMS); the bias of the
   estimate (mean, and the median ratio); the share whose stated ± u holds the truth within
   2u; coverage of the link errors' stated 2u (GLS under the estimated components); the runs
-  attributing an effect that is not there;
+  attributing an effect that is not there; the share within 30 % of the run's OWN drawn RMS
+  index error (14-15 draws per axis spread ±19 % around σ: what a run can know) and the mean
+  ratio to it; the share whose 95 % likelihood interval holds σ. Every row (plan × σ) has its
+  own seeds, whichever rows one process runs (``_row_seed``);
 * a 40 µrad 2nd-harmonic C positioning error (random phase) under 8 µrad: share named
   ``rotary_positioning:C`` with the held-out RMS after it ≤ 1.5 × the scatter-aware held-out
   floor, the ratio to the floor of the model with it too, and which variant was named;
@@ -41,7 +44,7 @@ from contracts.setup_files import load_artefact, load_machine, load_plan  # noqa
 from identification.effects import make_effect  # noqa: E402
 from identification.gap import Options, diagnose  # noqa: E402
 from identification.gap.selfcheck_scatter import knock, step_named  # noqa: E402
-from identification.gap.simlog import Truth, simulate  # noqa: E402
+from identification.gap.simlog import Truth, index_errors_deg, simulate  # noqa: E402
 
 TABLE_B2 = {"EB0Z": -12e-6, "EA0Y": -24e-6, "EC0Y": 17e-6, "EC0B": -23e-6, "EA0B": 2e-6,
             "EA0C": -19e-6, "EB0C": 26e-6, "EX0C": -0.106}
@@ -74,6 +77,26 @@ def _links_covered(rep, truth) -> tuple[int, int]:
         n += 1
         ok += abs(v["value"] - truth.links.get(name, 0.0) * k) <= 2 * v["std"]
     return ok, n
+
+
+def _drawn_rms_urad(machine, plans, name, truth, seed) -> np.ndarray:
+    """(2,) RMS of the index errors this run really drew for B and C over all its visits
+    (training log and hold-out log): ``simulate`` draws them first from its generator."""
+    poses, hold = plans[name]
+    d = [index_errors_deg(machine, truth, len(poses), np.random.default_rng(seed + 7919))]
+    if hold is not None:
+        d.append(index_errors_deg(machine, truth, len(hold),
+                                  np.random.default_rng(seed + 104729)))
+    return np.sqrt(np.mean(np.deg2rad(np.vstack(d)) ** 2, axis=0)) * 1e6
+
+
+PLAN_NAMES = ("shift-14", "holdout-7+7", "holdout-new")
+
+
+def _row_seed(s: int, plan: str, sigma: float, offset: int) -> int:
+    """Independent seeds per row of the null table (plan × σ, whichever rows one process
+    runs): no two rows share a draw."""
+    return 1000 * s + offset + 1_000_000 * (100 * PLAN_NAMES.index(plan) + round(sigma))
 
 
 def _raw(on: bool, row: str, plan: str, seed: int, **values) -> None:
@@ -114,14 +137,17 @@ def main() -> int:
         print("\nnull runs: per-visit B/C index scatter only")
         print(f"{'plan':12s} {'σ µrad':>6s} {'not unexpl.':>11s} {'B ±30%':>7s} {'C ±30%':>7s} "
               f"{'RMS ±30%':>8s} {'bias B':>7s} {'bias C':>7s} {'med B/C':>9s} "
-              f"{'B,C ±2u':>9s} {'2u cover':>8s} {'false':>5s}")
+              f"{'B,C ±2u':>9s} {'2u cover':>8s} {'false':>5s} {'own ±30% B/C':>13s} "
+              f"{'÷own B/C':>10s} {'ci95 B/C':>9s}")
         for name in plans:
             for sigma in (float(x) for x in args.sigmas.split(",")):
                 acc = defaultdict(list)
                 cov_ok = cov_n = 0
                 for s in range(args.first, args.first + n):
-                    truth = _truth(artefact, 1000 * s + 3, sigma)
-                    _, rep = _run(machine, artefact, plans, name, truth, 1000 * s + 3)
+                    seed = _row_seed(s, name, sigma, 3)
+                    truth = _truth(artefact, seed, sigma)
+                    _, rep = _run(machine, artefact, plans, name, truth, seed)
+                    own = _drawn_rms_urad(machine, plans, name, truth, seed)
                     runs += 1
                     comps = {c["component"]: c for c in (rep["scatter"] or {}).get(
                         "components", [])}
@@ -138,10 +164,19 @@ def main() -> int:
                     acc["rms"].append(abs(np.hypot(b, c) / np.sqrt(2) - sigma) <= 0.3 * sigma)
                     acc["bb"].append(b / sigma - 1)
                     acc["bc"].append(c / sigma - 1)
+                    # against the run's own drawn RMS: what a run of 14-15 visits can know
+                    acc["ob"].append(abs(b - own[0]) <= 0.3 * own[0])
+                    acc["oc"].append(abs(c - own[1]) <= 0.3 * own[1])
+                    acc["rb"].append(b / own[0])
+                    acc["rc"].append(c / own[1])
+                    for ax in "BC":
+                        ci = (comps.get(f"index {ax}") or {}).get("ci95")
+                        acc[f"ci{ax}"].append(ci is not None and ci[0] <= sigma <= ci[1])
                     o, k = _links_covered(rep, truth)
                     cov_ok, cov_n = cov_ok + o, cov_n + k
                     _raw(args.raw, "null", name, s, sigma=sigma, b=b, c=c, cover=[o, k],
-                         effect=rep["verdict"]["effect"],
+                         effect=rep["verdict"]["effect"], own=own.tolist(),
+                         ci={a: (comps.get(f"index {a}") or {}).get("ci95") for a in "BC"},
                          u={a: (comps.get(f"index {a}") or {}).get("std") for a in "BC"})
                 print(f"{name:12s} {sigma:6.0f} {100 * np.mean(acc['ok']):10.0f}% "
                       f"{100 * np.mean(acc['b']):6.0f}% {100 * np.mean(acc['c']):6.0f}% "
@@ -149,7 +184,10 @@ def main() -> int:
                       f"{100 * np.mean(acc['bc']):+6.0f}% "
                       f"{1 + np.median(acc['bb']):4.2f}/{1 + np.median(acc['bc']):4.2f} "
                       f"{100 * np.mean(acc['uB']):3.0f}/{100 * np.mean(acc['uC']):3.0f}% "
-                      f"{100 * cov_ok / cov_n:7.1f}% {int(np.sum(acc['false'])):5d}",
+                      f"{100 * cov_ok / cov_n:7.1f}% {int(np.sum(acc['false'])):5d} "
+                      f"{100 * np.mean(acc['ob']):5.0f}/{100 * np.mean(acc['oc']):3.0f}% "
+                      f"{np.mean(acc['rb']):4.2f}/{np.mean(acc['rc']):4.2f} "
+                      f"{100 * np.mean(acc['ciB']):3.0f}/{100 * np.mean(acc['ciC']):3.0f}%",
                       flush=True)
     if "interval" in only:
         # The components' stated uncertainty alone (no candidates: the null runs' components
