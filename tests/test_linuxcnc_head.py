@@ -48,6 +48,14 @@ COMPENSABLE = {"EX0C": "c-x", "EA0C": "c-tilt-a", "EB0C": "c-tilt-b", "EA0B": "b
                "EC0B": "b-tilt-c"}
 
 
+def _mdi(rsh: Rsh, block: str) -> None:
+    """``rsh.mdi`` naming LinuxCNC's answer and error when it refuses the block."""
+    ack = rsh.ask(f"set mdi {block}")
+    err = rsh.ask("get error")
+    assert (ack, err) == ("SET MDI ACK", "ERROR OK"), (block, ack, err,
+                                                       rsh.ask("get joint_pos"))
+
+
 @dataclass
 class Head:
     work: Path
@@ -104,13 +112,13 @@ def test_head_kins_forward_match_our_chain(head: Head) -> None:
             halcmd(head.peer, "setp", pin, repr(v))
         rsh.home_mdi()
         for q in joints:
-            rsh.mdi("M429")
-            rsh.mdi("G0 X{:.6f} Y{:.6f} Z{:.6f} B{:.6f} C{:.6f}".format(*q))
-            rsh.mdi("M428")
+            _mdi(rsh, "M429")
+            _mdi(rsh, "G0 X{:.6f} Y{:.6f} Z{:.6f} B{:.6f} C{:.6f}".format(*q))
+            _mdi(rsh, "M428")
             used.append(rsh.floats("get joint_pos")[:5])
             world = rsh.floats("get abs_act_pos")  # X Y Z A B C
             got.append([*world[:3], world[4], world[5]])
-        rsh.mdi("M429")
+        _mdi(rsh, "M429")
     finally:
         rsh.close()
         for pin in pins:
@@ -210,14 +218,14 @@ def _tcp_error_um(head: Head) -> float:
     used = []
     try:
         rsh.home_mdi()
-        rsh.mdi("M429")
-        rsh.mdi("G0 Z800")
-        rsh.mdi("M428")
+        _mdi(rsh, "M429")
+        _mdi(rsh, "G0 Z800")
+        _mdi(rsh, "M428")
         for t in targets:
-            rsh.mdi("G0 X{:.6f} Y{:.6f} Z{:.6f} B{:.6f} C{:.6f}".format(*t))
+            _mdi(rsh, "G0 X{:.6f} Y{:.6f} Z{:.6f} B{:.6f} C{:.6f}".format(*t))
             used.append(rsh.floats("get joint_pos")[:5])
-        rsh.mdi("M429")
-        rsh.mdi("G0 Z800")
+        _mdi(rsh, "M429")
+        _mdi(rsh, "G0 Z800")
     finally:
         rsh.close()
         for k in range(4):
