@@ -8,6 +8,12 @@
    14-pose plan and a 49-pose grid over ``--seeds`` seeds, the fixed-frame 2nd-harmonic radial
    error motion of C alone (issue 12), null / uniform pre-travel / outside-the-library /
    absorbed error motion controls; confusion table and the issue's targets.
+3. ``--faults detect|pole|creep`` (issue 21 items 4-5; annex-B plan, seeds ``--first`` ..
+   ``--first + --seeds``): ``detect``, how often the outlier test names an 8/10/15 µm chip on
+   the pole and on an equator touch (0.6 µm touch noise, without and with 5 µrad B/C index
+   scatter) and the pole size each run states it could not have seen; ``pole``, the verdicts
+   of runs with a 10 µm pole chip under 5 µrad; ``creep``, one random ball creeping 5-20 µm
+   over the run in a random direction under 5-10 µrad (verdicts, the rate's error).
 """
 
 from __future__ import annotations
@@ -40,7 +46,13 @@ def main() -> int:
     ap.add_argument("--verbose", action="store_true", help="print every self-check case")
     ap.add_argument("--split", choices=("auto", "pose", "time"), default="auto",
                     help="held-out split of the diagnosis and the self-check (default auto)")
+    ap.add_argument("--faults", choices=("detect", "pole", "creep"))
+    ap.add_argument("--first", type=int, default=0, help="first seed of --faults")
     args = ap.parse_args()
+    if args.faults:
+        from benchmarks.gap_faults import run_faults
+
+        return run_faults(args.faults, args.first, args.seeds)
     machine, _ = load_machine(ROOT / "config/machines/thesis_wcbxfzyt.yaml")
     artefact = load_artefact(ROOT / "config/artefacts/thesis_4ball.yaml")
     plan = load_plan(ROOT / "config/plans/thesis_annexB_14poses.yaml")

@@ -110,7 +110,8 @@ def test_selfcheck_gains_the_scatter_conditions(setup):
     machine, artefact, poses = setup
     added = set(selfcheck.SCENARIOS) - set(selfcheck.BASE_SCENARIOS)
     assert added == {f"{f}+scatter" for f in (*FAMILIES, *selfcheck.VARIANTS, "null")} | {
-        "ball_step"}
+        "ball_step", "pole_chip+scatter"}
+    assert selfcheck.expected_family("pole_chip+scatter") is None  # a control: named visit
     assert split_scatter("gravity_sag+scatter") == ("gravity_sag", True)
     assert selfcheck.expected_family("radial2_fixed+scatter") == "rotary_error_motion"
     assert selfcheck.axes_of("rotary_positioning+scatter", machine, artefact) == ["B", "C"]

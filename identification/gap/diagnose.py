@@ -12,7 +12,9 @@ verdict:
   sphere radius off its nominal, uniformly over the balls: uniform pre-travel is taken up by
   the stylus setup (thesis §3.4);
 * a family name: the selected effect removes at least half of the held-out excess;
-* ``unexplained``: a significant gap no candidate explains, with its location.
+* ``unexplained``: a significant gap no candidate explains, with its location;
+* ``measurement_outlier``, ``ball_moved``, ``pole_defect``: one visit or one ball at fault
+  (``outlier_visits``, ``step_ball``, ``visit_faults``), with what the rest reads.
 """
 
 from __future__ import annotations
@@ -38,11 +40,12 @@ from identification.gap.data import Groups, TouchData, group_touches, repeat_flo
 from identification.gap.floor import noise_floor_um, repeat_floor, whiteners
 from identification.gap.linear import FullFit, Problem, columns, fit, held_out, projected
 from identification.gap.locate import breakdowns
-from identification.gap.outlier_visits import exclude_outliers, outlier_verdict
+from identification.gap.outlier_visits import exclude_outliers
 from identification.gap.scatter import confounded, link_report, model_visits, rescatter
-from identification.gap.split import TIME_BLOCKS, TIME_FAMILIES, folds
+from identification.gap.split import folds, time_check
 from identification.gap.step_ball import step_report, step_verdict
 from identification.gap.twin import Twin, effect_columns, fit_twin, touch_context
+from identification.gap.visit_faults import pattern_explained, settle
 from identification.gap.warmup import candidates as warmup_candidates
 from identification.gap.warmup import model_of, tau_param
 from identification.kinematics import Machine
@@ -98,14 +101,19 @@ def diagnose(machine: Machine, artefact: Artefact, touches: TouchData, stylus_ra
              holdout: TouchData | None = None, options: Options | None = None) -> dict:
     """Run the whole diagnosis; returns the JSON-ready report (units µm, µrad, as labelled)."""
     opt = options or Options()
-    data, hold_rows = _merge(touches, holdout)
-    groups = group_touches(data, artefact, stylus_radius_mm)
-    data, hold_rows, groups, faulty = exclude_outliers(  # a chip …: out of floor and twin
-        machine, artefact, data, hold_rows, groups, stylus_radius_mm, holdout and touches)
-    groups, note = exact_floor(groups, opt.repeatability_um)  # never a zero form residual
-    return outlier_verdict(diagnose_groups(machine, artefact, data, groups,
-                                           hold_rows[groups.touch_index[:, 0]], opt, note),
-                           faulty)
+    all_data, all_hold = _merge(touches, holdout)
+    all_groups = group_touches(all_data, artefact, stylus_radius_mm)
+
+    def run(keep: frozenset[int] = frozenset(), drop: frozenset[int] = frozenset()):
+        data, hold_rows, groups, faulty = exclude_outliers(  # a chip …: out of floor and twin
+            machine, artefact, all_data, all_hold, all_groups, stylus_radius_mm,
+            holdout and touches, keep, drop)
+        groups, note = exact_floor(groups, opt.repeatability_um)  # never a zero form residual
+        return diagnose_groups(machine, artefact, data, groups,
+                               hold_rows[groups.touch_index[:, 0]], opt, note), faulty
+
+    return settle(run, lambda rep, k: pattern_explained(  # a chip, or a pattern across visits?
+        machine, artefact, all_data, all_groups, stylus_radius_mm, rep, k, opt.gravity_dir))
 
 
 def diagnose_groups(machine: Machine, artefact: Artefact, data: TouchData, groups: Groups,
@@ -179,25 +187,6 @@ def _known_report(fixed: list[tuple[Effect, np.ndarray]], fitted: list[Candidate
                     "params": params} | ({} if r else {"note": "not visible on this probing "
                                                        "pattern: nothing to fit"}))
     return out
-
-
-def _time_check(problem: Problem, groups: Groups, is_ho: np.ndarray, selected: list[Candidate],
-                split_mode: str, frac: float) -> dict | None:
-    """A selection resting on a time-dependent effect, found leaving poses out, must also
-    predict contiguous stretches of the run it did not see (split.py): the same twin and
-    effects, judged on time blocks, must still explain half of the held-out excess."""
-    if split_mode != "pose+time" or frac < 0.5 \
-            or not any(c.effect.family in TIME_FAMILIES for c in selected):
-        return None
-    fold, _, _ = folds(groups, is_ho, "time")
-    tp = Problem(problem.y_um, problem.base, problem.whiten, fold)
-    before = held_out(tp, tp.base)
-    after = held_out(tp, columns(tp, [c.cols for c in selected]))
-    f = explained(before, after)
-    return {"split": f"{TIME_BLOCKS} contiguous time blocks", "explained_fraction": round(f, 4),
-            "explained_fraction_pose": round(frac, 4),
-            "holdout_rms_before_um": round(before.rms_um, 4),
-            "holdout_rms_after_um": round(after.rms_um, 4), "confirmed": bool(f >= 0.5)}
 
 
 def _analyse(machine: Machine, artefact: Artefact, data: TouchData, groups: Groups,
@@ -286,7 +275,7 @@ def _analyse(machine: Machine, artefact: Artefact, data: TouchData, groups: Grou
         })
 
     frac = explained(base_ho, final_ho)
-    time_check = _time_check(problem, groups, is_ho, selected, split_mode, frac)
+    tcheck = time_check(problem, groups, is_ho, selected, split_mode, frac)
     refined = None
     if selected or fitted:
         # The form residuals that set the floor also carry the fitted effects' sphere
@@ -316,7 +305,7 @@ def _analyse(machine: Machine, artefact: Artefact, data: TouchData, groups: Grou
         else:
             effect, axis = "none", None
             message = "held-out gap consistent with the probing noise floor"
-    elif selected and frac >= 0.5 and (time_check is None or time_check["confirmed"]):
+    elif selected and frac >= 0.5 and (tcheck is None or tcheck["confirmed"]):
         effect, axis = selected[0].effect.family, selected[0].effect.axis
         names = ", ".join(c.label for c in selected)
         message = f"selected {names}: explains {100 * frac:.0f} % of the held-out excess"
@@ -326,10 +315,10 @@ def _analyse(machine: Machine, artefact: Artefact, data: TouchData, groups: Grou
         effect, axis = "unexplained", None
         where = ", ".join(f"{c.by} {c.key}" for c in sig_cells[:3]) or "no single breakdown"
         message = f"significant gap that no library effect explains; largest at {where}"
-        if time_check is not None:
+        if tcheck is not None:
             names = ", ".join(c.label for c in selected)
             message += (f"; {names} explains {100 * frac:.0f} % leaving poses out but only "
-                        f"{100 * time_check['explained_fraction']:.0f} % of held-out stretches "
+                        f"{100 * tcheck['explained_fraction']:.0f} % of held-out stretches "
                         "of the run (time blocks): its time course does not extrapolate — a "
                         "drift of another shape (a thermal cycle, a step)?")
         elif rep_floor is None and vs is None:
@@ -351,7 +340,7 @@ def _analyse(machine: Machine, artefact: Artefact, data: TouchData, groups: Grou
                   "radius_dev_mean_um": round(mean_dev, 4)},
         "split": split,
         "split_mode": split_mode,
-        "time_check": time_check,
+        "time_check": tcheck,
         "known": _known_report(fixed, fitted, base_full, twin_cols.shape[2]),
         "twin": {"links": list(twin.layout.links), "unobservable": twin.dropped,
                  "n_params": twin_cols.shape[2], "n_known_params": n_base - twin_cols.shape[2],

@@ -26,8 +26,11 @@ from identification.gap.data import group_touches
 from identification.gap.diagnose import TYPICAL, Options, diagnose
 from identification.gap.selfcheck_scatter import (
     AFTER_LIMIT_SCATTER,
+    POLE,
     SCATTER_URAD,
     STEP,
+    chip_named,
+    chip_pole,
     index_rms_um,
     knock,
     scatter_scenarios,
@@ -46,7 +49,7 @@ VARIANTS: dict[str, tuple[str, dict]] = {
 }
 SCENARIOS = (*FAMILIES, *VARIANTS, *CONTROLS)  # what ``run`` injects by default, in order
 # Issue 21 (selfcheck_scatter.py): every library effect and the null run again under indexing
-# scatter of the rotary axes, and a knocked ball.
+# scatter of the rotary axes, a knocked ball and a chip on the pole under the scatter.
 BASE_SCENARIOS = SCENARIOS
 SCENARIOS = (*BASE_SCENARIOS, *scatter_scenarios((*FAMILIES, *VARIANTS, "null")))
 ABSORBED_SIZE = 50.0  # µm / µrad of the absorbed error motion: 5× typical, still invisible
@@ -210,6 +213,7 @@ def run_case(machine: Machine, artefact: Artefact, poses: Sequence[tuple[float, 
     if scattered:  # after the scaling: visible_rms compares runs without it
         truth.index_std_urad = {a: SCATTER_URAD for a in machine.rotary_axes}
     data = simulate(machine, artefact, poses, truth, stylus_r, noise_um, seed=seed + 7919)
+    chip = chip_pole(rng, data, len(artefact.balls)) if scenario == POLE else None
     rep = diagnose(machine, artefact, data, stylus_r,
                    options=Options(split=split, gravity_dir=gravity_dir))
     top = rep["candidates"][0] if rep["candidates"] else None
@@ -227,6 +231,8 @@ def run_case(machine: Machine, artefact: Artefact, poses: Sequence[tuple[float, 
               and after <= (AFTER_LIMIT_SCATTER if scattered else AFTER_LIMIT))
     elif knocked is not None:
         ok = step_named(rep, knocked, artefact.ids)
+    elif chip is not None:
+        ok = chip_named(rep, chip, artefact.ids)
     elif scenario in ("null", "absorbed_motion"):
         ok = v["effect"] == "none"
     elif scenario == "uniform_pretravel":

@@ -6,7 +6,11 @@ self-check's factor × the floor *with* that scatter (else it would drown in it)
 gap after the effect must be at most ``AFTER_LIMIT_SCATTER`` × the scatter-aware floor (the
 issue's acceptance). ``STEP`` knocks one ball by 5-20 µm between two visits with at least
 ``MIN_SIDE`` visits of it on each side: it must be named with the ball, the moment (± one
-pose) and the size (± ``STEP_SIZE_TOL_UM``).
+pose) and the size (± ``STEP_SIZE_TOL_UM``). ``POLE`` puts a chip of 8-15 µm on the pole touch
+of one random ball visit (under the scatter: ``pole_chip+scatter``): the pole only moves the
+centre, which the scatter blurs, so it must be named — ``measurement_outlier`` at that visit, or
+``pole_defect`` there when it is below what the run can name (``visit_faults``) — or the run
+must read ``none`` with a chip below the pole size it states it could not have seen.
 """
 
 from __future__ import annotations
@@ -16,6 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from identification.gap.data import TouchData
 from identification.gap.simlog import Timing
 from identification.gap.step_ball import MIN_SIDE
 from identification.identifiability import nominal_centres
@@ -24,6 +29,8 @@ from identification.model import Artefact, Centres, Layout, predict
 
 SUFFIX = "+scatter"
 STEP = "ball_step"
+POLE = "pole_chip"
+POLE_RANGE_UM = (8.0, 15.0)
 SCATTER_URAD = 8.0
 AFTER_LIMIT_SCATTER = 1.5
 STEP_RANGE_UM = (5.0, 20.0)
@@ -39,7 +46,7 @@ def split_scatter(scenario: str) -> tuple[str, bool]:
 
 def scatter_scenarios(base: Sequence[str]) -> tuple[str, ...]:
     """The scattered variant of every base scenario, and the knocked ball."""
-    return (*(f"{s}{SUFFIX}" for s in base), STEP)
+    return (*(f"{s}{SUFFIX}" for s in base), STEP, f"{POLE}{SUFFIX}")
 
 
 def index_rms_um(machine: Machine, artefact: Artefact, poses: Sequence[tuple[float, float]],
@@ -92,3 +99,33 @@ def step_named(rep: dict, knocked: KnockedBall, ids: list[str]) -> bool:
                 and s["ball"] == ids[knocked.ball]
                 and abs(s["after_pose"] - knocked.after_pose) <= 1
                 and abs(s["size_um"] - knocked.size_um) <= STEP_SIZE_TOL_UM)
+
+
+@dataclass(frozen=True)
+class PoleChip:
+    pose: int
+    ball: int
+    size_um: float
+
+
+def chip_pole(rng: np.random.Generator, data: TouchData, n_balls: int) -> PoleChip:
+    """Move the pole touch (5) of a random ball visit of ``data`` 8-15 µm against its approach
+    (the probe switched early on a chip), in place."""
+    chip = PoleChip(int(rng.integers(int(data.pose.max()) + 1)), int(rng.integers(n_balls)),
+                    float(rng.uniform(*POLE_RANGE_UM)))
+    k = np.flatnonzero((data.pose == chip.pose) & (data.ball == chip.ball)
+                       & (data.touch == 5))[0]
+    data.xyz_mm[k] -= chip.size_um * 1e-3 * data.direction[k]
+    return chip
+
+
+def chip_named(rep: dict, chip: PoleChip, ids: list[str]) -> bool:
+    """Named at its visit (an outlier, or the pole defect the gap is consistent with), or the
+    run reads ``none`` and states a pole size it could not have seen above the chip's."""
+    v, at = rep["verdict"]["effect"], (chip.pose, ids[chip.ball])
+    if v == "measurement_outlier":
+        return [(o["pose"], o["ball"], o["touch"]) for o in rep["outliers"]] == [(*at, 5)]
+    if v == "pole_defect":
+        return (rep["pole_defect"]["pose"], rep["pole_defect"]["ball"]) == at
+    pole = (rep["outlier_test"].get("min_chip_um") or {}).get("pole")
+    return v == "none" and pole is not None and chip.size_um < pole
