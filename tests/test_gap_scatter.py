@@ -74,6 +74,9 @@ def test_null_run_with_index_scatter_is_none_and_states_the_repeatability(setup)
         own = float(np.sqrt(np.mean(np.deg2rad(drawn[:, k]) ** 2)) * 1e6)
         assert c["detected"] and abs(c["sigma"] - own) < 0.15 * own and c["unit"] == "urad"
     assert "C indexing repeatability ≈" in rep["scatter"]["message"]
+    # the finding says what it states: the run's own 14 index errors, σ only in its interval
+    assert "from 14 indexations follows this run's own index errors, whose RMS alone " \
+        "spreads ± 19 % around the axis' σ" in rep["scatter"]["message"]
     off = diagnose(machine, artefact, data, STYLUS_R, options=Options(visit_scatter=False))
     assert off["verdict"]["effect"] == "unexplained"  # what the scatter-blind floor says
     # the link errors' stated uncertainties hold the truth (2u)

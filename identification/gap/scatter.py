@@ -90,7 +90,18 @@ class VisitScatter:
         if not parts:
             return ("no per-visit scatter beyond the trigger noise detected "
                     f"({self.source})")
-        return "; ".join(parts) + f" — estimated from {self.source}"
+        out = "; ".join(parts) + f" — estimated from {self.source}"
+        q = len(self.axes)
+        if any(not self.fit.fixed[i] and np.isfinite(self.fit.p_value[i])
+               and self.fit.p_value[i] < LR_ALPHA for i in range(q)):
+            # Which quantity it states: σ̂ follows the run's own index errors (bench_scatter:
+            # within 30 % of their RMS in ~all null runs), and that RMS of n draws spreads
+            # 1/√(2n) around the machine's σ, which only the 95 % interval is about.
+            n = self.fit.n_visits
+            out += (f" (an indexing repeatability from {n} indexations follows this run's own "
+                    f"index errors, whose RMS alone spreads ± {100 / np.sqrt(2 * n):.0f} % "
+                    "around the axis' σ: the 95 % interval is the one for σ)")
+        return out
 
 
 def index_columns(machine: Machine, artefact: Artefact, layout: Layout, p: np.ndarray,
