@@ -135,6 +135,9 @@ def _print_report(rep: dict) -> None:
     for o in rep.get("outliers", ()):
         print(f"measurement outlier: {outlier_name(o)}, robust z {o['score']:.0f} ({o['stage']}"
               " stage): left out of the diagnosis")
+    for o in rep.get("explained_visits", ()):  # issue 21: a pattern across visits
+        print(f"not a chip: {outlier_name(o)} departs as {o['explained_by']} predicts for every "
+              "visit: kept in the diagnosis")
     shown, more, below = shown_locations(rep["location"], rep["breakdowns"])
     for loc in shown:
         print(f"  gap at {loc['by']} {loc['key']}: {loc['rms_um']:.3f} µm "
