@@ -13,6 +13,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -90,3 +91,23 @@ def make_rows(machine: Machine, artefact: Artefact, poses: Sequence[tuple[float,
                                        float(b), float(c), ball.id, touch, *map(float, d),
                                        *map(float, p), float(b), float(c), 300.0))
     return rows
+
+
+def shipped_run_rows(machine_path: Path, artefact_path: Path, plan_path: Path,
+                     links_um_urad: Mapping[str, float], *, run_id: str = "synth"
+                     ) -> list[LogRow]:
+    """The log of a run on shipped setup files with ``links_um_urad`` injected, thesis noise:
+    balls and probe tip set up at random (seed 1), the touches' noise seed 3 — the imported
+    run of the compensation tests."""
+    from contracts.setup_files import load_artefact, load_machine, load_plan
+
+    machine, _ = load_machine(machine_path)
+    artefact = load_artefact(artefact_path)
+    plan = load_plan(plan_path)
+    rng = np.random.default_rng(1)
+    truth = Truth(links=to_internal(links_um_urad),
+                  balls_mm=rng.normal(0, 0.2, (len(artefact.balls), 3)),
+                  tip_mm=rng.normal(0, 0.02, 3))
+    tn, cn = thesis_noise()
+    return make_rows(machine, artefact, [(p.b_deg, p.c_deg) for p in plan.poses], truth,
+                     plan.stylus_radius_mm, tn, cn, seed=3, run_id=run_id)

@@ -4,17 +4,14 @@ with a remote link writes the reviewed program for the operator)."""
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import os
 from pathlib import Path
 
-import numpy as np
 import pytest
 import yaml
 
 from contracts.probing_log import write_log
-from contracts.setup_files import load_artefact, load_machine, load_plan
 from daemon.analysis import pipeline
 from daemon.compensation import journal as cj
 from daemon.compensation.propose import ControllerModelError, controller_model, journal_analyse
@@ -24,7 +21,7 @@ from daemon.store.schema import MIGRATIONS, for_postgres
 from drivers.linuxcnc import halkins
 from tests.cli_helpers import run_cli
 from tests.daemon_helpers import CONFIG, write_daemon_yaml
-from tests.synth import Truth, make_rows, thesis_noise, to_internal
+from tests.synth import shipped_run_rows
 
 LINKS = {"EA0B": 18, "EC0B": -23, "EX0C": -40, "EA0C": -19, "EB0C": 26, "EC0Y": 17,
          "EA0Z": -24, "EB0Z": -12}
@@ -59,19 +56,11 @@ machines:
       default_rotation_urad: {{warn: 100, fail: 200}}
       default_translation_um: {{warn: 300, fail: 500}}
 """)
-    m, _ = load_machine(MACHINE)
-    a = load_artefact(CONFIG / "artefacts/thesis_4ball.yaml")
-    plan = load_plan(PLAN)
-    rng = np.random.default_rng(1)
-    truth = Truth(links=to_internal(links), balls_mm=rng.normal(0, 0.2, (4, 3)),
-                  tip_mm=rng.normal(0, 0.02, 3))
-    tn, cn = thesis_noise()
-    rows = make_rows(m, a, [(p.b_deg, p.c_deg) for p in plan.poses], truth,
-                     plan.stylus_radius_mm, tn, cn, seed=3)
     cfg = str(tmp / "daemon.yaml")
     for run_id in run_ids:
         log = tmp / f"{run_id}.csv"
-        write_log(log, [dataclasses.replace(r, run_id=run_id) for r in rows])
+        write_log(log, shipped_run_rows(MACHINE, CONFIG / "artefacts/thesis_4ball.yaml", PLAN,
+                                        links, run_id=run_id))
         code, _, err = run_cli(["history", "--config", cfg, "--import", str(log), "--machine",
                                 "lcnc"], capsys)
         assert code == 0, err

@@ -161,11 +161,10 @@ def test_reports_name_the_head_carrier_values(name: str, terms: dict[str, str | 
 def test_rumba_compensate_proposes_the_head_carrier_values(tmp_path: Path, capsys) -> None:
     """`rumba compensate` on an imported swivel-head run: the type M carrier's c-x takes EX0C,
     the head's b-x/b-z and c-y are skipped with the reason, and the reviewed MPF names them."""
-    import dataclasses
 
     from contracts.probing_log import write_log
     from tests.cli_helpers import run_cli
-    from tests.synth import Truth, make_rows, thesis_noise, to_internal
+    from tests.synth import shipped_run_rows
 
     links = {"EX0C": -40, "EA0C": -19, "EB0C": 26, "EA0B": 22, "EC0B": -23, "EC0Y": 17,
              "EA0Z": -24, "EB0Z": -12}
@@ -181,17 +180,8 @@ def test_rumba_compensate_proposes_the_head_carrier_values(tmp_path: Path, capsy
                                         "default_translation_um": {"warn": 300, "fail": 500}}}]}
     cfg = tmp_path / "daemon.yaml"
     cfg.write_text(yaml.safe_dump(doc), encoding="utf-8")
-    m, _ = load_machine(mpath)
-    a = load_artefact(ARTEFACT)
-    plan = load_plan(ppath)
-    rng = np.random.default_rng(1)
-    truth = Truth(links=to_internal(links), balls_mm=rng.normal(0, 0.2, (4, 3)),
-                  tip_mm=rng.normal(0, 0.02, 3))
-    tn, cn = thesis_noise()
-    rows = make_rows(m, a, [(p.b_deg, p.c_deg) for p in plan.poses], truth,
-                     plan.stylus_radius_mm, tn, cn, seed=3)
     log = tmp_path / "run.csv"
-    write_log(log, [dataclasses.replace(r, run_id="synth") for r in rows])
+    write_log(log, shipped_run_rows(mpath, ARTEFACT, ppath, links))
     code, _, err = run_cli(["history", "--config", str(cfg), "--import", str(log), "--machine",
                             "mill1"], capsys)
     assert code == 0, err

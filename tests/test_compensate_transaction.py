@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import dataclasses
 import fcntl
 import io
 import json
@@ -20,11 +19,9 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
 import pytest
 
 from contracts.probing_log import write_log
-from contracts.setup_files import load_artefact, load_machine, load_plan
 from daemon.compensation import journal as cj
 from daemon.compensation.names import BadName, validate_by
 from daemon.config import load_daemon_config
@@ -34,7 +31,7 @@ from daemon.store.journal import Store
 from drivers.linuxcnc import halkins
 from tests.cli_helpers import run_cli
 from tests.replay_link import ReplayLink
-from tests.synth import Truth, make_rows, thesis_noise, to_internal
+from tests.synth import shipped_run_rows
 from tests.test_compensate import LINKS, MACHINE, PLAN, _journal, _world
 
 PINS = {"xyzbc-trt-kins.x-rot-point": 0.0, "xyzbc-trt-kins.y-rot-point": 0.0,
@@ -140,16 +137,8 @@ def _slow_session(cfg: str, rows) -> tuple[Session, Store]:
 
 
 def _rows(links: dict[str, float], run_id: str = "synth"):
-    m, _ = load_machine(MACHINE)
-    a = load_artefact(Path(MACHINE).parents[1] / "artefacts/thesis_4ball.yaml")
-    plan = load_plan(PLAN)
-    rng = np.random.default_rng(1)
-    truth = Truth(links=to_internal(links), balls_mm=rng.normal(0, 0.2, (4, 3)),
-                  tip_mm=rng.normal(0, 0.02, 3))
-    tn, cn = thesis_noise()
-    rows = make_rows(m, a, [(p.b_deg, p.c_deg) for p in plan.poses], truth,
-                     plan.stylus_radius_mm, tn, cn, seed=3)
-    return [dataclasses.replace(r, run_id=run_id) for r in rows]
+    return shipped_run_rows(MACHINE, Path(MACHINE).parents[1] / "artefacts/thesis_4ball.yaml",
+                            PLAN, links, run_id=run_id)
 
 
 def _cli(cfg: str, *args: str) -> subprocess.CompletedProcess:
