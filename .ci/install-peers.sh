@@ -126,7 +126,7 @@ for p in "${peers[@]}"; do
     mbpoll) v="mbpoll $(dpkg-query -W -f='${Version}' mbpoll), libmodbus $(pkg-config --modversion libmodbus)" ;;
     node-opcua) v="node-opcua $(node_opcua_version), node-opcua-nodesets $(node_opcua_version node-opcua-nodesets) on node $(node --version)" ;;
     chromium) v="$(chromium --version 2>/dev/null | first_line); $(chromedriver --version | cut -d' ' -f1-2); $(pdftoppm -v 2>&1 | first_line)" ;;
-    linuxcnc) v="linuxcnc-uspace $(dpkg-query -W -f='${Version}' linuxcnc-uspace)" ;;
+    linuxcnc) v="linuxcnc-uspace $(dpkg-query -W -f='${Version}' linuxcnc-uspace), linuxcnc-uspace-dev $(dpkg-query -W -f='${Version}' linuxcnc-uspace-dev)" ;;
     postgresql) v="postgresql $(dpkg-query -W -f='${Version}' postgresql)" ;;
     mosquitto) v="mosquitto $(dpkg-query -W -f='${Version}' mosquitto)" ;;
   esac
