@@ -48,9 +48,10 @@ __all__ = ["ABORT_TIMEOUT_S", "RECONNECT_TIMEOUT_S", "WRITE_BACK_TIMEOUT_S", "Re
            "Session", "State", "new_run_id"]
 
 RECONNECT_TIMEOUT_S = 3600.0 * 24  # keep trying; the HMI shows the link as down meanwhile
-# a report renders in seconds (2.2 s of CPU); a stop waits that long for it, within systemd's
-# default 90 s stop timeout, before journaling it "not written"
-REPORT_STOP_WAIT_S = 30.0
+# a report renders in seconds (2.2 s of CPU, more on a loaded shop PC); a stop waits this long
+# for it before journaling it "not written", within the unit's stop timeout (TimeoutStopSec=30s,
+# config/systemd/rumba.service) with the other steps of the stop
+REPORT_STOP_WAIT_S = 15.0
 
 
 class Session(RunCapture):

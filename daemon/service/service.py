@@ -254,9 +254,10 @@ class Service:
         for t in self._tasks:
             with contextlib.suppress(BaseException):
                 await t
-        for s in self.sessions.values():
-            with contextlib.suppress(Exception):
-                await s.shutdown("the daemon stopping")  # its report: finished or failed
+        # every machine's run and report at once: their bounded waits do not add up within
+        # systemd's stop timeout (config/systemd/rumba.service: TimeoutStopSec=30s)
+        await asyncio.gather(*(s.shutdown("the daemon stopping")  # its report: finished/failed
+                               for s in self.sessions.values()), return_exceptions=True)
         if self.panel is not None:
             with contextlib.suppress(Exception):
                 await self.panel.close()
