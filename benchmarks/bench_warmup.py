@@ -30,6 +30,7 @@ is named ``thermal_drift:Z`` (exponential) and the held-out RMS after it over th
     .venv/bin/python -m benchmarks.bench_warmup 200 shift 0 5  (some warm-ups only, µm)
     .venv/bin/python -m benchmarks.bench_warmup 50 shift 0 index=0   (no index scatter)
     .venv/bin/python -m benchmarks.bench_warmup gap 50 X (the gap diagnosis, 50 seeds, along X)
+    .venv/bin/python -m benchmarks.bench_warmup gap 50 X from=11  (seeds 11-49 only)
 """
 
 from __future__ import annotations
@@ -189,7 +190,7 @@ def _span(machine, mf, art, plan, text: str) -> float:
     return float(c.t_s.max() - c.t_s.min())
 
 
-def gap(seeds: int, axis: str = "Z") -> None:
+def gap(seeds: int, axis: str = "Z", first: int = 0) -> None:
     """The withheld warm-up 8 µm·(1 − e^(−t/900 s)) along ``axis`` (module doc)."""
     from identification.effects import make_effect
     from identification.gap import diagnose
@@ -199,7 +200,7 @@ def gap(seeds: int, axis: str = "Z") -> None:
     machine, artefact, poses = annex_b_setup()
     eff = make_effect("thermal_drift", axis, machine, model="exponential")
     named, exp, ratios, amp_ok = 0, 0, [], 0
-    for seed in range(seeds):
+    for seed in range(first, seeds):
         truth = gap_truth(artefact, seed=seed, effects=[(eff, np.array([8.0, 0.25]))])
         data = simulate(machine, artefact, poses, truth, STYLUS_R, 0.5, seed=seed)
         rep = diagnose(machine, artefact, data, STYLUS_R)
@@ -212,13 +213,15 @@ def gap(seeds: int, axis: str = "Z") -> None:
         ratios.append(ratio)
         a = sel.get("params", {}).get(f"drift_{axis}_amplitude")
         amp_ok += bool(a and abs(a["value"] - 8.0) <= 2 * a["std"])
+        amp = f"A {a['value']:.2f} ± {a['std']:.2f} µm" if a else "A —"
         print(f"seed {seed}: {v['effect']}:{v['axis']} {sel.get('model', '')} after/floor "
-              f"{ratio:.2f} {v['message'][:90]}", flush=True)
+              f"{ratio:.2f} {amp} {v['message'][:90]}", flush=True)
     r = np.array(ratios)
-    print(f"withheld warm-up 8 µm·(1 − e^(−t/900 s)) {axis}, annex-B 14 poses, {seeds} seeds: "
-          f"named thermal_drift:{axis} {named}/{seeds} (exponential {exp}), amplitude within 2u "
-          f"{amp_ok}/{seeds}; held-out RMS after / floor median {np.median(r):.2f}, max "
-          f"{r.max():.2f}, ≤ 1.5 in {int(np.sum(r <= 1.5))}/{seeds}")
+    n = seeds - first
+    print(f"withheld warm-up 8 µm·(1 − e^(−t/900 s)) {axis}, annex-B 14 poses, seeds {first}-"
+          f"{seeds - 1}: named thermal_drift:{axis} {named}/{n} (exponential {exp}), amplitude "
+          f"within 2u {amp_ok}/{n}; held-out RMS after / floor median {np.median(r):.2f}, max "
+          f"{r.max():.2f}, ≤ 1.5 in {int(np.sum(r <= 1.5))}/{n}")
 
 
 def _row(x: dict) -> str:
@@ -250,7 +253,8 @@ def main(argv: tuple[str, ...] = ()) -> None:
     nums = [a for a in argv if a.replace(".", "", 1).isdigit()]
     runs = int(nums[0]) if nums else 50
     if "gap" in argv:
-        gap(runs, next((a for a in argv if a in ("X", "Y", "Z")), "Z"))
+        gap(runs, next((a for a in argv if a in ("X", "Y", "Z")), "Z"),
+            next((int(a[5:]) for a in argv if a.startswith("from=")), 0))
         return
     if "summary" in argv:  # the table of a record file written by ``out=``
         path = Path(argv[-1])
