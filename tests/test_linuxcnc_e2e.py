@@ -28,6 +28,7 @@ from daemon.run.session import State
 from drivers.registry import make_link
 from identification.estimate import coverage_factor
 from identification.kinematics import ChainState, frames, to_model
+from identification.outliers import split_repeat
 from simulators import linuxcnc_peer
 from tests.linuxcnc_helpers import (
     ARTEFACT,
@@ -119,7 +120,14 @@ async def test_verification_run_identifies_injected_links(lcnc, tmp_path: Path,
         _xfail_on_race(variant, status["reason"])
         assert status["state"] == str(State.IDLE), status["reason"]
         hits = store.hits(run_id)
-        assert len(hits) == setup.plan.poses.__len__() * 4 * 5
+        # every planned touch once; a visit the outlier test names is re-probed after the
+        # program (whole poses, all balls: daemon/run/reprobe.py) and journaled beside it as
+        # round >= 1 (CI saw one pose re-probed on a loaded box: 100 hits, the run right)
+        rounds = [split_repeat(h.repeat)[1] for h in hits]
+        planned = len(setup.plan.poses) * 4 * 5
+        assert rounds.count(0) == planned
+        extra = len(hits) - planned
+        assert extra % (4 * 5) == 0 and max(rounds) <= setup.reprobe_max, (extra, max(rounds))
         analysis = store.analysis(run_id)
         assert analysis is not None
         links = analysis.to_json()["links"]
