@@ -22,7 +22,8 @@ from pathlib import Path
 import yaml
 
 from daemon.analysis import figures
-from demos.linuxcnc import ARTEFACT, CONFIG, ERRORS, MACHINE, run_demo, start_peer
+from demos import linuxcnc
+from demos.linuxcnc import CONFIG, ERRORS, MACHINE, run_demo, start_peer
 
 MACHINE_NAME = "lcnc-trt"
 # The demo's EX0C (−106 µm) is over KinematicsOpt's 50 µm per value: the demo's copy of the
@@ -34,22 +35,9 @@ COVERAGE = 0.9973  # the pass test's coverage (as tests/test_linuxcnc_e2e.py: St
 
 
 def daemon_yaml(work: Path, port: int, plan: Path, machine_file: Path) -> str:
-    return f"""# written by demos/compensate.py
-store: {{path: {work / 'journal.sqlite'}}}
-reports_dir: {work / 'reports'}
-hmi: {{enabled: false}}
-machines:
-  - name: {MACHINE_NAME}
-    machine: {machine_file}
-    artefact: {CONFIG / ARTEFACT}
-    plan: {plan}
-    dialect: linuxcnc
-    link: {{transport: linuxcnc, host: 127.0.0.1, port: {port}, prelude_mdi: [M429]}}
-    touch_timeout_s: 60
-    tolerances:
-      default_rotation_urad: {{warn: 30, fail: 60}}
-      default_translation_um: {{warn: 150, fail: 250}}
-"""
+    """The demo's daemon.yaml (demos.linuxcnc.daemon_yaml): ``machine_file`` with DEMO_GUARDS."""
+    return linuxcnc.daemon_yaml(work, port, plan, writer="demos/compensate.py",
+                                name=MACHINE_NAME, machine_file=machine_file)
 
 
 def demo_machine_file(work: Path) -> Path:

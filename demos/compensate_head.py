@@ -19,6 +19,7 @@ from pathlib import Path
 
 import yaml
 
+from demos import linuxcnc
 from demos.compensate import DEMO_GUARDS, judge, verification
 from demos.linuxcnc import CONFIG, run_demo
 
@@ -33,22 +34,11 @@ PINS = ["xyzbc-head-kins.c-x", "xyzbc-head-kins.ea0c-deg", "xyzbc-head-kins.eb0c
 
 
 def daemon_yaml(work: Path, port: int, plan: Path, machine_file: Path) -> str:
-    return f"""# written by demos/compensate_head.py
-store: {{path: {work / 'journal.sqlite'}}}
-reports_dir: {work / 'reports'}
-hmi: {{enabled: false}}
-machines:
-  - name: {MACHINE_NAME}
-    machine: {machine_file}
-    artefact: {CONFIG / ARTEFACT}
-    plan: {plan}
-    dialect: linuxcnc
-    link: {{transport: linuxcnc, host: 127.0.0.1, port: {port}, prelude_mdi: [M429]}}
-    touch_timeout_s: 60
-    tolerances:
-      default_rotation_urad: {{warn: 30, fail: 60}}
-      default_translation_um: {{warn: 150, fail: 250}}
-"""
+    """The demo's daemon.yaml (demos.linuxcnc.daemon_yaml): the swivel head, ``machine_file``
+    with DEMO_GUARDS."""
+    return linuxcnc.daemon_yaml(work, port, plan, writer="demos/compensate_head.py",
+                                name=MACHINE_NAME, machine_file=machine_file,
+                                artefact=CONFIG / ARTEFACT)
 
 
 def demo_machine_file(work: Path, unattended: bool = False) -> Path:

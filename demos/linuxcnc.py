@@ -31,15 +31,19 @@ MACHINE, ARTEFACT = "machines/linuxcnc_xyzbc.yaml", "artefacts/thesis_4ball.yaml
 ERRORS = "errors/linuxcnc_xyzbc.yaml"
 
 
-def _daemon_yaml(work: Path, port: int, plan: Path, token_file: Path) -> str:
-    return f"""# written by demos/linuxcnc.py
+def daemon_yaml(work: Path, port: int, plan: Path, *, writer: str = "demos/linuxcnc.py",
+                name: str = "lcnc-trt", machine_file: Path = CONFIG / MACHINE,
+                artefact: Path = CONFIG / ARTEFACT, hmi: str = "{enabled: false}") -> str:
+    """The daemon.yaml of a LinuxCNC demo (one machine over linuxcncrsh on ``port``); ``hmi``
+    the flow-style ``hmi:`` section, ``writer`` named in its first line."""
+    return f"""# written by {writer}
 store: {{path: {work / 'journal.sqlite'}}}
 reports_dir: {work / 'reports'}
-hmi: {{host: 127.0.0.1, port: 0, token_file: {token_file}}}
+hmi: {hmi}
 machines:
-  - name: lcnc-trt
-    machine: {CONFIG / MACHINE}
-    artefact: {CONFIG / ARTEFACT}
+  - name: {name}
+    machine: {machine_file}
+    artefact: {artefact}
     plan: {plan}
     dialect: linuxcnc
     link: {{transport: linuxcnc, host: 127.0.0.1, port: {port}, prelude_mdi: [M429]}}
@@ -83,7 +87,8 @@ async def demo(plan: Path, work: Path) -> int:
     token_file.write_text(token)
     token_file.chmod(0o600)
     cfg = work / "daemon.yaml"
-    cfg.write_text(_daemon_yaml(work, peer.port, plan, token_file))
+    cfg.write_text(daemon_yaml(work, peer.port, plan,
+                                hmi=f"{{host: 127.0.0.1, port: 0, token_file: {token_file}}}"))
     daemon = await asyncio.create_subprocess_exec(
         sys.executable, "-m", "daemon.cli", "run", "--config", str(cfg), cwd=ROOT,
         stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.DEVNULL)
