@@ -19,8 +19,6 @@ import yaml
 from contracts.yaml_files import ConfigError
 from daemon.config import load_daemon_config
 from daemon.run.session import State
-from daemon.service.service import Service
-from daemon.store.temperatures import temperatures
 from simulators import thermal
 from simulators.controller import VirtualController
 from simulators.errors_schema import errors_from_dict
@@ -28,7 +26,8 @@ from simulators.frontends.transmitter import TransmitterFrontend
 from simulators.truth import TruthModel
 from tests.daemon_helpers import CONFIG
 from tests.rig_helpers import ERRORS, start_rig
-from tests.test_e2e_transports import PLAN, RUN_TIMEOUT_S, wait_verdict_on_cnc
+from tests.temperature_helpers import run_from_cnc
+from tests.test_e2e_transports import PLAN
 
 WARMUP = {"axes": {"Z": {"amplitude_um": 6.0, "tau_s": 300.0, "rise_c": 8.0},
                    "X": {"amplitude_um": 0.0, "tau_s": 600.0, "rise_c": 3.0}},
@@ -102,20 +101,11 @@ async def test_channels_read_at_start_every_pose_and_end_agree_with_the_warmup(c
     ]
     cfg = load_daemon_config(write_config(tmp_path, machine_entry(
         rig.link, channels, {"spindle": {"change_c": 0.5, "min_c": 15, "max_c": 35}})))
-    service = Service(cfg)
-    await service.start()
-    try:
-        session = service.sessions["mill1"]
-        rig.ctrl.raise_start_request()
-        await wait_verdict_on_cnc(session, rig.ctrl, RUN_TIMEOUT_S)
-        run_id = session.run_id
-        readings = temperatures(service.store, run_id)
-        analysis = service.store.analysis(run_id)
-        verdict = service.store.verdict(run_id)
-        html_path, json_path = service.store.report(run_id)
-    finally:
-        await service.stop()
-    assert session.state == State.IDLE, session.reason
+    run = await run_from_cnc(cfg, rig.ctrl)
+    assert run.session.state == State.IDLE, run.session.reason
+    readings, analysis, verdict = run.readings, run.analysis, run.verdict
+    assert run.report is not None, run.run_id
+    html_path, json_path = run.report
     t_end = rig.ctrl.machine_time_s  # the program's end: nothing ran after it on this link
     plan_poses = list(range(7))
     for name in ("spindle", "column", "broken"):
@@ -249,17 +239,9 @@ async def test_dnc_program_prints_the_macro_variable_at_start_every_pose_and_end
     entry = machine_entry(rig.link, channels, {})
     entry["dialect"] = dialect
     cfg = load_daemon_config(write_config(tmp_path, entry))
-    service = Service(cfg)
-    await service.start()
-    try:
-        session = service.sessions["mill1"]
-        rig.ctrl.raise_start_request()
-        await wait_verdict_on_cnc(session, rig.ctrl, RUN_TIMEOUT_S)
-        readings = temperatures(service.store, session.run_id)
-        analysis = service.store.analysis(session.run_id)
-    finally:
-        await service.stop()
-    assert session.state == State.IDLE, session.reason
+    run = await run_from_cnc(cfg, rig.ctrl)
+    assert run.session.state == State.IDLE, run.session.reason
+    readings, analysis = run.readings, run.analysis
     spindle = [r for r in readings if r.channel == "spindle"]
     assert [(r.at, r.pose) for r in spindle] == [
         ("start", None), *[("pose", p) for p in range(7)], ("end", None)], spindle

@@ -18,13 +18,12 @@ from contracts.temperatures import MACRO_VARIABLE, PRINTED_RANGE_C, parse_printe
 from contracts.yaml_files import ConfigError
 from daemon.config import load_daemon_config
 from daemon.run.session import State
-from daemon.service.service import Service
-from daemon.store.temperatures import temperatures
 from programs.dialects import get_dialect
 from programs.geometry import ProgramError
 from programs.model import Program
 from simulators import thermal
-from tests.test_e2e_transports import RUN_TIMEOUT_S, copy_aux_files, wait_verdict_on_cnc
+from tests.temperature_helpers import run_from_cnc
+from tests.test_e2e_transports import copy_aux_files
 from tests.test_temperature_channels import cnc, machine_entry, sensor, write_config
 
 __all__ = ["cnc"]  # the warming CNC fixture, shared with the channels' end-to-end tests
@@ -49,17 +48,9 @@ async def test_dnc_program_prints_the_variable_in_every_dialect_that_can(cnc, tm
     if dialect == "heidenhain":  # the format files, copied to the TNC once
         copy_aux_files(rig.ctrl, cfg.machines["mill1"])
         assert {"RTEMP_S.A", "RTEMP_P.A", "RTEMP_E.A"} <= set(rig.ctrl.files)
-    service = Service(cfg)
-    await service.start()
-    try:
-        session = service.sessions["mill1"]
-        rig.ctrl.raise_start_request()
-        await wait_verdict_on_cnc(session, rig.ctrl, RUN_TIMEOUT_S)
-        readings = temperatures(service.store, session.run_id)
-        analysis = service.store.analysis(session.run_id)
-    finally:
-        await service.stop()
-    assert session.state == State.IDLE, session.reason
+    run = await run_from_cnc(cfg, rig.ctrl)
+    assert run.session.state == State.IDLE, run.session.reason
+    readings, analysis = run.readings, run.analysis
     spindle = [r for r in readings if r.channel == "spindle"]
     assert [(r.at, r.pose) for r in spindle] == [
         ("start", None), *[("pose", p) for p in range(7)], ("end", None)], spindle

@@ -18,10 +18,9 @@ from contracts.temperatures import TemperatureChannel, TransmitterFile
 from daemon.config import load_daemon_config
 from daemon.run.session import State
 from daemon.run.temperatures import TemperatureRecorder
-from daemon.service.service import Service
 from daemon.store.journal import Store
 from daemon.store.temperatures import temperatures
-from tests.test_e2e_transports import RUN_TIMEOUT_S, wait_verdict_on_cnc
+from tests.temperature_helpers import run_from_cnc
 from tests.test_temperature_channels import SPINDLE, cnc, machine_entry, write_config
 
 __all__ = ["cnc"]  # the warming CNC fixture, shared with the channels' end-to-end tests
@@ -92,17 +91,9 @@ async def test_a_silent_transmitter_is_asked_at_the_start_and_the_end_only(cnc, 
     channels = [{"name": "spindle", "source": "controller", **SPINDLE[rig.transport]},
                 column(port)]
     cfg = load_daemon_config(write_config(tmp_path, machine_entry(rig.link, channels, {})))
-    service = Service(cfg)
-    await service.start()
-    try:
-        session = service.sessions["mill1"]
-        rig.ctrl.raise_start_request()
-        await wait_verdict_on_cnc(session, rig.ctrl, RUN_TIMEOUT_S)
-        readings = temperatures(service.store, session.run_id)
-        analysis = service.store.analysis(session.run_id)
-    finally:
-        await service.stop()
-    assert session.state == State.IDLE, session.reason
+    run = await run_from_cnc(cfg, rig.ctrl)
+    assert run.session.state == State.IDLE, run.session.reason
+    readings, analysis = run.readings, run.analysis
     col = [r for r in readings if r.channel == "column"]
     assert [(r.at, r.pose) for r in col] == [
         ("start", None), *[("pose", p) for p in range(7)], ("end", None)], col
