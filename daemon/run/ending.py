@@ -9,6 +9,7 @@ import logging
 
 from contracts.jobs import Verdict
 from daemon.run.phases import RunStatus, State
+from daemon.run.temperatures import TemperatureRecorder
 from drivers.base import CncLink, LinkError
 
 log = logging.getLogger("rumba.session")
@@ -21,6 +22,7 @@ class RunEnding(RunStatus):
     """The session's stopping and write-back steps (``daemon.run.session.Session`` is one)."""
 
     link: CncLink
+    temps: TemperatureRecorder  # the run's temperature channels (issue 22)
     _abort_reason: str | None
     _controller_dirty: bool
 
@@ -38,7 +40,15 @@ class RunEnding(RunStatus):
         cannot cut short; every step is bounded by its timeout. Re-raises that cancellation
         once the end is recorded."""
         async def finish() -> None:
+            # the run's temperature reads in flight are cancelled beside the controller's stop
+            # (never delaying it) and awaited before the end is journaled: nothing of the run
+            # outlives it (a pose read kept the link busy and journaled ~3 s after ABORTED)
+            reads = asyncio.ensure_future(self.temps.stop(run_id))
             why = await self._stop_controller() if stop else None
+            try:
+                await reads
+            except Exception as e:
+                log.error("%s %s: temperature reads not stopped: %s", self.setup.name, run_id, e)
             try:
                 self._enter(state, f"{reason}; controller abort failed: {why}" if why
                             else reason)

@@ -23,6 +23,11 @@ READ_TIMEOUT_S = 3.0  # one sample of every channel; a silent sensor must not ho
 # switched off but routable: no RST, the connect or the request times out); one refused at once
 # (an unknown node, a closed port) costs nothing and is tried again at the next pose
 NO_ANSWER_S = 0.5
+# a run that stops (abort, failure, the daemon stopping) cancels its reads still in flight and
+# waits this long for each to unwind (a cancelled socket read ends at once) before it reports
+# itself stopped: no read of the run outlives it
+STOP_WAIT_S = 2.0
+STOPPED = "not read: the run stopped before the channel answered"
 
 
 class TemperatureRecorder:
@@ -69,7 +74,7 @@ class TemperatureRecorder:
         loop = asyncio.get_running_loop()
         t0 = loop.time()
         try:
-            value = await asyncio.wait_for(self._read(ch), READ_TIMEOUT_S)
+            value = await self._answer(run_id, ch, at, pose, t_s)
         except asyncio.CancelledError:
             raise
         except Exception as e:
@@ -86,6 +91,36 @@ class TemperatureRecorder:
         else:
             self._journal(run_id, TemperatureReading(ch.name, at, pose, t_s,
                                                      float(value)))  # type: ignore[arg-type]
+
+    async def _answer(self, run_id: str, ch: TemperatureChannel, at: str, pose: int | None,
+                      t_s: float) -> float:
+        """The channel's value within ``READ_TIMEOUT_S`` (TimeoutError else). Cancelled (the run
+        stopped): a value that had already come is journaled — nothing received is lost,
+        whatever a Python version's ``asyncio.wait_for`` does with a cancel that meets a done
+        read (gh-86296) — else the read is cut and journaled as ``STOPPED``; the cancel goes
+        on."""
+        read = asyncio.ensure_future(self._read(ch))
+        try:
+            done, _ = await asyncio.wait((read,), timeout=READ_TIMEOUT_S)
+        except asyncio.CancelledError:
+            if not read.done():
+                read.cancel()  # the transmitter drops its connection: no late answer
+                await asyncio.wait((read,), timeout=STOP_WAIT_S)
+            got = (None if not read.done() or read.cancelled() or read.exception() is not None
+                   else float(read.result()))
+            try:
+                self._journal(run_id, TemperatureReading(ch.name, at, pose, t_s, got,
+                                                         "" if got is not None else STOPPED)
+                              )  # type: ignore[arg-type]
+            except Exception as e:  # the journal gone must not hide the stop
+                log.error("%s %s: temperature %s not journaled: %s", self.machine, run_id,
+                          ch.name, e)
+            raise
+        if not done:
+            read.cancel()
+            await asyncio.wait((read,))  # unwound (its connection dropped) before the next
+            raise TimeoutError
+        return float(read.result())
 
     async def sample(self, run_id: str, at: str, pose: int | None, t_s: float) -> None:
         """Read every polled channel now (an unreachable one too: the start and the end try
@@ -161,10 +196,24 @@ class TemperatureRecorder:
         await self.close()
 
     def abandon(self) -> None:
-        """A run ended without its end sample (stopped, failed): no read outlives it."""
+        """Cancel the pose reads in flight (``stop`` also waits for them)."""
         pending, self._pending = list(self._pending.values()), {}
         for task in pending:
             task.cancel()
+
+    async def stop(self, run_id: str) -> None:
+        """A run ended without its end sample (aborted, failed, the daemon stopping): each pose
+        read still in flight is cancelled and awaited — it journals the value it had received,
+        or ``STOPPED`` — and the transmitters are closed, before the run reports itself
+        stopped: nothing of the run outlives it, nothing it received is lost."""
+        pending = [t for t in self._pending.values() if not t.done()]
+        self.abandon()
+        if pending:
+            _, left = await asyncio.wait(pending, timeout=2 * STOP_WAIT_S)
+            for task in left:  # a read that ignores its cancellation: said, never hidden
+                log.error("%s %s: temperature read %s still running after the run stopped",
+                          self.machine, run_id, task.get_name())
+        await self.close()
 
     def with_summary(self, run_id: str, analysis: Any) -> Any:
         """``analysis`` (a ``pipeline.RunAnalysis``) with the run's summary in its data."""

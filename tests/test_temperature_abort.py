@@ -1,0 +1,143 @@
+"""A run stopped while a pose's temperature read waits (issue 22's review): the read is cancelled
+and awaited before the run reports itself ABORTED — journaled as cut by the stop, its
+transmitter connection closed, no task of it left running — and a value that had already come
+when the stop arrived is journaled, not lost. End to end: the warming CNC behind its real
+asyncua front-end, a real Modbus TCP socket that answers the start and then falls silent, the
+abort through the HMI's HTTP API as an operator sends it."""
+
+from __future__ import annotations
+
+import asyncio
+from collections.abc import AsyncIterator
+
+import aiohttp
+import pytest
+import pytest_asyncio
+import yaml
+
+from contracts.temperatures import TemperatureChannel
+from daemon.config import load_daemon_config
+from daemon.run import temperatures as run_temperatures
+from daemon.run.session import State
+from daemon.run.temperatures import STOPPED, TemperatureRecorder
+from daemon.service.service import Service
+from daemon.store.journal import Store
+from daemon.store.temperatures import temperatures
+from tests.test_e2e_transports import RUN_TIMEOUT_S
+from tests.test_temperature_channels import SPINDLE, cnc, machine_entry
+from tests.test_temperature_silent import SilentTransmitter, column
+
+__all__ = ["cnc"]  # the warming CNC fixture, shared with the channels' end-to-end tests
+
+TOKEN = "t0k3n-for-abort-tests-0123456789"
+
+
+@pytest_asyncio.fixture
+async def silent_after_start() -> AsyncIterator[tuple[SilentTransmitter, int]]:
+    """A transmitter that answers the run's start read, then never again."""
+    tx = SilentTransmitter(answer_first=1)
+    server = await asyncio.start_server(tx.handle, "127.0.0.1", 0)
+    try:
+        yield tx, server.sockets[0].getsockname()[1]
+    finally:
+        await tx.close()
+        server.close()
+        await server.wait_closed()
+
+
+def running_reads() -> list[asyncio.Task]:
+    return [t for t in asyncio.all_tasks()
+            if t.get_name().startswith("temperature-") and not t.done()]
+
+
+@pytest.mark.asyncio
+@pytest.mark.parametrize("cnc", ["opcua"], indirect=True)
+async def test_an_abort_cancels_the_pose_read_in_flight_before_the_run_reports_aborted(
+        cnc, silent_after_start, tmp_path, monkeypatch):
+    rig, _, _ = cnc
+    tx, port = silent_after_start
+    # the pose read waits for the transmitter's own 30 s timeout, not the 3 s cap: the abort
+    # below surely meets it in flight, however loaded the machine running the test
+    monkeypatch.setattr(run_temperatures, "READ_TIMEOUT_S", 120.0)
+    channels = [{"name": "spindle", "source": "controller", **SPINDLE[rig.transport]},
+                column(port, timeout_s=30.0)]
+    doc = {"store": {"path": str(tmp_path / "journal.sqlite")},
+           "reports_dir": str(tmp_path / "reports"),
+           "hmi": {"host": "127.0.0.1", "port": 0, "token": TOKEN},
+           "machines": [machine_entry(rig.link, channels, {})]}
+    path = tmp_path / "daemon.yaml"
+    path.write_text(yaml.safe_dump(doc, allow_unicode=True), encoding="utf-8")
+    service = Service(load_daemon_config(path))
+    await service.start()
+    try:
+        session = service.sessions["mill1"]
+        rig.ctrl.raise_start_request()
+        async with asyncio.timeout(RUN_TIMEOUT_S):  # the start answered, pose 0's read sent
+            while tx.requests < 2:
+                if session.run_id is not None and not session.busy:
+                    raise AssertionError(f"run ended before its first pose: {session.reason}")
+                await asyncio.sleep(0.01)
+        run_id = session.run_id
+        assert [(r.channel, r.at) for r in temperatures(service.store, run_id)
+                if r.channel == "column"] == [("column", "start")]  # pose 0's read waits
+        async with aiohttp.ClientSession() as http:
+            r = await http.post(service.hmi_url + "api/machines/mill1/abort",
+                                headers={"Authorization": f"Bearer {TOKEN}"})
+            body = await r.json()
+        # the HMI answers once the run has ended: what it ended with is final now
+        left = running_reads()
+        readings = temperatures(service.store, run_id)
+        async with asyncio.timeout(RUN_TIMEOUT_S):  # the stop closed the transmitter's socket
+            while tx._tasks and not all(t.done() for t in tx._tasks):
+                await asyncio.sleep(0.01)
+    finally:
+        await service.stop()
+    assert r.status == 200 and body["reason"].startswith("aborted by hmi during "), body
+    assert session.state == State.ABORTED, session.reason
+    assert left == [], left  # no read of the run outlives it
+    col = [r for r in readings if r.channel == "column"]
+    assert [(r.at, r.pose) for r in col] == [("start", None), ("pose", 0)], col
+    assert col[0].value_c == pytest.approx(23.5)
+    assert col[1].value_c is None and col[1].error == STOPPED, col[1]
+    assert tx.requests == 2  # nothing asked after the stop
+    spindle = [r for r in readings if r.channel == "spindle"]  # every read accounted for
+    assert spindle and all(r.value_c is not None or r.error == STOPPED for r in spindle)
+
+
+class HeldLink:
+    """A link whose temperature read answers when the test says so (the race of a value that
+    arrives together with the stop cannot be timed on a real socket)."""
+
+    def __init__(self) -> None:
+        self.release = asyncio.Event()
+        self.answered = False
+
+    async def read_temperature(self, ch: TemperatureChannel) -> float:
+        await self.release.wait()
+        self.answered = True  # the read's task completes in this same step
+        return 24.25
+
+
+@pytest.mark.asyncio
+async def test_a_value_arriving_with_the_stop_is_journaled(tmp_path):
+    store = Store(tmp_path / "journal.sqlite")
+    store.new_run("r1", "mill1", "test")
+    link = HeldLink()
+    ch = TemperatureChannel(name="spindle", address="/Channel/Temperatures/Z")
+    rec = TemperatureRecorder("mill1", (ch,), link=link, store=store,  # type: ignore[arg-type]
+                              link_name="opcua")
+    try:
+        await rec.on_hit("r1", 0, 1.0)
+        await asyncio.sleep(0)  # the pose read is waiting for its answer
+        assert running_reads() and temperatures(store, "r1") == []
+        link.release.set()
+        while not link.answered:
+            await asyncio.sleep(0)
+        await rec.stop("r1")  # the stop meets the answer before the read could journal it
+        got = temperatures(store, "r1")
+        left = running_reads()
+    finally:
+        await rec.close()
+        store.close()
+    assert left == []
+    assert [(r.at, r.pose, r.value_c, r.error) for r in got] == [("pose", 0, 24.25, "")]
