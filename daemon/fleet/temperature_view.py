@@ -10,17 +10,10 @@ from collections.abc import Sequence
 from typing import Any
 
 from daemon.analysis.temperature_trend import TempFit, TempPoint
-from daemon.fleet.view import _W, _e, _page, _ticks, finite, when
+from daemon.fleet.chart import LEFT_PX, RIGHT_PX, WIDTH_PX, Frame, padded, ticks
+from daemon.fleet.view import _e, _page, finite, when
 
-_H, _L, _R, _T, _B = 320, 64, 12, 12, 40  # the scatter's height and margins, px
-
-
-def _span(values: list[float]) -> tuple[float, float]:
-    lo, hi = min(values), max(values)
-    if hi - lo < 1e-9:
-        lo, hi = lo - 1.0, hi + 1.0
-    pad = 0.06 * (hi - lo)
-    return lo - pad, hi + pad
+_H, _T, _B = 320, 12, 40  # the scatter's height, top and bottom margins, px
 
 
 def scatter(pts: Sequence[TempPoint], f: TempFit, link: str, channel: str, unit: str) -> str:
@@ -28,30 +21,22 @@ def scatter(pts: Sequence[TempPoint], f: TempFit, link: str, channel: str, unit:
     if not pts:
         return '<p class="empty">No run has both this link and this channel.</p>'
     xs = [p.temperature_c for p in pts]
-    x0, x1 = _span(xs)
-    y0, y1 = _span([v for p in pts for v in (p.value - (p.std or 0.0), p.value + (p.std or 0.0))])
+    x0, x1 = padded(min(xs), max(xs))
+    ys = [v for p in pts for v in (p.value - (p.std or 0.0), p.value + (p.std or 0.0))]
+    frame = Frame(_H, _T, _B, *padded(min(ys), max(ys)))
+    y = frame.y
 
     def x(t: float) -> float:
-        return _L + (_W - _L - _R) * (t - x0) / (x1 - x0)
+        return LEFT_PX + (WIDTH_PX - LEFT_PX - RIGHT_PX) * (t - x0) / (x1 - x0)
 
-    def y(v: float) -> float:
-        return _T + (_H - _T - _B) * (y1 - v) / (y1 - y0)
-
-    out = [f'<svg class="scatter" data-link="{_e(link)}" data-channel="{_e(channel)}" '
-           f'viewBox="0 0 {_W} {_H}" width="{_W}" height="{_H}" role="img" '
-           f'aria-label="{_e(link)} in {_e(unit)} against {_e(channel)} in °C">']
-    for tv in _ticks(y0, y1):
-        out.append(f'<line class="grid" x1="{_L}" x2="{_W - _R}" y1="{y(tv):.1f}" '
-                   f'y2="{y(tv):.1f}"/><text class="tick" x="{_L - 4}" y="{y(tv) + 4:.1f}" '
-                   f'text-anchor="end">{tv:g}</text>')
-    for tx in _ticks(x0, x1):
+    out = [frame.open({"class": "scatter", "data-link": link, "data-channel": channel},
+                      f"{link} in {unit} against {channel} in °C"), *frame.y_grid()]
+    for tx in ticks(x0, x1):
         out.append(f'<text class="tick" x="{x(tx):.1f}" y="{_H - _B + 14}" '
                    f'text-anchor="middle">{tx:g}</text>')
-    out.append(f'<text class="axis-label" x="12" y="{(_T + _H - _B) / 2:.0f}" '
-               f'transform="rotate(-90 12 {(_T + _H - _B) / 2:.0f})" '
-               f'text-anchor="middle">{_e(link)} ({_e(unit)})</text>'
-               f'<text class="axis-label x" x="{(_L + _W - _R) / 2:.0f}" y="{_H - 6}" '
-               f'text-anchor="middle">{_e(channel)}, mean over the run (°C)</text>')
+    out.append(frame.y_label(f"{link} ({unit})") +
+               f'<text class="axis-label x" x="{(LEFT_PX + WIDTH_PX - RIGHT_PX) / 2:.0f}" '
+               f'y="{_H - 6}" text-anchor="middle">{_e(channel)}, mean over the run (°C)</text>')
     if f.slope is not None:
         mt, mv = sum(xs) / len(xs), sum(p.value for p in pts) / len(pts)
         lo, hi = min(xs), max(xs)

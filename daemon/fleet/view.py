@@ -14,11 +14,12 @@ from urllib.parse import quote
 
 from daemon.analysis.figures import DEFINITIONS, LABELS, VOLUMETRIC
 from daemon.analysis.judge import NO_BASELINE
+from daemon.fleet.chart import LEFT_PX, RIGHT_PX, WIDTH_PX, Frame, padded
 
 UNITS = {"urad": "µrad", "um": "µm"}
 VERDICTS = ("PASS", "WARN", "FAIL", "ERROR")
 _ENDED = ("DONE", "FAILED", "ABORTED", "INTERRUPTED")  # a run in no other state is running
-_W, _H, _L, _R, _T, _B = 560, 150, 64, 12, 10, 26  # chart size and margins, px
+_H, _T, _B = 150, 10, 26  # the trend chart's height, top and bottom margins, px
 
 
 def _e(x: Any) -> str:
@@ -139,14 +140,6 @@ def _limit(name: str, unit: str, limits: Any) -> dict[str, float] | None:
     return out or None
 
 
-def _ticks(lo: float, hi: float, n: int = 4) -> list[float]:
-    step = (hi - lo) / n
-    mag = 10 ** math.floor(math.log10(step)) if step > 0 else 1.0
-    step = next(m * mag for m in (1, 2, 2.5, 5, 10) if m * mag >= step)
-    first = math.ceil(lo / step) * step
-    return [first + i * step for i in range(int((hi - first) / step + 1e-9) + 1)]
-
-
 def link_chart(name: str, unit: str, points: Sequence[tuple[float, float, str, str]],
                limit: Mapping[str, Any] | None) -> str:
     """One link's trend: ``points`` (time s, value, verdict, run id), its warn / fail lines
@@ -155,36 +148,23 @@ def link_chart(name: str, unit: str, points: Sequence[tuple[float, float, str, s
     vals = [p[1] for p in points]
     bounds = vals + [s * limit[k] for k in ("warn", "fail") for s in (1, -1)
                      if limit and k in limit]
-    lo, hi = min(bounds), max(bounds)
-    if hi - lo < 1e-9:
-        lo, hi = lo - 1.0, hi + 1.0
-    pad = 0.06 * (hi - lo)
-    lo, hi = lo - pad, hi + pad
+    frame = Frame(_H, _T, _B, *padded(min(bounds), max(bounds)))
+    y = frame.y
     t0, t1 = points[0][0], points[-1][0]
     span = (t1 - t0) or 1.0
 
     def x(t: float) -> float:
-        return _L + (_W - _L - _R) * ((t - t0) / span if t1 > t0 else 0.5)
+        return LEFT_PX + (WIDTH_PX - LEFT_PX - RIGHT_PX) * ((t - t0) / span if t1 > t0 else 0.5)
 
-    def y(v: float) -> float:
-        return _T + (_H - _T - _B) * (hi - v) / (hi - lo)
-
-    parts = [f'<svg class="chart" data-link="{_e(name)}" data-unit="{_e(label)}" '
-             f'viewBox="0 0 {_W} {_H}" width="{_W}" height="{_H}" role="img" '
-             f'aria-label="{_e(name)} trend in {_e(label)}">']
-    for tv in _ticks(lo, hi):
-        parts.append(f'<line class="grid" x1="{_L}" x2="{_W - _R}" y1="{y(tv):.1f}" '
-                     f'y2="{y(tv):.1f}"/><text class="tick" x="{_L - 4}" y="{y(tv) + 4:.1f}" '
-                     f'text-anchor="end">{tv:g}</text>')
-    parts.append(f'<text class="axis-label" x="12" y="{(_T + _H - _B) / 2:.0f}" '
-                 f'transform="rotate(-90 12 {(_T + _H - _B) / 2:.0f})" '
-                 f'text-anchor="middle">{_e(label)}</text>')
+    parts = [frame.open({"class": "chart", "data-link": name, "data-unit": label},
+                        f"{name} trend in {label}"),
+             *frame.y_grid(), frame.y_label(label)]
     for k in ("warn", "fail"):
         if limit and limit.get(k) is not None:
             for s in (1, -1):
                 yy = y(s * float(limit[k]))
-                parts.append(f'<line class="limit {k}" data-limit="{k}" x1="{_L}" '
-                             f'x2="{_W - _R}" y1="{yy:.1f}" y2="{yy:.1f}"/>')
+                parts.append(f'<line class="limit {k}" data-limit="{k}" x1="{LEFT_PX}" '
+                             f'x2="{WIDTH_PX - RIGHT_PX}" y1="{yy:.1f}" y2="{yy:.1f}"/>')
     if len(points) > 1:
         line = " ".join(f"{x(p[0]):.1f},{y(p[1]):.1f}" for p in points)
         parts.append(f'<polyline class="series" points="{line}"/>')
@@ -193,7 +173,7 @@ def link_chart(name: str, unit: str, points: Sequence[tuple[float, float, str, s
                      f"<title>{_e(run_id)} {_e(when(t))}: {v:.3g} {_e(label)} ({_e(verdict)})"
                      "</title></circle>")
     for t, anchor in ((t0, "start"), (t1, "end")):
-        parts.append(f'<text class="tick" x="{x(t) if t1 > t0 else _L:.1f}" y="{_H - 6}" '
+        parts.append(f'<text class="tick" x="{x(t) if t1 > t0 else LEFT_PX:.1f}" y="{_H - 6}" '
                      f'text-anchor="{anchor}">{_e(time.strftime("%Y-%m-%d", time.localtime(t)))}'
                      "</text>")
     parts.append("</svg>")
