@@ -70,28 +70,35 @@ class Cdp:
         await self.call("Page.enable", sid)
         return sid
 
-    async def sign_in(self, sid: str, url: str, token: str) -> None:
-        """Open the HMI at ``url``, sign in with ``token``, wait for the live page."""
+    async def _submit_login(self, sid: str, url: str, fill_js: str) -> None:
+        """Open ``url``, wait for the login page it sends to, fill the form, submit it."""
         await self.call("Page.navigate", sid, url=url)
         await self.wait_for(sid, "location.pathname === '/login' && "
                                  "document.readyState === 'complete'")
-        await self.eval(sid, f"document.getElementById('token').value = '{token}';"
-                             "document.querySelector('form').submit(); true")
+        await self.eval(sid, fill_js + "document.querySelector('form').submit(); true")
+
+    async def _hmi_live(self, sid: str) -> None:
         await self.wait_for(sid, "!!document.querySelector('.machine .start')")
         await self.wait_for(sid, "document.getElementById('conn').textContent === 'live'")
+
+    async def sign_in(self, sid: str, url: str, token: str) -> None:
+        """Open the HMI at ``url``, sign in with ``token``, wait for the live page."""
+        await self._submit_login(sid, url, f"document.getElementById('token').value = '{token}';")
+        await self._hmi_live(sid)
+
+    async def sign_in_fleet(self, sid: str, url: str, token: str) -> None:
+        """Open the fleet page at ``url``, sign in with ``token``, wait for the fleet table (the
+        sign-in lands on /, whatever page was asked)."""
+        await self._submit_login(sid, url, f"document.getElementById('token').value = '{token}';")
+        await self.wait_for(sid, "!!document.querySelector('table.fleet-table')")
 
     async def sign_in_user(self, sid: str, url: str, user: str, password: str,
                            live: bool = True) -> None:
         """Open the HMI at ``url`` and sign in with an account (``hmi.users_file``)."""
-        await self.call("Page.navigate", sid, url=url)
-        await self.wait_for(sid, "location.pathname === '/login' && "
-                                 "document.readyState === 'complete'")
-        await self.eval(sid, f"document.getElementById('user').value = {user!r};"
-                             f"document.getElementById('password').value = {password!r};"
-                             "document.querySelector('form').submit(); true")
+        await self._submit_login(sid, url, f"document.getElementById('user').value = {user!r};"
+                                 f"document.getElementById('password').value = {password!r};")
         if live:
-            await self.wait_for(sid, "!!document.querySelector('.machine .start')")
-            await self.wait_for(sid, "document.getElementById('conn').textContent === 'live'")
+            await self._hmi_live(sid)
 
     async def screenshot(self, sid: str, path: Path, whole_page: bool = False) -> None:
         shot = await self.call("Page.captureScreenshot", sid, captureBeyondViewport=whole_page)

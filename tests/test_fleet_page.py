@@ -219,12 +219,7 @@ async def test_fleet_page_in_chromium(fleet_db, tmp_path):
     async with serving(dsn, reports, stale_after_h=26) as url, \
             chromium(tmp_path / "profile") as cdp:
         sid = await cdp.page()
-        await cdp.call("Page.navigate", sid, url=url + "/")
-        await cdp.wait_for(sid, "location.pathname === '/login' && "
-                                "document.readyState === 'complete'")
-        await cdp.eval(sid, f"document.getElementById('token').value = '{TOKEN}';"
-                            "document.querySelector('form').submit(); true")
-        await cdp.wait_for(sid, "!!document.querySelector('table.fleet-table')")
+        await cdp.sign_in_fleet(sid, url + "/", TOKEN)
         rows = await cdp.eval(sid, """[...document.querySelectorAll('tr.row')].map(r => [
             r.dataset.machine, r.querySelector('.badge')?.textContent,
             r.querySelector('.age').textContent, !!r.querySelector('.stale-flag'),

@@ -233,12 +233,7 @@ async def test_link_against_temperature_in_chromium(against_db, tmp_path):
     want = expected(runs)
     async with serving(dsn, tmp_path) as url, chromium(tmp_path / "profile") as cdp:
         sid = await cdp.page()
-        await cdp.call("Page.navigate", sid, url=url + "/machines/mill-t")
-        await cdp.wait_for(sid, "location.pathname === '/login' && "
-                                "document.readyState === 'complete'")
-        await cdp.eval(sid, f"document.getElementById('token').value = '{TOKEN}';"
-                            "document.querySelector('form').submit(); true")
-        await cdp.wait_for(sid, "!!document.querySelector('table.fleet-table')")
+        await cdp.sign_in_fleet(sid, url + "/machines/mill-t", TOKEN)
         await cdp.call("Page.navigate", sid, url=url + "/machines/mill-t")
         await cdp.wait_for(sid, "location.pathname === '/machines/mill-t' && "
                                 "document.readyState === 'complete'")
