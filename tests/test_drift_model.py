@@ -6,7 +6,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from contracts.setup_files import load_artefact, load_machine, load_plan
 from identification.drift import (
     DriftModel,
     estimate_drift_aware,
@@ -16,30 +15,18 @@ from identification.drift import (
 from identification.estimate import estimate
 from identification.identifiability import nominal_centres
 from identification.model import Centres, Layout, predict
-from tests.synth import THESIS_LINKS_UM_URAD, Truth, to_internal, true_centres
-
-SIGMA = np.array([0.66, 0.98, 0.44])  # thesis §3.4 centre repeatability, µm
+from tests.drift_helpers import SIGMA, shift_visits, thesis_truth
+from tests.synth import THESIS_LINKS_UM_URAD, true_centres
 
 
 @pytest.fixture(scope="module")
 def shift():
-    """The estimate visits of the shift plan (7 poses + the revisit of the first) at the
-    times of the 223 s run (15 visits; 3.7 s between balls)."""
-    m, _ = load_machine("config/machines/thesis_wcbxfzyt.yaml")
-    a = load_artefact("config/artefacts/thesis_4ball.yaml")
-    plan = load_plan("config/plans/shift_start_14poses.yaml")
-    est = [i for i, p in enumerate(plan.poses) if p.role == "estimate"]
-    visits = [(plan.poses[i].b_deg, plan.poses[i].c_deg) for i in est]
-    visits.append(visits[0])
-    truth = Truth(to_internal(THESIS_LINKS_UM_URAD), np.full((4, 3), 0.02),
-                  np.array([0.01, -0.01, 0.02]))
-    xyz = true_centres(m, a, visits, truth).reshape(-1, 3)
-    n = len(a.balls)
-    pose = np.repeat([*est, est[0]], n)
-    t = np.repeat(np.array([*est, len(plan.poses)]) * 223.0 / 15, n) \
-        + np.tile(np.arange(n) * 3.7, len(visits))
-    bc = np.repeat(np.array(visits), n, axis=0)
-    return m, a, pose, np.tile(np.arange(n), len(visits)), bc, xyz, t
+    """The shift plan's estimate visits at the times of its run (tests/drift_helpers.py), the
+    true centres of the thesis links."""
+    sv = shift_visits()
+    xyz = true_centres(sv.machine, sv.artefact, sv.visits, thesis_truth()).reshape(-1, 3)
+    bc = np.repeat(np.array(sv.visits), len(sv.artefact.balls), axis=0)
+    return sv.machine, sv.artefact, sv.pose, sv.ball, bc, xyz, sv.t_s
 
 
 def _centres(shift, seed: int, warmup_um: float, tau_s: float = 900.0) -> Centres:

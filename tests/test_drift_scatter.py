@@ -6,32 +6,21 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from contracts.setup_files import load_artefact, load_machine, load_plan
 from identification.drift import estimate_drift_aware, shape_values
 from identification.estimate import estimate
 from identification.estimate_scatter import visit_sandwich
 from identification.model import Centres
-from tests.synth import THESIS_LINKS_UM_URAD, Truth, to_internal, true_centres
+from tests.drift_helpers import SIGMA, shift_visits, thesis_truth
+from tests.synth import THESIS_LINKS_UM_URAD, true_centres
 
-SIGMA = np.array([0.66, 0.98, 0.44])  # thesis §3.4 centre repeatability, µm
 INDEX_URAD = 15.0  # B and C index scatter 1σ per visit: detected by the REML test
 
 
 @pytest.fixture(scope="module")
 def plan_visits():
-    """The shift plan's estimate visits (7 poses + the revisit of the first) at the times of
-    its 223 s run, 3.7 s between balls."""
-    m, _ = load_machine("config/machines/thesis_wcbxfzyt.yaml")
-    a = load_artefact("config/artefacts/thesis_4ball.yaml")
-    plan = load_plan("config/plans/shift_start_14poses.yaml")
-    est = [i for i, p in enumerate(plan.poses) if p.role == "estimate"]
-    visits = [(plan.poses[i].b_deg, plan.poses[i].c_deg) for i in est]
-    visits.append(visits[0])
-    n = len(a.balls)
-    pose = np.repeat([*est, est[0]], n)
-    t = np.repeat(np.array([*est, len(plan.poses)]) * 223.0 / 15, n) \
-        + np.tile(np.arange(n) * 3.7, len(visits))
-    return m, a, visits, pose, np.tile(np.arange(n), len(visits)), t
+    """The shift plan's estimate visits at the times of its run (tests/drift_helpers.py)."""
+    sv = shift_visits()
+    return sv.machine, sv.artefact, sv.visits, sv.pose, sv.ball, sv.t_s
 
 
 def _centres(pv, seed: int, warmup_um: float) -> Centres:
@@ -40,11 +29,9 @@ def _centres(pv, seed: int, warmup_um: float) -> Centres:
     m, a, visits, pose, ball, t = pv
     rng = np.random.default_rng(seed)
     d = np.rad2deg(rng.normal(size=(len(visits), 2)) * INDEX_URAD * 1e-6)
-    truth = Truth(to_internal(THESIS_LINKS_UM_URAD), np.full((4, 3), 0.02),
-                  np.array([0.01, -0.01, 0.02]))
     xyz = true_centres(m, a, [(b + db, c + dc) for (b, c), (db, dc) in zip(visits, d,
                                                                             strict=True)],
-                       truth).reshape(-1, 3)
+                       thesis_truth()).reshape(-1, 3)
     xyz[:, 2] += warmup_um * 1e-3 * shape_values("exponential", t, 900.0)
     bc = np.repeat(np.array(visits), len(a.balls), axis=0)
     return Centres(pose, ball, bc[:, 0], bc[:, 1],
