@@ -9,8 +9,10 @@ transmitter of its own. Values are °C; Modbus registers carry a stated scale an
 
 from __future__ import annotations
 
+import math
 import re
 import struct
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, Literal
 
@@ -184,23 +186,86 @@ class TemperatureReading:
     error: str = ""
 
 
+def _where(r: TemperatureReading) -> str:
+    return f"pose {r.pose}" if r.at == "pose" else r.at
+
+
+def run_mean_c(pose_c: Sequence[float | None], start_c: float | None,
+               end_c: float | None) -> float | None:
+    """A run's temperature on one channel, the one definition the report, the CLI, the HMI and
+    the fleet page use (issue 22 item 4): the mean of the values read at the poses — the
+    instants the geometry was measured — else of the start and end values that were read. A
+    reading that is missing is left out, never stood in for by another one."""
+    values = [float(v) for v in pose_c if v is not None]
+    if not values:
+        values = [float(v) for v in (start_c, end_c) if v is not None]
+    return sum(values) / len(values) if values else None
+
+
 def summarise(readings: list[TemperatureReading], sources: dict[str, str]) -> dict[str, Any]:
-    """Per channel: start, end, change over the run, min, max, per-pose values, errors, source
-    (the analysis JSON's ``temperatures``; the report, HMI, fleet and judge read it)."""
+    """Per channel: start, end, the first and last values read (and where), the change between
+    them, mean, min, max, per-pose values, errors, source (the analysis JSON's
+    ``temperatures``; the report, HMI, fleet and judge read it). ``start_c`` / ``end_c`` are the
+    readings at the start and the end, None where not read; ``change_c`` spans ``change_over``
+    ("start → end", or e.g. "pose 0 → end" when the start was not read), None below two
+    readings: one value is no change."""
     out: dict[str, Any] = {}
     for name, source in sources.items():
         mine = [r for r in readings if r.channel == name]
         ok = [r for r in mine if r.value_c is not None]
-        start = next((r.value_c for r in ok if r.at == "start"), ok[0].value_c if ok else None)
-        end = next((r.value_c for r in reversed(ok) if r.at == "end"),
-                   ok[-1].value_c if ok else None)
+        start = next((r.value_c for r in ok if r.at == "start"), None)
+        end = next((r.value_c for r in reversed(ok) if r.at == "end"), None)
+        first, last = (ok[0], ok[-1]) if ok else (None, None)
+        two = first is not None and last is not None and first is not last
         values = [float(r.value_c) for r in ok]  # type: ignore[arg-type]
+        poses = [r for r in ok if r.at == "pose"]
         out[name] = {
             "source": source, "start_c": start, "end_c": end,
-            "change_c": (end - start) if start is not None and end is not None else None,
+            "first_c": first.value_c if first else None,
+            "first_at": _where(first) if first else None,
+            "last_c": last.value_c if last else None,
+            "last_at": _where(last) if last else None,
+            "change_c": (last.value_c - first.value_c) if two else None,  # type: ignore
+            "change_over": f"{_where(first)} → {_where(last)}" if two else None,  # type: ignore
+            "mean_c": run_mean_c([r.value_c for r in poses], start, end),
             "min_c": min(values) if values else None, "max_c": max(values) if values else None,
             "per_pose": [{"pose": r.pose, "t_s": round(r.t_s, 3), "value_c": r.value_c}
-                         for r in ok if r.at == "pose"],
+                         for r in poses],
             "readings": len(mine), "unread": len(mine) - len(ok),
             "errors": sorted({r.error for r in mine if r.error})[:5]}
     return out
+
+
+def _c(v: Any) -> str:
+    return f"{v:.1f}"
+
+
+def _finite(v: Any) -> float | None:
+    return float(v) if isinstance(v, (int, float)) and math.isfinite(v) else None
+
+
+def channel_text(name: str, t: Any) -> str:
+    """One channel of a run's summary as every view prints it (the report's audit row and PDF
+    line, the HMI card, the fleet page): "spindle 20.5 → 24.1 °C (+3.6 °C)"; without a start
+    reading the span says where it began ("spindle 21.0 (pose 0) → 24.1 °C (+3.1 °C; start
+    not read)"), one value is no change ("spindle 24.1 °C (end only; start not read)"), none
+    says why. A summary written by another version or by hand costs the cell, never the page."""
+    if not isinstance(t, Mapping):
+        return f"{name} not read"
+    start, end = _finite(t.get("start_c")), _finite(t.get("end_c"))
+    new = "first_c" in t  # older summaries put the first reading in start_c
+    first = _finite(t.get("first_c")) if new else start
+    last = _finite(t.get("last_c")) if new else end
+    if first is None or last is None:
+        errors = t.get("errors")
+        why = "; ".join(str(e) for e in errors) if isinstance(errors, list) and errors else ""
+        return f"{name} not read" + (f" ({why})" if why else "")
+    change = _finite(t.get("change_c"))
+    if not new or (start is not None and end is not None):
+        return (f"{name} {_c(first)} → {_c(last)} °C"
+                + (f" ({change:+.1f} °C)" if change is not None else ""))
+    gap = "start not read" if start is None else "end not read"
+    if change is None:
+        return f"{name} {_c(first)} °C ({t.get('first_at')} only; {gap})"
+    return (f"{name} {_c(first)} ({t.get('first_at')}) → {_c(last)} °C ({t.get('last_at')}) "
+            f"({change:+.1f} °C; {gap})")

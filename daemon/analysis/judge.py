@@ -217,14 +217,34 @@ def temperature_checks(analysis: Analysis, tol: Tolerances) -> list[Check]:
                              "WARN" if bad else "PASS",
                              f"machine outside its temperature range {rng} during the check"
                              if bad else f"range {rng}"))
-        if change is not None and t.get("change_c") is not None:
-            bad = abs(t["change_c"]) > change
-            out.append(Check(f"temperature change {name} over the run", float(t["change_c"]),
-                             None, "°C", "WARN" if bad else "PASS",
-                             (f"machine not thermally stable: |change| > {change:g} °C "
-                              f"({t['start_c']:.1f} → {t['end_c']:.1f} °C)") if bad
-                             else f"change limit {change:g} °C"))
+        if change is not None:
+            out.append(_change_check(name, t, change))
     return out
+
+
+def _change_check(name: str, t: dict, limit: float) -> Check:
+    """A channel's change over the run against ``limit``: measured between its first and last
+    readings (contracts.temperatures.summarise); a change over less than start → end (a start or
+    end not read) that stays inside the limit is WARN "not checked over the whole run", one
+    reading alone WARN "not checked" — never a change of 0 claimed from one value."""
+    what = f"temperature change {name} over the run"
+    c = t.get("change_c")
+    if c is None:
+        return Check(what, float("nan"), None, "°C", "WARN",
+                     f"temperature change limit {limit:g} °C not checked: one reading only "
+                     f"({t.get('first_at') or 'start'})")
+    over = t.get("change_over") or "start → end"
+    first, last = t.get("first_c", t.get("start_c")), t.get("last_c", t.get("end_c"))
+    span = "" if over == "start → end" else f", {over}"
+    if abs(c) > limit:
+        return Check(what, float(c), None, "°C", "WARN",
+                     f"machine not thermally stable: |change| > {limit:g} °C "
+                     f"({first:.1f} → {last:.1f} °C{span})")
+    if span:
+        return Check(what, float(c), None, "°C", "WARN",
+                     f"temperature change limit {limit:g} °C not checked over the whole run: "
+                     f"{c:+.1f} °C over {over} only")
+    return Check(what, float(c), None, "°C", "PASS", f"change limit {limit:g} °C")
 
 
 def _health(analysis: Analysis, tol: Tolerances) -> list[Check]:

@@ -12,6 +12,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
+from contracts.temperatures import run_mean_c
 from daemon.analysis.result import Analysis
 
 
@@ -45,22 +46,17 @@ class TempFit:
                 f"{self.unit} (u, OLS from the residual scatter{u95}; {self.n} runs)")
 
 
-def mean_over_run(pose_c: Sequence[float | None], start_c: float | None,
-                  end_c: float | None) -> float | None:
-    """A run's temperature: the mean of its per-pose readings, else of its start and end."""
-    values = [float(v) for v in pose_c if v is not None]
-    if not values:
-        values = [float(v) for v in (start_c, end_c) if v is not None]
-    return sum(values) / len(values) if values else None
-
-
 def run_temperature(analysis: Analysis, channel: str) -> float | None:
-    """The channel's mean over the run's readings (per pose, else start and end)."""
+    """The channel's temperature over the run (contracts.temperatures.run_mean_c): the mean the
+    summary carries, or — a summary stored before it did — the same definition on its per-pose
+    values, else its start and end."""
     t: dict[str, Any] | None = (analysis.temperatures or {}).get(channel)
     if not t:
         return None
-    return mean_over_run([p.get("value_c") for p in t.get("per_pose", [])], t.get("start_c"),
-                         t.get("end_c"))
+    if "mean_c" in t:
+        return None if t["mean_c"] is None else float(t["mean_c"])
+    return run_mean_c([p.get("value_c") for p in t.get("per_pose", [])], t.get("start_c"),
+                      t.get("end_c"))
 
 
 def fleet_points(rows: Sequence[Mapping[str, Any]], link: str) -> tuple[list[TempPoint], str]:
@@ -69,7 +65,7 @@ def fleet_points(rows: Sequence[Mapping[str, Any]], link: str) -> tuple[list[Tem
     out, unit = [], ""
     for row in rows:
         est = (row.get("links") or {}).get(link)
-        temp = mean_over_run(row.get("pose_c") or [], row.get("start_c"), row.get("end_c"))
+        temp = run_mean_c(row.get("pose_c") or [], row.get("start_c"), row.get("end_c"))
         if not isinstance(est, Mapping) or temp is None:
             continue
         value, std = est.get("value"), est.get("std")

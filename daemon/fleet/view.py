@@ -12,6 +12,7 @@ from html import escape
 from typing import Any
 from urllib.parse import quote
 
+from contracts.temperatures import channel_text
 from daemon.analysis.figures import DEFINITIONS, LABELS, VOLUMETRIC
 from daemon.analysis.judge import NO_BASELINE
 from daemon.fleet.chart import LEFT_PX, RIGHT_PX, WIDTH_PX, Frame, padded
@@ -207,17 +208,13 @@ def trend_charts(trend: Sequence[Mapping[str, Any]], limits: Mapping[str, Any]) 
 
 
 def temperatures_text(temps: Any) -> str:
-    """A run's temperature channels (issue 22), "spindle 20.5 → 24.1 °C"; a store written by
-    hand or another version costs the cell, never the page."""
+    """A run's temperature channels (issue 22), "spindle 20.5 → 24.1 °C (+3.6 °C)": the text
+    the report and the HMI print (contracts.temperatures.channel_text: a start not read is
+    said, never filled in); a store written by hand or another version costs the cell, never
+    the page."""
     if not isinstance(temps, Mapping):
         return ""
-    out = []
-    for name, t in temps.items():
-        start = finite(t.get("start_c")) if isinstance(t, Mapping) else None
-        end = finite(t.get("end_c")) if isinstance(t, Mapping) else None
-        out.append(f"{name} {start:.1f} → {end:.1f} °C" if start is not None and end is not None
-                   else f"{name} not read")
-    return "; ".join(out)
+    return "; ".join(channel_text(str(name), t) for name, t in temps.items())
 
 
 def drift_baseline(run: Mapping[str, Any]) -> str:

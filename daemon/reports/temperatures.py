@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from typing import Any
 
+from contracts.temperatures import channel_text as contract_channel_text
 from daemon.analysis.result import Analysis
 
 
@@ -13,12 +14,11 @@ def _c(v: float | None) -> str:
 
 
 def channel_text(name: str, t: dict[str, Any]) -> str:
-    """"spindle 20.5 → 24.1 °C (+3.6 °C)", or why it was not read."""
-    if t.get("start_c") is None:
-        return f"{name} not read ({'; '.join(t.get('errors') or ['no reading'])})"
-    change = t.get("change_c")
-    return (f"{name} {_c(t['start_c'])} → {_c(t['end_c'])} °C"
-            + (f" ({change:+.1f} °C)" if change is not None else ""))
+    """"spindle 20.5 → 24.1 °C (+3.6 °C)", or why it was not read: the one text of every view
+    (contracts.temperatures.channel_text, which the fleet page prints too)."""
+    if not t.get("errors") and t.get("first_c", t.get("start_c")) is None:
+        t = {**t, "errors": ["no reading"]}
+    return contract_channel_text(name, t)
 
 
 def temperature_lines(analysis: Analysis) -> list[str]:
@@ -42,7 +42,10 @@ def table_rows(analysis: Analysis) -> list[dict[str, str]]:
         change = t.get("change_c")
         rows.append({
             "name": name, "source": str(t.get("source", "")), "start": _c(t.get("start_c")),
-            "end": _c(t.get("end_c")), "change": "—" if change is None else f"{change:+.2f}",
+            "end": _c(t.get("end_c")),
+            "change": "—" if change is None else f"{change:+.2f}" + (
+                f" ({t['change_over']})" if t.get("change_over") not in (None, "start → end")
+                else ""),
             "range": f"{_c(t.get('min_c'))} … {_c(t.get('max_c'))}",
             "per_pose": ", ".join(f"{p['pose']}: {p['value_c']:.1f}"
                                   for p in t.get("per_pose", [])),
