@@ -19,7 +19,7 @@ from typing import Any
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
 
-from daemon.cli.commands.verify_daemon import abort_on_daemon, eta_text, follow_run
+from daemon.cli.commands.verify_daemon import abort_on_daemon, bar_fields, follow_run
 from daemon.cli.main import UserError
 from daemon.compensation.propose import journal_analyse
 from daemon.config import load_daemon_config
@@ -69,11 +69,11 @@ async def verify(cfg_path: str, machine: str, *, strict: bool = False, quiet: bo
                 if getter in done:
                     st = getter.result()
                     bar.update(task, total=st["total"] or None, completed=st["done"],
-                               state=st["state"], eta=eta_text(st))
+                               **bar_fields(st))
                 else:
                     getter.cancel()
             st = session.status()
-            bar.update(task, completed=st["done"], state=st["state"], eta="")
+            bar.update(task, completed=st["done"], **bar_fields(st))
     except ServiceError as e:
         raise UserError(str(e)) from None
     finally:

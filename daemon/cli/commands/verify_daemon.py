@@ -1,5 +1,6 @@
 """``rumba verify --daemon``'s side of the daemon's HMI API: follow one run's status events to its
-end, and abort that run (Ctrl-C, SIGTERM) waiting until the daemon reports it ended."""
+end (the progress bar's label for each phase, shared with the local ``rumba verify``), and abort
+that run (Ctrl-C, SIGTERM) waiting until the daemon reports it ended."""
 
 from __future__ import annotations
 
@@ -27,13 +28,9 @@ async def follow_run(events: aiohttp.ClientResponse, machine: str, run_id: str,
         st = json.loads(line[6:])
         if st["machine"] != machine or st["run_id"] != run_id:
             continue
-        bar.update(task, total=st["total"] or None, completed=st["done"], state=st["state"],
-                   eta=eta_text(st))
-        if not st["busy"] and ((st.get("verdict") or {}).get("report_state") != "writing"
-                               or st["state"] != "IDLE"):
+        bar.update(task, total=st["total"] or None, completed=st["done"], **bar_fields(st))
+        if not st["busy"] and not report_writing(st):
             return st  # issue 23: after the run's end, until its report is written (or not)
-        if not st["busy"]:
-            bar.update(task, state="REPORT")
     raise UserError(f"the daemon closed its event stream before run {run_id} ended "
                     "(daemon stopped?); see `rumba history`")
 
@@ -62,6 +59,25 @@ async def abort_on_daemon(http: aiohttp.ClientSession, base: str, machine: str, 
     raise UserError(f"run {run_id} could not be aborted on the daemon: "
                     f"{body.get('error', f'HTTP {r.status}')}; it may still be running "
                     f"(HMI Abort stops it)")
+
+
+def report_writing(st: dict[str, Any]) -> bool:
+    """The run ended with its verdict and its report is still being written (issue 23)."""
+    return st["state"] == "IDLE" and (st.get("verdict") or {}).get("report_state") == "writing"
+
+
+def bar_fields(st: dict[str, Any]) -> dict[str, str]:
+    """The progress bar's label and trailing text (``rumba verify``, local or ``--daemon``):
+    while the run runs, its phase as the HMI names it (PREPARE … WRITE-BACK) and the time left;
+    once it ended, its end as the journal and ``rumba history`` name it: DONE (the session is
+    IDLE again, the verdict on the CNC; "report being written…", the HMI's words, until the
+    report is there) or ABORTED, FAILED, INTERRUPTED. No phase is called REPORT: the report is
+    written after the run, the machine already free."""
+    if st["busy"]:
+        return {"state": st["state"], "eta": eta_text(st)}
+    if st["state"] == "IDLE":
+        return {"state": "DONE", "eta": "report being written…" if report_writing(st) else ""}
+    return {"state": st["state"], "eta": ""}
 
 
 def eta_text(st: dict[str, Any]) -> str:
