@@ -28,6 +28,11 @@ NO_ANSWER_S = 0.5
 # itself stopped: no read of the run outlives it
 STOP_WAIT_S = 2.0
 STOPPED = "not read: the run stopped before the channel answered"
+# a channel the DNC program prints whose line never came: a print that failed on the control (a
+# Sinumerik WRITE refused once its file outgrows MD11420 $MN_LEN_PROTOCOL_FILE, Siemens' job
+# planning manual, WRITE) or a line the DNC reader dropped (garbled, a sensor fault code)
+NOT_PRINTED = ("not read: no RTEMP line for {where} came from the program (a print that failed on "
+               "the control, or a line garbled or out of range on the link)")
 
 
 class TemperatureRecorder:
@@ -45,6 +50,7 @@ class TemperatureRecorder:
         self.link_name = link_name
         self._transmitters: dict[str, Transmitter] = {}
         self._last_pose: int | None = None
+        self._poses: list[int] = []  # the poses probed, in order (printed channels' accounting)
         self._down: dict[str, str] = {}  # channel → why it is unreachable for this run
         self._pending: dict[str, asyncio.Task[None]] = {}  # channel → its read in flight
 
@@ -151,13 +157,37 @@ class TemperatureRecorder:
         self.take_printed(run_id, t_s)
         if pose != self._last_pose:
             self._last_pose = pose
+            if pose not in self._poses:
+                self._poses.append(pose)
             self._sample_pose(run_id, pose, t_s)
+
+    def _printed(self) -> list[TemperatureChannel]:
+        return [ch for ch in self.channels
+                if ch.transmitter is None and self.link_name == "serial"]
+
+    def account_printed(self, run_id: str, t_s: float) -> None:
+        """After the last touch: a printed channel's start, pose or end line that never came is
+        journaled as not read with the reason (``NOT_PRINTED``), as a polled channel's failed
+        read is — nothing the program should have said goes missing unsaid."""
+        printed = self._printed()
+        if not printed:
+            return
+        have = {(r.channel, r.at, r.pose) for r in temperatures(self.store, run_id)}
+        due = [("start", None), *(("pose", p) for p in self._poses), ("end", None)]
+        for ch in printed:
+            for at, pose in due:
+                if (ch.name, at, pose) not in have:
+                    where = f"pose {pose}" if at == "pose" else f"the {at}"
+                    log.warning("%s %s: temperature %s: no RTEMP line for %s", self.machine,
+                                run_id, ch.name, where)
+                    self._journal(run_id, TemperatureReading(
+                        ch.name, at, pose, t_s, None,  # type: ignore[arg-type]
+                        NOT_PRINTED.format(where=where)))
 
     def take_printed(self, run_id: str, t_s: float) -> None:
         """Journal what the program printed since the last call (a DNC program's ``RTEMP``
         lines: channel k is the k-th controller channel, the program prints them in order)."""
-        printed = [ch for ch in self.channels
-                   if ch.transmitter is None and self.link_name == "serial"]
+        printed = self._printed()
         if not printed:
             return
         for k, marker, value in self.link.printed_temperatures():
@@ -183,6 +213,7 @@ class TemperatureRecorder:
         """Before the program: the first sample."""
         self.abandon()
         self._last_pose = None
+        self._poses = []
         self._down.clear()
         await self.sample(run_id, "start", None, t_s)
 
@@ -190,6 +221,7 @@ class TemperatureRecorder:
         """After the last touch (re-probes included): what was printed, the pose reads still
         in flight (each bounded by the timeout), the last sample of every channel."""
         self.take_printed(run_id, t_s)
+        self.account_printed(run_id, t_s)
         pending, self._pending = list(self._pending.values()), {}
         await asyncio.gather(*pending)
         await self.sample(run_id, "end", None, t_s)
