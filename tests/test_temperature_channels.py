@@ -223,39 +223,6 @@ async def test_modbus_rtu_transmitter_over_a_pty_pair(tmp_path):
         proc.wait(5)
 
 
-@pytest.mark.asyncio
-@pytest.mark.parametrize("cnc", ["serial-pty"], indirect=True)
-@pytest.mark.parametrize("dialect", ["fanuc", "haas"])
-async def test_dnc_program_prints_the_macro_variable_at_start_every_pose_and_end(
-        cnc, tmp_path, dialect):
-    """Over plain DNC nothing can be polled: the program prints the control's common variable
-    (DPRNT, ``RTEMP`` lines) and the link parses them beside the result lines."""
-    rig, _, port = cnc
-    rig.ctrl.dialect = dialect
-    var = thermal.FANUC_VARIABLE["Z"]
-    channels = [{"name": "spindle", "address": var},
-                {"name": "column", "source": "transmitter", "address": "input:0",
-                 "scale": 0.1, "transmitter": {"host": "127.0.0.1", "port": port}}]
-    entry = machine_entry(rig.link, channels, {})
-    entry["dialect"] = dialect
-    cfg = load_daemon_config(write_config(tmp_path, entry))
-    run = await run_from_cnc(cfg, rig.ctrl)
-    assert run.session.state == State.IDLE, run.session.reason
-    readings, analysis = run.readings, run.analysis
-    spindle = [r for r in readings if r.channel == "spindle"]
-    assert [(r.at, r.pose) for r in spindle] == [
-        ("start", None), *[("pose", p) for p in range(7)], ("end", None)], spindle
-    values = [r.value_c for r in spindle]
-    assert values[0] == pytest.approx(sensor("Z", 0.0), abs=5e-4)  # [53]: 3 decimals
-    assert values == sorted(values) and values[-1] - values[0] > 1.0, values
-    # each printed value is the sensor at some machine time of the run: on the warm-up curve
-    lo, hi = sensor("Z", 0.0), sensor("Z", 1e9)
-    assert all(lo - 5e-4 <= v <= hi for v in values)
-    column = [r for r in readings if r.channel == "column"]
-    assert [r.at for r in column] == ["start", *["pose"] * 7, "end"]
-    assert analysis.temperatures["spindle"]["source"] == f"spindle: serial {var}"
-
-
 def test_dnc_temperature_variable_cannot_inject_gcode():
     """Only a Fanuc common variable outside rumba's own reaches the program text; anything else
     is refused when the program is generated (and by the config before that)."""
@@ -276,18 +243,3 @@ def test_dnc_temperature_variable_cannot_inject_gcode():
             get_dialect(other).temperature_prints(prog)
     with pytest.raises(ProgramError, match="prints no temperature lines"):
         get_dialect("linuxcnc").temperature_prints(prog)
-
-
-@pytest.mark.parametrize(("dialect", "address", "message"), [
-    ("linuxcnc", "#5021", "LinuxCNC prints nothing on a serial line"),
-    ("fanuc", "#599", "is not a Fanuc common variable #100-#199, #500-#597 or #700-#999"),
-    ("haas", "#5021", "is not a Fanuc common variable"),
-])
-def test_dnc_channel_config_names_what_the_program_can_print(tmp_path, dialect, address,
-                                                             message):
-    link = {"transport": "serial", "url": "/dev/ttyS0", "baudrate": 9600}
-    entry = machine_entry(link, [{"name": "spindle", "address": address}], {})
-    entry["dialect"] = dialect
-    with pytest.raises(ConfigError) as e:
-        load_daemon_config(write_config(tmp_path, entry))
-    assert "machines.0.temperatures.0.address" in str(e.value) and message in str(e.value)

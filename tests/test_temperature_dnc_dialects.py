@@ -1,9 +1,10 @@
-"""Temperature channels over plain DNC for the Sinumerik and Heidenhain dialects (issue 22 item
-3): the program prints the control's variable (840D ``WRITE`` of a string chain, TNC ``FN 16:
-F-PRINT`` with a fixed format file) beside its result lines, the DNC link parses the ``RTEMP``
-lines and the daemon journals them; end to end over a real pty against the simulated control's
-serial front-end. LinuxCNC prints nothing on a serial line: refused with the alternative.
-The parsed line is fuzzed: no traceback, nothing accepted that the grammar does not allow."""
+"""Temperature channels over plain DNC for every dialect that can print (issue 22 item 3): the
+program prints the control's variable (Fanuc/Haas ``DPRNT`` of a common variable, 840D ``WRITE``
+of a string chain, TNC ``FN 16: F-PRINT`` with a fixed format file) beside its result lines, the
+DNC link parses the ``RTEMP`` lines and the daemon journals them; end to end over a real pty
+against the simulated control's serial front-end. LinuxCNC prints nothing on a serial line:
+refused with the alternative. The parsed line is fuzzed: no traceback, nothing accepted that the
+grammar does not allow."""
 
 from __future__ import annotations
 
@@ -28,14 +29,18 @@ from tests.test_temperature_channels import cnc, machine_entry, sensor, write_co
 
 __all__ = ["cnc"]  # the warming CNC fixture, shared with the channels' end-to-end tests
 
-VARIABLE = {"siemens": thermal.SIEMENS_VARIABLE, "heidenhain": thermal.HEIDENHAIN_VARIABLE}
+VARIABLE = {"fanuc": thermal.FANUC_VARIABLE, "haas": thermal.FANUC_VARIABLE,
+            "siemens": thermal.SIEMENS_VARIABLE, "heidenhain": thermal.HEIDENHAIN_VARIABLE}
 
 
 @pytest.mark.asyncio
 @pytest.mark.parametrize("cnc", ["serial-pty"], indirect=True)
-@pytest.mark.parametrize("dialect", ["siemens", "heidenhain"])
+@pytest.mark.parametrize("dialect", ["fanuc", "haas", "siemens", "heidenhain"])
 async def test_dnc_program_prints_the_variable_in_every_dialect_that_can(cnc, tmp_path,
                                                                          dialect):
+    """Over plain DNC nothing can be polled: the program prints the control's variable at the
+    start, at every pose and at the end (``RTEMP`` lines), the link parses them beside the
+    result lines."""
     rig, _, port = cnc
     rig.ctrl.dialect = dialect
     var = VARIABLE[dialect]["Z"]
@@ -69,6 +74,8 @@ async def test_dnc_program_prints_the_variable_in_every_dialect_that_can(cnc, tm
     ("linuxcnc", "#5021", "LinuxCNC prints nothing on a serial line"),
     ("linuxcnc", "rumba-probe.temp-z", "read the channel as a HAL pin over the linuxcnc "
      "transport, or use source: transmitter"),
+    ("fanuc", "#599", "is not a Fanuc common variable #100-#199, #500-#597 or #700-#999"),
+    ("haas", "#5021", "is not a Fanuc common variable"),
     ("siemens", "R4", "is not a Sinumerik R parameter R5-R98"),
     ("siemens", "R99", "is not a Sinumerik R parameter R5-R98"),
     ("siemens", "R100", "is not a Sinumerik R parameter R5-R98"),
