@@ -141,3 +141,26 @@ async def test_a_value_arriving_with_the_stop_is_journaled(tmp_path):
         store.close()
     assert left == []
     assert [(r.at, r.pose, r.value_c, r.error) for r in got] == [("pose", 0, 24.25, "")]
+
+
+@pytest.mark.asyncio
+async def test_a_read_cancelled_before_it_ran_is_journaled_as_cut(tmp_path):
+    """The stop comes right after the hit that started a pose read, before the event loop ever
+    ran it: the read journals nothing itself, the stop journals it as cut."""
+    store = Store(tmp_path / "journal.sqlite")
+    store.new_run("r1", "mill1", "test")
+    link = HeldLink()
+    ch = TemperatureChannel(name="spindle", address="/Channel/Temperatures/Z")
+    rec = TemperatureRecorder("mill1", (ch,), link=link, store=store,  # type: ignore[arg-type]
+                              link_name="opcua")
+    try:
+        await rec.on_hit("r1", 3, 7.5)  # the read is created, not yet run
+        await rec.stop("r1")
+        got = temperatures(store, "r1")
+        left = running_reads()
+    finally:
+        await rec.close()
+        store.close()
+    assert left == [] and not link.answered
+    assert [(r.at, r.pose, r.t_s, r.value_c, r.error) for r in got] == [
+        ("pose", 3, 7.5, None, STOPPED)]

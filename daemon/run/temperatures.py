@@ -53,6 +53,7 @@ class TemperatureRecorder:
         self._poses: list[int] = []  # the poses probed, in order (printed channels' accounting)
         self._down: dict[str, str] = {}  # channel → why it is unreachable for this run
         self._pending: dict[str, asyncio.Task[None]] = {}  # channel → its read in flight
+        self._reading: dict[asyncio.Task[None], tuple[str, int, float]] = {}  # → channel, pose, t
 
     def sources(self) -> dict[str, str]:
         """Where each channel comes from (the run record's audit field)."""
@@ -123,8 +124,8 @@ class TemperatureRecorder:
                           ch.name, e)
             raise
         if not done:
-            read.cancel()
-            await asyncio.wait((read,))  # unwound (its connection dropped) before the next
+            read.cancel()  # unwound (its connection dropped) before the next, bounded
+            await asyncio.wait((read,), timeout=STOP_WAIT_S)
             raise TimeoutError
         return float(read.result())
 
@@ -145,9 +146,11 @@ class TemperatureRecorder:
             elif busy is not None and not busy.done():
                 why = "not read: the previous read of this channel is still waiting"
             else:
-                self._pending[ch.name] = asyncio.get_running_loop().create_task(
+                task = self._pending[ch.name] = asyncio.get_running_loop().create_task(
                     self._read_one(run_id, ch, "pose", pose, t_s),
                     name=f"temperature-{self.machine}-{ch.name}")
+                self._reading[task] = (ch.name, pose, t_s)
+                task.add_done_callback(self._reading.pop)
                 continue
             self._journal(run_id, TemperatureReading(ch.name, "pose", pose, t_s, None, why))
 
@@ -239,12 +242,20 @@ class TemperatureRecorder:
         or ``STOPPED`` — and the transmitters are closed, before the run reports itself
         stopped: nothing of the run outlives it, nothing it received is lost."""
         pending = [t for t in self._pending.values() if not t.done()]
+        what = [self._reading.get(t) for t in pending]
         self.abandon()
         if pending:
             _, left = await asyncio.wait(pending, timeout=2 * STOP_WAIT_S)
             for task in left:  # a read that ignores its cancellation: said, never hidden
                 log.error("%s %s: temperature read %s still running after the run stopped",
                           self.machine, run_id, task.get_name())
+            # a read cancelled before it ever ran journaled nothing: it is cut all the same
+            have = {(r.channel, r.pose) for r in temperatures(self.store, run_id)
+                    if r.at == "pose"}
+            for w in what:
+                if w is not None and (w[0], w[1]) not in have:
+                    self._journal(run_id, TemperatureReading(w[0], "pose", w[1], w[2], None,
+                                                             STOPPED))
         await self.close()
 
     def with_summary(self, run_id: str, analysis: Any) -> Any:
