@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 import re
 import socket
@@ -29,6 +30,10 @@ ERRORS = ROOT / "config/errors/linuxcnc_xyzbc.yaml"
 PLAN = ROOT / "config/plans/linuxcnc_4poses.yaml"
 VARIANTS = ("remote", "local-auto")  # linuxcncrsh + MDI streaming; linuxcnc module + AUTO run
 RACE = "Queue is not empty after probing"
+# The session's HAL probe warms its temp-z pin (issue 22; temperatures only, no geometric drift:
+# simulators/hal_probe.sensor_c), so the remote verification run reads a temperature channel
+# on the session's LinuxCNC instead of a run of its own on a restarted one.
+THERMAL = {"ambient_c": 19.5, "start_state": 0.0, "axes": {"Z": [6.0, 600.0]}}
 
 
 def _xfail_on_race(variant: str, reason: str) -> None:
@@ -138,7 +143,7 @@ def start_lcnc(work: Path) -> Lcnc:
 
     truth = TruthModel.from_files(MACHINE, ARTEFACT, ERRORS)
     spec = work / "probe_spec.json"
-    write_spec(truth, spec)
+    spec.write_text(json.dumps({**write_spec(truth, spec), "thermal": THERMAL}, indent=1))
     state = Lcnc(linuxcnc_peer.up(spec, workdir=work / "peer"), truth, spec)
     state.reset()
     return state

@@ -1,7 +1,8 @@
 """End to end against LinuxCNC 2.9 (config/linuxcnc/, xyzbc-trt-kins, HAL probe from our truth):
 kinematics cross-check; a verification run, a missed ball, an abort and a killed LinuxCNC, each
 through linuxcncrsh (remote, MDI streaming) and through the ``linuxcnc`` module (local, AUTO run
-of a program file); local MDI streaming on one pose.
+of a program file); local MDI streaming on one pose; temperature channels (HAL pins) read during
+the remote verification run (issue 22).
 
 One LinuxCNC for the session (tests/conftest.py ``lcnc``; only one can run per machine:
 simulators.linuxcnc_peer serialises with a flock and always stops it, cleaning shared memory).
@@ -12,27 +13,34 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import dataclasses
 import math
 import os
 import shutil
 import signal
 import time
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
 
 from contracts.setup_files import load_artefact, load_machine
+from contracts.temperatures import TemperatureChannel
 from daemon.machines.setup import MachineSetup
 from daemon.run.session import State
+from daemon.store.temperatures import temperatures
 from drivers.registry import make_link
 from identification.estimate import coverage_factor
 from identification.kinematics import ChainState, frames, to_model
 from identification.outliers import split_repeat
 from simulators import linuxcnc_peer
+from simulators.hal_probe import sensor_c
 from tests.linuxcnc_helpers import (
     ARTEFACT,
     MACHINE,
+    THERMAL,
     VARIANTS,
     Rsh,
     _link,
@@ -98,14 +106,29 @@ def test_forward_kinematics_match_xyzbc_trt_kins(lcnc) -> None:
     assert np.abs(tip_w - used_a[:, :3]).max() > 10.0
 
 
-@pytest.mark.parametrize("variant", VARIANTS)
-async def test_verification_run_identifies_injected_links(lcnc, tmp_path: Path,
-                                                          variant: str) -> None:
-    peer, truth = lcnc.peer, lcnc.truth
-    programs = tmp_path / "programs"  # local AUTO: the per-run program file goes here
+@dataclass
+class Ran:
+    """A verification run on the session's LinuxCNC, and what LinuxCNC showed right after it
+    (before another test's link writes its verdict or loads a program)."""
+
+    setup: MachineSetup
+    status: dict
+    hits: list
+    analysis: Any
+    readings: list  # temperature channels' readings (daemon/store/temperatures.py)
+    verdict_pins: tuple[float, float]  # motion.analog-out-00 (code), -01 (verdicts written)
+    programs_left: list[Path]  # the local AUTO run's program folder after the run
+    mdi_after: tuple[str, ...]  # set mode mdi, set mdi M429 (an MDI O-word call), get error
+
+
+async def _verification_run(lcnc: Any, tmp: Path, variant: str,
+                            channels: tuple[TemperatureChannel, ...] = ()) -> Ran:
+    peer = lcnc.peer
+    programs = tmp / "programs"  # local AUTO: the per-run program file goes here
     programs.mkdir()
     setup = _setup(_link(peer, variant, **({"program_dir": str(programs)}
                                            if variant == "local-auto" else {})))
+    setup = dataclasses.replace(setup, temperatures=channels)
     rsh = Rsh(peer.port)  # before the link connects: linuxcncrsh enables one client at a time
     try:  # zero what a previous link wrote back (a new link counts its verdicts from 1)
         rsh.home_mdi()
@@ -113,59 +136,109 @@ async def test_verification_run_identifies_injected_links(lcnc, tmp_path: Path,
         rsh.mdi("M68 E1 Q0")
     finally:
         rsh.close()
-    session, store = await _session(setup, tmp_path)
+    session, store = await _session(setup, tmp)
     try:
         run_id = session.start("cli")
         status = await asyncio.wait_for(session.wait(), 600)
-        _xfail_on_race(variant, status["reason"])
-        assert status["state"] == str(State.IDLE), status["reason"]
-        hits = store.hits(run_id)
-        # every planned touch once; a visit the outlier test names is re-probed after the
-        # program (whole poses, all balls: daemon/run/reprobe.py) and journaled beside it as
-        # round >= 1 (CI saw one pose re-probed on a loaded box: 100 hits, the run right)
-        rounds = [split_repeat(h.repeat)[1] for h in hits]
-        planned = len(setup.plan.poses) * 4 * 5
-        assert rounds.count(0) == planned
-        extra = len(hits) - planned
-        assert extra % (4 * 5) == 0 and max(rounds) <= setup.reprobe_max, (extra, max(rounds))
-        analysis = store.analysis(run_id)
-        assert analysis is not None
-        links = analysis.to_json()["links"]
-        injected = truth.errors.links
-        assert set(links) == set(injected)
-        # "within 3 standard uncertainties" at its 99.73 % coverage: u rests on a σ estimated
-        # from the run's own residuals (4 poses: ν ≈ 8.3), so k = t(ν) ≈ 4.2, not 3 (GUM G.3);
-        # with k = 3 a clean suite of 16 comparisons failed about one run in four (CI did).
-        # The run passes only if every link does: the 99.73 % is family-wise (Bonferroni over
-        # the links). At 99.73 % per link, 16 comparisons on a nondeterministic LinuxCNC fail
-        # ~4 % of clean runs (CI saw EC0B at 4.0 u once); the accuracy itself is the Monte
-        # Carlo's claim (benchmarks), this test checks the loop end to end.
-        k = coverage_factor(analysis.estimation.sigma_dof or math.inf,
-                            1.0 - 0.0027 / len(injected))
-        for name, true_v in injected.items():
-            v, u = links[name]["value"], links[name]["std"]
-            assert abs(v - true_v) <= k * u, f"{name}: {v:.2f} vs {true_v} (u {u:.2f}, k {k:.2f})"
-            assert u < 15.0, f"{name}: u {u:.2f} too large to mean anything"
-        # the verdict went back to LinuxCNC: motion.analog-out-00 = code, -01 counts verdicts
-        code = {"PASS": 1, "WARN": 2, "FAIL": 3, "ERROR": 4}[status["verdict"]["status"]]
-        assert float(halcmd(peer, "getp", "motion.analog-out-00")) == code
-        assert float(halcmd(peer, "getp", "motion.analog-out-01")) == 1
-        # LinuxCNC latched the first servo sample past contact: overshoot small and tight
-        over_um = _overshoot_um(truth, hits, setup.artefact.ids)
-        assert 0.0 < over_um.mean() < 5.0 and over_um.std() < 1.5, (over_um.mean(),
-                                                                      over_um.std())
-        # the program file is gone and LinuxCNC no longer has it loaded: an MDI O-word call
-        # (the M429 remap) would otherwise fail with "cannot reopen file"
-        assert list(programs.iterdir()) == []
+        hits, analysis = store.hits(run_id), store.analysis(run_id)
+        readings = temperatures(store, run_id)
+        pins = (float(halcmd(peer, "getp", "motion.analog-out-00")),
+                float(halcmd(peer, "getp", "motion.analog-out-01")))
+        left = sorted(programs.iterdir())
         rsh = Rsh(peer.port)
         try:
-            assert rsh.ask("set mode mdi") == "SET MODE ACK"
-            rsh.mdi("M429")
+            mdi_after = (rsh.ask("set mode mdi"), rsh.ask("set mdi M429"), rsh.ask("get error"))
         finally:
             rsh.close()
     finally:
         await session.link.close()
         store.close()
+    return Ran(setup, status, hits, analysis, readings, pins, left, mdi_after)
+
+
+@pytest.fixture(scope="module")
+def remote_run(lcnc: Any, tmp_path_factory: pytest.TempPathFactory) -> Ran:
+    """The remote verification run, with two temperature channels (issue 22): the session's
+    HAL probe's warming ``temp-z`` pin and a pin that does not exist. One run for both tests
+    that check it (a 4-pose run costs ~90 s of real-time motion)."""
+    fifo = (lcnc.peer.dir / "fifo.path").read_text().strip()
+    channels = (TemperatureChannel(name="spindle", address="rumba-probe.temp-z"),
+                TemperatureChannel(name="gone", address="rumba-probe.temp-q"))
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv("RTAPI_FIFO_PATH", f"{fifo}/rtapi_fifo")  # the daemon's halcmd → this HAL
+        return asyncio.run(_verification_run(lcnc, tmp_path_factory.mktemp("remote"),
+                                             "remote", channels))
+
+
+@pytest.mark.parametrize("variant", VARIANTS)
+def test_verification_run_identifies_injected_links(lcnc, tmp_path: Path, variant: str,
+                                                    request) -> None:
+    if variant == "remote":
+        ran: Ran = request.getfixturevalue("remote_run")
+    else:
+        ran = asyncio.run(_verification_run(lcnc, tmp_path, variant))
+    setup, status, hits, analysis = ran.setup, ran.status, ran.hits, ran.analysis
+    _xfail_on_race(variant, status["reason"])
+    assert status["state"] == str(State.IDLE), status["reason"]
+    # every planned touch once; a visit the outlier test names is re-probed after the
+    # program (whole poses, all balls: daemon/run/reprobe.py) and journaled beside it as
+    # round >= 1 (CI saw one pose re-probed on a loaded box: 100 hits, the run right)
+    rounds = [split_repeat(h.repeat)[1] for h in hits]
+    planned = len(setup.plan.poses) * 4 * 5
+    assert rounds.count(0) == planned
+    extra = len(hits) - planned
+    assert extra % (4 * 5) == 0 and max(rounds) <= setup.reprobe_max, (extra, max(rounds))
+    assert analysis is not None
+    links = analysis.to_json()["links"]
+    injected = lcnc.truth.errors.links
+    assert set(links) == set(injected)
+    # "within 3 standard uncertainties" at its 99.73 % coverage: u rests on a σ estimated
+    # from the run's own residuals (4 poses: ν ≈ 8.3), so k = t(ν) ≈ 4.2, not 3 (GUM G.3);
+    # with k = 3 a clean suite of 16 comparisons failed about one run in four (CI did).
+    # The run passes only if every link does: the 99.73 % is family-wise (Bonferroni over
+    # the links). At 99.73 % per link, 16 comparisons on a nondeterministic LinuxCNC fail
+    # ~4 % of clean runs (CI saw EC0B at 4.0 u once); the accuracy itself is the Monte
+    # Carlo's claim (benchmarks), this test checks the loop end to end.
+    k = coverage_factor(analysis.estimation.sigma_dof or math.inf,
+                        1.0 - 0.0027 / len(injected))
+    for name, true_v in injected.items():
+        v, u = links[name]["value"], links[name]["std"]
+        assert abs(v - true_v) <= k * u, f"{name}: {v:.2f} vs {true_v} (u {u:.2f}, k {k:.2f})"
+        assert u < 15.0, f"{name}: u {u:.2f} too large to mean anything"
+    # the verdict went back to LinuxCNC: motion.analog-out-00 = code, -01 counts verdicts
+    code = {"PASS": 1, "WARN": 2, "FAIL": 3, "ERROR": 4}[status["verdict"]["status"]]
+    assert ran.verdict_pins == (code, 1)
+    # LinuxCNC latched the first servo sample past contact: overshoot small and tight
+    over_um = _overshoot_um(lcnc.truth, hits, setup.artefact.ids)
+    assert 0.0 < over_um.mean() < 5.0 and over_um.std() < 1.5, (over_um.mean(),
+                                                                  over_um.std())
+    # the program file is gone and LinuxCNC no longer has it loaded: an MDI O-word call
+    # (the M429 remap) would otherwise fail with "cannot reopen file"
+    assert ran.programs_left == []
+    assert ran.mdi_after == ("SET MODE ACK", "SET MDI ACK", "ERROR OK")
+
+
+def test_hal_pin_read_at_every_pose_follows_the_warmup(remote_run: Ran) -> None:
+    """Temperature channels through LinuxCNC (issue 22 item 3): a HAL pin read with ``halcmd
+    getp`` at the start, at every pose and at the end of the remote verification run (the
+    HAL probe's ``temp-z`` pin carrying a warm-up), journaled with the hits; a pin that does
+    not exist is journaled with halcmd's reason and the run goes on."""
+    readings, analysis = remote_run.readings, remote_run.analysis
+    assert remote_run.status["state"] == str(State.IDLE), remote_run.status["reason"]
+    n_poses = len(remote_run.setup.plan.poses)
+    spindle = [r for r in readings if r.channel == "spindle"]
+    assert [r.at for r in spindle] == ["start", *["pose"] * n_poses, "end"], spindle
+    values = [r.value_c for r in spindle]
+    assert all(v is not None for v in values)
+    # warming: strictly rising, between the cold value and the state at the run's end
+    assert values == sorted(values) and values[-1] > values[0], values
+    assert sensor_c(THERMAL, "Z", 0.0) < values[0] and values[-1] < 19.5 + 6.0
+    gone = [r for r in readings if r.channel == "gone"]
+    assert len(gone) == n_poses + 2 and all(r.value_c is None for r in gone)
+    assert "halcmd getp rumba-probe.temp-q failed" in gone[0].error, gone[0]
+    t = analysis.temperatures
+    assert t["spindle"]["source"] == "spindle: linuxcnc rumba-probe.temp-z"
+    assert t["spindle"]["change_c"] == pytest.approx(values[-1] - values[0])
 
 
 @pytest.mark.parametrize("variant", VARIANTS)
