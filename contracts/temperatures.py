@@ -184,10 +184,35 @@ class TemperatureReading:
     t_s: float  # since the run started
     value_c: float | None
     error: str = ""
+    # the program it came from: 0 the plan's, k the k-th re-probe round's (daemon/run/reprobe.py),
+    # which prints a start and an end line of its own and probes again a pose of the plan
+    reprobe_round: int = 0
 
 
-def _where(r: TemperatureReading) -> str:
-    return f"pose {r.pose}" if r.at == "pose" else r.at
+def _where(r: TemperatureReading, start: TemperatureReading | None,
+           end: TemperatureReading | None) -> str:
+    """Where a reading was taken, as the summary names it: the run's own start and end plain,
+    a re-probe round's pose, start or end with its round."""
+    if r is start or r is end:
+        return r.at
+    k = r.reprobe_round
+    if r.at == "pose":
+        return f"pose {r.pose}" + (f" of re-probe {k}" if k else "")
+    return f"{r.at} of " + (f"re-probe {k}" if k else "the plan's program")
+
+
+def run_ends(mine: Sequence[TemperatureReading]
+             ) -> tuple[TemperatureReading | None, TemperatureReading | None]:
+    """A channel's start and end reading of the run (``mine`` in journal order): the start the
+    plan's program began with (the first read, else its row saying why not) — never a re-probe
+    round's — and the end of the last program that ran (the highest round's end, read or
+    not: a re-probe's end line that never came leaves the run's end unread rather than the
+    plan program's end standing in for it). The fleet store's query picks the same
+    (daemon/store/pg_temperatures.readings)."""
+    starts = [r for r in mine if r.at == "start" and r.reprobe_round == 0]
+    start = next((r for r in starts if r.value_c is not None), starts[0] if starts else None)
+    ends = [(r.reprobe_round, i, r) for i, r in enumerate(mine) if r.at == "end"]
+    return start, max(ends, key=lambda e: e[:2])[2] if ends else None
 
 
 def run_mean_c(pose_c: Sequence[float | None], start_c: float | None,
@@ -206,31 +231,35 @@ def summarise(readings: list[TemperatureReading], sources: dict[str, str]) -> di
     """Per channel: start, end, the first and last values read (and where), the change between
     them, mean, min, max, per-pose values, errors, source (the analysis JSON's
     ``temperatures``; the report, HMI, fleet and judge read it). ``start_c`` / ``end_c`` are the
-    readings at the start and the end, None where not read; ``change_c`` spans ``change_over``
-    ("start → end", or e.g. "pose 0 → end" when the start was not read), None below two
-    readings: one value is no change."""
+    readings at the run's start and end (``run_ends``), None where not read; ``change_c`` spans
+    ``change_over`` ("start → end", or e.g. "pose 0 → end" when the start was not read), None
+    below two readings: one value is no change. A pose probed again by a re-probe round is in
+    ``per_pose`` a second time, with its round."""
     out: dict[str, Any] = {}
     for name, source in sources.items():
         mine = [r for r in readings if r.channel == name]
         ok = [r for r in mine if r.value_c is not None]
-        start = next((r.value_c for r in ok if r.at == "start"), None)
-        end = next((r.value_c for r in reversed(ok) if r.at == "end"), None)
+        start_r, end_r = run_ends(mine)
+        start = start_r.value_c if start_r is not None else None
+        end = end_r.value_c if end_r is not None else None
         first, last = (ok[0], ok[-1]) if ok else (None, None)
         two = first is not None and last is not None and first is not last
         values = [float(r.value_c) for r in ok]  # type: ignore[arg-type]
         poses = [r for r in ok if r.at == "pose"]
+        at_first = _where(first, start_r, end_r) if first else None
+        at_last = _where(last, start_r, end_r) if last else None
         out[name] = {
             "source": source, "start_c": start, "end_c": end,
             "first_c": first.value_c if first else None,
-            "first_at": _where(first) if first else None,
+            "first_at": at_first,
             "last_c": last.value_c if last else None,
-            "last_at": _where(last) if last else None,
+            "last_at": at_last,
             "change_c": (last.value_c - first.value_c) if two else None,  # type: ignore
-            "change_over": f"{_where(first)} → {_where(last)}" if two else None,  # type: ignore
+            "change_over": f"{at_first} → {at_last}" if two else None,
             "mean_c": run_mean_c([r.value_c for r in poses], start, end),
             "min_c": min(values) if values else None, "max_c": max(values) if values else None,
-            "per_pose": [{"pose": r.pose, "t_s": round(r.t_s, 3), "value_c": r.value_c}
-                         for r in poses],
+            "per_pose": [{"pose": r.pose, "t_s": round(r.t_s, 3), "value_c": r.value_c,
+                          "reprobe_round": r.reprobe_round} for r in poses],
             "readings": len(mine), "unread": len(mine) - len(ok),
             "errors": sorted({r.error for r in mine if r.error})[:5]}
     return out

@@ -21,6 +21,7 @@ from daemon.cli.main import main as cli_main
 from daemon.config import load_daemon_config
 from daemon.machines.tolerances import Limit, Tolerances
 from daemon.reports.temperatures import audit_text, table_rows, temperature_lines
+from daemon.run.temperatures import NOT_PRINTED
 from daemon.service.service import Service
 from daemon.store.drain import Drainer
 from daemon.store.journal import Store
@@ -39,9 +40,14 @@ DOWN = "not read: unreachable since no answer in 3 s at start; tried again at th
 def readings(kind: str) -> list[TemperatureReading]:
     """One run's spindle readings: ``full``; ``no-start`` (a start that failed at once, the
     poses and the end read); ``end-only`` (the channel silent at the start: unreachable for
-    every pose, read again at the end — the case the summary used to fill with the end)."""
-    def r(at: str, pose: int | None, value: float | None, error: str = "") -> TemperatureReading:
-        return TemperatureReading("spindle", at, pose, 10.0 * (pose or 0), value, error)
+    every pose, read again at the end — the case the summary used to fill with the end).
+    Printed over DNC with a re-probe round (its own start, pose and end lines), no pose line
+    come: ``reprobe-start-lost`` (the plan program's start lost, the round's read: not the
+    run's start) and ``reprobe-end-lost`` (the round's end lost: the run's end not read, not
+    the plan program's end standing in) — where the run's start and end make its mean."""
+    def r(at: str, pose: int | None, value: float | None, error: str = "",
+          rnd: int = 0) -> TemperatureReading:
+        return TemperatureReading("spindle", at, pose, 10.0 * (pose or 0), value, error, rnd)
 
     if kind == "full":
         return [r("start", None, 20.0), *[r("pose", p, 20.2 + 0.2 * p) for p in range(3)],
@@ -49,18 +55,37 @@ def readings(kind: str) -> list[TemperatureReading]:
     if kind == "no-start":
         return [r("start", None, None, "opcua: BadNodeIdUnknown"),
                 *[r("pose", p, 21.0 + 0.4 * p) for p in range(3)], r("end", None, 22.4)]
+    if kind.startswith("reprobe"):
+        lost, gone = kind == "reprobe-start-lost", NOT_PRINTED.format(where="a line")
+        return [r("start", None, None if lost else 22.0, gone if lost else ""),
+                *[r("pose", p, None, gone) for p in range(3)], r("end", None, 22.6),
+                r("start", None, 22.8, rnd=1), r("pose", 1, None, gone, 1),
+                r("end", None, 23.0 if lost else None, "" if lost else gone, 1)]
     return [r("start", None, None, NO_ANSWER), *[r("pose", p, None, DOWN) for p in range(3)],
             r("end", None, 23.5)]
 
 
-EXPECTED_MEAN = {"full": 20.4, "no-start": 21.4, "end-only": 23.5}
+KINDS = ["full", "no-start", "end-only", "reprobe-start-lost", "reprobe-end-lost"]
+EXPECTED_MEAN = {"full": 20.4, "no-start": 21.4, "end-only": 23.5, "reprobe-start-lost": 23.0,
+                 "reprobe-end-lost": 22.0}
 EXPECTED_TEXT = {
     "full": "spindle 20.0 → 21.0 °C (+1.0 °C)",
     "no-start": "spindle 21.0 (pose 0) → 22.4 °C (end) (+1.4 °C; start not read)",
-    "end-only": "spindle 23.5 °C (end only; start not read)"}
+    "end-only": "spindle 23.5 °C (end only; start not read)",
+    "reprobe-start-lost": "spindle 22.6 (end of the plan's program) → 23.0 °C (end) (+0.4 °C; "
+                          "start not read)",
+    "reprobe-end-lost": "spindle 22.0 (start) → 22.8 °C (start of re-probe 1) (+0.8 °C; end "
+                        "not read)"}
+EXPECTED_WHY = {  # the change limit's WARN where the change was not measured over the run
+    "no-start": "not checked over the whole run: +1.4 °C over pose 0 → end only",
+    "end-only": "one reading only (end)",
+    "reprobe-start-lost": "not checked over the whole run: +0.4 °C over end of the plan's "
+                          "program → end only",
+    "reprobe-end-lost": "not checked over the whole run: +0.8 °C over start → start of "
+                        "re-probe 1 only"}
 
 
-@pytest.mark.parametrize("kind", ["full", "no-start", "end-only"])
+@pytest.mark.parametrize("kind", KINDS)
 def test_a_run_without_its_start_reading_is_said_so_everywhere(kind):
     s = summarise(readings(kind), SOURCES)["spindle"]
     a = Analysis(machine="m", links={"EX0C": LinkError(5.0, 1.0, "um")},
@@ -84,8 +109,7 @@ def test_a_run_without_its_start_reading_is_said_so_everywhere(kind):
         assert j.status == "PASS" and not why, j.reasons
     else:
         assert j.status == "WARN" and why, j.reasons
-        assert ("one reading only (end)" if kind == "end-only"
-                else "not checked over the whole run: +1.4 °C over pose 0 → end only") in why[0]
+        assert EXPECTED_WHY[kind] in why[0], why
 
 
 def test_old_summaries_keep_their_numbers():
@@ -114,12 +138,12 @@ async def test_cli_and_fleet_page_show_the_same_numbers_for_a_run_without_a_star
                                                                                    capsys):
     dsn = fresh_db(pg)
     store = Store(tmp_path / "journal.sqlite")
-    kinds = ["full", "no-start", "end-only"]
+    kinds = KINDS
     drainer = Drainer(store, dsn)
     try:
         for k, kind in enumerate(kinds):  # as a daemon run journals and summarises them
             rid = f"20260202-06000{k}-{kind}"
-            store.new_run(rid, "mill1", "cnc", started_at=time.time() - 3600 * (3 - k),
+            store.new_run(rid, "mill1", "cnc", started_at=time.time() - 3600 * (9 - k),
                           state="DONE")
             for r in readings(kind):
                 journal_temperature(store, rid, r)
@@ -176,12 +200,17 @@ async def test_cli_and_fleet_page_show_the_same_numbers_for_a_run_without_a_star
 
 def test_summary_fields_match_the_fleet_store_query():
     """The fleet page's raw-readings query (daemon/store/pg_temperatures.readings) picks the
-    first start value and the last end value that were read, and the pose values in order:
-    the summary picks the same ones, so run_mean_c sees the same inputs either way."""
+    plan program's first start value read, the last program's end and the pose values in
+    order: the summary picks the same ones (contracts.temperatures.run_ends), so run_mean_c
+    sees the same inputs either way (the fleet half: the re-probe kinds above)."""
     rs = [TemperatureReading("spindle", "start", None, 0.0, None, "x"),
+          TemperatureReading("spindle", "start", None, 1.0, 23.9),  # a start read late
           TemperatureReading("spindle", "end", None, 50.0, 24.0),
-          TemperatureReading("spindle", "start", None, 60.0, 24.2),  # a re-probe program's
-          TemperatureReading("spindle", "end", None, 90.0, 24.4)]
+          TemperatureReading("spindle", "start", None, 60.0, 24.2, "", 1),  # a re-probe's
+          TemperatureReading("spindle", "end", None, 90.0, 24.4, "", 1)]
     s = summarise(rs, SOURCES)["spindle"]
-    assert (s["start_c"], s["end_c"], s["mean_c"]) == (24.2, 24.4, pytest.approx(24.3))
-    assert (s["first_c"], s["first_at"], s["change_over"]) == (24.0, "end", "end → end")
+    assert (s["start_c"], s["end_c"], s["mean_c"]) == (23.9, 24.4, pytest.approx(24.15))
+    assert (s["first_c"], s["first_at"], s["change_over"]) == (23.9, "start", "start → end")
+    s = summarise(rs[2:], SOURCES)["spindle"]  # the run's start not read: not the re-probe's
+    assert (s["start_c"], s["end_c"], s["mean_c"]) == (None, 24.4, 24.4)
+    assert s["change_over"] == "end of the plan's program → end"

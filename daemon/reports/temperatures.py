@@ -47,8 +47,9 @@ def table_rows(analysis: Analysis) -> list[dict[str, str]]:
                 f" ({t['change_over']})" if t.get("change_over") not in (None, "start → end")
                 else ""),
             "range": f"{_c(t.get('min_c'))} … {_c(t.get('max_c'))}",
-            "per_pose": ", ".join(f"{p['pose']}: {p['value_c']:.1f}"
-                                  for p in t.get("per_pose", [])),
+            "per_pose": ", ".join(f"{p['pose']}: {p['value_c']:.1f}" + (
+                f" (re-probe {p['reprobe_round']})" if p.get("reprobe_round") else "")
+                for p in t.get("per_pose", [])),
             "unread": (f"{t['unread']} of {t['readings']} readings failed: "
                        + "; ".join(t.get("errors", []))) if t.get("unread") else ""})
     return rows

@@ -43,6 +43,9 @@ class RunCapture(RunEnding):
                      "; ".join(rp.faults))
             self.total += rp.prepared.job.touch_count
             self.store.set_state(run_id, str(self.state), touch_total=self.total)
+            # its temperatures are the round's, at the plan poses it probes again (issue 22)
+            self.temps.begin_reprobe(run_id, rnd, tuple(p for _, p in rp.slots),
+                                     time.time() - self.started_at)
             hits = hits + await self._capture(rp.prepared, rp.remap)
         return hits
 

@@ -50,10 +50,16 @@ class TemperatureRecorder:
         self.link_name = link_name
         self._transmitters: dict[str, Transmitter] = {}
         self._last_pose: int | None = None
-        self._poses: list[int] = []  # the poses probed, in order (printed channels' accounting)
+        # the program running: 0 the plan's, k re-probe round k's, whose printed pose k is the
+        # plan pose _program_poses[k] (its hits are remapped so: daemon/run/reprobe.py)
+        self._round = 0
+        self._program_poses: tuple[int, ...] | None = None
+        self._rounds: list[int] = [0]  # the programs run (printed channels' accounting)
+        self._poses: list[tuple[int, int]] = []  # (round, plan pose) probed, in order
         self._down: dict[str, str] = {}  # channel → why it is unreachable for this run
         self._pending: dict[str, asyncio.Task[None]] = {}  # channel → its read in flight
-        self._reading: dict[asyncio.Task[None], tuple[str, int, float]] = {}  # → channel, pose, t
+        # a read in flight → channel, pose, t, round
+        self._reading: dict[asyncio.Task[None], tuple[str, int, float, int]] = {}
 
     def sources(self) -> dict[str, str]:
         """Where each channel comes from (the run record's audit field)."""
@@ -76,12 +82,13 @@ class TemperatureRecorder:
                 if ch.transmitter is not None or self.link_name != "serial"]
 
     async def _read_one(self, run_id: str, ch: TemperatureChannel, at: str, pose: int | None,
-                        t_s: float) -> None:
-        """Read one channel and journal its value or why not (``at`` for the log)."""
+                        t_s: float, rnd: int = 0) -> None:
+        """Read one channel and journal its value or why not (``at`` for the log; ``rnd`` the
+        re-probe round of a pose read, 0 for the run's own start and end)."""
         loop = asyncio.get_running_loop()
         t0 = loop.time()
         try:
-            value = await self._answer(run_id, ch, at, pose, t_s)
+            value = await self._answer(run_id, ch, at, pose, t_s, rnd)
         except asyncio.CancelledError:
             raise
         except Exception as e:
@@ -93,14 +100,14 @@ class TemperatureRecorder:
                 why += "; not read again until the end of the run"
             log.warning("%s %s: temperature %s not read (%s): %s", self.machine, run_id,
                         ch.name, at, why)
-            self._journal(run_id, TemperatureReading(ch.name, at, pose, t_s, None,
-                                                     why))  # type: ignore[arg-type]
+            self._journal(run_id, TemperatureReading(
+                ch.name, at, pose, t_s, None, why, rnd))  # type: ignore[arg-type]
         else:
-            self._journal(run_id, TemperatureReading(ch.name, at, pose, t_s,
-                                                     float(value)))  # type: ignore[arg-type]
+            self._journal(run_id, TemperatureReading(
+                ch.name, at, pose, t_s, float(value), "", rnd))  # type: ignore[arg-type]
 
     async def _answer(self, run_id: str, ch: TemperatureChannel, at: str, pose: int | None,
-                      t_s: float) -> float:
+                      t_s: float, rnd: int) -> float:
         """The channel's value within ``READ_TIMEOUT_S`` (TimeoutError else). Cancelled (the run
         stopped): a value that had already come is journaled — nothing received is lost,
         whatever a Python version's ``asyncio.wait_for`` does with a cancel that meets a done
@@ -116,9 +123,9 @@ class TemperatureRecorder:
             got = (None if not read.done() or read.cancelled() or read.exception() is not None
                    else float(read.result()))
             try:
-                self._journal(run_id, TemperatureReading(ch.name, at, pose, t_s, got,
-                                                         "" if got is not None else STOPPED)
-                              )  # type: ignore[arg-type]
+                self._journal(run_id, TemperatureReading(
+                    ch.name, at, pose, t_s, got,  # type: ignore[arg-type]
+                    "" if got is not None else STOPPED, rnd))
             except Exception as e:  # the journal gone must not hide the stop
                 log.error("%s %s: temperature %s not journaled: %s", self.machine, run_id,
                           ch.name, e)
@@ -138,6 +145,7 @@ class TemperatureRecorder:
     def _sample_pose(self, run_id: str, pose: int, t_s: float) -> None:
         """Start the pose's reads beside the capture; what cannot be read now is journaled
         now with the reason (unreachable since …, or the last read still in flight)."""
+        rnd = self._round
         for ch in self._polled():
             busy = self._pending.get(ch.name)
             if ch.name in self._down:
@@ -147,12 +155,13 @@ class TemperatureRecorder:
                 why = "not read: the previous read of this channel is still waiting"
             else:
                 task = self._pending[ch.name] = asyncio.get_running_loop().create_task(
-                    self._read_one(run_id, ch, "pose", pose, t_s),
+                    self._read_one(run_id, ch, "pose", pose, t_s, rnd),
                     name=f"temperature-{self.machine}-{ch.name}")
-                self._reading[task] = (ch.name, pose, t_s)
+                self._reading[task] = (ch.name, pose, t_s, rnd)
                 task.add_done_callback(self._reading.pop)
                 continue
-            self._journal(run_id, TemperatureReading(ch.name, "pose", pose, t_s, None, why))
+            self._journal(run_id, TemperatureReading(ch.name, "pose", pose, t_s, None, why,
+                                                     rnd))
 
     async def on_hit(self, run_id: str, pose: int, t_s: float) -> None:
         """After a journaled hit: the program's printed values, and a sample at a new pose
@@ -160,9 +169,22 @@ class TemperatureRecorder:
         self.take_printed(run_id, t_s)
         if pose != self._last_pose:
             self._last_pose = pose
-            if pose not in self._poses:
-                self._poses.append(pose)
+            if (self._round, pose) not in self._poses:
+                self._poses.append((self._round, pose))
             self._sample_pose(run_id, pose, t_s)
+
+    def begin_reprobe(self, run_id: str, round_: int, poses: tuple[int, ...], t_s: float
+                      ) -> None:
+        """Before re-probe round ``round_``'s program (``daemon/run/reprobe.py``), whose pose k
+        is the plan's pose ``poses[k]``: what the last program printed is journaled as its own,
+        then this program's readings are journaled as the round's — a printed pose under the
+        plan pose it re-probes, its start and end lines as the round's, never as the run's
+        (``contracts.temperatures.run_ends``) — and its first pose is sampled even when the
+        last program ended on it."""
+        self.take_printed(run_id, t_s)
+        self._round, self._program_poses = round_, tuple(poses)
+        self._rounds.append(round_)
+        self._last_pose = None
 
     def _printed(self) -> list[TemperatureChannel]:
         return [ch for ch in self.channels
@@ -175,21 +197,26 @@ class TemperatureRecorder:
         printed = self._printed()
         if not printed:
             return
-        have = {(r.channel, r.at, r.pose) for r in temperatures(self.store, run_id)}
-        due = [("start", None), *(("pose", p) for p in self._poses), ("end", None)]
+        have = {(r.channel, r.at, r.pose, r.reprobe_round)
+                for r in temperatures(self.store, run_id)}
+        due = [d for k in self._rounds for d in (
+            ("start", None, k), *(("pose", p, k) for kk, p in self._poses if kk == k),
+            ("end", None, k))]
         for ch in printed:
-            for at, pose in due:
-                if (ch.name, at, pose) not in have:
+            for at, pose, k in due:
+                if (ch.name, at, pose, k) not in have:
                     where = f"pose {pose}" if at == "pose" else f"the {at}"
+                    where += f" of re-probe {k}" if k else ""
                     log.warning("%s %s: temperature %s: no RTEMP line for %s", self.machine,
                                 run_id, ch.name, where)
                     self._journal(run_id, TemperatureReading(
                         ch.name, at, pose, t_s, None,  # type: ignore[arg-type]
-                        NOT_PRINTED.format(where=where)))
+                        NOT_PRINTED.format(where=where), k))
 
     def take_printed(self, run_id: str, t_s: float) -> None:
         """Journal what the program printed since the last call (a DNC program's ``RTEMP``
-        lines: channel k is the k-th controller channel, the program prints them in order)."""
+        lines: channel k is the k-th controller channel, the program prints them in order; a
+        pose by the program's own index, the plan's pose in a re-probe's: ``begin_reprobe``)."""
         printed = self._printed()
         if not printed:
             return
@@ -199,9 +226,17 @@ class TemperatureRecorder:
                             "prints %d)", self.machine, run_id, k, len(printed))
                 continue
             at = {"S": "start", "E": "end"}.get(marker, "pose")
+            pose = int(marker[1:]) if at == "pose" else None
+            if pose is not None and self._program_poses is not None:
+                if pose >= len(self._program_poses):
+                    log.warning("%s %s: temperature line of pose %d ignored (re-probe %d "
+                                "probes %d poses)", self.machine, run_id, pose, self._round,
+                                len(self._program_poses))
+                    continue
+                pose = self._program_poses[pose]
             self._journal(run_id, TemperatureReading(
-                printed[k - 1].name, at, int(marker[1:]) if at == "pose" else None, t_s,
-                value))  # type: ignore[arg-type]
+                printed[k - 1].name, at, pose, t_s, value,  # type: ignore[arg-type]
+                "", self._round))
 
     def _journal(self, run_id: str, r: TemperatureReading) -> None:
         journal_temperature(self.store, run_id, r)
@@ -216,6 +251,7 @@ class TemperatureRecorder:
         """Before the program: the first sample."""
         self.abandon()
         self._last_pose = None
+        self._round, self._program_poses, self._rounds = 0, None, [0]
         self._poses = []
         self._down.clear()
         await self.sample(run_id, "start", None, t_s)
@@ -250,12 +286,12 @@ class TemperatureRecorder:
                 log.error("%s %s: temperature read %s still running after the run stopped",
                           self.machine, run_id, task.get_name())
             # a read cancelled before it ever ran journaled nothing: it is cut all the same
-            have = {(r.channel, r.pose) for r in temperatures(self.store, run_id)
-                    if r.at == "pose"}
+            have = {(r.channel, r.pose, r.reprobe_round)
+                    for r in temperatures(self.store, run_id) if r.at == "pose"}
             for w in what:
-                if w is not None and (w[0], w[1]) not in have:
+                if w is not None and (w[0], w[1], w[3]) not in have:
                     self._journal(run_id, TemperatureReading(w[0], "pose", w[1], w[2], None,
-                                                             STOPPED))
+                                                             STOPPED, w[3]))
         await self.close()
 
     def with_summary(self, run_id: str, analysis: Any) -> Any:

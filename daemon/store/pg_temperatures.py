@@ -7,7 +7,8 @@ from __future__ import annotations
 
 from typing import Any
 
-TEMP_COLS = ("run_id", "seq", "channel", "at", "pose", "t_s", "value_c", "error", "received_at")
+TEMP_COLS = ("run_id", "seq", "channel", "at", "pose", "t_s", "value_c", "error", "received_at",
+             "reprobe_round")
 
 
 async def insert(cur: Any, rows: list[tuple]) -> None:
@@ -31,15 +32,17 @@ async def channels(conn: Any, machine: str) -> list[str]:
 async def readings(conn: Any, machine: str, since: float, channel: str
                    ) -> list[dict[str, Any]]:
     """Runs since ``since`` with an analysis and a reading of ``channel``, oldest first: the
-    links object, the values read at each pose, the first start and the last end value."""
+    links object, the values read at each pose, the run's start and end value as
+    ``contracts.temperatures.run_ends`` picks them (the plan program's first start read; the
+    last program's end, NULL when it was not read)."""
     cur = await conn.execute(
         "SELECT r.id, r.started_at, r.verdict, (e.analysis::jsonb)->'links',"
         " array_agg(t.value_c ORDER BY t.seq) FILTER (WHERE t.at = 'pose'"
         "   AND t.value_c IS NOT NULL),"
         " (array_agg(t.value_c ORDER BY t.seq) FILTER (WHERE t.at = 'start'"
-        "   AND t.value_c IS NOT NULL))[1],"
-        " (array_agg(t.value_c ORDER BY t.seq DESC) FILTER (WHERE t.at = 'end'"
-        "   AND t.value_c IS NOT NULL))[1],"
+        "   AND t.reprobe_round = 0 AND t.value_c IS NOT NULL))[1],"
+        " (array_agg(t.value_c ORDER BY t.reprobe_round DESC, t.seq DESC)"
+        "   FILTER (WHERE t.at = 'end'))[1],"
         " COUNT(*), COUNT(t.value_c)"
         " FROM runs r JOIN estimates e ON e.run_id = r.id"
         " JOIN temperatures t ON t.run_id = r.id AND t.channel = %s"

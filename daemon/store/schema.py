@@ -131,6 +131,11 @@ MIGRATIONS: list[list[str]] = [
             WHERE state = 'DONE' AND reason LIKE '%report not written%'
             AND id NOT IN (SELECT run_id FROM reports)""",
     ],
+    [  # 11: the program a temperature reading came from (issue 22): 0 the plan's, k the k-th
+        # re-probe round's, which prints its own start, pose and end lines over DNC; readings
+        # journaled before are the plan's (a re-probe's were not told apart)
+        "ALTER TABLE temperatures ADD COLUMN reprobe_round INTEGER NOT NULL DEFAULT 0",
+    ],
 ]
 SCHEMA_VERSION = len(MIGRATIONS)
 

@@ -14,15 +14,17 @@ def journal_temperature(store: Store, run_id: str, r: TemperatureReading) -> Non
     validate_run_id(run_id)
     store.db.execute(
         "INSERT INTO temperatures (run_id, seq, channel, at, pose, t_s, value_c, error,"
-        " received_at) SELECT ?, COALESCE(MAX(seq), 0) + 1, ?, ?, ?, ?, ?, ?, ?"
-        " FROM temperatures WHERE run_id=?",
-        (run_id, r.channel, r.at, r.pose, r.t_s, r.value_c, r.error, time.time(), run_id))
+        " received_at, reprobe_round) SELECT ?, COALESCE(MAX(seq), 0) + 1, ?, ?, ?, ?, ?, ?,"
+        " ?, ? FROM temperatures WHERE run_id=?",
+        (run_id, r.channel, r.at, r.pose, r.t_s, r.value_c, r.error, time.time(),
+         r.reprobe_round, run_id))
 
 
 def temperatures(store: Store, run_id: str) -> list[TemperatureReading]:
     """The run's readings in arrival order."""
     validate_run_id(run_id)
     rows = store.db.execute(
-        "SELECT channel, at, pose, t_s, value_c, error FROM temperatures WHERE run_id=?"
+        "SELECT channel, at, pose, t_s, value_c, error, reprobe_round FROM temperatures"
+        " WHERE run_id=?"
         " ORDER BY seq", (run_id,))
     return [TemperatureReading(*row) for row in rows]
