@@ -144,7 +144,8 @@ async def seed(dsn: str, runs: list[dict]) -> None:
             read = [("start", None, r["start"]), *[("pose", p, v) for p, v in
                                                    enumerate(r["pose"])], ("end", None, r["end"])]
             rows = [(r["id"], seq, "spindle", at, pose, 10.0 * seq,
-                     None if r["unread"] else value, "not read" if r["unread"] else "", now)
+                     None if r["unread"] else value, "not read" if r["unread"] else "", now,
+                     0)  # TEMP_COLS: the plan's program (no re-probe round)
                     for seq, (at, pose, value) in enumerate(read, 1)]
             links = {"EX0C": {"value": r["ex"], "std": r["ex_std"], "unit": "um"},
                      "EA0B": {"value": r["ea"], "std": 1.0, "unit": "urad"}}
