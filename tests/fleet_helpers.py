@@ -5,7 +5,7 @@ from __future__ import annotations
 import asyncio
 import itertools
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 
 import psycopg
 import pytest
@@ -20,6 +20,17 @@ def start_postgres() -> PostgresPeer:
         return PostgresPeer()
     except PeerUnavailable as e:
         pytest.skip(str(e))
+
+
+@pytest.fixture(scope="module")
+def pg() -> Iterator[PostgresPeer]:
+    """The test module's real PostgreSQL on loopback, stopped after its last test (import it
+    into the module; each test takes a ``fresh_db`` of it)."""
+    peer = start_postgres()
+    try:
+        yield peer
+    finally:
+        peer.close()
 
 
 def start_mosquitto(**kw) -> MosquittoPeer:  # type: ignore[no-untyped-def]

@@ -23,9 +23,9 @@ from daemon.run.temperatures import STOPPED, TemperatureRecorder
 from daemon.service.service import Service
 from daemon.store.journal import Store
 from daemon.store.temperatures import temperatures
+from tests.temperature_helpers import SilentTransmitter, column, silent_transmitter
 from tests.test_e2e_transports import RUN_TIMEOUT_S
 from tests.test_temperature_channels import SPINDLE, cnc, machine_entry
-from tests.test_temperature_silent import SilentTransmitter, column
 
 __all__ = ["cnc"]  # the warming CNC fixture, shared with the channels' end-to-end tests
 
@@ -35,14 +35,8 @@ TOKEN = "t0k3n-for-abort-tests-0123456789"
 @pytest_asyncio.fixture
 async def silent_after_start() -> AsyncIterator[tuple[SilentTransmitter, int]]:
     """A transmitter that answers the run's start read, then never again."""
-    tx = SilentTransmitter(answer_first=1)
-    server = await asyncio.start_server(tx.handle, "127.0.0.1", 0)
-    try:
-        yield tx, server.sockets[0].getsockname()[1]
-    finally:
-        await tx.close()
-        server.close()
-        await server.wait_closed()
+    async with silent_transmitter(answer_first=1) as served:
+        yield served
 
 
 def running_reads() -> list[asyncio.Task]:
@@ -118,8 +112,10 @@ class HeldLink:
         return 24.25
 
 
-@pytest.mark.asyncio
-async def test_a_value_arriving_with_the_stop_is_journaled(tmp_path):
+@pytest_asyncio.fixture
+async def held(tmp_path) -> AsyncIterator[tuple[Store, HeldLink, TemperatureRecorder]]:
+    """Run r1's recorder of one OPC UA channel read through a ``HeldLink``, on a real journal;
+    closed after the test."""
     store = Store(tmp_path / "journal.sqlite")
     store.new_run("r1", "mill1", "test")
     link = HeldLink()
@@ -127,40 +123,35 @@ async def test_a_value_arriving_with_the_stop_is_journaled(tmp_path):
     rec = TemperatureRecorder("mill1", (ch,), link=link, store=store,  # type: ignore[arg-type]
                               link_name="opcua")
     try:
-        await rec.on_hit("r1", 0, 1.0)
-        await asyncio.sleep(0)  # the pose read is waiting for its answer
-        assert running_reads() and temperatures(store, "r1") == []
-        link.release.set()
-        while not link.answered:
-            await asyncio.sleep(0)
-        await rec.stop("r1")  # the stop meets the answer before the read could journal it
-        got = temperatures(store, "r1")
-        left = running_reads()
+        yield store, link, rec
     finally:
         await rec.close()
         store.close()
-    assert left == []
+
+
+@pytest.mark.asyncio
+async def test_a_value_arriving_with_the_stop_is_journaled(held):
+    store, link, rec = held
+    await rec.on_hit("r1", 0, 1.0)
+    await asyncio.sleep(0)  # the pose read is waiting for its answer
+    assert running_reads() and temperatures(store, "r1") == []
+    link.release.set()
+    while not link.answered:
+        await asyncio.sleep(0)
+    await rec.stop("r1")  # the stop meets the answer before the read could journal it
+    got = temperatures(store, "r1")
+    assert running_reads() == []
     assert [(r.at, r.pose, r.value_c, r.error) for r in got] == [("pose", 0, 24.25, "")]
 
 
 @pytest.mark.asyncio
-async def test_a_read_cancelled_before_it_ran_is_journaled_as_cut(tmp_path):
+async def test_a_read_cancelled_before_it_ran_is_journaled_as_cut(held):
     """The stop comes right after the hit that started a pose read, before the event loop ever
     ran it: the read journals nothing itself, the stop journals it as cut."""
-    store = Store(tmp_path / "journal.sqlite")
-    store.new_run("r1", "mill1", "test")
-    link = HeldLink()
-    ch = TemperatureChannel(name="spindle", address="/Channel/Temperatures/Z")
-    rec = TemperatureRecorder("mill1", (ch,), link=link, store=store,  # type: ignore[arg-type]
-                              link_name="opcua")
-    try:
-        await rec.on_hit("r1", 3, 7.5)  # the read is created, not yet run
-        await rec.stop("r1")
-        got = temperatures(store, "r1")
-        left = running_reads()
-    finally:
-        await rec.close()
-        store.close()
-    assert left == [] and not link.answered
+    store, link, rec = held
+    await rec.on_hit("r1", 3, 7.5)  # the read is created, not yet run
+    await rec.stop("r1")
+    got = temperatures(store, "r1")
+    assert running_reads() == [] and not link.answered
     assert [(r.at, r.pose, r.t_s, r.value_c, r.error) for r in got] == [
         ("pose", 3, 7.5, None, STOPPED)]

@@ -26,20 +26,13 @@ from daemon.store.pg import RUN_COLS, PgStore, RunBatch
 from daemon.store.pg_temperatures import TEMP_COLS
 from daemon.store.temperatures import journal_temperature
 from tests.browser import chromium
-from tests.fleet_helpers import fresh_db, start_postgres
+from tests.fleet_helpers import fresh_db, pg
+from tests.temperature_helpers import fleet_against
 from tests.test_fleet_page import TOKEN, serving
 
+__all__ = ["pg"]  # the module's PostgreSQL (tests/fleet_helpers.py)
 pytestmark = [pytest.mark.peer]
 DAY = 86400.0
-
-
-@pytest.fixture(scope="module")
-def pg():
-    peer = start_postgres()
-    try:
-        yield peer
-    finally:
-        peer.close()
 
 
 def pg_rows(dsn: str, run_id: str) -> list[tuple]:
@@ -185,10 +178,7 @@ async def test_link_against_temperature_has_the_cli_statistics(against_db, tmp_p
     want = expected(runs)
     async with serving(dsn, tmp_path) as url, aiohttp.ClientSession(
             headers={"Authorization": f"Bearer {TOKEN}"}) as http:
-        async with http.get(f"{url}/api/machines/mill-t/temperature",
-                            params={"channel": "spindle", "link": "EX0C"}) as r:
-            got = await r.json()
-            assert r.status == 200, got
+        got = await fleet_against(http, url, "mill-t")
         async with http.get(f"{url}/machines/mill-t/temperature") as r:
             default = await r.text()  # the first channel and link (sorted)
         async with http.get(f"{url}/machines/mill-t/temperature",

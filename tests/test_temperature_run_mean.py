@@ -27,9 +27,11 @@ from daemon.store.drain import Drainer
 from daemon.store.journal import Store
 from daemon.store.temperatures import journal_temperature, temperatures
 from tests.daemon_helpers import thesis_rows, thesis_setup, write_daemon_yaml
-from tests.fleet_helpers import fresh_db, start_postgres
+from tests.fleet_helpers import fresh_db, pg
 from tests.replay_link import ReplayLink, prepare_from_rows
+from tests.temperature_helpers import fleet_against
 
+__all__ = ["pg"]  # the module's PostgreSQL (tests/fleet_helpers.py)
 CHANNELS = "    temperatures: [{name: spindle, address: /Channel/Temperatures/Z}]"
 HMI_TOKEN = "t0k3n-for-run-mean-0123456789"
 SOURCES = {"spindle": "spindle: opcua /Channel/Temperatures/Z"}
@@ -124,15 +126,6 @@ def test_old_summaries_keep_their_numbers():
     assert run_mean_c([], 20.5, None) == 20.5 and run_mean_c([None], None, None) is None
 
 
-@pytest.fixture(scope="module")
-def pg():
-    peer = start_postgres()
-    try:
-        yield peer
-    finally:
-        peer.close()
-
-
 @pytest.mark.peer
 async def test_cli_and_fleet_page_show_the_same_numbers_for_a_run_without_a_start(pg, tmp_path,
                                                                                    capsys):
@@ -179,10 +172,7 @@ async def test_cli_and_fleet_page_show_the_same_numbers_for_a_run_without_a_star
     from tests.test_fleet_page import TOKEN, serving
     async with serving(dsn, tmp_path) as url, aiohttp.ClientSession(
             headers={"Authorization": f"Bearer {TOKEN}"}) as http:
-        async with http.get(f"{url}/api/machines/mill1/temperature",
-                            params={"channel": "spindle", "link": "EX0C"}) as r:
-            fleet = await r.json()
-            assert r.status == 200, fleet
+        fleet = await fleet_against(http, url, "mill1")
         async with http.get(f"{url}/machines/mill1") as r:
             page = html.unescape(await r.text())
             assert r.status == 200, page

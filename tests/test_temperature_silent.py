@@ -6,10 +6,7 @@ reason at every pose), the pose reads run beside the capture, and the end tries 
 from __future__ import annotations
 
 import asyncio
-import contextlib
-import struct
 from collections.abc import AsyncIterator
-from dataclasses import dataclass, field
 
 import pytest
 import pytest_asyncio
@@ -20,7 +17,7 @@ from daemon.run.session import State
 from daemon.run.temperatures import TemperatureRecorder
 from daemon.store.journal import Store
 from daemon.store.temperatures import temperatures
-from tests.temperature_helpers import run_from_cnc
+from tests.temperature_helpers import SilentTransmitter, column, run_from_cnc, silent_transmitter
 from tests.test_temperature_channels import SPINDLE, cnc, machine_entry, write_config
 
 __all__ = ["cnc"]  # the warming CNC fixture, shared with the channels' end-to-end tests
@@ -28,58 +25,10 @@ __all__ = ["cnc"]  # the warming CNC fixture, shared with the channels' end-to-e
 UNREACHABLE = "not read again until the end of the run"
 
 
-@dataclass
-class SilentTransmitter:
-    """Accepts Modbus TCP connections, reads the requests and answers only the first
-    ``answer_first`` of them (then never again: switched off behind a live switch port)."""
-
-    answer_first: int = 0
-    connections: int = 0
-    requests: int = 0
-    request_seen: asyncio.Event = field(default_factory=asyncio.Event)
-    _writers: list[asyncio.StreamWriter] = field(default_factory=list)
-    _tasks: list[asyncio.Task] = field(default_factory=list)
-
-    async def handle(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
-        self.connections += 1
-        self._writers.append(writer)
-        self._tasks.append(asyncio.current_task())  # type: ignore[arg-type]
-        with contextlib.suppress(ConnectionError, asyncio.IncompleteReadError):
-            while True:
-                head = await reader.readexactly(7)  # MBAP: transaction, protocol, length, unit
-                tid, _, length, unit = struct.unpack(">HHHB", head)
-                pdu = await reader.readexactly(length - 1)
-                self.requests += 1
-                self.request_seen.set()
-                if self.requests <= self.answer_first:  # 23.5 °C at 0.1 °C per count
-                    count = struct.unpack(">H", pdu[3:5])[0]
-                    body = bytes([pdu[0], 2 * count]) + struct.pack(">H", 235) * count
-                    writer.write(struct.pack(">HHHB", tid, 0, len(body) + 1, unit) + body)
-                    await writer.drain()
-
-    async def close(self) -> None:
-        for w in self._writers:
-            w.transport.abort()
-        for t in self._tasks:
-            t.cancel()
-        await asyncio.gather(*self._tasks, return_exceptions=True)
-
-
 @pytest_asyncio.fixture
 async def silent() -> AsyncIterator[tuple[SilentTransmitter, int]]:
-    tx = SilentTransmitter()
-    server = await asyncio.start_server(tx.handle, "127.0.0.1", 0)
-    try:
-        yield tx, server.sockets[0].getsockname()[1]
-    finally:
-        await tx.close()
-        server.close()
-        await server.wait_closed()
-
-
-def column(port: int, timeout_s: float = 1.0) -> dict:
-    return {"name": "column", "source": "transmitter", "address": "input:0", "scale": 0.1,
-            "transmitter": {"host": "127.0.0.1", "port": port, "timeout_s": timeout_s}}
+    async with silent_transmitter() as served:
+        yield served
 
 
 @pytest.mark.asyncio
