@@ -25,9 +25,9 @@ drift model is kept only when its BIC beats the plain estimate's by ``BIC_MARGIN
 the plain estimate is returned untouched (today's numbers on a machine that stood still).
 Kept, the links' covariance is the chosen model's (τ's column in it when τ is free, and the
 t's ν/(ν−2) of ``identification.uncertainty``) plus the spread of the link estimates over the
-models BIC chose among (``_selection_share``): the choice is part of their uncertainty. Where
-the rotary axes' index scatter shows on the residuals the drift leaves, the covariance is the
-visit sandwich of ``identification.estimate_scatter`` with the drift's columns fitted too (as
+models BIC chose among (``_selection_share``): the choice is part of their uncertainty. The
+covariance is the visit sandwich of ``identification.estimate_scatter`` under the rotary axes'
+index scatter estimated on the residuals the drift leaves, the drift's columns fitted too (as
 the plain estimate's, issue 21; before, the refit dropped it: 90.6 % 2u coverage on 8 warming
 runs at 15 µrad, tests/test_drift_scatter.py).
 """
@@ -347,7 +347,8 @@ def _final(machine: Machine, artefact: Artefact, centres: Centres, base: Estimat
     dist = lin.dist_j if lin.dist_j.size else None
     scatter = visit_sandwich(machine, artefact, est.layout, est.p, centres, sigma_mm, dist,
                              np.ones(lin.dist_j.shape[0]), cols,
-                             np.einsum("kim,m->ki", model.columns(t), theta))
+                             np.einsum("kim,m->ki", model.columns(t), theta),
+                             given=base.sigma_given)
     if scatter is not None:
         cov = scatter.cov * t_variance_factor(sig_dof)
     cov[:n_par, :n_par] += share

@@ -57,7 +57,7 @@ class Estimate:
     # rests on (centres − parameters / 3) residuals each (GUM G.3: widen k with few dof)
     sigma_dof: float = math.inf
     # per-visit scatter behind a sandwich covariance (issue 21, estimate_scatter.py): component
-    # → (σ, u(σ), p-value) in µrad / µm; None when the run shows no rotary index scatter
+    # → (σ, u(σ), p-value) in µrad / µm; None without it (visit_scatter=False, < 4 visits)
     visit_scatter: dict[str, tuple[float, float, float]] | None = None
 
     @property
@@ -175,8 +175,9 @@ def estimate(
     the weights and the covariance; omitted, σ is estimated per axis from the residuals of a
     first fit, the fit is repeated with those weights and the covariance is a posteriori.
     Raises ``RankDeficientError`` naming the inseparable combination for a poor pose set.
-    ``visit_scatter``: where the run shows rotary index scatter (every ball of a visit moving
-    together), the covariance is the sandwich that holds it (``estimate_scatter``).
+    ``visit_scatter``: the covariance is the sandwich under the rotary index scatter (every
+    ball of a visit moving together) estimated by REML, ~0 where the run shows none
+    (``estimate_scatter``); False: independent centres.
     """
     if len(centres) == 0:
         raise RankDeficientError("no ball centre to estimate from")
@@ -263,7 +264,8 @@ def estimate(
     scatter = None
     if visit_scatter:
         dj = distance_rows(artefact, layout, p) if use_dist else (None, None, None)
-        scatter = visit_sandwich(machine, artefact, layout, p, centres, sigma_mm, dj[1], dj[2])
+        scatter = visit_sandwich(machine, artefact, layout, p, centres, sigma_mm, dj[1], dj[2],
+                                 given=given)
         # the sandwich's components are estimated from the same residuals: same t widening
         cov = cov if scatter is None else scatter.cov * t_variance_factor(sigma_dof)
     status, more = fit_status(cond, converged, max_iter)

@@ -79,7 +79,10 @@ def test_weighted_estimator_is_the_estimator_in_machine_axes():
 
     data = rows_to_centres(read_log(CFG / "examples/thesis_annexB_14poses.csv", a), a, 3.0)
     for sigma in (None, [0.66, 0.98, 0.44]):
-        ref = estimate(m, a, data.centres, sigma_um=sigma)
+        # the weighted estimator (per-centre σ, instrument frame) holds no per-visit scatter:
+        # it is the touch path's estimate with independent centres (issue 22: that one's
+        # covariance is now always the visit sandwich, not only past the index test)
+        ref = estimate(m, a, data.centres, sigma_um=sigma, visit_scatter=False)
         got, frame = estimate_weighted(m, a, data.centres, sigma_um=sigma)
         assert frame is None and got.layout == ref.layout
         np.testing.assert_allclose(got.p, ref.p, rtol=0, atol=1e-12)
@@ -101,9 +104,12 @@ def test_uncertainty_per_centre_weights_the_estimate(sim_log: Path, tmp_path: Pa
     given = _analyze(tmp_path, "given", "--centres", str(centres), "--repeatability-um", "0.7")
     per_centre = _analyze(tmp_path, "u", "--centres", str(uniform))
     assert per_centre["estimation"]["sigma_from"] == "given (u_um column)"
-    for k, v in given["links"].items():  # equal weights: the same numbers by either path
+    for k, v in given["links"].items():  # equal weights: the same estimate by either path
         assert per_centre["links"][k]["value"] == pytest.approx(v["value"], abs=1e-6)
-        assert per_centre["links"][k]["std"] == pytest.approx(v["std"], rel=1e-6)
+        # the stated σ per axis goes through the touch path's estimate, whose covariance adds
+        # the index scatter estimated on top of the stated centre σ (visit sandwich); the
+        # per-centre path's is the independent one: never larger
+        assert per_centre["links"][k]["std"] <= v["std"] * (1 + 1e-3)
     # one ball's centres 20× less certain: its weight falls, the estimate moves, stds grow
     heavy = tmp_path / "h.csv"
     write_centres(heavy, [r.__class__(*[*vars_of(r)[:-1], 14.0 if r.ball == "B3" else 0.7])
