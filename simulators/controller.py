@@ -5,7 +5,9 @@ whole-program load or DNC drip-feed, start / abort / feed hold, controller state
 macro/R/Q variables, an event stream (output lines, touch results, state changes, blocks) and
 the start-of-shift handshake (request / busy / done / verdict). Machine time comes from the
 motion (rapid, feed, rotary index with clamping, dwell); ``time_scale`` 0 runs as fast as
-possible, 1 in real time.
+possible, 1 in real time. ``machine_time_s`` counts from the program's start (touch times,
+timed faults, the published machine time); the warm-up runs on ``thermal_time_s``, from the
+simulated machine's start, on across programs.
 """
 
 from __future__ import annotations
@@ -79,6 +81,7 @@ class VirtualController(MachineSide):
         self.alarm: str | None = None
         self.resets = 0  # RESETs so far: a tape reader tells a tape read across one (DNC)
         self.machine_time_s = 0.0
+        self._warm_s = 0.0  # machine time of the programs before this one (thermal clock)
         self._dialect_now = dialect
         self.variables: dict[str, float | str] = _Variables(self._variable_written)
         self.files: dict[str, str] = {}  # the control's file store (F-PRINT format files …)
@@ -238,11 +241,18 @@ class VirtualController(MachineSide):
             raise KeyError(f"this control keeps no {'/'.join(families)} kinematic values")
         return self.kinematics
 
+    @property
+    def thermal_time_s(self) -> float:
+        """The warm-up's clock: machine time since the simulated machine started (the truth's
+        ``start_state``), every program so far; a re-probe round or the next run meets the
+        machine as warm as the last program left it (a power-cycle fault leaves it warm too)."""
+        return self._warm_s + self.machine_time_s
+
     def sensor_temperatures(self) -> dict[str, float]:
         """The structure sensors now (°C per axis with a warm-up; {} without): the same thermal
         state as the TCP drift of the touches (simulators/thermal.py)."""
         th = self.truth.thermal
-        return {} if th is None else th.temperatures_c(self.machine_time_s)
+        return {} if th is None else th.temperatures_c(self.thermal_time_s)
 
     def feed_hold(self) -> None:
         if self.state == "running":
@@ -257,6 +267,9 @@ class VirtualController(MachineSide):
     # ---------------------------------------------------------------- running
     def _begin(self) -> None:
         self.alarm = None
+        # The program clock restarts, the thermal one runs on (idle time between programs is
+        # not counted: the axes stand still and time_scale 0 has none).
+        self._warm_s += self.machine_time_s
         self.machine_time_s = 0.0
         self._pending_s = 0.0
         self._seq = 0

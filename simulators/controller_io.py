@@ -24,6 +24,7 @@ class MachineSide:
     faults: FaultPlan
     axes: tuple[str, ...]
     machine_time_s: float
+    _warm_s: float  # the thermal clock at the program's start (VirtualController.thermal_time_s)
     printed: list[str]
     messages: list[str]
     touches: list[TouchRecord]
@@ -105,7 +106,8 @@ class MachineSide:
             self._emit(FaultEvent(f.kind, f))
             if f.kind == "drop_result_line":
                 self._drop_lines += f.params.get("lines", 1)
-        hit = self._latch.latch(p0, p1, b, c, t, faults, self._rotary_moves, feed_mm_min)
+        hit = self._latch.latch(p0, p1, b, c, t, faults, self._rotary_moves, feed_mm_min,
+                                thermal_t_s=self._warm_s + t)
         if hit.triggered and hit.target is not None and hit.target >= 0:
             chip = self.faults.chip_mm(faults, hit.ball, hit.touch, b, c, seq)
             if chip:  # a chip on the ball: the stylus meets it that much earlier on the line

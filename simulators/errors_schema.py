@@ -96,7 +96,8 @@ class AxisWarmupFile(StrictModel):
 
 class ThermalFile(StrictModel):
     """The machine's thermal state during the run (issue 22): per axis X Y Z a first-order
-    warm-up from ``start_state`` (0 cold, 1 warm) at the program start."""
+    warm-up from ``start_state`` (0 cold, 1 warm) when the simulated machine starts (its first
+    program; later programs on the same controller find it warmer)."""
 
     axes: dict[str, AxisWarmupFile] = {}
     start_state: float = Field(0.0, ge=0, le=1)

@@ -81,9 +81,10 @@ class ProbeLatch:
 
     def latch(self, p0: np.ndarray, p1: np.ndarray, b: float, c: float, t: float,
               faults: list[Fault], rotary_moves: int, feed_mm_min: float = 0.0,
-              locate: bool = False) -> Latch:
+              locate: bool = False, thermal_t_s: float | None = None) -> Latch:
         """The probing move p0 → p1 (controller X Y Z, rotary axes at b, c) at machine time t
-        and ``feed_mm_min``, with the probing faults due on it; ``rotary_moves`` counts
+        (from the program's start; the warm-up's drift at ``thermal_t_s``, the machine's clock,
+        default t) and ``feed_mm_min``, with the probing faults due on it; ``rotary_moves`` counts
         indexations so far. The switch is sampled every ``probe.sample_period_ms``: the latch
         lies past the contact by v·T·U(0, 1) (config/linuxcnc/README.md, servo-period
         overshoot), so its scatter grows with the feed. ``locate``: the fast approach of a
@@ -119,7 +120,7 @@ class ProbeLatch:
             return Latch(touch, direction, ball, length, s_latch, target_id, stop, stop.copy())
         xyz = stop + self._errors(u, t, b, c, touch, direction, stop, rotary_moves,
                                   target_id if target_id is not None and target_id >= 0
-                                  else ball)
+                                  else ball, t if thermal_t_s is None else thermal_t_s)
         return Latch(touch, direction, ball, length, s_latch, target_id, stop, xyz)
 
     def _sampled_mm(self, feed_mm_min: float) -> float:
@@ -173,7 +174,8 @@ class ProbeLatch:
         return int(np.argmin(d))
 
     def _errors(self, u: np.ndarray, t: float, b: float, c: float, touch: int,
-                direction: tuple, stop: np.ndarray, rotary_moves: int, ball: int) -> np.ndarray:
+                direction: tuple, stop: np.ndarray, rotary_moves: int, ball: int,
+                thermal_t_s: float) -> np.ndarray:
         """Effect offsets + probing noise: per touch along the approach, per ball visit common
         to its touches (thesis §3.4 repeatability)."""
         probe = self.truth.errors.probe
@@ -187,7 +189,8 @@ class ProbeLatch:
         self._visit.touches.add(touch)
         noise = self._visit.noise_mm + u * self._rng.normal(0.0, probe.touch_noise_um * 1e-3)
         try:
-            eff = self.truth.touch_offset_mm(t, b, c, ball, touch, np.asarray(direction), stop)
+            eff = self.truth.touch_offset_mm(t, b, c, ball, touch, np.asarray(direction), stop,
+                                             thermal_t_s)
         except ValueError as e:
             raise Alarm(f"simulator effect model: {e}") from None
         return eff + noise

@@ -2,7 +2,8 @@
 
 ISO 230-3 describes the warm-up of a machine tool as the thermal distortion of its structure
 following its heat sources with a time constant: here each controller axis X Y Z has a state
-s(t) = 1 − (1 − s0)·e^(−t/τ) (0 cold, 1 in its warm equilibrium; s0 at the program start), the
+s(t) = 1 − (1 − s0)·e^(−t/τ) (0 cold, 1 in its warm equilibrium; s0 when the simulated machine
+started, t its machine time since, on across programs: VirtualController.thermal_time_s), the
 tool centre point drifts by A·(s(t) − s0) along that axis (so δ(0) = 0 and, from cold,
 δ(t) = A·(1 − e^(−t/τ)): the model the estimator and the gap diagnosis fit), and a structure
 temperature sensor on that axis reads ambient + rise·s(t) — drift and readings come from the
@@ -51,7 +52,7 @@ class AxisWarmup:
 
 @dataclass(frozen=True)
 class ThermalState:
-    """Warm-up of every axis from the state ``start_state`` at t = 0 (machine time, s)."""
+    """Warm-up of every axis from the state ``start_state`` at t = 0 (the machine's start, s)."""
 
     axes: dict[str, AxisWarmup]
     start_state: float = 0.0

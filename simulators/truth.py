@@ -192,9 +192,13 @@ class TruthModel:
         return w
 
     def touch_offset_mm(self, t_s: float, b_deg: float, c_deg: float, ball: int, touch: int,
-                        direction: np.ndarray, xyz_mm: np.ndarray) -> np.ndarray:
-        """Additive offset (3,) of a latched controller X Y Z (thermal drift, pre-travel …)."""
-        out = np.zeros(3) if self.thermal is None else self.thermal.drift_mm(t_s)
+                        direction: np.ndarray, xyz_mm: np.ndarray,
+                        thermal_t_s: float | None = None) -> np.ndarray:
+        """Additive offset (3,) of a latched controller X Y Z (thermal drift, pre-travel …);
+        the effects at ``t_s`` (program time, as the estimator's rows), the warm-up's drift at
+        ``thermal_t_s`` (time since the machine's start, simulators/thermal.py; default t_s)."""
+        out = np.zeros(3) if self.thermal is None else self.thermal.drift_mm(
+            t_s if thermal_t_s is None else thermal_t_s)
         if not self.effects:
             return out
         ctx = self.context(t_s=np.array([t_s]), b_deg=b_deg, c_deg=c_deg, ball=[ball],
