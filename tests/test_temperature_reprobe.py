@@ -3,7 +3,8 @@
 its own plan. Each reading is journaled under the plan pose actually re-probed and marked with
 its round; the run's start stays the plan program's start and its end is the last program's
 end. End to end over a real pty against the simulated Fanuc, a chip on one ball forcing the
-re-probe, a printed channel and a polled transmitter beside it."""
+re-probe, a printed channel and a polled transmitter beside it; the one simulated machine keeps
+warming through the round (simulators/thermal.py: its clock runs on across programs)."""
 
 from __future__ import annotations
 
@@ -55,13 +56,21 @@ async def test_a_re_probe_rounds_temperatures_belong_to_the_pose_it_probes_again
         ("start", None, 0), *[("pose", p, 0) for p in range(7)], ("end", None, 0),
         ("start", None, 1), ("pose", pose, 1), ("end", None, 1)], spindle
     values = [r.value_c for r in spindle]
-    assert None not in values and values[:9] == sorted(values[:9]), values  # the plan's, warming
+    # the machine keeps warming through the round (one simulated machine, its clock running on
+    # across the two programs): the round starts where the plan's program ended, not cold
+    assert None not in values and values == sorted(values), values
+    assert values[9] >= values[8] > values[0] + 1.0, values  # 8 °C rise, τ 5 min
     lo, hi = sensor("Z", 0.0), sensor("Z", 1e9)  # each on the warm-up curve
     assert all(lo - 5e-4 <= v <= hi + 5e-4 for v in values), values
+    # no reading is warmer than the machine once everything ran
+    assert values[-1] <= sensor("Z", rig.ctrl.thermal_time_s) + 5e-4, values
     # a polled channel: the round's pose read at the plan pose, the run's end after it
     column = [r for r in run.readings if r.channel == "column"]
     assert _where(column) == [("start", None, 0), *[("pose", p, 0) for p in range(7)],
                               ("pose", pose, 1), ("end", None, 0)], column
+    polled = [r.value_c for r in column]  # read in this order: warming on through the round
+    assert None not in polled and polled == sorted(polled), polled
+    assert polled[-1] <= round(sensor("X", rig.ctrl.thermal_time_s) / 0.1) * 0.1 + 1e-9, polled
     # the run's start is the plan program's, its end the last program's: the whole run
     t = run.analysis.temperatures["spindle"]
     assert (t["start_c"], t["end_c"]) == (values[0], values[-1])
@@ -73,4 +82,4 @@ async def test_a_re_probe_rounds_temperatures_belong_to_the_pose_it_probes_again
     assert not any("temperature change spindle" in r for r in run.verdict["reasons"])
     assert run.report is not None
     page = run.report[0].read_text(encoding="utf-8")
-    assert f"{pose}: {values[9]:.1f} (re-probe 1)" in page
+    assert f"{pose}: {values[10]:.1f} (re-probe 1)" in page  # the round's pose reading
