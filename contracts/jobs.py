@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, field
 from typing import Literal, Protocol
 
@@ -43,6 +44,38 @@ class Verdict:
         return VERDICT_CODES[self.status]
 
 
+class RunClock:
+    """The one clock of a run: every touch's and temperature reading's ``t_s`` (``ProbeHit``,
+    ``TemperatureReading``, the probing log's column) is seconds since the run's first program
+    started, on the daemon's monotonic clock, whichever program of the run (the plan's, a
+    re-probe round's) it comes from.
+
+    The session makes one per run and hands it to the link with every program
+    (``ProgramJob.clock``); the link starts it when it starts the program (``start``: only the
+    first program's start sets the origin), so the first program's times are those a link has
+    always stamped and a later program's go on from them. Before the start it reads 0 (the
+    run's start sample, taken before the program: the probing log has no negative times)."""
+
+    def __init__(self) -> None:
+        self.origin: float | None = None  # time.monotonic() of the first program's start
+
+    @property
+    def started(self) -> bool:
+        return self.origin is not None
+
+    def start(self, at: float | None = None) -> float:
+        """A program starts (``at``: when, on ``time.monotonic()``; now by default): the first
+        call sets the run's origin, later ones keep it. Returns this program's start on the
+        run clock (0 for the first)."""
+        if self.origin is None:
+            self.origin = time.monotonic() if at is None else at
+        return self.t_s()
+
+    def t_s(self) -> float:
+        """Seconds since the run's first program started; 0 before it did."""
+        return 0.0 if self.origin is None else max(time.monotonic() - self.origin, 0.0)
+
+
 @dataclass(frozen=True)
 class ProgramJob:
     """What a link needs to run one verification program."""
@@ -59,3 +92,5 @@ class ProgramJob:
     # the control (Heidenhain FN 16 format files); OPC UA transfers them with the program
     codec: DialectCodec | None = None  # decodes the program's result lines (links that read
     # the controller's printed output: serial DNC, LinuxCNC)
+    clock: RunClock = field(default_factory=RunClock, compare=False, repr=False)  # the run's
+    # clock (a job of its own gets a fresh one): a link stamping hits starts it with the program

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import math
-import time
 
 from contracts.jobs import ProgramJob
 from contracts.messages import ProbeHit
@@ -37,11 +36,19 @@ class HitFactory:
 
     def __init__(self, job: ProgramJob) -> None:
         self.job = job
-        self.t0 = time.monotonic()
+        # made as the link starts the program: it starts the run's clock (the first program's
+        # start is the run's origin) and every hit is stamped on it, a re-probe round's too
+        # (contracts.jobs.RunClock; each program's own origin put a round at the run's start)
+        self.clock = job.clock
+        self.program_start_s = self.clock.start()  # this program's start on the run clock
         self.made = 0
 
     def t_s(self) -> float:
-        return time.monotonic() - self.t0
+        """When the result reached the daemon, on the run clock. Never the controller's own
+        clock: a control's cycle timer (the simulator's published machine time) restarts with
+        every program and runs on another oscillator; a link that ever reads it must place it
+        at ``program_start_s`` + that time, or a re-probe round lands at the run's start."""
+        return self.clock.t_s()
 
     def make(self, seq: int, axes: dict[str, float], triggered: bool, raw: str,
              where: str = "") -> ProbeHit:

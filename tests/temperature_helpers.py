@@ -8,7 +8,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import struct
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -34,13 +34,17 @@ class CncRun:
 
 
 async def run_from_cnc(cfg: DaemonConfig, ctrl: VirtualController,
-                       machine: str = "mill1") -> CncRun:
+                       machine: str = "mill1",
+                       before: Callable[[Any], None] | None = None) -> CncRun:
     """Start the Service on ``cfg``, raise the start request on ``ctrl``, wait for the verdict on
-    the CNC (a failed run raises at once with its reason), read the run's rows, stop."""
+    the CNC (a failed run raises at once with its reason), read the run's rows, stop;
+    ``before``: called with the machine's session before the request (e.g. to watch its link)."""
     service = Service(cfg)
     await service.start()
     try:
         session = service.sessions[machine]
+        if before is not None:
+            before(session)
         ctrl.raise_start_request()
         await wait_verdict_on_cnc(session, ctrl, RUN_TIMEOUT_S)
         run_id = session.run_id

@@ -8,7 +8,9 @@ import contextlib
 import logging
 import time
 from collections.abc import Callable
+from dataclasses import replace
 
+from contracts.jobs import RunClock
 from contracts.messages import ProbeHit
 from daemon.analysis import pipeline
 from daemon.analysis.result import Analysis
@@ -24,6 +26,7 @@ class RunCapture(RunEnding):
     """The session's capture steps (``daemon.run.session.Session`` is one)."""
 
     temps: TemperatureRecorder
+    clock: RunClock  # the run's one clock, every program's hits and temperatures on it
 
     async def _reprobe(self, run_id: str, hits: list[ProbeHit],
                        reference: tuple[str, Analysis] | None) -> list[ProbeHit]:
@@ -45,18 +48,20 @@ class RunCapture(RunEnding):
             self.store.set_state(run_id, str(self.state), touch_total=self.total)
             # its temperatures are the round's, at the plan poses it probes again (issue 22)
             self.temps.begin_reprobe(run_id, rnd, tuple(p for _, p in rp.slots),
-                                     time.time() - self.started_at)
+                                     self.clock.t_s())
             hits = hits + await self._capture(rp.prepared, rp.remap)
         return hits
 
     async def _capture(self, prepared: pipeline.Prepared,
                        remap: Callable[[ProbeHit], ProbeHit] | None = None) -> list[ProbeHit]:
-        """Stream one program and journal its hits (``remap``: a re-probe's identities)."""
+        """Stream one program and journal its hits (``remap``: a re-probe's identities), every
+        program of the run on the run's clock (``contracts.jobs.RunClock``)."""
         run_id = self.run_id or prepared.job.run_id
         hits: list[ProbeHit] = []
         done0 = self.done
         self._probing(prepared.job.touches.get(1))
-        agen = self.link.run(prepared.job)
+        handed = time.monotonic()  # a link that does not start the clock: its program's start
+        agen = self.link.run(replace(prepared.job, clock=self.clock))
         try:
             while True:
                 try:
@@ -68,7 +73,9 @@ class RunCapture(RunEnding):
                         f"no probe result for {self.setup.touch_timeout_s:g} s after touch "
                         f"{self.done} of {self.total}: controller silent (feed hold, RESET, "
                         "alarm or lost results)") from None
-                own = prepared.complete(hit, time.time() - self.started_at)
+                if not self.clock.started:  # a link stamping nothing (LinuxCNC's lines)
+                    self.clock.start(handed)
+                own = prepared.complete(hit, self.clock.t_s())  # where it stamped nothing
                 hit = own if remap is None else remap(own)
                 self.store.journal_hit(run_id, hit)  # raw data first, always
                 self._raise_if_stopped()  # journaled, then stopped: nothing lost

@@ -21,7 +21,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from contracts.jobs import Verdict
+from contracts.jobs import RunClock, Verdict
 from contracts.messages import ProbeHit
 from daemon.analysis import pipeline
 from daemon.analysis.figures import figures_json, run_figures
@@ -76,6 +76,7 @@ class Session(RunCapture):
         self.baseline: baselines.Baseline | None = None  # the current run's drift baseline
         self.temps = TemperatureRecorder(setup.name, setup.temperatures, link, store,
                                          str(getattr(setup.link, "transport", "")))
+        self.clock = RunClock()  # the current run's touch and temperature times
 
     async def reconnect(self) -> None:
         """Close the link and connect it again with backoff; the status shows it up again."""
@@ -102,6 +103,7 @@ class Session(RunCapture):
         self.trigger, self.started_by = trigger, started_by
         self.done, self.total = 0, 0
         self.started_at, self.first_hit_at, self.estimated_s = time.time(), None, None
+        self.clock = RunClock()  # started by the link with the run's first program
         self.verdict, self.reason, self._abort_reason = None, "", None
         self.probing = None
         self._abort_state = State.ABORTED
@@ -162,10 +164,10 @@ class Session(RunCapture):
             reference = self.store.last_good(self.setup.name, before=run_id)  # targets
             drift_ref = self._drift_reference(run_id)  # issue 23: a person's baseline
             prepared = await self._prepare_program(run_id, reference)
-            await self.temps.start(run_id, time.time() - self.started_at)  # issue 22
+            await self.temps.start(run_id, self.clock.t_s())  # issue 22; before the program: 0
             hits = await self._capture(prepared)
             hits = await self._reprobe(run_id, hits, reference)
-            await self.temps.end(run_id, time.time() - self.started_at)
+            await self.temps.end(run_id, self.clock.t_s())
             self._raise_if_stopped()
             analysis = await self._identify(run_id, hits, drift_ref)
             self._raise_if_stopped()
