@@ -38,7 +38,8 @@ class ProbeHit:
     touch: int
     axes: dict[str, float]  # latched controller values: X Y Z mm, rotary (b/c letters) deg
     triggered: bool
-    t_s: float = 0.0  # seconds since run start
+    t_s: float = 0.0  # seconds since the run's first program started, whichever program of the
+    # run (a re-probe round's too) it comes from: contracts.jobs.RunClock; 0: not stamped yet
     repeat: int = 0
     raw: str = ""  # the line / registers it was decoded from, kept for the journal
     b_cmd_deg: float = 0.0

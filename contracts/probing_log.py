@@ -17,6 +17,9 @@ Ceilings (a log beyond them is refused with one line, before it can exhaust memo
 49-pose × 4-ball plan is 98 000), ``MAX_LINE_BYTES`` = 4 096 bytes per line, ``MAX_ABS_MM`` =
 1e5 mm on x/y/z (no machine is 100 m long), ``MAX_ABS_DEG`` = 1e5° on the rotary columns,
 |dir| ≤ 10, 0 ≤ t_s ≤ 1e8 s, 0 ≤ feed ≤ 1e6 mm/min, integers < 1e9, ids ≤ 200 characters.
+``t_s`` ("seconds since run start", DESIGN.md) is, in the daemon's logs, seconds since the run's
+first program started, on one clock for every program of the run (``contracts.jobs.RunClock``:
+a re-probe round's rows follow the plan's, by the time that passed).
 The reader streams the file line by line and keeps the rows in typed columns (``ProbeLog``,
 about 150 bytes a row), so memory does not depend on the text's size.
 """

@@ -181,7 +181,7 @@ class TemperatureReading:
     channel: str
     at: Literal["start", "pose", "end"]
     pose: int | None  # the plan pose being probed (at == "pose")
-    t_s: float  # since the run started
+    t_s: float  # on the touches' clock (contracts.jobs.RunClock): 0 before the first program
     value_c: float | None
     error: str = ""
     # the program it came from: 0 the plan's, k the k-th re-probe round's (daemon/run/reprobe.py),

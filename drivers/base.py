@@ -67,7 +67,10 @@ class CncLink(abc.ABC):
         """Load or stream ``job``, start it, and yield every ``ProbeHit`` the moment it arrives.
 
         Ends when the program ends; raises ``ControllerAlarm`` or ``LinkError`` otherwise. A hit
-        with ``triggered=False`` is yielded before the alarm so it can be journaled."""
+        with ``triggered=False`` is yielded before the alarm so it can be journaled. A link that
+        stamps its hits' ``t_s`` (``drivers.hits.HitFactory``) starts ``job.clock`` (the run's,
+        ``contracts.jobs.RunClock``) as it starts the program; one that leaves ``t_s`` at 0 has
+        them stamped by the session on the same clock."""
 
     @abc.abstractmethod
     async def write_verdict(self, verdict: Verdict) -> None:

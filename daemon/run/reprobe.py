@@ -39,7 +39,9 @@ class Reprobe:
 
     def remap(self, hit: ProbeHit) -> ProbeHit:
         """A hit of this program as the run journals it: the plan's pose, the re-probe's
-        repeat, a sequence number after the run's (the program's own kept in ``extra``)."""
+        repeat, a sequence number after the run's (the program's own kept in ``extra``); its
+        ``t_s`` is already on the run's clock (the session hands this program the run's
+        ``contracts.jobs.RunClock``), after the plan's hits."""
         repeat, pose = self.slots[hit.pose]
         return replace(hit, seq=self.seq_offset + hit.seq, pose=pose,
                        repeat=reprobe_repeat(repeat, self.round),
