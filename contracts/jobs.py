@@ -67,9 +67,10 @@ class RunClock:
         """A program starts (``at``: when, on ``time.monotonic()``; now by default): the first
         call sets the run's origin, later ones keep it. Returns this program's start on the
         run clock (0 for the first)."""
+        now = time.monotonic() if at is None else at
         if self.origin is None:
-            self.origin = time.monotonic() if at is None else at
-        return self.t_s()
+            self.origin = now
+        return max(now - self.origin, 0.0)
 
     def t_s(self) -> float:
         """Seconds since the run's first program started; 0 before it did."""

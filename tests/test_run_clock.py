@@ -16,15 +16,18 @@ from typing import Any
 
 import pytest
 
-from contracts.jobs import ProgramJob
+from contracts.jobs import ProgramJob, RunClock
 from contracts.messages import ProbeHit
 from daemon.analysis.pipeline import hit_to_row
 from daemon.analysis.touch_centres import rows_to_centres
 from daemon.config import load_daemon_config
-from daemon.run.session import State
+from daemon.run.session import Session, State
 from daemon.store.journal import Store
+from drivers.hits import HitFactory
 from simulators import thermal
 from simulators.faults import Fault, FaultPlan
+from tests.daemon_helpers import thesis_rows, thesis_setup
+from tests.replay_link import ReplayLink, prepare_from_rows
 from tests.temperature_helpers import run_from_cnc
 from tests.test_temperature_channels import SPINDLE, cnc, machine_entry, write_config
 from tests.test_temperature_reprobe import CHIP_AT, _seq
@@ -139,3 +142,50 @@ async def test_a_re_probe_round_is_timed_on_the_runs_clock(cnc, tmp_path):
                    and r.reprobe_round == 0]
     if rig.transport.startswith("serial"):
         assert len(printed_end) == 1 and t[last] <= printed_end[0].t_s <= t[first], printed_end
+
+
+def test_the_run_clock_starts_once_with_the_first_program():
+    clock = RunClock()
+    assert (clock.started, clock.t_s()) == (False, 0.0)  # the start sample, before the program
+    first = ProgramJob("r", "", "fanuc", 2, clock=clock)
+    second = ProgramJob("r-rp1", "", "fanuc", 1, clock=clock)
+    a = HitFactory(first)
+    origin = clock.origin
+    assert origin is not None and a.program_start_s == 0.0
+    hits_a = [a.make(n, {"X": 1.0}, True, f"a{n}") for n in (1, 2)]
+    b = HitFactory(second)  # a later program: the origin stays the first's
+    assert clock.origin == origin and b.program_start_s >= hits_a[-1].t_s
+    (hit_b,) = [b.make(1, {"X": 1.0}, True, "b1")]
+    assert 0.0 <= hits_a[0].t_s <= hits_a[1].t_s <= b.program_start_s <= hit_b.t_s
+    # a job made on its own keeps its own clock (a program run outside a session)
+    alone = HitFactory(ProgramJob("x", "", "fanuc", 1))
+    assert alone.clock is not clock and alone.program_start_s == 0.0
+    assert clock.start(origin + 5.0) >= 0.0 and clock.origin == origin
+
+
+@pytest.mark.asyncio
+async def test_a_link_stamping_nothing_is_stamped_on_the_runs_clock(tmp_path):
+    """LinuxCNC's result lines carry no time: the session stamps them on the run's clock, from
+    when it handed the program over (an unstarted clock would put every touch at 0)."""
+    setup = thesis_setup()
+    rows = thesis_rows(setup)
+    store = Store(tmp_path / "j.sqlite")
+    try:
+        link = ReplayLink(rows, setup.machine)  # yields every hit with t_s 0
+        s = Session(setup, link, store, tmp_path / "reports", prepare=prepare_from_rows(rows))
+        watch = Watch()
+        watch.attach(s)
+        run_id = s.start("cli")
+        await s.wait()
+        assert s.state == State.IDLE, s.reason
+        t = [h.t_s for h in store.hits(run_id)]
+        assert len(t) == len(rows) and s.clock.started and link.jobs[0].clock is s.clock
+        # stamped after each hit came out of the link, before the session asked for the next
+        arrivals = watch.arrivals
+        first_call = watch.calls[0][1]
+        assert t[0] >= arrivals[0][2] - first_call - EPS_S and t[0] > 0.0
+        for k in range(1, len(t) - 1):
+            assert (arrivals[k][2] - arrivals[1][1] - EPS_S <= t[k] - t[0]
+                    <= arrivals[k + 1][1] - arrivals[0][2] + EPS_S), k
+    finally:
+        store.close()
