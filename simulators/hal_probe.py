@@ -47,7 +47,7 @@ PLANE_PINS = ("plane-wx", "plane-wy", "plane-wz", "plane-k")
 MAX_POLL_S = 2e-3
 ARM_GAP_MM = 0.5  # the servo-thread tangent plane is armed this close to a ball
 BUSY_GAP_MM = 0.05  # closer than this the poll spins (no sleep): the input rises within ~30 us
-MAX_SPEED_MM_S = 250.0  # above the sim machine's 200 mm/s: the poll never sleeps past a contact
+MAX_SPEED_MM_S = 600.0  # above the sim machines' 500 mm/s: the poll never sleeps past a contact
 CRASH_MM = 0.1  # the stylus this deep inside a ball is a collision, whatever the move
 
 
