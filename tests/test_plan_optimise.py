@@ -161,7 +161,13 @@ def test_prediction_is_the_estimators_own_covariance():
     est = estimate(machine, art, nominal_centres(machine, art, estimate_visits(shipped)),
                    sigma_um=SIGMA)
     got = {k: s for k, (_, s, _) in est.links_si().items()}
-    assert np.allclose([u[k] for k in links], [got[k] for k in links], rtol=1e-6)
+    # the estimator's covariance is the visit sandwich A⁻¹MA⁻¹ (d84089e); on these noise-free
+    # centres its index components are 0 and its centre part the given σ, so M = A and it equals
+    # the optimiser's A⁻¹ up to rounding through A's conditioning (2.6e-6 measured): a proxy
+    # (another σ, another Jacobian) differs by percents
+    assert est.visit_scatter is not None
+    assert est.visit_scatter["index B"][0] == 0.0 and est.visit_scatter["index C"][0] == 0.0
+    assert np.allclose([u[k] for k in links], [got[k] for k in links], rtol=2e-5)
 
 
 def test_validation_poses_are_held_out_and_do_not_count_for_the_targets(tmp_path):
