@@ -43,7 +43,7 @@ from scipy.optimize import minimize_scalar
 
 from identification.drift_lin import Lin, fwls, lin_at, solve
 from identification.estimate import Estimate, a_posteriori, estimate
-from identification.estimate_scatter import visit_sandwich
+from identification.estimate_scatter import STATED_TAG, visit_sandwich
 from identification.identifiability import RANK_TOL
 from identification.kinematics import Machine
 from identification.model import Artefact, Centres
@@ -203,8 +203,9 @@ def _candidates() -> list[DriftModel]:
 
 
 def fit_drift(machine: Machine, artefact: Artefact, centres: Centres, base: Estimate,
-              axes: str = "XYZ") -> DriftOutcome:
-    """Search the drift models for ``centres`` given their plain estimate ``base``."""
+              axes: str = "XYZ", stated_urad: dict[str, float] | None = None) -> DriftOutcome:
+    """Search the drift models for ``centres`` given their plain estimate ``base``
+    (``stated_urad``: the stated rotary repeatability ``base`` was estimated with)."""
     if centres.t_s.size != len(centres) or not np.all(np.isfinite(centres.t_s)):
         return DriftOutcome(base, None, "no_times", "no probing times: drift not modelled")
     t = np.asarray(centres.t_s, float)
@@ -244,7 +245,8 @@ def fit_drift(machine: Machine, artefact: Artefact, centres: Centres, base: Esti
                             f"{''.join(best[1].axes)}) {gain:+.1f} against none",
                             sorted(set(inseparable)))
     share = _selection_share(lin, proj.sigma_mm, t, scored, best[1])
-    est, fit = _final(machine, artefact, centres, base, best[1], span, gain, share)
+    est, fit = _final(machine, artefact, centres, base, best[1], span, gain, share,
+                      stated_urad)
     return DriftOutcome(est, fit, "selected", _message(fit), sorted(set(inseparable)))
 
 
@@ -298,8 +300,8 @@ def _selection_share(lin: Lin, sigma_mm: np.ndarray, t: np.ndarray,
 
 
 def _final(machine: Machine, artefact: Artefact, centres: Centres, base: Estimate,
-           model: DriftModel, span: float, gain: float, share: np.ndarray
-           ) -> tuple[Estimate, DriftFit]:
+           model: DriftModel, span: float, gain: float, share: np.ndarray,
+           stated_urad: dict[str, float] | None = None) -> tuple[Estimate, DriftFit]:
     """The selected model refitted on the exact chain (two linearisations), with covariance;
     a free τ adds its column (the derivative of the drift by τ) so the drift's u carries it,
     and the links' carries the model choice's ``share`` (``_selection_share``)."""
@@ -348,7 +350,7 @@ def _final(machine: Machine, artefact: Artefact, centres: Centres, base: Estimat
     scatter = visit_sandwich(machine, artefact, est.layout, est.p, centres, sigma_mm, dist,
                              np.ones(lin.dist_j.shape[0]), cols,
                              np.einsum("kim,m->ki", model.columns(t), theta),
-                             given=base.sigma_given)
+                             given=base.sigma_given, stated_urad=stated_urad)
     if scatter is not None:
         cov = scatter.cov * t_variance_factor(sig_dof)
     cov[:n_par, :n_par] += share
@@ -364,7 +366,9 @@ def _final(machine: Machine, artefact: Artefact, centres: Centres, base: Estimat
     out = replace(est, std=std[:n_par], cov=cov[:n_par, :n_par], residual_mm=res,
                   residual_rms_um=float(np.sqrt(np.mean(res**2)) * 1e3),
                   condition_number=float(1.0 / cond), sigma_um=sig_um, sigma_dof=sig_dof,
-                  warnings=[*base.warnings, *warns],
+                  # the plain fit's verdict on a stated repeatability is this fit's to give
+                  warnings=[*(w for w in base.warnings if STATED_TAG not in w), *warns,
+                            *(scatter.warnings if scatter is not None else ())],
                   visit_scatter=None if scatter is None else scatter.components)
     return out, fit
 
@@ -381,9 +385,12 @@ def _message(fit: DriftFit) -> str:
 
 
 def estimate_drift_aware(machine: Machine, artefact: Artefact, centres: Centres,
-                         links=None, *, sigma_um=None, use_distances: bool = True
+                         links=None, *, sigma_um=None, use_distances: bool = True,
+                         rotary_repeatability_urad: dict[str, float] | None = None
                          ) -> DriftOutcome:
-    """``estimate`` and, where the plan's timing separates it and BIC wants it, a drift."""
+    """``estimate`` and, where the plan's timing separates it and BIC wants it, a drift
+    (``rotary_repeatability_urad``: the machine file's, as ``estimate`` takes it)."""
     base = estimate(machine, artefact, centres, links, sigma_um=sigma_um,
-                    use_distances=use_distances)
-    return fit_drift(machine, artefact, centres, base)
+                    use_distances=use_distances,
+                    rotary_repeatability_urad=rotary_repeatability_urad)
+    return fit_drift(machine, artefact, centres, base, stated_urad=rotary_repeatability_urad)

@@ -10,7 +10,7 @@ Internal units mm / rad; the result offers µm / µrad accessors for reports.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -168,6 +168,7 @@ def estimate(
     sigma_um: float | Sequence[float] | None = None,
     max_iter: int = MAX_ITER,
     visit_scatter: bool = True,
+    rotary_repeatability_urad: Mapping[str, float] | None = None,
 ) -> Estimate:
     """Estimate setup errors and ``links`` (None: the identifiable set; () : setup only).
 
@@ -177,7 +178,9 @@ def estimate(
     Raises ``RankDeficientError`` naming the inseparable combination for a poor pose set.
     ``visit_scatter``: the covariance is the sandwich under the rotary index scatter (every
     ball of a visit moving together) estimated by REML, ~0 where the run shows none
-    (``estimate_scatter``); False: independent centres.
+    (``estimate_scatter``); False: independent centres. ``rotary_repeatability_urad``: the
+    machine file's stated repeatability (µrad 1σ by rotary axis letter), the sandwich's index
+    component for that axis unless the run shows it significantly worse (then a warning).
     """
     if len(centres) == 0:
         raise RankDeficientError("no ball centre to estimate from")
@@ -265,7 +268,7 @@ def estimate(
     if visit_scatter:
         dj = distance_rows(artefact, layout, p) if use_dist else (None, None, None)
         scatter = visit_sandwich(machine, artefact, layout, p, centres, sigma_mm, dj[1], dj[2],
-                                 given=given)
+                                 given=given, stated_urad=rotary_repeatability_urad)
         # the sandwich's components are estimated from the same residuals: same t widening
         cov = cov if scatter is None else scatter.cov * t_variance_factor(sigma_dof)
     status, more = fit_status(cond, converged, max_iter)
@@ -275,7 +278,8 @@ def estimate(
         residual_mm=res, distance_residual_um=dres * 1e3,
         residual_rms_um=float(np.sqrt(np.mean(res**2)) * 1e3), condition_number=cond,
         sigma_um=sig_um, sigma_given=given, iterations=it, converged=converged, status=status,
-        unobservable=unobs, absorbed_by=absorbed, warnings=warns + more, sigma_dof=sigma_dof,
+        unobservable=unobs, absorbed_by=absorbed, sigma_dof=sigma_dof,
+        warnings=warns + more + list(scatter.warnings if scatter is not None else ()),
         visit_scatter=None if scatter is None else scatter.components,
     )
 

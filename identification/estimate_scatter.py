@@ -19,22 +19,36 @@ link that leans most on the index columns (the same 40 runs, index scatter 0).
 
 from __future__ import annotations
 
+import math
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
 
 from identification.kinematics import Machine
 from identification.model import Artefact, Centres, Layout, predict
-from identification.visit_scatter import arrange, covariance, estimate_components
+from identification.visit_scatter import (
+    LR_ALPHA,
+    ScatterFit,
+    VisitBlocks,
+    arrange,
+    covariance,
+    estimate_components,
+)
 
 H_DEG = 1e-3
 R0_UM2 = 1e-6  # nothing known beforehand: every variance is a component
+STATED_TAG = "machine file states"  # in the warning of a stated repeatability overridden
 
 
 @dataclass(frozen=True)
 class VisitScatterCov:
     cov: np.ndarray  # (P, P) model units
-    components: dict[str, tuple[float, float, float]]  # name: (σ, u(σ), p) µrad / µm
+    # name: (σ, u(σ), p) µrad / µm, the free REML estimates; with a stated repeatability also
+    # "<name> stated": (stated σ, 0, p of the test σ = stated against free)
+    components: dict[str, tuple[float, float, float]]
+    used: np.ndarray | None = None  # the components the covariance is under (names' order)
+    warnings: tuple[str, ...] = ()  # a stated repeatability the run contradicts
 
 
 def visits_of(centres: Centres) -> np.ndarray:
@@ -54,7 +68,8 @@ def visits_of(centres: Centres) -> np.ndarray:
 def visit_sandwich(machine: Machine, artefact: Artefact, layout: Layout, p: np.ndarray,
                    centres: Centres, sigma_mm: np.ndarray, dist_jac: np.ndarray | None,
                    dist_std_mm: np.ndarray | None, extra_cols: np.ndarray | None = None,
-                   offset_mm: np.ndarray | None = None, given: bool = False
+                   offset_mm: np.ndarray | None = None, given: bool = False,
+                   stated_urad: Mapping[str, float] | None = None
                    ) -> VisitScatterCov | None:
     """The sandwich covariance of the weighted estimate at ``p`` (weights 1/σ² per axis,
     ``sigma_mm``) under the REML components; None with fewer than 4 visits or 2 rotary axes.
@@ -63,7 +78,9 @@ def visit_sandwich(machine: Machine, artefact: Artefact, layout: Layout, p: np.n
     off the centres (a drift moves every ball of a visit together, as an index error does:
     left in the residuals it would read as index scatter). ``given``: ``sigma_mm`` is the
     stated centre repeatability, used as the centre components (only the index ones are
-    estimated), as the independent covariance uses it."""
+    estimated), as the independent covariance uses it. ``stated_urad``: a rotary axis'
+    stated repeatability (µrad 1σ by axis letter), used for its index component unless the
+    run contradicts it (``with_stated``)."""
     visit = visits_of(centres)
     if len(np.unique(visit)) < 4 or len(machine.rotary_axes) < 2:
         return None
@@ -95,13 +112,20 @@ def visit_sandwich(machine: Machine, artefact: Artefact, layout: Layout, p: np.n
     names = tuple([f"index {a}" for a in machine.rotary_axes[:2]] + ["centre x", "centre y",
                                                                       "centre z"])
     sig_um = np.asarray(sigma_mm, float) * 1e3
+    centre = {2 + a: float(sig_um[a]) for a in range(3)} if given else {}
+    start = [5.0, 5.0, *sig_um]
     # the tests' p-values are reported (``Estimate.visit_scatter``), never a gate
-    fit = estimate_components(b, names, [5.0, 5.0, *sig_um], test=(0, 1),
-                              fixed={2 + a: float(sig_um[a]) for a in range(3)} if given else None)
+    fit = estimate_components(b, names, start, test=(0, 1), fixed=centre or None)
+    comps = {n: (float(fit.sigma[i]), float(fit.std[i]), float(fit.p_value[i]))
+             for i, n in enumerate(names)}
+    stated = {i: float(stated_urad[a]) for i, a in enumerate(machine.rotary_axes[:2])
+              if stated_urad and a in stated_urad}
+    theta, more, warns = with_stated(b, names, start, fit, centre, stated)
+    comps.update(more)
     w = np.einsum("vna,a->vn", b.centre, 1.0 / sig_um**2)  # (V, n) weights of the live slots
     xw = b.x * w[..., None]
     a_mat = np.einsum("vnp,vnq->pq", xw, b.x)
-    v = covariance(b, fit.sigma)
+    v = covariance(b, theta)
     meat = np.einsum("vnp,vnm,vmq->pq", xw, v, xw)
     if dist_jac is not None and dist_jac.size:
         dj = dist_jac / np.asarray(dist_std_mm)[:, None]
@@ -109,6 +133,40 @@ def visit_sandwich(machine: Machine, artefact: Artefact, layout: Layout, p: np.n
         meat = meat + dj.T @ dj
     a_inv = np.linalg.pinv(a_mat, rcond=1e-12)
     cov = a_inv @ meat @ a_inv / np.outer(scale, scale)
-    comps = {n: (float(fit.sigma[i]), float(fit.std[i]), float(fit.p_value[i]))
-             for i, n in enumerate(names)}
-    return VisitScatterCov(cov, comps)
+    return VisitScatterCov(cov, comps, np.asarray(theta, float), warns)
+
+
+def with_stated(b: VisitBlocks, names: tuple[str, ...], start: list[float], free: ScatterFit,
+                fixed: dict[int, float], stated: dict[int, float]
+                ) -> tuple[np.ndarray, dict[str, tuple[float, float, float]], tuple[str, ...]]:
+    """(components the covariance is under, the stated ones' entries, warnings). A stated
+    rotary repeatability (machine file, µrad 1σ per indexation: the builder's ISO 230-2 test)
+    is a Type B input (GUM 4.3.1) for its index component: 7-8 visits cannot pin σ (σ̂ is a
+    scaled χ with few dof; in the shift plan's runs with σ̂_B < 2 µrad at a true 4 the links
+    covered 83 % within 2u, with the true σ given 94.4 %). The data keep their say: the free
+    REML estimate is reported next to it, and where it exceeds the stated value significantly
+    — likelihood ratio of σ = stated against free, one-sided (a repeatability better than
+    stated contradicts nothing a link u rests on), p < ``LR_ALPHA`` — the estimate is used and
+    a warning names the axis and both values. Without a stated value: the free estimate."""
+    if not stated:
+        return free.sigma, {}, ()
+    out: dict[str, tuple[float, float, float]] = {}
+    warns: list[str] = []
+    keep: dict[int, float] = {}
+    for i, s in stated.items():
+        nll = estimate_components(b, names, start, fixed={**fixed, i: s}, test=False).nll
+        lr = max(nll - free.nll, 0.0)
+        # the signed root of the LR is ~N(0, 1) under σ = stated (½χ²₁ at a stated 0)
+        p = 0.5 * math.erfc(math.sqrt(lr / 2.0)) if free.sigma[i] > s else 1.0
+        out[f"{names[i]} stated"] = (s, 0.0, p)
+        if p < LR_ALPHA:
+            warns.append(f"{names[i][6:]} indexing repeatability {free.sigma[i]:.1f} µrad "
+                         f"estimated, {STATED_TAG} {s:g} (likelihood-ratio test of σ = {s:g} "
+                         f"µrad: p = {p:.2g} < {LR_ALPHA:g}): the estimate is used for the "
+                         "link uncertainties; check the axis' clamping and the data sheet")
+        else:
+            keep[i] = s
+    if not keep:
+        return free.sigma, out, tuple(warns)
+    used = estimate_components(b, names, start, fixed={**fixed, **keep}, test=False)
+    return used.sigma, out, tuple(warns)

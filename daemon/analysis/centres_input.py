@@ -6,7 +6,7 @@ indexation supports (``daemon.analysis.centres_shape``)."""
 from __future__ import annotations
 
 import warnings
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -109,7 +109,8 @@ def _frame_json(fit: FrameFit) -> InstrumentFrame:
 
 
 def analyse(machine: Machine, inp: CentresInput, *, validate_poses: Sequence[int] = (),
-            links: Sequence[str] | None = None, source: str = "") -> Analysis:
+            links: Sequence[str] | None = None, source: str = "",
+            rotary_repeatability_urad: Mapping[str, float] | None = None) -> Analysis:
     """The analysis of ``rumba analyze`` on centres (at least two indexations).
 
     Machine frame with one σ per axis (stated or a posteriori): exactly the touch path's
@@ -134,7 +135,8 @@ def analyse(machine: Machine, inp: CentresInput, *, validate_poses: Sequence[int
     sigma = None if per_centre else inp.sigma_um
     out = analyse_centres(machine, inp.artefact, inp.data, validate_poses=validate_poses,
                           links=links, repeatability_um=sigma, source=source,
-                          estimator=estimator)
+                          estimator=estimator,
+                          rotary_repeatability_urad=rotary_repeatability_urad)
     extra = {"measured_by": inp.described()}
     if fit:
         extra["instrument_frame"] = _frame_json(fit[0])
@@ -147,7 +149,9 @@ def run(path: Path | str, machine: Machine, artefact: Artefact, *, fmt: str = "a
         frame: str | None = None, ball: str | None = None,
         plan_poses: Sequence[tuple[float, float]] | None = None,
         validate_poses: Sequence[int] = (), links: Sequence[str] | None = None,
-        repeatability_um: Sequence[float] | None = None) -> Analysis | OneIndexation:
+        repeatability_um: Sequence[float] | None = None,
+        rotary_repeatability_urad: Mapping[str, float] | None = None
+        ) -> Analysis | OneIndexation:
     """`rumba analyze --centres`: the estimate, or at one indexation what one indexation
     supports (``daemon.analysis.centres_shape.OneIndexation``). Errors are ``ConfigError``s."""
     inp = load(path, fmt, machine, artefact, ball=ball, plan_poses=plan_poses, frame=frame,
@@ -157,7 +161,8 @@ def run(path: Path | str, machine: Machine, artefact: Artefact, *, fmt: str = "a
             raise AnalysisError(f"{path}: one indexation only: nothing to hold out for "
                                 "validation")
         return one_indexation(machine, inp, str(path))
-    out = analyse(machine, inp, validate_poses=validate_poses, links=links, source=str(path))
+    out = analyse(machine, inp, validate_poses=validate_poses, links=links, source=str(path),
+                  rotary_repeatability_urad=rotary_repeatability_urad)
     return replace(out, log=str(path))
 
 

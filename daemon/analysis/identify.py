@@ -5,7 +5,7 @@ runs and their reports: estimate (setup + links), volumetric distortion, cluster
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -103,7 +103,8 @@ def analyse_centres(machine: Machine, artefact: Artefact, data: CentreData, *,
                     repeatability_um: Sequence[float] | None = None,
                     fixed_radius: bool = False, source: str = "",
                     estimator: Callable[[Centres], tuple[Any, Callable | None]] | None = None,
-                    keep: dict[str, Any] | None = None) -> Analysis:
+                    keep: dict[str, Any] | None = None,
+                    rotary_repeatability_urad: Mapping[str, float] | None = None) -> Analysis:
     """The whole analysis (its ``to_json()``: the keys of issue 2, plus a few more).
 
     ``links`` None: the identifiable set; () setup only. Poses in ``validate_poses`` are held
@@ -112,7 +113,9 @@ def analyse_centres(machine: Machine, artefact: Artefact, data: CentreData, *,
     returns the estimate and, for centres in an instrument frame, the map to controller X Y Z
     the analyses then run in. Visits are screened for gross faults first (``screen_centres``).
     ``keep``: receives the estimate itself under "estimate" (the run's compensation view is
-    planned from this very estimate, so the panel's link values are the report's, issue 23)."""
+    planned from this very estimate, so the panel's link values are the report's, issue 23).
+    ``rotary_repeatability_urad``: the machine file's stated rotary repeatability (µrad 1σ by
+    axis letter), the Type B input of the links' index scatter (``estimate_scatter``)."""
     data, screened = screen_centres(machine, artefact, data)
     c = data.centres
     poses = sorted(int(x) for x in np.unique(c.pose))
@@ -134,8 +137,9 @@ def analyse_centres(machine: Machine, artefact: Artefact, data: CentreData, *,
     try:
         with np.errstate(all="ignore"):
             if estimator is None:
-                drift = estimate_drift_aware(machine, artefact, est_c, links,
-                                             sigma_um=repeatability_um)
+                drift = estimate_drift_aware(
+                    machine, artefact, est_c, links, sigma_um=repeatability_um,
+                    rotary_repeatability_urad=dict(rotary_repeatability_urad or {}) or None)
                 est, to_machine = drift.estimate, None
             else:
                 est, to_machine = estimator(est_c)

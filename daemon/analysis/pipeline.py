@@ -151,7 +151,8 @@ def analyse(setup: MachineSetup, hits: Sequence[ProbeHit], run_id: str = "run",
     try:
         data = analyse_centres(controller or setup.machine, setup.artefact, cd,
                                validate_poses=setup.validate_poses, source=f"run {run_id}",
-                               keep=keep)
+                               keep=keep, rotary_repeatability_urad=setup.machine_file
+                               .rotary_repeatability_urad)
     except (AnalysisError, ValueError) as e:
         raise PipelineError(f"identification impossible: {e}") from None
     data = replace(data, run_id=run_id, machine=setup.name, plan=setup.plan.name,

@@ -71,7 +71,8 @@ def identify(setup: MachineSetup, c: Centres, run_id: str, machine: Machine) -> 
     """The estimate of the estimation centres ``c`` against ``machine`` (the ≈ 0.1–0.4 s)."""
     try:
         with np.errstate(all="ignore"):
-            return estimate(machine, setup.artefact, c, None)
+            return estimate(machine, setup.artefact, c, None, rotary_repeatability_urad=setup
+                            .machine_file.rotary_repeatability_urad)
     except (RankDeficientError, np.linalg.LinAlgError, ValueError) as e:
         raise CompensationRefused(f"run {run_id}: identification failed: {e}") from None
 

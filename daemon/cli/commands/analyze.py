@@ -81,7 +81,7 @@ def run_analysis(log: Path | str, machine_path: Path | str, artefact_path: Path 
                  stylus_diameter_mm: float = DEFAULT_STYLUS_DIAMETER_MM,
                  repeatability_um: Sequence[float] | None = None) -> Analysis:
     """Read ``log`` and analyse it (``daemon.analysis.identify.analyse_centres``)."""
-    machine, _ = load_machine(machine_path)
+    machine, mfile = load_machine(machine_path)
     artefact = load_artefact(artefact_path)
     chosen = parse_links(links, machine.location_error_names())
     try:
@@ -95,7 +95,8 @@ def run_analysis(log: Path | str, machine_path: Path | str, artefact_path: Path 
                                    source=str(log))
         out = analyse_centres(machine, artefact, data, validate_poses=validate_poses,
                               links=chosen, repeatability_um=repeatability_um,
-                              fixed_radius=fixed_radius, source=str(log))
+                              fixed_radius=fixed_radius, source=str(log),
+                              rotary_repeatability_urad=mfile.rotary_repeatability_urad)
     except ImplausibleFitError as e:
         raise _user_error(f"{e}{_taken_on(machine_path, artefact, data.centres)}") from None
     except (ProbeLogError, AnalysisError) as e:
@@ -124,7 +125,7 @@ def _centres(args: argparse.Namespace) -> Analysis | OneIndexation:
 
     if args.fixed_radius:
         raise _user_error("--fixed-radius: centres carry no touches to fit")
-    machine, _ = load_machine(args.machine)
+    machine, mfile = load_machine(args.machine)
     artefact = load_artefact(args.artefact)
     poses = None
     if args.plan:
@@ -133,7 +134,8 @@ def _centres(args: argparse.Namespace) -> Analysis | OneIndexation:
         args.centres, machine, artefact, fmt=args.format, frame=args.frame, ball=args.ball,
         plan_poses=poses, validate_poses=parse_poses(args.validate_poses),
         links=parse_links(args.links, machine.location_error_names()),
-        repeatability_um=parse_repeatability(args.repeatability_um))
+        repeatability_um=parse_repeatability(args.repeatability_um),
+        rotary_repeatability_urad=mfile.rotary_repeatability_urad)
 
 
 def _norm(v: Sequence[float | None] | None) -> str:
