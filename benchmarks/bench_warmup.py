@@ -6,8 +6,11 @@ index scatter (``INDEX_URAD`` 1σ on B and C per indexation, issue 21) and a war
 δ(t) = A·(1 − e^(−t/τ)) (simulators/thermal.py) whose drift over the estimate's span is 0, 5, 10
 or 20 µm, τ drawn log-uniform in 10-60 min and the direction uniform on the sphere (one τ for
 the three axes: one thermal state). Every run draws its own seed, a hash of (plan, warm-up,
-index): no two cells share noise. Each run is analysed as the daemon does (drift-aware,
-identification/drift.py) and by the plain estimate. Prints per plan and warm-up:
+index): no two cells share noise. The machine file states the rotary repeatability a shop's
+would (the maker's spec, ``STATED_URAD`` on B and C; ``stated=0``: none, ``stated=2``: a wrong
+data sheet), the Type B input of the index components (identification/estimate_scatter.py).
+Each run is analysed as the daemon does (drift-aware, identification/drift.py) and by the plain
+estimate. Prints per plan, warm-up and stated repeatability:
 
 - 2u coverage over every (link, run) pair, drift-aware and plain, each with its binomial
   standard error (pairs as if independent) and its run-clustered one (the links of a run share
@@ -30,6 +33,7 @@ is named ``thermal_drift:Z`` (exponential) and the held-out RMS after it over th
     .venv/bin/python -m benchmarks.bench_warmup 200 shift 0 5  (some warm-ups only, µm)
     .venv/bin/python -m benchmarks.bench_warmup 50 shift 0 index=0   (no index scatter)
     .venv/bin/python -m benchmarks.bench_warmup 50 shift out=r.jsonl  (appends; re-run resumes)
+    .venv/bin/python -m benchmarks.bench_warmup 50 shift 0 10 stated=2  (a wrong data sheet)
     .venv/bin/python -m benchmarks.bench_warmup gap 50 X (the gap diagnosis, 50 seeds, along X)
     .venv/bin/python -m benchmarks.bench_warmup gap 50 X from=11  (seeds 11-49 only)
 """
@@ -52,6 +56,7 @@ from daemon.analysis.identify import analyse_centres
 from daemon.analysis.touch_centres import rows_to_centres
 from daemon.cli.commands.plan import make_plan
 from identification.estimate import estimate
+from identification.estimate_scatter import STATED_TAG
 from identification.uncertainty import t_variance_factor
 from simulators.errors_schema import errors_from_dict
 from simulators.offline import run_sync
@@ -66,6 +71,7 @@ TARGETS = C / "plans/targets/shift_start.yaml"
 ERRORS = C / "errors/thesis_tableB2.yaml"
 TAU_RANGE_S = (600.0, 3600.0)  # the issue's 10-60 min (ISO 230-3), drawn log-uniform
 INDEX_URAD = 4.0  # B and C index repeatability 1σ: R = 4σ ≈ 16 µrad (3.3″), a good trunnion
+STATED_URAD = 4.0  # what the machine file states for B and C: the maker's spec, the truth's
 WARMUPS_UM = (0.0, 5.0, 10.0, 20.0)
 MISSED_UM = 2.0  # a true drift component this large the selected model should carry
 
@@ -109,9 +115,10 @@ def _se(per_run: list[float]) -> float:
 
 
 def run_one(machine, mf, art, plan, text: str, name: str, over_um: float, span_s: float,
-            i: int, index_urad: float = INDEX_URAD) -> dict:
+            i: int, index_urad: float = INDEX_URAD, stated_urad: float = STATED_URAD) -> dict:
     """Run ``i`` of the cell (plan ``name``, warm-up ``over_um``): per link whether it is within
-    2u (drift-aware, plain), its error/u and u ratios; the drift selection and fit."""
+    2u (drift-aware, plain), its error/u and u ratios; the drift selection and fit. The seed
+    does not depend on ``stated_urad``: cells that differ in it share their runs' noise."""
     seed = run_seed(name, over_um, i)
     truth = _truth(machine, mf, art, draw_warmup(seed, over_um, span_s), seed, index_urad)
     want = {k: float(v) for k, v in truth.errors.links.items()}
@@ -122,9 +129,10 @@ def run_one(machine, mf, art, plan, text: str, name: str, over_um: float, span_s
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         data = rows_to_centres(res.rows, art, plan.stylus_radius_mm)
-    a = analyse_centres(machine, art, data, validate_poses=val)
+    stated = {"B": stated_urad, "C": stated_urad} if stated_urad else None
+    a = analyse_centres(machine, art, data, validate_poses=val, rotary_repeatability_urad=stated)
     est_c = data.centres.subset(~np.isin(data.centres.pose, val))
-    pe = estimate(machine, art, est_c)
+    pe = estimate(machine, art, est_c, rotary_repeatability_urad=stated)
     plain = pe.links_si()
     # today's u, before issues 21 and 22: independent centres, a posteriori σ per axis, no t's
     # ν/(ν−2) (the visit sandwich engaged only past its test, ~7 % of scatter-free runs)
@@ -132,6 +140,8 @@ def run_one(machine, mf, art, plan, text: str, name: str, over_um: float, span_s
     today = {k: u / float(np.sqrt(t_variance_factor(pi.sigma_dof)))
              for k, (_, u, _) in pi.links_si().items()}
     rec: dict = {"plan": name, "warmup_um": over_um, "i": i, "seed": seed,
+                 "stated_urad": stated_urad,
+                 "overridden": sum(STATED_TAG in w for w in a.warnings),
                  "dof": a.estimation.sigma_dof or float("inf"), "aware": [], "plain": [],
                  "z": [], "u_ratio": [], "u_today": [], "drift": [], "missed": [],
                  "over_um": 0.0, "index_urad": {k: v[0] for k, v in (pe.visit_scatter or {}).items()
@@ -171,6 +181,8 @@ def summarise(recs: list[dict]) -> dict:
     missed = [x for r in recs for x in r["missed"]]
     p_a, p_p = float(np.mean(aware)), float(np.mean(plain))
     return {"plan": recs[0]["plan"], "warmup_um": recs[0]["warmup_um"], "runs": n,
+            "stated_urad": recs[0].get("stated_urad", 0.0),
+            "overridden": float(np.mean([r.get("overridden", 0) > 0 for r in recs])),
             "links": len(z) // n,
             "cov_aware": p_a, "cov_aware_se_binom": math.sqrt(p_a * (1 - p_a) / len(z)),
             "cov_aware_se_run": _se(aware),
@@ -233,7 +245,8 @@ def gap(seeds: int, axis: str = "Z", first: int = 0) -> None:
 def _row(x: dict) -> str:
     ok = "" if not x["warmup_um"] else f"{100 * x['drift_ok']:.1f}%"
     miss = "" if not x["warmup_um"] else f"{100 * x['missed']:.1f}%"
-    return (f"{x['plan']:22s} {x['warmup_um']:5.0f}µm {x['over_um']:6.1f} "
+    return (f"{x['plan']:22s} {x['warmup_um']:5.0f}µm {x['stated_urad']:4.0f} "
+            f"{100 * x['overridden']:4.0f}% {x['over_um']:6.1f} "
             f"{100 * x['cov_aware']:6.1f}% ±{100 * x['cov_aware_se_binom']:.1f}/"
             f"{100 * x['cov_aware_se_run']:.1f} "
             f"{100 * x['cov_plain']:6.1f}% ±{100 * x['cov_plain_se_binom']:.1f}/"
@@ -244,13 +257,14 @@ def _row(x: dict) -> str:
 
 
 def _print_table(recs: list[dict]) -> None:
-    print(f"{'plan':22s} {'warm':>7s} {'|δ|':>6s} {'2u aware':>17s} {'2u plain':>17s} "
+    print(f"{'plan':22s} {'warm':>7s} {'said':>4s} {'over':>5s} {'|δ|':>6s} {'2u aware':>17s} "
+          f"{'2u plain':>17s} "
           f"{'bias/u ± se':>12s} {'sd(z)':>5s} {'select':>7s} {'δ in 2u':>7s} {'missed':>7s} "
           f"{'u/plain':>7s} {'u/today':>7s} {'max':>7s} {'ν':>5s}   N")
-    cells: dict[tuple[str, float], list[dict]] = {}
+    cells: dict[tuple[str, float, float], list[dict]] = {}
     for r in recs:
-        cells.setdefault((r["plan"], r["warmup_um"]), []).append(r)
-    for key in sorted(cells, key=lambda k: (not k[0].startswith("shift"), k[1])):
+        cells.setdefault((r["plan"], r["warmup_um"], r.get("stated_urad", 0.0)), []).append(r)
+    for key in sorted(cells, key=lambda k: (not k[0].startswith("shift"), k[1], -k[2])):
         x = summarise(cells[key])
         print(_row(x) + f" {x['runs']:4d}", flush=True)
 
@@ -268,13 +282,15 @@ def main(argv: tuple[str, ...] = ()) -> None:
         return
     warmups = tuple(float(a) for a in nums[1:]) or WARMUPS_UM
     index_urad = next((float(a[6:]) for a in argv if a.startswith("index=")), INDEX_URAD)
+    stated = next((float(a[7:]) for a in argv if a.startswith("stated=")), STATED_URAD)
     out = next((Path(a[4:]) for a in argv if a.startswith("out=")), None)
     machine, mf = load_machine(MACHINE)
     art = load_artefact(ARTEFACT)
     r = make_plan(MACHINE, ARTEFACT, TARGETS, "fanuc")
     print(f"{runs} independent runs per cell; warm-up from cold, τ log-uniform "
           f"{TAU_RANGE_S[0] / 60:.0f}-{TAU_RANGE_S[1] / 60:.0f} min, direction uniform; index "
-          f"scatter {index_urad:g} µrad 1σ on B and C; Table B.2 links, thesis repeatability. "
+          f"scatter {index_urad:g} µrad 1σ on B and C, stated "
+          f"{f'{stated:g} µrad' if stated else 'none'}; Table B.2 links, thesis repeatability. "
           "Coverage ± binomial / run-clustered se", flush=True)
     plans = []
     for name, plan, g in (("shift_start_14poses", r.reference, r.old),
@@ -284,17 +300,18 @@ def main(argv: tuple[str, ...] = ()) -> None:
             continue  # one plan only (one process per core)
         plans.append((name, plan, g.text, _span(machine, mf, art, plan, g.text)))
     recs: list[dict] = []
-    done: set[tuple[str, float, int]] = set()
+    done: set[tuple[str, float, int, float]] = set()
     if out is not None and out.exists():  # resume: the runs already in the record file
         recs = [json.loads(line) for line in out.read_text().splitlines() if line]
-        done = {(r["plan"], r["warmup_um"], r["i"]) for r in recs}
+        done = {(r["plan"], r["warmup_um"], r["i"], r.get("stated_urad", 0.0)) for r in recs}
     # run i of every cell before run i + 1 of any: stopped early, the cells have equal N
     for i in range(runs):
         for name, plan, text, span in plans:
             for over in warmups:
-                if (name, over, i) in done:
+                if (name, over, i, stated) in done:
                     continue
-                rec = run_one(machine, mf, art, plan, text, name, over, span, i, index_urad)
+                rec = run_one(machine, mf, art, plan, text, name, over, span, i, index_urad,
+                              stated)
                 recs.append(rec)
                 if out is not None:
                     with out.open("a") as f:
