@@ -16,6 +16,7 @@ import yaml
 
 from contracts.probing_log import write_log
 from contracts.setup_files import load_artefact, load_machine, load_plan
+from daemon.analysis.result import Analysis
 from daemon.cli.main import main
 from identification.drift import estimate_drift_aware, shape_values
 from identification.estimate import estimate
@@ -173,3 +174,14 @@ def test_the_machine_files_value_reaches_rumba_analyze(scatter_log, tmp_path, ca
     ratio = {k: high["links"][k]["std"] / v["std"] for k, v in plain["links"].items()}
     assert max(ratio.values()) > 1.5 and min(ratio.values()) > 0.99, ratio
     assert not [w for w in high["warnings"] if "machine file states" in w]
+    # the JSON's estimation block: per axis the run's estimate, the stated value, which is used
+    for r, used in ((plain, "estimated"), (low, "estimated"), (high, "stated")):
+        ix = {x["axis"]: x for x in r["estimation"]["index_scatter"]}
+        assert set(ix) == {"B", "C"} and {x["used"] for x in ix.values()} == {used}
+        assert ix["B"]["estimated_urad"] == plain["estimation"]["index_scatter"][0][
+            "estimated_urad"] > 5.0
+    assert plain["estimation"]["index_scatter"][0]["stated_urad"] is None
+    assert [x["stated_urad"] for x in high["estimation"]["index_scatter"]] == [40, 40]
+    assert all(x["p_stated"] < 0.01 for x in low["estimation"]["index_scatter"])
+    again = Analysis.from_json(low).to_json()
+    assert again["estimation"] == low["estimation"]

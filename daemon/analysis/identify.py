@@ -20,6 +20,7 @@ from daemon.analysis.result import (
     Distance,
     Estimation,
     Health,
+    IndexScatter,
     LinkError,
     Offset,
     Revisit,
@@ -45,6 +46,7 @@ from identification.estimate import RankDeficientError, estimate
 from identification.kinematics import Machine
 from identification.model import Artefact, Centres
 from identification.plausibility import describe, implausible
+from identification.visit_scatter import LR_ALPHA
 
 _THESIS = {  # thesis Table B.2 / Fig B.2 names of the WCBXFZYT link errors
     "EB0Z": "βZ squareness ZX", "EA0Y": "αY squareness YZ", "EC0Y": "γY squareness YX",
@@ -238,7 +240,7 @@ def _analyses(machine: Machine, artefact: Artefact, data: CentreData, est: Any, 
             sigma_um=_vec(est.sigma_um),
             sigma_from="given" if est.sigma_given else "residuals",
             sigma_dof=_fin(est.sigma_dof),  # None (JSON) when given: infinite
-            fixed_radius=fixed_radius),
+            fixed_radius=fixed_radius, index_scatter=index_scatter(est.visit_scatter)),
         volumetric=tuple(
             VolumetricPoint(pose=pose[k], repeat=repeat[k], b_deg=_fin(b_deg[k]),
                             c_deg=_fin(c_deg[k]), ball=ball[k],
@@ -281,6 +283,27 @@ CONVENTIONS = {
            "(thermal) it also carries the model choice",
 }
 """What the numbers of an analysis mean (its JSON's ``conventions``)."""
+
+
+def index_scatter(comps: dict[str, tuple[float, float, float]] | None
+                  ) -> tuple[IndexScatter, ...] | None:
+    """The estimate's index components per rotary axis (``Estimate.visit_scatter``): the free
+    REML estimate and, with a stated repeatability, the stated value and the test that kept or
+    overrode it (``identification.estimate_scatter.with_stated``)."""
+    if not comps:
+        return None
+    out = []
+    for name, (v, u, p) in comps.items():
+        if not name.startswith("index ") or name.endswith(" stated"):
+            continue
+        st = comps.get(f"{name} stated")
+        used = "stated" if st is not None and st[2] >= LR_ALPHA else "estimated"
+        out.append(IndexScatter(axis=name[6:], estimated_urad=_fin(round(v, 3)),
+                                std_urad=_fin(round(u, 3)), p_value=_fin(float(f"{p:.3g}")),
+                                stated_urad=None if st is None else st[0],
+                                p_stated=None if st is None else float(f"{st[2]:.3g}"),
+                                used=used))
+    return tuple(out)
 
 
 def _fin(x: Any) -> Any:

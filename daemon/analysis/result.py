@@ -53,6 +53,21 @@ class Setup(_Json):
 
 
 @dataclass(frozen=True)
+class IndexScatter(_Json):
+    """One rotary axis' index repeatability behind the links' u (µrad 1σ per indexation,
+    identification/estimate_scatter.py): the run's REML estimate, the machine file's stated
+    value (Type B) and which of the two the links' u rests on."""
+
+    axis: str
+    estimated_urad: float | None = None
+    std_urad: float | None = None
+    p_value: float | None = None  # boundary likelihood-ratio test of σ = 0
+    stated_urad: float | None = None
+    p_stated: float | None = None  # one-sided likelihood-ratio test of σ = stated vs free
+    used: str = "estimated"  # "estimated" | "stated"
+
+
+@dataclass(frozen=True)
 class Estimation(_Json):
     status: str = ""
     iterations: int = 0
@@ -61,6 +76,7 @@ class Estimation(_Json):
     sigma_from: str = ""  # "given" | "residuals"
     sigma_dof: float | None = None  # None when σ is given: infinite degrees of freedom
     fixed_radius: bool = False
+    index_scatter: tuple[IndexScatter, ...] | None = field(default=None, metadata=_OMIT)
 
 
 @dataclass(frozen=True)
