@@ -1,5 +1,6 @@
-"""HAL userspace probe for LinuxCNC: drives ``motion.probe-input`` from the joint feedback through
-our simulator's truth model (balls + setup errors, link errors, stylus tip, noise).
+"""HAL userspace half of the LinuxCNC sim probe: the terms on which the servo thread trips
+``motion.probe-input``, from our simulator's truth model (balls + setup errors, link errors,
+stylus tip, noise).
 
 Two halves in one file:
 
@@ -11,12 +12,14 @@ Two halves in one file:
 
       loadusr -Wn rumba-probe /usr/bin/python3 simulators/hal_probe.py SPEC.json
 
-  Pins: ``rumba-probe.x y z b c`` (float in, netted from ``joint.N.pos-fb``), ``out`` (bit out →
-  ``motion.probe-input`` while probing), ``crash`` (bit out, stylus > 0.1 mm inside a ball: trips
-  in any move), ``contacts`` (s32 out, rising edges), ``gap-um`` (float out, smallest
-  signed stylus-to-ball gap), ``temp-x y z`` (float out, °C: the errors file's thermal
-  sensors warming from the component's start, issue 22). Parameters: ``ball-K-present`` (bit
-  rw, K = artefact order, all 1 at start; ``halcmd setp rumba-probe.ball-1-present 0``
+  Pins: ``rumba-probe.x y z b c`` (float in, netted from ``joint.N.pos-fb``); the servo-thread
+  terms (float out, below): ``u00 u01 u02 u11 u12 u22``, ``ball-K-x y z r crash-r``, ``b-min
+  b-max c-min c-max``; diagnostics of the userspace view: ``out`` (bit out, the tip touches a
+  ball), ``contacts`` (s32 out, rising edges of ``out``), ``gap-um`` (float out, smallest signed
+  stylus-to-ball gap), ``crash`` (bit out, the stylus > 0.1 mm inside a ball in a consistent
+  joint snapshot: trips LinuxCNC in any move); ``temp-x y z`` (float out, °C: the errors file's
+  thermal sensors warming from the component's start, issue 22). Parameters: ``ball-K-present``
+  (bit rw, K = artefact order, all 1 at start; ``halcmd setp rumba-probe.ball-1-present 0``
   removes ball 1 from the table).
 
 Contact (METHOD.md §1-2, thesis Eq. 3.1): the stylus sphere touches ball i when
@@ -25,12 +28,22 @@ workpiece frame (affine in X Y Z at fixed B C, so one 3x3 product per poll), ``c
 centre (nominal + setup error + a per-visit centre noise redrawn at every new indexation) and
 ``n`` a per-touch noise along the normal, redrawn when the probe re-arms.
 
+The trip is decided in the servo thread, never by this process (simulators/linuxcnc_files.py):
+at a fixed B C, ``tip_w = A·q + t`` with ``A = Q·U`` (QR, U upper triangular), so
+``|tip_w − c_i| = |U·q − m_i|`` with ``m_i = Qᵀ(c_i − t)``: the component publishes U and every
+``m_i`` once per indexation, and stock realtime components (mult2, sum2, hypot, comp) compare
+``|U·q − m_i|`` with the contact radius ``R_i + r − pretravel + n`` at every servo period — exact
+for any approach direction, whatever the scheduler does to this process. The terms hold for
+the B C they were computed at: the component publishes them behind a window on B and C
+(``wcomp``; invalidated first, data, window last), so a half-written or stale set is never used;
+a probing move that starts before the set of its indexation is up is held
+(``motion.feed-inhibit``) until it is (a real probe is never late, and neither may this one be).
+
 Servo-period overshoot: LinuxCNC latches the first servo sample at which it sees the input high,
-so the latched point lies past the contact by ``v·T·u`` (u uniform in 0..1, T the servo period;
-the poll sleeps in proportion to the gap and spins within 0.05 mm, while the axes move, so the
-input rises within tens of µs of the sample that crosses).
-Its mean is a constant radial pre-travel, absorbed by the free-radius sphere fit; its spread
-``v·T/√12`` adds to the touch noise (config/linuxcnc/README.md).
+so the latched point lies past the contact by ``v·T·u`` (u uniform in 0..1, T the servo period)
+plus a constant one-sample delay. Its mean is a constant radial pre-travel, absorbed by the
+free-radius sphere fit; its spread ``v·T/√12`` adds to the touch noise
+(config/linuxcnc/README.md).
 """
 
 from __future__ import annotations
@@ -43,11 +56,12 @@ from typing import Any
 
 REPO = Path(__file__).resolve().parent.parent
 JOINTS = ("x", "y", "z", "b", "c")
-PLANE_PINS = ("plane-wx", "plane-wy", "plane-wz", "plane-k")
-MAX_POLL_S = 2e-3
-ARM_GAP_MM = 0.5  # the servo-thread tangent plane is armed this close to a ball
-BUSY_GAP_MM = 0.05  # closer than this the poll spins (no sleep): the input rises within ~30 us
-MAX_SPEED_MM_S = 600.0  # above the sim machines' 500 mm/s: the poll never sleeps past a contact
+U_PINS = ("u00", "u01", "u02", "u11", "u12", "u22")  # U·q in the servo thread (QR of A)
+POLL_S = 1e-3  # the trip is the servo thread's: the poll only follows indexations and noise
+WINDOW_DEG = 1e-6  # the terms hold within this of the B C they were computed at (9 nm at 500 mm)
+INVALID = -1e9  # b-max while the terms are rewritten: the B window is empty, no trip, no crash
+REARM_MM = 0.5  # farther than this from every ball the probe is re-armed: new touch noise
+NEVER = -1.0  # contact radius of an absent ball: |U·q − m| is never below it
 CRASH_MM = 0.1  # the stylus this deep inside a ball is a collision, whatever the move
 
 
@@ -165,22 +179,34 @@ class ProbeModel:
         """Smallest signed gap (mm) between the stylus sphere and a present ball sphere."""
         return self.nearest(x, y, z, b, c)[0]
 
-    def plane(self, x: float, y: float, z: float, b: float, c: float
-              ) -> tuple[float, float, float, float] | None:
-        """(wx, wy, wz, k) with ``wx·X + wy·Y + wz·Z + k`` = the signed distance of the tip to
-        the tangent plane of the nearest ball at the tip's radial projection, when that ball
-        is closer than ``ARM_GAP_MM`` (else None). The servo thread trips on it (see main)."""
+    def servo_pins(self, b: float, c: float) -> list[tuple[str, float]]:
+        """The servo thread's terms at this indexation, in write order: the B window emptied
+        first, U and the ball centres ``m_i``, the contact radii, the window last — the servo
+        thread never uses a half-written or stale set (module docstring)."""
         import numpy as np
 
-        gap, i, tip = self.nearest(x, y, z, b, c)
-        if i < 0 or gap > ARM_GAP_MM:
-            return None
-        centre = self.centres[i] + self._visit[i]
-        n = tip - centre
-        n /= np.linalg.norm(n)
-        contact = centre + (self.contact_mm[i] + self._n) * n
-        w = self._a.T @ n
-        return float(w[0]), float(w[1]), float(w[2]), float(n @ (self._t - contact))
+        self.nearest(0.0, 0.0, 0.0, b, c)  # the affine (and the visit noise) of this B C
+        q, u = np.linalg.qr(self._a)
+        d = np.where(np.diag(u) < 0, -1.0, 1.0)
+        q, u = q * d, d[:, None] * u  # A = Q·U with a positive diagonal: U ≈ I
+        m = (self.centres + self._visit - self._t) @ q  # rows m_i = Qᵀ(c_i − t)
+        pins: list[tuple[str, float]] = [("b-max", INVALID)]
+        pins += [(p, float(u[int(p[1]), int(p[2])])) for p in U_PINS]
+        for k, mk in enumerate(m):
+            pins += [(f"ball-{k}-{a}", float(v)) for a, v in zip("xyz", mk, strict=True)]
+        pins += self.radius_pins()
+        return [*pins, ("c-min", c - WINDOW_DEG), ("c-max", c + WINDOW_DEG),
+                ("b-min", b - WINDOW_DEG), ("b-max", b + WINDOW_DEG)]
+
+    def radius_pins(self) -> list[tuple[str, float]]:
+        """``ball-K-r`` (contact: ``R_i + r − pretravel + n``) and ``ball-K-crash-r`` (that less
+        CRASH_MM) of every ball; NEVER for a ball not on the table."""
+        out: list[tuple[str, float]] = []
+        for k, r in enumerate(self.contact_mm + self._n):
+            ok = bool(self.present[k])
+            out += [(f"ball-{k}-r", float(r) if ok else NEVER),
+                    (f"ball-{k}-crash-r", float(r) - CRASH_MM if ok else NEVER)]
+        return out
 
     def nearest(self, x: float, y: float, z: float, b: float, c: float
                 ) -> tuple[float, int, object]:
@@ -204,6 +230,18 @@ class ProbeModel:
         return float(g[k]), int(idx[k]), tip
 
 
+def snapshot(read: Any, tries: int = 5) -> tuple[float, ...]:
+    """The five joints read twice until both reads agree: one servo sample, not X of one period
+    and C of a later one (a torn read mid-rapid can put the tip inside a ball)."""
+    q = tuple(read(j) for j in JOINTS)
+    for _ in range(tries):
+        again = tuple(read(j) for j in JOINTS)
+        if again == q:
+            break
+        q = again
+    return q
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     if len(argv) != 1:
@@ -221,52 +259,50 @@ def main(argv: list[str] | None = None) -> int:
     comp.newpin("contacts", hal.HAL_S32, hal.HAL_OUT)
     comp.newpin("gap-um", hal.HAL_FLOAT, hal.HAL_OUT)
     comp.newpin("crash", hal.HAL_BIT, hal.HAL_OUT)  # trips LinuxCNC in any move (peer HAL)
-    for p in PLANE_PINS:
+    n = len(model.centres)
+    names = [p for p, _ in model.servo_pins(0.0, 0.0)]
+    for p in dict.fromkeys(names):
         comp.newpin(p, hal.HAL_FLOAT, hal.HAL_OUT)
-    comp["plane-k"] = 1e6
+    comp["b-min"], comp["b-max"] = 1.0, INVALID  # an empty window until the first set is up
     thermal = spec.get("thermal") or {"ambient_c": 20.0, "start_state": 0.0, "axes": {}}
     for a in "xyz":  # structure temperatures (issue 22): what a shop wires to its sensors
         comp.newpin(f"temp-{a}", hal.HAL_FLOAT, hal.HAL_OUT)
-    n = len(model.centres)
     for k in range(n):
         comp.newparam(f"ball-{k}-present", hal.HAL_BIT, hal.HAL_RW)
         comp[f"ball-{k}-present"] = bool(model.present[k])
     comp.ready()
-    out, contacts, last, still_since = False, 0, None, time.monotonic()
-    t_ready = still_since
+    out, contacts, published = False, 0, None
+    t_ready = time.monotonic()
     try:
         while True:
-            for k in range(n):
-                model.present[k] = bool(comp[f"ball-{k}-present"])
-            q = tuple(comp[j] for j in JOINTS)
+            present = [bool(comp[f"ball-{k}-present"]) for k in range(n)]
+            q = snapshot(lambda j: comp[j])
             now = time.monotonic()
             for a in "xyz":
                 comp[f"temp-{a}"] = sensor_c(thermal, a, now - t_ready)
-            if q != last:
-                last, still_since = q, now
+            key = (round(q[3], 9), round(q[4], 9))
+            if key != published:  # a new indexation: the servo thread's terms for it
+                model.present[:] = present
+                for p, v in model.servo_pins(q[3], q[4]):
+                    comp[p] = v
+                published = key
             gap = model.gap_mm(*q)
-            plane = model.plane(*q)
-            if plane is None:
-                comp["plane-k"] = 1e6  # disarm first: never a half-written plane that trips
-                for p in PLANE_PINS[:3]:
-                    comp[p] = 0.0
-            else:
-                for p, v in zip(PLANE_PINS, plane, strict=True):
+            redraw = gap > REARM_MM and not out  # away from every ball: the probe re-arms
+            if redraw or present != list(model.present):
+                model.present[:] = present
+                if redraw:
+                    model.redraw_touch()
+                for p, v in model.radius_pins():  # one pin each: old or new, never torn
                     comp[p] = v
             hit = gap <= 0.0
             if hit and not out:
                 contacts += 1
                 comp["contacts"] = contacts
-            elif out and not hit:
-                model.redraw_touch()  # the probe re-arms: next touch, new noise
             out = hit
             comp["out"] = out
             comp["gap-um"] = gap * 1e3
             comp["crash"] = gap < -CRASH_MM
-            if hit or now - still_since > MAX_POLL_S:
-                time.sleep(MAX_POLL_S)
-            elif gap > BUSY_GAP_MM:
-                time.sleep(min(gap / MAX_SPEED_MM_S / 2.0, MAX_POLL_S))
+            time.sleep(POLL_S)
     except KeyboardInterrupt:
         pass
     return 0

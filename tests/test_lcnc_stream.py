@@ -98,7 +98,7 @@ def test_auto_error_names_the_touch_and_the_line() -> None:
                    "'N9 G0 X-82.8000' (after touch 2)")
 
 
-def test_probe_plane_crosses_where_the_sphere_is(tmp_path: Path) -> None:
+def test_probe_servo_terms_give_the_sphere_distance(tmp_path: Path) -> None:
     truth = TruthModel.from_files(MACHINE, ARTEFACT, ERRORS)
     spec = write_spec(truth, tmp_path / "s.json")
     spec["touch_noise_mm"] = 0.0
@@ -112,16 +112,19 @@ def test_probe_plane_crosses_where_the_sphere_is(tmp_path: Path) -> None:
     gaps = np.array([model.gap_mm(*(line0 + si * d), b, c) for si in s])
     k = int(np.argmax(gaps <= 0))
     assert k > 0 and gaps[k - 1] > 0  # the stylus meets the ball on this line
-    s_star = s[k - 1] + gaps[k - 1] / (gaps[k - 1] - gaps[k]) * (s[k] - s[k - 1])
-    q_near = line0 + (s_star - 0.3) * d  # armed 0.3 mm before contact
-    w = model.plane(*q_near, b, c)
-    assert w is not None
-    g = [np.dot(w[:3], line0 + si * d) + w[3] for si in (s_star - 0.01, s_star + 0.01)]
-    s_plane = s_star - 0.01 + g[0] / (g[0] - g[1]) * 0.02
-    assert abs(s_plane - s_star) < 2e-6  # plane and sphere are crossed at the same point (mm)
-    assert model.plane(*(line0 + (s_star - 1.0) * d), b, c) is None  # disarmed far away
+    # what the servo thread computes from the published terms: |U·q − m_i| against r_i
+    pins = dict(model.servo_pins(b, c))
+    u = np.zeros((3, 3))
+    for p in ("u00", "u01", "u02", "u11", "u12", "u22"):
+        u[int(p[1]), int(p[2])] = pins[p]
+    m = np.array([pins[f"ball-{ball}-{a}"] for a in "xyz"])
+    servo = np.array([np.linalg.norm(u @ (line0 + si * d) - m) for si in s]) \
+        - pins[f"ball-{ball}-r"]
+    assert np.abs(servo - gaps).max() < 1e-9  # the sphere itself, along any line (mm)
+    assert pins["b-min"] < b < pins["b-max"] and pins["c-min"] < c < pins["c-max"]
     model.present[:] = False
-    assert model.gap_mm(*q_near, b, c) > 1e6  # every ball removed: nothing to touch
+    assert model.gap_mm(*(line0 + s[k] * d), b, c) > 1e6  # every ball removed: nothing to touch
+    assert all(v < 0 for p, v in model.radius_pins())  # and nothing the servo thread can touch
 
 
 def test_link_config_refuses_injection_and_unknown_keys() -> None:

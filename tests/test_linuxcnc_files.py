@@ -7,7 +7,7 @@ import re
 
 import pytest
 
-from simulators.linuxcnc_files import REPO, write_ini, write_probe_hal
+from simulators.linuxcnc_files import REPO, probe_net, write_ini, write_probe_hal
 from simulators.linuxcnc_peer import CONFIG
 
 
@@ -37,19 +37,26 @@ def test_without_a_probe_no_hal_file_is_added(tmp_path):
 
 def test_the_probe_hal_feeds_the_joints_and_gates_the_trip_to_probing_moves(tmp_path):
     spec = tmp_path / "probe_spec.json"
+    spec.write_text('{"ball_ids": ["B1", "B2", "B3"]}')
     write_probe_hal(tmp_path / "p.hal", spec)
     text = (tmp_path / "p.hal").read_text()
     assert text.splitlines()[0] == (f"loadusr -Wn rumba-probe /usr/bin/python3 "
                                     f"{REPO}/simulators/hal_probe.py {spec.resolve()}")
     assert re.findall(r"^net rumba-j(\d) joint\.(\d)\.pos-fb => rumba-probe\.(\w)$", text,
                       flags=re.M) == [(str(i), str(i), a) for i, a in enumerate("xyzbc")]
-    # the plane trip and the component's own reach motion only while probing (motion type 5);
-    # a crash in any move
+    # one sphere test per ball of the spec, in the servo thread
+    assert re.findall(r"^loadrt hypot names=(\S+)$", text, flags=re.M) == [
+        "rumba-b0-d,rumba-b1-d,rumba-b2-d"]
+    # the touch reaches motion only while probing (motion type 5) and with a valid set; a
+    # crash in any move; a probing move without a valid set is held
     assert "setp rumba-probing.min 4.5\nsetp rumba-probing.max 5.5\n" in text
     assert "net rumba-probe-gated rumba-probe-gate.out => rumba-probe-any.in0" in text
-    assert "net rumba-probe-crash rumba-probe.crash => rumba-probe-any.in1" in text
+    assert "net rumba-probe-hold rumba-hold.out => motion.feed-inhibit" in text
     assert text.endswith("net rumba-probe-trip rumba-probe-any.out => motion.probe-input\n")
-    # every function loaded is added to the servo thread
+    # every function loaded is added to the servo thread, once
     names = [n for ln in text.splitlines() if ln.startswith("loadrt ")
              for n in ln.split("names=")[1].split(",")]
-    assert sorted(names) == sorted(re.findall(r"^addf (\S+) servo-thread$", text, flags=re.M))
+    addf = re.findall(r"^addf (\S+) servo-thread$", text, flags=re.M)
+    assert sorted(names) == sorted(addf) and len(set(addf)) == len(addf)
+    with pytest.raises(ValueError, match="at least one ball"):
+        probe_net(0)
