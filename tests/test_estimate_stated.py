@@ -185,3 +185,40 @@ def test_the_machine_files_value_reaches_rumba_analyze(scatter_log, tmp_path, ca
     assert all(x["p_stated"] < 0.01 for x in low["estimation"]["index_scatter"])
     again = Analysis.from_json(low).to_json()
     assert again["estimation"] == low["estimation"]
+
+
+def test_the_daemons_run_analysis_and_compensation_take_the_machine_files_value():
+    """The session's path: MachineSetup.machine_file → pipeline.analyse (the run's analysis)
+    and the compensation's own estimate (``identified.identify``): 40 µrad stated on a run
+    without index scatter is used (its links widen), nothing stated leaves them as they were."""
+    from daemon.analysis import pipeline
+    from daemon.compensation import identified
+    from tests.daemon_helpers import thesis_rows, thesis_setup
+
+    plain = thesis_setup(plan="thesis_annexB_14poses")
+    mf = plain.machine_file.model_copy(update={"rotary_repeatability_urad": {"B": 40.0,
+                                                                               "C": 40.0}})
+    said = dataclasses.replace(plain, machine_file=mf)
+    hits = [pipeline.row_to_hit(r, plain.machine) for r in thesis_rows(plain, seed=1)]
+    a0 = pipeline.analyse(plain, hits, "r0").data
+    a1 = pipeline.analyse(said, hits, "r1").data
+    assert {x.used for x in a0.estimation.index_scatter} == {"estimated"}
+    assert {(x.axis, x.stated_urad, x.used) for x in a1.estimation.index_scatter} == \
+        {("B", 40.0, "stated"), ("C", 40.0, "stated")}
+    ratio = [a1.links[k].std / v.std for k, v in a0.links.items()]
+    assert max(ratio) > 1.5 and min(ratio) > 0.99, ratio
+    c = _pipeline_centres(plain, hits)
+    e0 = identified.identify(plain, c, "r0", plain.machine)
+    e1 = identified.identify(said, c, "r1", plain.machine)
+    assert "index B stated" not in e0.visit_scatter and e1.visit_scatter["index B stated"][0] == 40
+    assert (e1.std / e0.std).max() > 1.5
+
+
+def _pipeline_centres(setup, hits) -> Centres:
+    """The estimation centres of ``hits`` (their sphere fits, validation poses held out)."""
+    from daemon.analysis.pipeline import hit_to_row
+    from daemon.analysis.touch_centres import rows_to_centres
+
+    rows = [hit_to_row("r", h, setup.machine) for h in hits if h.triggered]
+    c = rows_to_centres(rows, setup.artefact, setup.plan.stylus_radius_mm).centres
+    return c.subset(~np.isin(c.pose, list(setup.validate_poses)))
