@@ -14,8 +14,14 @@ repeatability), Bartlett's test of equal variance over the centres of an axis, t
 between any two centres (touch noise and per-visit centre scatter must leave them independent)
 and the mean error per centre (a bias of the sphere fit shows as |t| > 3).
 
+``links``: whether the u is allocated right per link on the simulator's own runs. Each run its
+own truth and noise (bench_warmup's seeds, no index scatter, no warm-up), estimated with the
+true σ given and independent centres: sd(error/u) per link, with the same spread for i.i.d.
+centres drawn around that run's estimate on the same poses (the estimator's share).
+
     .venv/bin/python -m benchmarks.bench_u_causes synthetic 200
     .venv/bin/python -m benchmarks.bench_u_causes centres 100
+    .venv/bin/python -m benchmarks.bench_u_causes links 100
 """
 
 from __future__ import annotations
@@ -114,9 +120,41 @@ def centres(runs: int) -> None:
     print(f"  mean error per centre: |t| > 3 in {int(np.sum(np.abs(t) > 3))} of {t.size}")
 
 
+def links(runs: int) -> None:
+    from benchmarks.bench_warmup import run_seed
+
+    machine, mf, art, plan = _setup()
+    e = errors_from_dict(yaml.safe_load(ERRORS.read_text()))
+    val = plan.reference.indices("validate")
+    rng = np.random.default_rng(5)
+    zs, zi = [], []
+    for i in range(runs):
+        seed = run_seed("links", 0.0, i)
+        truth = TruthModel.build(machine, mf, art, e, seed=seed)
+        res = run_sync(truth, plan.old.text, "fanuc", seed=seed)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            c = rows_to_centres(res.rows, art, plan.reference.stylus_radius_mm).centres
+        c = c.subset(~np.isin(c.pose, val))
+        est = estimate(machine, art, c, sigma_um=THESIS_SIGMA_UM, visit_scatter=False)
+        si = est.links_si()
+        zs.append([(si[k][0] - float(truth.errors.links.get(k, 0.0))) / si[k][1]
+                   for k in est.layout.links])
+        pred, _ = predict(machine, art, est.layout, est.p, c)
+        xyz = pred + rng.normal(size=pred.shape) * THESIS_SIGMA_UM * 1e-3
+        e2 = estimate(machine, art, Centres(c.pose, c.ball, c.b_deg, c.c_deg, xyz, c.t_s),
+                      sigma_um=THESIS_SIGMA_UM, visit_scatter=False)
+        zi.append(((e2.p - est.p) / e2.std)[: len(est.layout.links)])
+    print(f"sd(error/u) per link, true σ given, {runs} simulated shift runs (se ≈ "
+          f"{1 / np.sqrt(2 * runs):.2f})")
+    for label, z in (("simulated", np.array(zs)), ("i.i.d.", np.array(zi))):
+        print(f"  {label:10s} " + " ".join(f"{k} {s:.2f}" for k, s in
+                                           zip(est.layout.links, z.std(0), strict=True)))
+
+
 def main(argv: tuple[str, ...] = ()) -> None:
     n = next((int(a) for a in argv if a.isdigit()), 100)
-    (centres if "centres" in argv else synthetic)(n)
+    (centres if "centres" in argv else links if "links" in argv else synthetic)(n)
 
 
 if __name__ == "__main__":
