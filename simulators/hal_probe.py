@@ -35,9 +35,9 @@ at a fixed B C, ``tip_w = A·q + t`` with ``A = Q·U`` (QR, U upper triangular),
 ``|U·q − m_i|`` with the contact radius ``R_i + r − pretravel + n`` at every servo period — exact
 for any approach direction, whatever the scheduler does to this process. The terms hold for
 the B C they were computed at: the component publishes them behind a window on B and C
-(``wcomp``; invalidated first, data, window last), so a half-written or stale set is never used;
-a probing move that starts before the set of its indexation is up is held
-(``motion.feed-inhibit``) until it is (a real probe is never late, and neither may this one be).
+(``wcomp``; invalidated first, data, window last), so a half-written or stale set is never used
+(signal ``rumba-probe-hold``: a probing move running without its set; the poll follows an
+indexation within ~1 ms, long before the approach ends).
 
 Servo-period overshoot: LinuxCNC latches the first servo sample at which it sees the input high,
 so the latched point lies past the contact by ``v·T·u`` (u uniform in 0..1, T the servo period)

@@ -3,7 +3,7 @@ file simulators/linuxcnc_files.py writes, evaluated component by component in it
 LinuxCNC's servo thread would, fed by simulators/hal_probe.py's published terms. The userspace
 half is starved on purpose (it publishes once per indexation and never during a probing move):
 the trip must still be the truth model's contact to the servo sample, for any approach
-direction; a half-written or stale set must never trip and must hold a probing move; only a
+direction; a half-written or stale set must never trip (signal rumba-probe-hold says so); only a
 collision trips outside probing moves."""
 
 from __future__ import annotations
@@ -99,7 +99,7 @@ def _at(st: ServoThread, q: np.ndarray, motion: int) -> tuple[bool, bool]:
         st.set(f"joint.{i}.pos-fb", float(v))
     st.set("motion.motion-type", motion)
     st.period()
-    return bool(st.get("motion.probe-input")), bool(st.get("motion.feed-inhibit"))
+    return bool(st.get("motion.probe-input")), bool(st.get("rumba-hold.out"))
 
 
 def _publish(st: ServoThread, pins: list[tuple[str, float]]) -> None:

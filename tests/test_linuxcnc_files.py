@@ -48,10 +48,10 @@ def test_the_probe_hal_feeds_the_joints_and_gates_the_trip_to_probing_moves(tmp_
     assert re.findall(r"^loadrt hypot names=(\S+)$", text, flags=re.M) == [
         "rumba-b0-d,rumba-b1-d,rumba-b2-d"]
     # the touch reaches motion only while probing (motion type 5) and with a valid set; a
-    # crash in any move; a probing move without a valid set is held
+    # crash in any move
     assert "setp rumba-probing.min 4.5\nsetp rumba-probing.max 5.5\n" in text
     assert "net rumba-probe-gated rumba-probe-gate.out => rumba-probe-any.in0" in text
-    assert "net rumba-probe-hold rumba-hold.out => motion.feed-inhibit" in text
+    assert "motion.feed-inhibit" not in text  # netted, LinuxCNC AUTO raced (README)
     assert text.endswith("net rumba-probe-trip rumba-probe-any.out => motion.probe-input\n")
     # every function loaded is added to the servo thread, once
     names = [n for ln in text.splitlines() if ln.startswith("loadrt ")
