@@ -50,7 +50,6 @@ class VisitScatterCov:
     # name: (σ, u(σ), p) µrad / µm, the free REML estimates; with a stated repeatability also
     # "<name> stated": (stated σ, 0, p of the test σ = stated against free)
     components: dict[str, tuple[float, float, float]]
-    used: np.ndarray | None = None  # the components the covariance is under (names' order)
     warnings: tuple[str, ...] = ()  # a stated repeatability the run contradicts
 
 
@@ -136,7 +135,7 @@ def visit_sandwich(machine: Machine, artefact: Artefact, layout: Layout, p: np.n
         meat = meat + dj.T @ dj
     a_inv = np.linalg.pinv(a_mat, rcond=1e-12)
     cov = a_inv @ meat @ a_inv / np.outer(scale, scale)
-    return VisitScatterCov(cov, comps, np.asarray(theta, float), warns)
+    return VisitScatterCov(cov, comps, warns)
 
 
 def with_stated(b: VisitBlocks, names: tuple[str, ...], start: list[float], free: ScatterFit,
