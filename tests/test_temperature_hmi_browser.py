@@ -7,6 +7,7 @@ from __future__ import annotations
 import pytest
 
 from daemon.config import load_daemon_config
+from daemon.reports.index_scatter import NONE
 from daemon.service.service import Service
 from tests.browser import chromium
 from tests.daemon_helpers import thesis_rows, thesis_setup, write_daemon_yaml
@@ -45,11 +46,21 @@ async def test_link_against_temperature_chart_and_the_cards_temperatures(tmp_pat
             charts = await cdp.eval(sid, "document.querySelectorAll('.machine .trend "
                                          "svg.chart').length")
             assert charts == 2, charts  # EB0C and EX0C, the links of the filled runs
+            # the card's last verdict from the journal (r999, analysed before the index
+            # scatter was recorded): the run API's text says there is none, never silence
+            ix = ("[...document.querySelectorAll('.machine .index-scatter li')]"
+                  ".map(li => li.textContent)")
+            assert await cdp.wait_for(sid, ix) == [NONE]
             # a run: the replayed link has no sensor, the card says so with the reason
             svc.sessions["mill1"].start("cli")  # the page's start asks its checklist first
             temps = await cdp.wait_for(sid, "(document.querySelector('.machine .temperatures')"
                                             " || {}).textContent")
             assert temps.startswith("Temperatures: spindle not read (") and \
                 "cannot read temperature channel spindle" in temps, temps
+            # issue 22: the rotary axes' indexing repeatability, the report's own lines
+            want = svc.sessions["mill1"].verdict["index_scatter"]
+            assert want[0].startswith("B indexing repeatability: ") and \
+                "machine file states none, used: estimated" in want[0], want
+            assert await cdp.wait_for(sid, f"(l => l[0] !== {NONE!r} && l)({ix})") == want
     finally:
         await svc.stop()

@@ -43,6 +43,7 @@ from identification.analyses import (
 )
 from identification.drift import estimate_drift_aware
 from identification.estimate import RankDeficientError, estimate
+from identification.estimate_scatter import visits_of
 from identification.kinematics import Machine
 from identification.model import Artefact, Centres
 from identification.plausibility import describe, implausible
@@ -240,7 +241,8 @@ def _analyses(machine: Machine, artefact: Artefact, data: CentreData, est: Any, 
             sigma_um=_vec(est.sigma_um),
             sigma_from="given" if est.sigma_given else "residuals",
             sigma_dof=_fin(est.sigma_dof),  # None (JSON) when given: infinite
-            fixed_radius=fixed_radius, index_scatter=index_scatter(est.visit_scatter)),
+            fixed_radius=fixed_radius,
+            index_scatter=index_scatter(est.visit_scatter, len(np.unique(visits_of(est_c))))),
         volumetric=tuple(
             VolumetricPoint(pose=pose[k], repeat=repeat[k], b_deg=_fin(b_deg[k]),
                             c_deg=_fin(c_deg[k]), ball=ball[k],
@@ -285,8 +287,8 @@ CONVENTIONS = {
 """What the numbers of an analysis mean (its JSON's ``conventions``)."""
 
 
-def index_scatter(comps: dict[str, tuple[float, float, float]] | None
-                  ) -> tuple[IndexScatter, ...] | None:
+def index_scatter(comps: dict[str, tuple[float, float, float]] | None,
+                  visits: int | None = None) -> tuple[IndexScatter, ...] | None:
     """The estimate's index components per rotary axis (``Estimate.visit_scatter``): the free
     REML estimate and, with a stated repeatability, the stated value and the test that kept or
     overrode it (``identification.estimate_scatter.with_stated``)."""
@@ -302,7 +304,7 @@ def index_scatter(comps: dict[str, tuple[float, float, float]] | None
                                 std_urad=_fin(round(u, 3)), p_value=_fin(float(f"{p:.3g}")),
                                 stated_urad=None if st is None else st[0],
                                 p_stated=None if st is None else float(f"{st[2]:.3g}"),
-                                used=used))
+                                used=used, visits=visits))
     return tuple(out)
 
 

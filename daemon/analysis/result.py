@@ -65,6 +65,9 @@ class IndexScatter(_Json):
     stated_urad: float | None = None
     p_stated: float | None = None  # one-sided likelihood-ratio test of σ = stated vs free
     used: str = "estimated"  # "estimated" | "stated"
+    # indexations the estimate saw (visits of a pose: repeats and revisits count); absent in
+    # analyses written before it was recorded
+    visits: int | None = field(default=None, metadata=_OMIT)
 
 
 @dataclass(frozen=True)

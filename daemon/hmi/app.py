@@ -41,6 +41,8 @@ from daemon.hmi.compensation_api import add_routes as add_compensation_routes
 from daemon.hmi.limits import HmiLimits, int_param
 from daemon.hmi.trend_api import trend_handler
 from daemon.hmi.users import Accounts
+from daemon.reports.index_scatter import index_scatter_doc
+from daemon.reports.temperatures import temperature_lines
 from daemon.run.session import Refused, Session
 from daemon.store import report_jobs
 from daemon.store.actions import record_action
@@ -234,6 +236,25 @@ async def runs(request: web.Request) -> web.Response:
     return web.json_response([_run_dict(r, store) for r in store.runs(machine, limit)])
 
 
+async def run_detail(request: web.Request) -> web.Response:
+    """One run: its record and what its analysis says beyond the verdict — the rotary axes'
+    indexing repeatability behind the link u (issue 22, the report's own text) and the
+    temperature channels; ``index_scatter`` null when the run has no analysis."""
+    store = request.app[STORE_KEY]
+    run_id = request.match_info["run_id"]
+    if not run_id_ok(run_id):
+        raise web.HTTPNotFound(text="no such run")
+    try:
+        row = store.run(run_id)
+        analysis = store.analysis(run_id)
+    except StoreError:
+        raise web.HTTPNotFound(text=f"no run {run_id!r}") from None
+    out = _run_dict(row, store)
+    out["index_scatter"] = index_scatter_doc(analysis) if analysis else None
+    out["temperatures"] = temperature_lines(analysis) if analysis else []
+    return web.json_response(out)
+
+
 async def report_file(request: web.Request) -> web.StreamResponse:
     store = request.app[STORE_KEY]
     run_id, kind = request.match_info["run_id"], request.match_info["kind"]
@@ -324,6 +345,7 @@ def create_app(sessions: Mapping[str, Session], store: Store, token: str,
     app.router.add_get("/api/me", me)
     app.router.add_get("/api/events", events)
     app.router.add_get("/api/runs", runs)
+    app.router.add_get("/api/runs/{run_id:[A-Za-z0-9_.-]{1,64}}", run_detail)
     app.router.add_post("/api/machines/{machine}/start", start)
     app.router.add_post("/api/machines/{machine}/abort", abort)
     app.router.add_get("/api/machines/{machine}/trend",

@@ -192,6 +192,15 @@ function render(st) {
       el.querySelector(".baseline").after(temps);
     }
     temps.textContent = (v.temperatures || []).length ? `Temperatures: ${v.temperatures.join("; ")}.` : "";
+    // issue 22: the rotary axes' indexing repeatability the link u rest on (the report's text)
+    let ix = el.querySelector(".index-scatter");
+    if (!ix) {
+      ix = document.createElement("ul");
+      ix.className = "index-scatter";
+      temps.after(ix);
+    }
+    ix.replaceChildren(...(v.index_scatter || []).map(t => {
+      const li = document.createElement("li"); li.textContent = t; return li; }));
     const todo = el.querySelector(".todo");
     todo.textContent = cfg.advice[v.status] ? `What to do: ${cfg.advice[v.status]}` : "";
     todo.hidden = !cfg.advice[v.status];
@@ -287,6 +296,18 @@ async function loadLastVerdicts() {
     }
   }
   Object.values(live).forEach(st => { if (!st.verdict && !st.busy) render(st); });
+  // what the runs list does not carry: the run API's sections of each journaled verdict
+  for (const [machine, v] of Object.entries(journaled)) {
+    if (v.index_scatter) continue;
+    fetch(`/api/runs/${encodeURIComponent(v.run_id)}`, {credentials: "same-origin"})
+      .then(r => r.ok ? r.json() : null).then(d => {
+        if (!d || journaled[machine] !== v) return;
+        v.index_scatter = d.index_scatter ? d.index_scatter.lines : [];
+        v.temperatures = d.temperatures;
+        const st = live[machine];
+        if (st && !st.verdict && !st.busy) render(st);
+      }).catch(() => {});  // daemon restarting: the next refresh asks again
+  }
 }
 
 // ------------------------------------------------------------------------------- trend chart

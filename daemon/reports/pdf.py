@@ -30,6 +30,7 @@ from matplotlib.text import Text
 from daemon.analysis.result import Analysis
 from daemon.reports import temperatures
 from daemon.reports.audit import audit_rows, local_time
+from daemon.reports.index_scatter import index_scatter_lines
 from daemon.reports.pdf_sections import page3
 from daemon.reports.plots import VERDICT_COLOURS
 from daemon.store.journal import RunRow
@@ -131,6 +132,9 @@ def _page1(fig: Figure, run: RunRow, analysis: Analysis, doc: dict[str, Any],
             if d.value is not None and d.std is not None)
             + "; link errors estimated with it") if th.status == "selected" else th.message,
             width=125, color="#444444")
+    # issue 22: the rotary axes' indexing repeatability the link u rest on (the report's text)
+    for line in index_scatter_lines(analysis):
+        p.wrapped(line, width=125, color="#444444")
     if analysis.temperatures:  # issue 22 item 3: the channels read during the run
         p.wrapped("Temperatures: " + "; ".join(temperatures.channel_text(n, t) for n, t in
                                                 analysis.temperatures.items()),

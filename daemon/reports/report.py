@@ -25,6 +25,7 @@ from daemon.analysis.verdict_text import advice, duration_text
 from daemon.machines.tolerances import Tolerances
 from daemon.reports.audit import Audit, audit_of, audit_rows, local_time
 from daemon.reports.compensation import CompensationView
+from daemon.reports.index_scatter import index_scatter_doc
 from daemon.reports.pdf import write_pdf
 from daemon.reports.plots import (
     VERDICT_COLOURS,
@@ -134,6 +135,9 @@ is not none %} ± {{ '%.1f' % analysis.thermal.tau_std_min }}{% else %} (at its
 {{ analysis.thermal.tau_bounded }} bound){% endif %}{% endif %}; link uncertainties grow at most
 ×{{ '%.2f' % analysis.thermal.link_inflation }} for it.</p>
 {% else %}<p>{{ analysis.thermal.message }}</p>{% endif %}{% endif %}
+<h2 id="index-scatter">{{ index_scatter.title }}</h2><p><small>{{ index_scatter.definition
+}}.</small></p><ul class="index-scatter">{% for line in index_scatter.lines %}<li>{{ line }}</li>
+{% endfor %}</ul>
 {% if temperature_rows %}<h2>Temperatures during the run</h2>
 <table><tr><th>channel</th><th>start °C</th><th>end °C</th><th>change °C</th><th>min … max °C</th>
 <th>at each pose (pose: °C)</th><th>source</th></tr>
@@ -206,6 +210,7 @@ def _render(run: RunRow, analysis: Analysis, judgement: Judgement | None,
     health = analysis.health
     status = verdict["status"] if verdict else None
     figures = run_figures(analysis)  # one definition of each quantity (issue 23)
+    index_scatter = index_scatter_doc(analysis)  # issue 22: the one text of every screen
     doc = {
         "run": {k: getattr(run, k) for k in ("id", "machine", "trigger", "state", "reason",
                                                "plan", "artefact", "dialect", "touch_total",
@@ -220,6 +225,7 @@ def _render(run: RunRow, analysis: Analysis, judgement: Judgement | None,
                   for t in trend],
         "compensation": compensation.to_json() if compensation else None,
         "figures": figures_json(figures), "links_definition": LINK_DEFINITION,
+        "index_scatter": index_scatter,
     }
     stab = analysis.stability
     html = _TEMPLATE.render(
@@ -231,6 +237,7 @@ def _render(run: RunRow, analysis: Analysis, judgement: Judgement | None,
         colour=VERDICT_COLOURS.get(status or "ERROR", "#555"),
         generated=local_time(time.time()), json_name=f"{run.id}.json",
         pdf_name=f"{run.id}.pdf", comp=compensation, figures=figures, audit_doc=audit,
+        index_scatter=index_scatter,
         audit_links=audit.link_names, link_definition=LINK_DEFINITION,
         prepared_by=prepared_by(run, audit), generated_date=time.strftime("%Y-%m-%d"),
         comp_time=local_time(compensation.applied_at) if compensation else "",

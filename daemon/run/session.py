@@ -28,6 +28,7 @@ from daemon.analysis.figures import figures_json, run_figures
 from daemon.analysis.judge import Judgement, judge
 from daemon.analysis.result import Analysis
 from daemon.machines.setup import MachineSetup
+from daemon.reports.index_scatter import index_scatter_lines
 from daemon.reports.temperatures import temperature_lines
 from daemon.run import lease as run_lease
 from daemon.run import report_job
@@ -258,7 +259,9 @@ class Session(RunCapture):
                         "figures": figures_json(run_figures(analysis.data)),
                         "baseline": self.baseline.as_dict() if self.baseline else None,
                         # issue 22: each temperature channel's start → end (the HMI card)
-                        "temperatures": temperature_lines(analysis.data)}
+                        "temperatures": temperature_lines(analysis.data),
+                        # issue 22: the rotary axes' indexing repeatability behind the link u
+                        "index_scatter": index_scatter_lines(analysis.data)}
         return j
 
 
