@@ -3,8 +3,9 @@ every link in the least estimated machine time — optimal experimental design w
 
 Criterion (Atkinson, Donev & Tobias, *Optimum Experimental Designs, with SAS*, OUP 2007, ch. 10:
 A-optimality, weighted): the predicted link uncertainties ``u`` of ``programs.design`` (the
-covariance the estimator reports, (JᵀWJ)⁻¹ with the centre repeatability σ), scaled by their
-targets, φ = Σ (u_k / target_k)²; a plan is feasible when every u_k ≤ target_k. Cost: the
+covariance the estimator reports, (JᵀWJ)⁻¹ with the centre repeatability σ; with a stated
+rotary repeatability its visit sandwich, where revisits and extra indexations count), scaled
+by their targets, φ = Σ (u_k / target_k)²; a plan is feasible when every u_k ≤ target_k. Cost: the
 cycle-time model's seconds of each visit (``programs.candidates``) and of the moves between
 visits. The revisit of the first pose (drift check) counts twice in the information.
 
@@ -57,6 +58,9 @@ class Problem:
     two_speed: bool = False  # the dialect can repeat a probing move
     validate_poses: int = 0
     max_time_s: float | None = None
+    # the machine file's stated rotary repeatability (µrad 1σ per indexation by axis letter):
+    # the predicted u are the estimator's visit sandwich under it (``programs.design``)
+    index_urad: dict[str, float] | None = None
 
 
 @dataclass
@@ -114,9 +118,19 @@ class _Search:
             w[sel[r]] += 1
         return w
 
-    def ratio(self, m: np.ndarray) -> np.ndarray:
-        u = link_u_regular(self.d, m + self.ridge)[..., self.tidx]
+    def ratio(self, m: np.ndarray, extra: np.ndarray | None = None) -> np.ndarray:
+        u = link_u_regular(self.d, m + self.ridge, extra)[..., self.tidx]
         return u / self.tval
+
+    def ratio_of(self, w: np.ndarray) -> np.ndarray:
+        """Target ratios of the plan of visit counts ``w``."""
+        return self.ratio(self.d.info_of(w), self.d.meat_of(w))
+
+    def ratio_plus(self, w: np.ndarray, avail: np.ndarray, mult: float) -> np.ndarray:
+        """Target ratios of ``w`` plus ``mult`` visits of each candidate in ``avail``."""
+        s = self.d.meat_of(w)
+        return self.ratio(self.d.info_of(w)[None] + mult * self.d.info[avail],
+                          None if s is None else s[None] + mult * self.d.index_info[avail])
 
     def costs(self) -> np.ndarray:
         return self.c.costs()
@@ -135,17 +149,15 @@ class _Search:
     def greedy(self, sel: list[int], r: int) -> list[int]:
         while True:
             cost = self.costs()
-            m = self.d.info_of(self.counts(sel, r))
-            rat = self.ratio(m)
+            rat = self.ratio_of(self.counts(sel, r))
             if rat.max() <= MET:
                 return sel
             avail = np.flatnonzero(~self.excluded & (self.counts(sel, r) == 0))
             if avail.size == 0:
                 return sel
             mult = 1.0 if sel else 2.0  # the first pose is the revisited one
-            mk = m[None] + mult * self.d.info[avail]
             phi0 = float(np.sum(rat ** 2))
-            phi = np.sum(self.ratio(mk) ** 2, axis=1)
+            phi = np.sum(self.ratio_plus(self.counts(sel, r), avail, mult) ** 2, axis=1)
             add = mult * (cost[avail] + self.t_move)
             gain = (phi0 - phi) / add
             if self.pb.max_time_s is not None:
@@ -163,7 +175,7 @@ class _Search:
         """One best-improvement step of drop / move-revisit / swap; (sel, r, improved)."""
         cost = self.costs()
         n = len(self.d.poses)
-        cur = self.score(np.array(self.ratio(self.d.info_of(self.counts(sel, r))).max()),
+        cur = self.score(np.array(self.ratio_of(self.counts(sel, r)).max()),
                          np.array(self.total(sel, r, cost)))
         best: tuple[float, list[int], int] | None = None
 
@@ -177,11 +189,11 @@ class _Search:
                 ns = sel[:i] + sel[i + 1:]
                 nr = 0 if i == r else (r - (i < r))
                 w = self.counts(ns, nr)
-                consider(float(self.score(self.ratio(self.d.info_of(w)).max(),
+                consider(float(self.score(self.ratio_of(w).max(),
                                           np.array(self.total(ns, nr, cost)))), ns, nr)
             if i != r:  # revisit pose i instead
                 consider(float(self.score(
-                    self.ratio(self.d.info_of(self.counts(sel, i))).max(),
+                    self.ratio_of(self.counts(sel, i)).max(),
                     np.array(self.total(sel, i, cost)))), sel, i)
         avail = np.flatnonzero(~self.excluded & (self.counts(sel, r) == 0))
         for i in range(len(sel)):  # swap pose i for any candidate
@@ -190,8 +202,7 @@ class _Search:
             mult = 2.0 if i == r else 1.0
             base = self.counts(sel, r)
             base[sel[i]] -= mult
-            mk = self.d.info_of(base)[None] + mult * self.d.info[avail]
-            rat = self.ratio(mk).max(axis=1)
+            rat = self.ratio_plus(base, avail, mult).max(axis=1)
             tot = self.total(sel, r, cost) + mult * (cost[avail] - cost[sel[i]])
             sc = self.score(rat, tot)
             for j in np.argsort(sc)[:n]:
@@ -217,7 +228,7 @@ def optimise(pb: Problem) -> Chosen:
     if len(poses) < 2:
         raise ValueError("fewer than two candidate poses within the rotary travel: widen "
                          "candidates.b_range_deg or make the steps finer")
-    d = build_design(pb.machine, pb.artefact, poses, pb.links, pb.sigma_um)
+    d = build_design(pb.machine, pb.artefact, poses, pb.links, pb.sigma_um, pb.index_urad)
     cands = Candidates(pb.machine, pb.machine_file, pb.artefact, pb.probing, pb.two_speed,
                        poses, d.centres_mm)
     s = _Search(pb, d, cands)
@@ -240,7 +251,8 @@ def optimise(pb: Problem) -> Chosen:
     if len(sel) < 2:
         raise ValueError("no two safe candidate poses fit: the plan cannot identify the links"
                          + (" within the time cap" if pb.max_time_s else ""))
-    if not np.all(np.isfinite(link_u(d, d.info_of(s.counts(sel, r))))):
+    w = s.counts(sel, r)
+    if not np.all(np.isfinite(link_u(d, d.info_of(w), d.meat_of(w)))):
         raise ValueError("no plan that identifies every link fits"
                          + (" within the time cap" if pb.max_time_s else ""))
     val = _validation(s, sel, pb.validate_poses)
@@ -251,7 +263,7 @@ def optimise(pb: Problem) -> Chosen:
     roles = [roles[i] for i in order]
     c_un = unwrap_c([poses[v][1] for v in visits], pb.machine.axes[pb.machine.rotary_axes[1]]
                     .travel)
-    u = link_u(d, d.info_of(s.counts(sel, r)))
+    u = link_u(d, d.info_of(w), d.meat_of(w))
     rat = u[s.tidx] / s.tval
     missed = {k: (float(u[pb.links.index(k)]), t) for (k, t), q in
               zip(pb.targets.items(), rat, strict=True) if q > 1.0 + 1e-9}

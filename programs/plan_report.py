@@ -4,7 +4,7 @@ uncertainties of any plan as the daemon runs it (estimate-role poses + the drift
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -33,18 +33,20 @@ def plan_links(machine: Machine, artefact: Artefact, plan: Plan
 
 
 def predicted_u(machine: Machine, artefact: Artefact, plan: Plan, links: Sequence[str],
-                sigma_um: Sequence[float], times_h: Sequence[float] | None = None
+                sigma_um: Sequence[float], times_h: Sequence[float] | None = None,
+                index_urad: Mapping[str, float] | None = None
                 ) -> tuple[dict[str, float], dict[str, float] | None]:
     """Standard uncertainty per link (µrad / µm) of ``plan`` as the daemon estimates it; with
     the visit times (hours, one per estimate visit) also with a drift estimated (the worst of
-    a linear drift and a warm-up of τ 10-60 min, ``drift_u_worst``)."""
+    a linear drift and a warm-up of τ 10-60 min, ``drift_u_worst``); with ``index_urad``
+    (the machine file's stated rotary repeatability) under that index scatter."""
     visits = estimate_visits(plan)
     uniq = sorted(set(visits))
-    d = build_design(machine, artefact, uniq, links, sigma_um)
+    d = build_design(machine, artefact, uniq, links, sigma_um, index_urad)
     counts = np.zeros(len(uniq))
     for v in visits:
         counts[uniq.index(v)] += 1
-    u = link_u(d, d.info_of(counts))
+    u = link_u(d, d.info_of(counts), d.meat_of(counts))
     du = None
     if times_h is not None:
         du_arr = drift_u_worst(d, [uniq.index(v) for v in visits], times_h)

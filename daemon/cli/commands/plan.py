@@ -45,6 +45,7 @@ class Outcome:
     chosen: Chosen
     optimiser_s: float
     drift: tuple[DriftPlan, DriftPlan] | None = None  # reference, optimised (issue 22)
+    assumed_index: str = ""  # the indexing repeatability the predictions assume, in words
 
 
 def make_plan(machine_path: Path, artefact_path: Path, target_path: Path, dialect: str,
@@ -72,6 +73,9 @@ def make_plan(machine_path: Path, artefact_path: Path, target_path: Path, dialec
     ref = load_plan(ref_file)
     check_touch_count(ref, artefact, f"{ref_file}: poses")
     sigma = (tf.repeatability_um[0], tf.repeatability_um[1], tf.repeatability_um[2])
+    # the machine file's stated rotary repeatability: the estimator's index components
+    # (issue 22), so the predicted u are its visit sandwich under them
+    index = {a: float(v) for a, v in (mf.rotary_repeatability_urad or {}).items()} or None
     d = get_dialect(dialect)
 
     def program(plan: Plan, what: str) -> GeneratedProgram:
@@ -90,7 +94,7 @@ def make_plan(machine_path: Path, artefact_path: Path, target_path: Path, dialec
         if want == "reference" and name not in ref_links:
             raise _error(f"{target_path}: links.{name}: 'reference', but {ref_file.name} "
                          f"does not identify {name}")
-    ref_u, _ = predicted_u(machine, artefact, ref, ref_links, sigma)
+    ref_u, _ = predicted_u(machine, artefact, ref, ref_links, sigma, index_urad=index)
     targets = {k: (ref_u[k] if v == "reference" else float(v)) for k, v in tf.links.items()}
     fast = mf.dynamics.max_probe_feed_mm_min
     feeds = ref.feeds.model_copy(update={
@@ -99,7 +103,7 @@ def make_plan(machine_path: Path, artefact_path: Path, target_path: Path, dialec
                                      "clearance_mm": tf.clearance_mm or ref.clearance_mm})
     problem = Problem(machine, mf, artefact, probing, grid_links, targets, sigma,
                       tf.candidates, d.two_speed and feeds.fast_probe_mm_min is not None,
-                      tf.validate_poses, max_time_s)
+                      tf.validate_poses, max_time_s, index)
     t0 = time.perf_counter()
     try:
         chosen = optimise(problem)
@@ -124,21 +128,38 @@ def make_plan(machine_path: Path, artefact_path: Path, target_path: Path, dialec
                      ": make the candidate grid finer")
     old = program(ref, f"{ref_file}")
     new_u, new_du = predicted_u(machine, artefact, plan, grid_links, sigma,
-                                chosen.visit_times_h)
+                                chosen.visit_times_h, index)
+    assumed = index_assumption(machine, index, Path(machine_path).name)
     header = [f"rumba plan {time.strftime('%Y-%m-%d %H:%M')}: {machine.name} x "
               f"{artefact.name}, from {Path(target_path).name}",
               f"{len(chosen.poses)} poses + the first again (drift check), estimated "
               f"{new.estimated_s:.0f} s ({dialect}); reference {ref.name}: "
               f"{old.estimated_s:.0f} s",
               "predicted link u (µrad / µm, σ = " + "/".join(f"{s:g}" for s in sigma)
-              + " µm): " + ", ".join(f"{k} {new_u[k]:.3g}" for k in grid_links)]
+              + " µm): " + ", ".join(f"{k} {new_u[k]:.3g}" for k in grid_links),
+              f"assumed {assumed}"]
     text = plan_yaml(to_plan_dict(chosen, probing, tf.name), header)
     drift = (drift_plan(machine, artefact, estimate_visits(ref),
                         plan_times_s(ref, old.estimated_s), ref_links, sigma),
              drift_plan(machine, artefact, estimate_visits(plan),
                         [h * 3600.0 for h in chosen.visit_times_h], grid_links, sigma))
     return Outcome(plan, text, ref, new, old, grid_links, targets, new_u, ref_u, new_du,
-                   chosen, opt_s, drift)
+                   chosen, opt_s, drift, assumed)
+
+
+def index_assumption(machine: Machine, index: dict[str, float] | None, source: str) -> str:
+    """What the predictions assume of the rotary indexing, in words: "B/C indexing
+    repeatability 4 µrad (machine file thesis.yaml)", or that nothing was stated."""
+    axes = machine.rotary_axes[:2]
+    if not index or not any(index.get(a, 0.0) > 0 for a in axes):
+        return ("exact rotary indexing (the machine file states no "
+                "rotary_repeatability_urad: a visit's balls share no index error)")
+    vals = {a: index.get(a, 0.0) for a in axes}
+    if len(set(vals.values())) == 1:
+        said = f"{'/'.join(axes)} indexing repeatability {vals[axes[0]]:g} µrad"
+    else:
+        said = "indexing repeatability " + ", ".join(f"{a} {v:g} µrad" for a, v in vals.items())
+    return f"{said} 1σ per indexation (machine file {source})"
 
 
 def write_new(out: Path, text: str, force: bool) -> None:
@@ -203,7 +224,7 @@ def _print(r: Outcome, dialect: object, sigma: object) -> None:
     print(f"{new.program.machine.name} x {new.program.artefact.name}, dialect "
           f"{getattr(dialect, 'label', '')} ({'two-speed' if two else 'one-speed'} touch); "
           f"predicted with centre repeatability {'/'.join(f'{s:g}' for s in sigma)} µm "
-          "(x/y/z)")
+          f"(x/y/z); {r.assumed_index}")
     w = max(len(ref.name), len(plan.name), 12)
     print(f"{'':22}{ref.name:>{w}}  {plan.name:>{w}}  {'target':>8}")
     visits = (len(ref.poses) * ref.repeats + ref.drift_check, len(plan.poses) + 1)
