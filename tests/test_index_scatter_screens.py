@@ -1,7 +1,8 @@
 """The rotary axes' indexing repeatability behind a run's link u (issue 22 follow-up) on every
 screen with one text: the HTML report, its JSON and PDF (pdftotext), the HMI's verdict card
-data and its run API — for a run whose stated value is used, one whose stated value the run
-overrides (with its p and the warning), and an analysis JSON written before the field."""
+data and its run API, the fleet page's run table (real PostgreSQL) — for a run whose stated
+value is used, one whose stated value the run overrides (with its p and the warning), and an
+analysis JSON written before the field."""
 
 from __future__ import annotations
 
@@ -23,7 +24,7 @@ from daemon.store.journal import Store
 from tests.daemon_helpers import CONFIG, thesis_rows, thesis_setup, write_daemon_yaml
 from tests.replay_link import ReplayLink, prepare_from_rows
 from tests.test_estimate_stated import _analyse, scatter_log  # noqa: F401  (a fixture)
-from tests.test_one_truth import flat, pdf_text
+from tests.test_one_truth import flat, fleet_page, pdf_text
 
 TOKEN = "t0k3n-for-index-scatter-0123"
 BEARER = {"Authorization": f"Bearer {TOKEN}"}
@@ -146,5 +147,9 @@ async def test_the_daemons_card_and_run_api_carry_the_reports_text(tmp_path):
         assert detail["index_scatter"]["lines"] == want
         _on_every_page(want, html, doc, pdf_text(Path(svc.store.report(run_id)[0])
                                                  .with_suffix(".pdf")))
+        # the fleet page's run table, the run copied to a real PostgreSQL as the drainer does
+        page = await fleet_page(tmp_path, svc.store, run_id)
+        cell = page.split('<td class="index-scatter">', 1)[1].split("</td>", 1)[0]
+        assert flat(cell) == "; ".join(want), cell
     finally:
         await svc.stop()

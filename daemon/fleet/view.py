@@ -16,6 +16,7 @@ from contracts.temperatures import channel_text
 from daemon.analysis.figures import DEFINITIONS, LABELS, VOLUMETRIC
 from daemon.analysis.judge import NO_BASELINE
 from daemon.fleet.chart import LEFT_PX, RIGHT_PX, WIDTH_PX, Frame, padded
+from daemon.reports.index_scatter import index_scatter_text
 
 UNITS = {"urad": "µrad", "um": "µm"}
 VERDICTS = ("PASS", "WARN", "FAIL", "ERROR")
@@ -253,6 +254,7 @@ def machine_page(name: str, machine: Mapping[str, Any] | None, runs: Sequence[Ma
         f'<td>{_e(r["trigger"])}</td><td>{_e(r["state"])}</td>'
         f'<td>{_badge(r["verdict"] or ("ERROR" if r["state"] in _ENDED else None))}</td>'
         f'<td>{_e(r["summary"])}</td><td>{_e(temperatures_text(r.get("temperatures")))}</td>'
+        f'<td class="index-scatter">{_e(index_scatter_text(r.get("index_scatter")))}</td>'
         f'<td class="baseline">{_e(drift_baseline(r))}</td><td>{report_cell(r)}</td></tr>'
         for r in runs)
     desc = ("" if machine is None else
@@ -267,7 +269,8 @@ def machine_page(name: str, machine: Mapping[str, Any] | None, runs: Sequence[Ma
             f'{trend_charts(trend, limits)}'
             '<h2>Runs</h2><table class="runs"><thead><tr><th>Run</th><th>Started</th>'
             '<th>Trigger</th><th>State</th><th>Verdict</th><th>Summary</th>'
-            '<th>Temperatures</th><th>Drift baseline</th><th>Report</th>'
+            '<th>Temperatures</th><th>Indexing repeatability</th><th>Drift baseline</th>'
+            '<th>Report</th>'
             f"</tr></thead><tbody>{rows}</tbody></table>{against}"
             # issue 23: the summary's figure is defined beside it, as on every surface
             f'<p class="definition">{_e(LABELS[VOLUMETRIC])}: {_e(DEFINITIONS[VOLUMETRIC])}.'

@@ -6,6 +6,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 from daemon.analysis.result import Analysis, IndexScatter
@@ -45,15 +46,33 @@ def index_scatter_lines(analysis: Analysis) -> list[str]:
     """One line per rotary axis, then the warning of each overridden stated value; one line
     saying why there is nothing when the analysis holds no index scatter."""
     est = analysis.estimation  # None in an analysis without an estimation block
-    axes = est.index_scatter if est is not None else None
+    return lines_of(est.index_scatter if est is not None else None, analysis.warnings)
+
+
+def lines_of(axes: Sequence[IndexScatter] | None, warnings: Sequence[str]) -> list[str]:
+    """``index_scatter_lines`` of the estimation's entries and the analysis' warnings."""
     if not axes:
         return [NONE]
     lines = [axis_text(x) for x in axes]
     for x in axes:
         if x.stated_urad is not None and x.used == "estimated":
-            lines += [f"Warning: {w}" for w in analysis.warnings
+            lines += [f"Warning: {w}" for w in warnings
                       if w.startswith(f"{x.axis} indexing repeatability") and STATED_TAG in w]
     return lines
+
+
+def index_scatter_text(data: Any) -> str:
+    """The lines of an analysis JSON's parts as a store holds them (the fleet page's cell):
+    ``{"index_scatter": estimation.index_scatter, "warnings": …}``; "" without an analysis.
+    A row of another version costs the cell, never the page."""
+    if not isinstance(data, Mapping):
+        return ""
+    try:
+        axes = [IndexScatter.from_json(x) for x in data.get("index_scatter") or ()]
+        warnings = [str(w) for w in data.get("warnings") or ()]
+        return "; ".join(lines_of(axes, warnings))
+    except (TypeError, ValueError, KeyError, AttributeError):
+        return ""
 
 
 def index_scatter_doc(analysis: Analysis) -> dict[str, Any]:

@@ -222,12 +222,17 @@ class PgStore:
                  "links": r[3] or {}} for r in rows]
 
     async def runs(self, machine: str, limit: int) -> list[dict[str, Any]]:
-        """A machine's last ``limit`` runs, newest first, with whether a report exists and the
-        temperature channels' summary of its analysis (issue 22; None without)."""
+        """A machine's last ``limit`` runs, newest first, with whether a report exists, the
+        temperature channels' summary of its analysis and its index scatter with the warnings
+        (issue 22; None without an analysis)."""
         rows = await self._all(
             "SELECT r.id, r.trigger, r.state, r.verdict, r.summary, r.started_at, r.ended_at,"
             " EXISTS (SELECT 1 FROM reports p WHERE p.run_id = r.id),"
             " (SELECT (e.analysis::jsonb)->'temperatures' FROM estimates e"
+            " WHERE e.run_id = r.id),"
+            # issue 22: the rotary axes' indexing repeatability and the warnings naming it
+            " (SELECT jsonb_build_object('index_scatter', (e.analysis::jsonb)->'estimation'"
+            "->'index_scatter', 'warnings', (e.analysis::jsonb)->'warnings') FROM estimates e"
             " WHERE e.run_id = r.id),"
             # issue 23: the drift checks name the baseline run; the reason a report failure
             " (SELECT v.checks FROM verdicts v WHERE v.run_id = r.id),"
@@ -236,8 +241,8 @@ class PgStore:
             " j.state, j.reason FROM runs r LEFT JOIN report_jobs j ON j.run_id = r.id"
             " WHERE r.machine=%s ORDER BY r.started_at DESC LIMIT %s", (machine, limit))
         keys = ("id", "trigger", "state", "verdict", "summary", "started_at", "ended_at",
-                "has_report", "temperatures", "checks", "reasons", "reason", "report_state",
-                "report_error")
+                "has_report", "temperatures", "index_scatter", "checks", "reasons", "reason",
+                "report_state", "report_error")
         return [dict(zip(keys, r, strict=True)) for r in rows]
 
     async def report_job(self, run_id: str) -> tuple[str, str] | None:
