@@ -140,9 +140,9 @@ def make_plan(machine_path: Path, artefact_path: Path, target_path: Path, dialec
               f"assumed {assumed}"]
     text = plan_yaml(to_plan_dict(chosen, probing, tf.name), header)
     drift = (drift_plan(machine, artefact, estimate_visits(ref),
-                        plan_times_s(ref, old.estimated_s), ref_links, sigma),
+                        plan_times_s(ref, old.estimated_s), ref_links, sigma, index),
              drift_plan(machine, artefact, estimate_visits(plan),
-                        [h * 3600.0 for h in chosen.visit_times_h], grid_links, sigma))
+                        [h * 3600.0 for h in chosen.visit_times_h], grid_links, sigma, index))
     return Outcome(plan, text, ref, new, old, grid_links, targets, new_u, ref_u, new_du,
                    chosen, opt_s, drift, assumed)
 
