@@ -63,12 +63,15 @@ async def _api(store: Store, run_ids: list[str]) -> dict[str, dict]:
 
 
 async def test_stated_overridden_and_old_analyses_on_report_pdf_and_run_api(
-        scatter_log, tmp_path):  # noqa: F811
+        scatter_log, tmp_path, capsys):  # noqa: F811
     """A 10 µrad B/C index scatter: stated 40 (used), stated 1 (overridden on both axes, the
-    warning shown), and the overridden run's JSON without the field (an old analysis)."""
+    warning shown), and the overridden run's JSON without the field (an old analysis); `rumba
+    analyze` prints the axis lines too."""
     (tmp_path / "m").mkdir()
     used = _analyse(scatter_log, tmp_path / "m", {"B": 40, "C": 40})
+    printed = {"r-used": " ".join(capsys.readouterr().out.split())}
     over = _analyse(scatter_log, tmp_path / "m", {"B": 1, "C": 1})
+    printed["r-over"] = " ".join(capsys.readouterr().out.split())
     old = json.loads(json.dumps(over))
     del old["estimation"]["index_scatter"]
     analyses = {f"r-{k}": Analysis.from_json(v) for k, v in
@@ -104,6 +107,9 @@ async def test_stated_overridden_and_old_analyses_on_report_pdf_and_run_api(
     assert all("machine file states 1 (likelihood-ratio test" in w for w in lines[2:])
     assert index_scatter_lines(analyses["r-old"]) == [NONE]
 
+    for rid, out in printed.items():  # the console wraps: compared with white space folded
+        for line in index_scatter_lines(analyses[rid]):
+            assert (" ".join(line.split()) in out) != line.startswith("Warning: "), (line, out)
     for rid, a in analyses.items():
         want = index_scatter_lines(a)
         _on_every_page(want, *texts[rid])

@@ -26,6 +26,7 @@ from daemon.analysis.result import Analysis
 from daemon.analysis.touch_centres import rows_to_centres
 from daemon.cli.choices import DEFAULT_STYLUS_DIAMETER_MM
 from daemon.cli.tables import print_long_table
+from daemon.reports.index_scatter import index_scatter_lines
 
 if TYPE_CHECKING:  # the centres path's modules are imported when it runs (issue 19)
     from daemon.analysis.centres_shape import OneIndexation
@@ -226,6 +227,9 @@ def render(r: Analysis, console: Console) -> None:
         console.print(
             f"[bold]Stability[/] (poses probed again): largest ball-centre shift "
             f"{st.max_shift_um:.2f} µm{span} (ball {st.worst.ball}, pose {st.worst.pose})")
+    for line in index_scatter_lines(r):  # issue 22: the report's text; warnings just below
+        if not line.startswith("Warning: "):
+            console.print(line, markup=False, highlight=False)
     for w in r.warnings:  # a faulty ball visit (touch_centres.screen_centres) in red
         bad = w.startswith("measurement outlier")
         console.print(f"{'[bold red]' if bad else '[yellow]'}warning:[/] {w}")
