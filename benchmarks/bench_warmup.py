@@ -56,7 +56,6 @@ from daemon.analysis.identify import analyse_centres
 from daemon.analysis.touch_centres import rows_to_centres
 from daemon.cli.commands.plan import make_plan
 from identification.estimate import estimate
-from identification.estimate_scatter import STATED_TAG
 from identification.uncertainty import t_variance_factor
 from simulators.errors_schema import errors_from_dict
 from simulators.offline import run_sync
@@ -139,9 +138,12 @@ def run_one(machine, mf, art, plan, text: str, name: str, over_um: float, span_s
     pi = estimate(machine, art, est_c, visit_scatter=False)
     today = {k: u / float(np.sqrt(t_variance_factor(pi.sigma_dof)))
              for k, (_, u, _) in pi.links_si().items()}
+    # the axes whose stated repeatability the run overrode: the estimator's own decision
+    overridden = [x for x in (a.estimation.index_scatter or ())
+                  if x.stated_urad is not None and x.used == "estimated"]
     rec: dict = {"plan": name, "warmup_um": over_um, "i": i, "seed": seed,
                  "stated_urad": stated_urad,
-                 "overridden": sum(STATED_TAG in w for w in a.warnings),
+                 "overridden": len(overridden),
                  "dof": a.estimation.sigma_dof or float("inf"), "aware": [], "plain": [],
                  "z": [], "u_ratio": [], "u_today": [], "drift": [], "missed": [],
                  "over_um": 0.0, "index_urad": {k: v[0] for k, v in (pe.visit_scatter or {}).items()

@@ -42,8 +42,9 @@ import numpy as np
 from scipy.optimize import minimize_scalar
 
 from identification.drift_lin import Lin, fwls, lin_at, solve
+from identification.drift_lin import selection_share as _selection_share
 from identification.estimate import Estimate, a_posteriori, estimate
-from identification.estimate_scatter import STATED_TAG, visit_sandwich
+from identification.estimate_scatter import visit_sandwich
 from identification.identifiability import RANK_TOL
 from identification.kinematics import Machine
 from identification.model import Artefact, Centres
@@ -271,34 +272,6 @@ def _profile(proj: _Projector, t: np.ndarray, model: DriftModel, n_base: int
     return replace(model, tau_s=float(math.exp(x))), v
 
 
-def _selection_share(lin: Lin, sigma_mm: np.ndarray, t: np.ndarray,
-                     scored: list[tuple[float, DriftModel | None]], chosen: DriftModel
-                     ) -> np.ndarray:
-    """Σ_m w_m Δ_m Δ_mᵀ over the link and setup parameters (model units): the spread of their
-    estimates over the models BIC chose among (none included), w_m ∝ e^(−BIC_m/2), Δ_m model
-    m's estimate − the chosen one's, in the linearisation at the plain estimate (the
-    unconditional variance of Burnham & Anderson, *Model Selection and Multimodel Inference*,
-    2002, §4.3.2, about the estimate reported). A choice among close models is an uncertainty
-    of the links: on the optimised plan under a 10 µm warm-up, the 15 % of runs where BIC
-    added a spurious axis covered their links at 83-93 % within 2u without it."""
-    bic = np.array([b for b, _ in scored])
-    w = np.exp(-(bic - bic.min()) / 2.0)
-    w /= w.sum()
-    n = lin.j.shape[2]
-
-    def params(model: DriftModel | None) -> np.ndarray:
-        cols = np.zeros((len(t), 3, 0)) if model is None else model.columns(t)
-        return solve(lin, cols, sigma_mm)[0][:n]
-
-    p0 = params(chosen)
-    out = np.zeros((n, n))
-    for wi, (_, model) in zip(w, scored, strict=True):
-        if wi > 1e-6 and model != chosen:
-            d = params(model) - p0
-            out += wi * np.outer(d, d)
-    return out
-
-
 def _final(machine: Machine, artefact: Artefact, centres: Centres, base: Estimate,
            model: DriftModel, span: float, gain: float, share: np.ndarray,
            stated_urad: dict[str, float] | None = None) -> tuple[Estimate, DriftFit]:
@@ -353,6 +326,7 @@ def _final(machine: Machine, artefact: Artefact, centres: Centres, base: Estimat
                              given=base.sigma_given, stated_urad=stated_urad)
     if scatter is not None:
         cov = scatter.cov * t_variance_factor(sig_dof)
+    sw = () if scatter is None else scatter.warnings
     cov[:n_par, :n_par] += share
     m = len(model.axes)
     std = np.sqrt(np.diag(cov))
@@ -366,11 +340,23 @@ def _final(machine: Machine, artefact: Artefact, centres: Centres, base: Estimat
     out = replace(est, std=std[:n_par], cov=cov[:n_par, :n_par], residual_mm=res,
                   residual_rms_um=float(np.sqrt(np.mean(res**2)) * 1e3),
                   condition_number=float(1.0 / cond), sigma_um=sig_um, sigma_dof=sig_dof,
-                  # the plain fit's verdict on a stated repeatability is this fit's to give
-                  warnings=[*(w for w in base.warnings if STATED_TAG not in w), *warns,
-                            *(scatter.warnings if scatter is not None else ())],
-                  visit_scatter=None if scatter is None else scatter.components)
+                  # the plain fit's verdict on a stated repeatability is this fit's to give:
+                  # its sandwich's warnings and decision replace exactly the plain one's
+                  warnings=[*_without(base.warnings, base.scatter_warnings), *warns, *sw],
+                  visit_scatter=None if scatter is None else scatter.components,
+                  stated_used=() if scatter is None else scatter.stated_used,
+                  scatter_warnings=sw)
     return out, fit
+
+
+def _without(warnings: list[str], drop: tuple[str, ...]) -> list[str]:
+    """``warnings`` less one occurrence of each of ``drop`` (the plain fit's scatter warnings:
+    by identity of the message, never a substring another warning may share)."""
+    out = list(warnings)
+    for w in drop:
+        if w in out:
+            out.remove(w)
+    return out
 
 
 def _message(fit: DriftFit) -> str:

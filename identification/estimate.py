@@ -59,6 +59,12 @@ class Estimate:
     # per-visit scatter behind a sandwich covariance (issue 21, estimate_scatter.py): component
     # → (σ, u(σ), p-value) in µrad / µm; None without it (visit_scatter=False, < 4 visits)
     visit_scatter: dict[str, tuple[float, float, float]] | None = None
+    # the components ("index B") held at the machine file's stated repeatability, as the
+    # sandwich decided (``estimate_scatter.with_stated``): reports read it, never re-derive it
+    stated_used: tuple[str, ...] = ()
+    # the sandwich's own warnings (a stated repeatability overridden), also in ``warnings``:
+    # a refit that redoes the sandwich (the drift model's) replaces exactly these
+    scatter_warnings: tuple[str, ...] = ()
 
     @property
     def names(self) -> list[str]:
@@ -281,6 +287,8 @@ def estimate(
         unobservable=unobs, absorbed_by=absorbed, sigma_dof=sigma_dof,
         warnings=warns + more + list(scatter.warnings if scatter is not None else ()),
         visit_scatter=None if scatter is None else scatter.components,
+        stated_used=() if scatter is None else scatter.stated_used,
+        scatter_warnings=() if scatter is None else scatter.warnings,
     )
 
 

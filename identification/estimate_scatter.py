@@ -16,8 +16,9 @@ p < 0.01, a pre-test estimator: below detection the scatter was there and ignore
 1.10 against 1.07); without index scatter it moves u by +0.8 % on average, +5 % on the
 link that leans most on the index columns (the same 40 runs, index scatter 0). A machine file's
 stated rotary repeatability is the Type B input of its axis' index component (``with_stated``):
-with the simulator's 4 µrad stated, bench_warmup's cells (N = 50 each) cover 93.2-97.8 % within
-2u, against 91.2-97.0 % with the components from the run alone.
+a few visits cannot pin σ, the data sheet can; its coverage against the components from the
+run alone (benchmarks/bench_warmup.py) is README's issue-22 table ("A machine warming up
+during the check"), where the figures live, kept current with each re-run.
 """
 
 from __future__ import annotations
@@ -51,6 +52,9 @@ class VisitScatterCov:
     # "<name> stated": (stated σ, 0, p of the test σ = stated against free)
     components: dict[str, tuple[float, float, float]]
     warnings: tuple[str, ...] = ()  # a stated repeatability the run contradicts
+    # the index components ("index B") whose stated σ the covariance is under: the test's
+    # decision, made here once (``with_stated``), read by every report
+    stated_used: tuple[str, ...] = ()
 
 
 def visits_of(centres: Centres) -> np.ndarray:
@@ -122,7 +126,7 @@ def visit_sandwich(machine: Machine, artefact: Artefact, layout: Layout, p: np.n
              for i, n in enumerate(names)}
     stated = {i: float(stated_urad[a]) for i, a in enumerate(machine.rotary_axes[:2])
               if stated_urad and a in stated_urad}
-    theta, more, warns = with_stated(b, names, start, fit, centre, stated)
+    theta, more, warns, used = with_stated(b, names, start, fit, centre, stated)
     comps.update(more)
     w = np.einsum("vna,a->vn", b.centre, 1.0 / sig_um**2)  # (V, n) weights of the live slots
     xw = b.x * w[..., None]
@@ -135,13 +139,15 @@ def visit_sandwich(machine: Machine, artefact: Artefact, layout: Layout, p: np.n
         meat = meat + dj.T @ dj
     a_inv = np.linalg.pinv(a_mat, rcond=1e-12)
     cov = a_inv @ meat @ a_inv / np.outer(scale, scale)
-    return VisitScatterCov(cov, comps, warns)
+    return VisitScatterCov(cov, comps, warns, used)
 
 
 def with_stated(b: VisitBlocks, names: tuple[str, ...], start: list[float], free: ScatterFit,
                 fixed: dict[int, float], stated: dict[int, float]
-                ) -> tuple[np.ndarray, dict[str, tuple[float, float, float]], tuple[str, ...]]:
-    """(components the covariance is under, the stated ones' entries, warnings). A stated
+                ) -> tuple[np.ndarray, dict[str, tuple[float, float, float]], tuple[str, ...],
+                           tuple[str, ...]]:
+    """(components the covariance is under, the stated ones' entries, warnings, the names of
+    the components held at their stated value). A stated
     rotary repeatability (machine file, µrad 1σ per indexation: the builder's ISO 230-2 test)
     is a Type B input (GUM 4.3.1) for its index component: 7-8 visits cannot pin σ (σ̂ is a
     scaled χ with few dof; in the shift plan's runs with σ̂_B < 2 µrad at a true 4 the links
@@ -151,7 +157,7 @@ def with_stated(b: VisitBlocks, names: tuple[str, ...], start: list[float], free
     stated contradicts nothing a link u rests on), p < ``LR_ALPHA`` — the estimate is used and
     a warning names the axis and both values. Without a stated value: the free estimate."""
     if not stated:
-        return free.sigma, {}, ()
+        return free.sigma, {}, (), ()
     out: dict[str, tuple[float, float, float]] = {}
     warns: list[str] = []
     keep: dict[int, float] = {}
@@ -169,6 +175,6 @@ def with_stated(b: VisitBlocks, names: tuple[str, ...], start: list[float], free
         else:
             keep[i] = s
     if not keep:
-        return free.sigma, out, tuple(warns)
+        return free.sigma, out, tuple(warns), ()
     used = estimate_components(b, names, start, fixed={**fixed, **keep}, test=False)
-    return used.sigma, out, tuple(warns)
+    return used.sigma, out, tuple(warns), tuple(names[i] for i in sorted(keep))

@@ -47,7 +47,6 @@ from identification.estimate_scatter import visits_of
 from identification.kinematics import Machine
 from identification.model import Artefact, Centres
 from identification.plausibility import describe, implausible
-from identification.visit_scatter import LR_ALPHA
 
 _THESIS = {  # thesis Table B.2 / Fig B.2 names of the WCBXFZYT link errors
     "EB0Z": "βZ squareness ZX", "EA0Y": "αY squareness YZ", "EC0Y": "γY squareness YX",
@@ -242,7 +241,8 @@ def _analyses(machine: Machine, artefact: Artefact, data: CentreData, est: Any, 
             sigma_from="given" if est.sigma_given else "residuals",
             sigma_dof=_fin(est.sigma_dof),  # None (JSON) when given: infinite
             fixed_radius=fixed_radius,
-            index_scatter=index_scatter(est.visit_scatter, len(np.unique(visits_of(est_c))))),
+            index_scatter=index_scatter(est.visit_scatter, est.stated_used,
+                                        len(np.unique(visits_of(est_c))))),
         volumetric=tuple(
             VolumetricPoint(pose=pose[k], repeat=repeat[k], b_deg=_fin(b_deg[k]),
                             c_deg=_fin(c_deg[k]), ball=ball[k],
@@ -288,10 +288,12 @@ CONVENTIONS = {
 
 
 def index_scatter(comps: dict[str, tuple[float, float, float]] | None,
-                  visits: int | None = None) -> tuple[IndexScatter, ...] | None:
+                  stated_used: tuple[str, ...] = (), visits: int | None = None
+                  ) -> tuple[IndexScatter, ...] | None:
     """The estimate's index components per rotary axis (``Estimate.visit_scatter``): the free
-    REML estimate and, with a stated repeatability, the stated value and the test that kept or
-    overrode it (``identification.estimate_scatter.with_stated``)."""
+    REML estimate and, with a stated repeatability, the stated value and the test's p; which
+    one the links' u rests on is the estimator's decision (``Estimate.stated_used``, made in
+    ``identification.estimate_scatter.with_stated``), carried here, never re-derived."""
     if not comps:
         return None
     out = []
@@ -299,7 +301,7 @@ def index_scatter(comps: dict[str, tuple[float, float, float]] | None,
         if not name.startswith("index ") or name.endswith(" stated"):
             continue
         st = comps.get(f"{name} stated")
-        used = "stated" if st is not None and st[2] >= LR_ALPHA else "estimated"
+        used = "stated" if name in stated_used else "estimated"
         out.append(IndexScatter(axis=name[6:], estimated_urad=_fin(round(v, 3)),
                                 std_urad=_fin(round(u, 3)), p_value=_fin(float(f"{p:.3g}")),
                                 stated_urad=None if st is None else st[0],

@@ -121,7 +121,8 @@ def to_json(est: Estimate) -> str:
         "unobservable": list(est.unobservable), "absorbed_by": dict(est.absorbed_by),
         "warnings": list(est.warnings), "sigma_dof": float(est.sigma_dof),
         "visit_scatter": None if est.visit_scatter is None else
-        {k: [float(x) for x in v] for k, v in est.visit_scatter.items()}})
+        {k: [float(x) for x in v] for k, v in est.visit_scatter.items()},
+        "stated_used": list(est.stated_used), "scatter_warnings": list(est.scatter_warnings)})
 
 
 def from_json(text: str) -> Estimate:
@@ -142,7 +143,10 @@ def from_json(text: str) -> Estimate:
                        [str(x) for x in d["warnings"]], float(d["sigma_dof"]),
                        visit_scatter=None if d["visit_scatter"] is None else
                        {str(k): (float(a), float(b), float(c))
-                        for k, (a, b, c) in d["visit_scatter"].items()})
+                        for k, (a, b, c) in d["visit_scatter"].items()},
+                       # absent from files written before the estimator carried them
+                       stated_used=tuple(str(x) for x in d.get("stated_used", ())),
+                       scatter_warnings=tuple(str(x) for x in d.get("scatter_warnings", ())))
     except (TypeError, KeyError, AttributeError, ValueError) as e:
         raise ValueError(f"not a stored estimate: {e!r}") from None
     n = layout.size
