@@ -69,19 +69,46 @@ class DriftModel:
     axes: tuple[str, ...]
     tau_s: float | None = None
 
-    def columns(self, t_s: np.ndarray) -> np.ndarray:
-        """(K, 3, m) change of the centres (mm) per µm of drift over the run, per axis."""
-        f = shape_values(self.shape, t_s, self.tau_s)
-        out = np.zeros((len(t_s), 3, len(self.axes)))
+    def columns(self, t_s: np.ndarray, touch: Touches | None = None) -> np.ndarray:
+        """(K, 3, m) change of the centres (mm) per µm of drift over the run, per axis: the
+        drift at each centre's time, or with ``touch`` (centres fitted from touches) the
+        drift at each touch's time carried through the sphere fit, Σ_i S_i δ(t_i)."""
+        t = np.asarray(t_s, float)
+        out = np.zeros((len(t), 3, len(self.axes)))
+        if touch is None:
+            f = shape_values(self.shape, t, self.tau_s)
+            for j, a in enumerate(self.axes):
+                out[:, "XYZ".index(a), j] = f * 1e-3
+            return out
+        t0, span = float(t.min()), float(t.max() - t.min())
+        f = shape_values(self.shape, touch.t_s, self.tau_s, t0, span)  # (K, n)
         for j, a in enumerate(self.axes):
-            out[:, "XYZ".index(a), j] = f * 1e-3
+            out[:, :, j] = np.einsum("knc,kn->kc", touch.sens[:, :, :, "XYZ".index(a)], f) * 1e-3
         return out
 
 
-def shape_values(shape: str, t_s: np.ndarray, tau_s: float | None) -> np.ndarray:
-    """f(t) / f(T): the drift's time course normalised to 1 at the run's end (T = max t)."""
-    t = np.asarray(t_s, float) - float(np.min(t_s))
-    span = float(t.max())
+@dataclass(frozen=True)
+class Touches:
+    """The touches behind centres fitted by ``rows_to_centres``: time (K, n) and the fit's
+    ∂centre/∂point (K, n, 3, 3) (``Centres.touch_t_s``, ``touch_sens``)."""
+
+    t_s: np.ndarray
+    sens: np.ndarray
+
+    @classmethod
+    def of(cls, centres: Centres) -> Touches | None:
+        """None for centres without their touches (an instrument's, a CMM's)."""
+        ok = len(centres) > 0 and len(centres.touch_t_s) == len(centres) and np.all(
+            np.isfinite(centres.touch_t_s))
+        return cls(centres.touch_t_s, centres.touch_sens) if ok else None
+
+
+def shape_values(shape: str, t_s: np.ndarray, tau_s: float | None, t0_s: float | None = None,
+                 span_s: float | None = None) -> np.ndarray:
+    """f(t) / f(T): the drift's time course from ``t0_s`` normalised to 1 at its end
+    ``t0_s + span_s`` (default: the first and the last of ``t_s``)."""
+    t = np.asarray(t_s, float) - (float(np.min(t_s)) if t0_s is None else t0_s)
+    span = float(t.max()) if span_s is None else span_s
     if shape == "linear":
         return t / span
     if shape == "exponential" and tau_s:
@@ -210,6 +237,7 @@ def fit_drift(machine: Machine, artefact: Artefact, centres: Centres, base: Esti
     if centres.t_s.size != len(centres) or not np.all(np.isfinite(centres.t_s)):
         return DriftOutcome(base, None, "no_times", "no probing times: drift not modelled")
     t = np.asarray(centres.t_s, float)
+    tc = Touches.of(centres)
     span = float(t.max() - t.min())
     if span < MIN_SPAN_S:
         return DriftOutcome(base, None, "too_short",
@@ -225,12 +253,12 @@ def fit_drift(machine: Machine, artefact: Artefact, centres: Centres, base: Esti
     for model in _candidates():
         if not set(model.axes) <= set(axes):
             continue
-        sep = proj.separation(model.columns(t))
+        sep = proj.separation(model.columns(t, tc))
         if np.any(sep < SEPARABLE_MIN):
             inseparable += [f"{model.shape} {a}" for a, s in zip(model.axes, sep, strict=True)
                             if s < SEPARABLE_MIN and len(model.axes) == 1]
             continue
-        model, bic = _profile(proj, t, model, n_base)
+        model, bic = _profile(proj, t, model, n_base, tc)
         scored.append((bic, model))
         if best is None or bic < best[0]:
             best = (bic, model)
@@ -245,22 +273,23 @@ def fit_drift(machine: Machine, artefact: Artefact, centres: Centres, base: Esti
                             f"no drift: BIC of the best drift model ({best[1].shape} "
                             f"{''.join(best[1].axes)}) {gain:+.1f} against none",
                             sorted(set(inseparable)))
-    share = _selection_share(lin, proj.sigma_mm, t, scored, best[1])
+    share = _selection_share(lin, proj.sigma_mm, t, scored, best[1], tc)
     est, fit = _final(machine, artefact, centres, base, best[1], span, gain, share,
                       stated_urad)
     return DriftOutcome(est, fit, "selected", _message(fit), sorted(set(inseparable)))
 
 
-def _profile(proj: _Projector, t: np.ndarray, model: DriftModel, n_base: int
+def _profile(proj: _Projector, t: np.ndarray, model: DriftModel, n_base: int,
+             tc: Touches | None = None
              ) -> tuple[DriftModel, float]:
     """(model with its best τ, BIC): the exponential's τ profiled on a log grid, refined."""
     m = len(model.axes)
     if model.shape == "linear":
-        return model, _bic(proj.residual(model.columns(t)), n_base + m)
+        return model, _bic(proj.residual(model.columns(t, tc)), n_base + m)
 
     def bic_at(log_tau: float) -> float:
         mod = replace(model, tau_s=float(math.exp(log_tau)))
-        return _bic(proj.residual(mod.columns(t)), n_base + m + 1)
+        return _bic(proj.residual(mod.columns(t, tc)), n_base + m + 1)
 
     lo, hi = math.log(TAU_BOUNDS_S[0]), math.log(TAU_BOUNDS_S[1])
     grid = np.linspace(lo, hi, _GRID)
@@ -279,20 +308,21 @@ def _final(machine: Machine, artefact: Artefact, centres: Centres, base: Estimat
     a free τ adds its column (the derivative of the drift by τ) so the drift's u carries it,
     and the links' carries the model choice's ``share`` (``_selection_share``)."""
     t = np.asarray(centres.t_s, float)
+    tc = Touches.of(centres)
     est = base
     theta = np.zeros(len(model.axes))
     sig0 = np.asarray(base.sigma_um, float) * 1e-3
     for _ in range(2):
         lin = lin_at(machine, artefact, centres, est)
-        lin.r = lin.r - np.einsum("kim,m->ki", model.columns(t), theta)
-        step, res, rw, jn, norms, sigma_mm, _ = fwls(lin, model.columns(t), sig0,
+        lin.r = lin.r - np.einsum("kim,m->ki", model.columns(t, tc), theta)
+        step, res, rw, jn, norms, sigma_mm, _ = fwls(lin, model.columns(t, tc), sig0,
                                                       base.sigma_given)
         p = est.p + step[: lin.j.shape[2]]
         theta = theta + step[lin.j.shape[2]:]
         est = replace(est, p=p)
     n_par = lin.j.shape[2]
     bounded = None
-    cols = model.columns(t)
+    cols = model.columns(t, tc)
     if model.shape == "exponential":
         tau = float(model.tau_s)
         lo, hi = TAU_BOUNDS_S
@@ -302,12 +332,12 @@ def _final(machine: Machine, artefact: Artefact, centres: Centres, base: Estimat
             bounded = "upper"
         else:  # ∂δ/∂τ at θ: one more column, in mm per s of τ
             h = tau * 1e-4
-            dcol = (replace(model, tau_s=tau + h).columns(t)
-                    - replace(model, tau_s=tau - h).columns(t)) / (2 * h)
+            dcol = (replace(model, tau_s=tau + h).columns(t, tc)
+                    - replace(model, tau_s=tau - h).columns(t, tc)) / (2 * h)
             cols = np.concatenate([cols, np.einsum("kim,m->ki", dcol, theta)[..., None]],
                                   axis=2)
     lin = lin_at(machine, artefact, centres, est)
-    lin.r = lin.r - np.einsum("kim,m->ki", model.columns(t), theta)
+    lin.r = lin.r - np.einsum("kim,m->ki", model.columns(t, tc), theta)
     _, res, rw, jn, norms, cond = solve(lin, cols, sigma_mm)
     _, s, vt = np.linalg.svd(jn, full_matrices=False)
     cov = ((vt.T / s**2) @ vt) / np.outer(norms, norms)
@@ -322,7 +352,7 @@ def _final(machine: Machine, artefact: Artefact, centres: Centres, base: Estimat
     dist = lin.dist_j if lin.dist_j.size else None
     scatter = visit_sandwich(machine, artefact, est.layout, est.p, centres, sigma_mm, dist,
                              np.ones(lin.dist_j.shape[0]), cols,
-                             np.einsum("kim,m->ki", model.columns(t), theta),
+                             np.einsum("kim,m->ki", model.columns(t, tc), theta),
                              given=base.sigma_given, stated_urad=stated_urad)
     if scatter is not None:
         cov = scatter.cov * t_variance_factor(sig_dof)

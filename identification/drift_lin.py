@@ -6,7 +6,7 @@ selection share: the spread of the links over the models BIC chose among."""
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Protocol
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -18,7 +18,7 @@ from identification.model import Artefact, Centres, predict
 class Columns(Protocol):
     """A drift model as the selection share sees it (``identification.drift.DriftModel``)."""
 
-    def columns(self, t_s: np.ndarray) -> np.ndarray: ...
+    def columns(self, t_s: np.ndarray, touch: Any = None) -> np.ndarray: ...
 
 
 @dataclass
@@ -81,22 +81,23 @@ def fwls(lin: Lin, cols: np.ndarray, sigma_mm: np.ndarray, given: bool = False
 
 
 def selection_share(lin: Lin, sigma_mm: np.ndarray, t: np.ndarray,
-                    scored: list[tuple[float, Columns | None]], chosen: Columns
-                    ) -> np.ndarray:
+                    scored: list[tuple[float, Columns | None]], chosen: Columns,
+                    touch: Any = None) -> np.ndarray:
     """Σ_m w_m Δ_m Δ_mᵀ over the link and setup parameters (model units): the spread of their
     estimates over the models BIC chose among (none included), w_m ∝ e^(−BIC_m/2), Δ_m model
     m's estimate − the chosen one's, in the linearisation at the plain estimate (the
     unconditional variance of Burnham & Anderson, *Model Selection and Multimodel Inference*,
     2002, §4.3.2, about the estimate reported). A choice among close models is an uncertainty
     of the links: on the optimised plan under a 10 µm warm-up, the 15 % of runs where BIC
-    added a spurious axis covered their links at 83-93 % within 2u without it."""
+    added a spurious axis covered their links at 83-93 % within 2u without it. ``touch``: the
+    centres' ``identification.drift.Touches`` (or None), as the columns take it."""
     bic = np.array([b for b, _ in scored])
     w = np.exp(-(bic - bic.min()) / 2.0)
     w /= w.sum()
     n = lin.j.shape[2]
 
     def params(model: Columns | None) -> np.ndarray:
-        cols = np.zeros((len(t), 3, 0)) if model is None else model.columns(t)
+        cols = np.zeros((len(t), 3, 0)) if model is None else model.columns(t, touch)
         return solve(lin, cols, sigma_mm)[0][:n]
 
     p0 = params(chosen)

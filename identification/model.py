@@ -114,14 +114,22 @@ class Centres:
     c_deg: np.ndarray  # (K,) second rotary axis, controller deg
     xyz_mm: np.ndarray  # (K, 3) measured centre, controller X Y Z
     t_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    # from touches (identification/spherefit.py ``centre_sensitivity``), else empty: each
+    # touch's time (K, n) and d(centre)/d(touch point) (K, n, 3, 3), so that a drift moving
+    # during a ball's touches reaches its centre as the fit carries it (issue 22)
+    touch_t_s: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
+    touch_sens: np.ndarray = field(default_factory=lambda: np.zeros((0, 0, 3, 3)))
 
     def __len__(self) -> int:
         return int(self.pose.shape[0])
 
     def subset(self, mask: np.ndarray) -> Centres:
         t = self.t_s[mask] if self.t_s.size else self.t_s
+        touched = len(self.touch_t_s) == len(self) and len(self) > 0
         return Centres(self.pose[mask], self.ball[mask], self.b_deg[mask], self.c_deg[mask],
-                       self.xyz_mm[mask], t)
+                       self.xyz_mm[mask], t,
+                       self.touch_t_s[mask] if touched else self.touch_t_s,
+                       self.touch_sens[mask] if touched else self.touch_sens)
 
 
 def _g(machine: Machine, rot_model: Mapping, balls_w: np.ndarray, q_ctrl: np.ndarray,

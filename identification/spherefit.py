@@ -123,3 +123,21 @@ def _fit(p: np.ndarray, mean: np.ndarray, r_nom: np.ndarray, fixed_radius: bool)
     if bad.any():
         raise SphereFitError("the fit did not converge to finite numbers", np.flatnonzero(bad))
     return SphereFit(c + mean[:, 0, :], r, (r - r_nom) * 1e3, form)
+
+
+def centre_sensitivity(points_mm: np.ndarray, centre_mm: np.ndarray,
+                       fixed_radius: bool = False) -> np.ndarray:
+    """(G, n, 3, 3) ∂(fitted centre)/∂(touch point i) of the least-squares sphere fit at its
+    solution (first order; Σ_i = I, a translation of every point moves the centre by it).
+    A drift moving the ball while it is touched (a warm-up, issue 22) reaches the centre as
+    Σ_i S_i δ(t_i): along X and Y at about the equator touches' times, along Z at the pole's —
+    not at the mean touch time (on the thesis shift plan under a 20 µm warm-up that difference
+    biased EB0C by −0.11 u and EX0C by +0.09 u)."""
+    p = np.asarray(points_mm, float)
+    d = p - np.asarray(centre_mm, float)[:, None, :]
+    u = d / np.linalg.norm(d, axis=2, keepdims=True)
+    # residual_i = |p_i − c| − r: ∂res/∂(c, r) = [−u_i, −1], ∂res_i/∂p_i = u_iᵀ, so
+    # δ(c, r) = −(JᵀJ)⁻¹Jᵀ δres and ∂c/∂p_i = −[(JᵀJ)⁻¹Jᵀ]_{c,i} u_iᵀ
+    jac = -u if fixed_radius else np.concatenate([-u, -np.ones((*u.shape[:2], 1))], axis=2)
+    gain = np.linalg.solve(jac.transpose(0, 2, 1) @ jac, jac.transpose(0, 2, 1))  # (G, q, n)
+    return -np.einsum("gai,gib->giab", gain[:, :3, :], u)

@@ -29,7 +29,7 @@ from identification.outliers import (
     find_outliers,
     resolve,
 )
-from identification.spherefit import SphereFitError, fit_spheres
+from identification.spherefit import SphereFitError, centre_sensitivity, fit_spheres
 
 
 @dataclass(frozen=True)
@@ -134,8 +134,10 @@ def rows_to_centres(rows: Sequence[LogRow], artefact: Artefact, stylus_radius_mm
     health = [GroupHealth(runs[0], int(rep), int(pose), artefact.ids[b],
                           float(fit.radius_dev_um[i]), float(fit.form_rms_um[i]))
               for i, (rep, pose, b) in enumerate(uniq)]
+    touch_t = col["t_s"][idx]
     centres = Centres(uniq[:, 1].copy(), uniq[:, 2].copy(), b_g.mean(axis=1), c_g.mean(axis=1),
-                      fit.centre_mm, col["t_s"][idx].mean(axis=1))
+                      fit.centre_mm, touch_t.mean(axis=1), touch_t,
+                      centre_sensitivity(pts, fit.centre_mm, fixed_radius))
     return CentreData(centres, uniq[:, 0].copy(), health, msgs, pts, r_nom)
 
 
