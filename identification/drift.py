@@ -43,6 +43,7 @@ from scipy.optimize import minimize_scalar
 
 from identification.drift_lin import Lin, fwls, lin_at, solve
 from identification.drift_lin import selection_share as _selection_share
+from identification.drift_shape import DriftModel, Touches, shape_values
 from identification.estimate import Estimate, a_posteriori, estimate
 from identification.estimate_scatter import visit_sandwich
 from identification.identifiability import RANK_TOL
@@ -50,7 +51,6 @@ from identification.kinematics import Machine
 from identification.model import Artefact, Centres
 from identification.uncertainty import t_variance_factor
 
-SHAPES = ("linear", "exponential")
 TAU_BOUNDS_S = (300.0, 3600.0)  # 5 to 60 min: the warm-up of a machining centre (ISO 230-3)
 MIN_SPAN_S = 30.0  # below this the centres of a run hardly have distinct times (the 6-pose
 # plan `rumba plan` writes for the shift targets lasts 101 s and separates a drift well)
@@ -59,61 +59,6 @@ BIC_MARGIN = 6.0  # "strong evidence" (Kass & Raftery 1995): on 40 drift-free si
 # runs the best of the 14 drift models gained > 2.9 in 10 %, > 3.8 in 5 % (its choice among
 # many is a search the plain BIC penalty does not pay for)
 _GRID = 9  # log-spaced τ values of the profile before its bounded refinement
-
-
-@dataclass(frozen=True)
-class DriftModel:
-    """Which drift: shape, drifting controller axes and (exponential) time constant."""
-
-    shape: str
-    axes: tuple[str, ...]
-    tau_s: float | None = None
-
-    def columns(self, t_s: np.ndarray, touch: Touches | None = None) -> np.ndarray:
-        """(K, 3, m) change of the centres (mm) per µm of drift over the run, per axis: the
-        drift at each centre's time, or with ``touch`` (centres fitted from touches) the
-        drift at each touch's time carried through the sphere fit, Σ_i S_i δ(t_i)."""
-        t = np.asarray(t_s, float)
-        out = np.zeros((len(t), 3, len(self.axes)))
-        if touch is None:
-            f = shape_values(self.shape, t, self.tau_s)
-            for j, a in enumerate(self.axes):
-                out[:, "XYZ".index(a), j] = f * 1e-3
-            return out
-        t0, span = float(t.min()), float(t.max() - t.min())
-        f = shape_values(self.shape, touch.t_s, self.tau_s, t0, span)  # (K, n)
-        for j, a in enumerate(self.axes):
-            out[:, :, j] = np.einsum("knc,kn->kc", touch.sens[:, :, :, "XYZ".index(a)], f) * 1e-3
-        return out
-
-
-@dataclass(frozen=True)
-class Touches:
-    """The touches behind centres fitted by ``rows_to_centres``: time (K, n) and the fit's
-    ∂centre/∂point (K, n, 3, 3) (``Centres.touch_t_s``, ``touch_sens``)."""
-
-    t_s: np.ndarray
-    sens: np.ndarray
-
-    @classmethod
-    def of(cls, centres: Centres) -> Touches | None:
-        """None for centres without their touches (an instrument's, a CMM's)."""
-        ok = len(centres) > 0 and len(centres.touch_t_s) == len(centres) and np.all(
-            np.isfinite(centres.touch_t_s))
-        return cls(centres.touch_t_s, centres.touch_sens) if ok else None
-
-
-def shape_values(shape: str, t_s: np.ndarray, tau_s: float | None, t0_s: float | None = None,
-                 span_s: float | None = None) -> np.ndarray:
-    """f(t) / f(T): the drift's time course from ``t0_s`` normalised to 1 at its end
-    ``t0_s + span_s`` (default: the first and the last of ``t_s``)."""
-    t = np.asarray(t_s, float) - (float(np.min(t_s)) if t0_s is None else t0_s)
-    span = float(t.max()) if span_s is None else span_s
-    if shape == "linear":
-        return t / span
-    if shape == "exponential" and tau_s:
-        return -np.expm1(-t / tau_s) / -math.expm1(-span / tau_s)
-    raise ValueError(f"drift shape must be one of {SHAPES} (exponential with tau_s)")
 
 
 @dataclass
@@ -131,12 +76,22 @@ class DriftFit:
 
     def drift_mm(self, t_s: np.ndarray) -> np.ndarray:
         """(K, 3) the fitted drift at times ``t_s`` (absolute, same clock as the fit)."""
-        t = np.asarray(t_s, float) - self.start_t_s
-        f = shape_values(self.model.shape, np.r_[0.0, self.span_s, t], self.model.tau_s)[2:]
-        out = np.zeros((len(t), 3))
+        t = np.asarray(t_s, float)
+        # the fit's own origin and span: a held-out centre probed before the first estimate
+        # centre (t < start) must not move the origin of every other
+        f = shape_values(self.model.shape, t, self.model.tau_s, self.start_t_s, self.span_s)
+        out = np.zeros((*t.shape, 3))
         for a, (v, _) in self.over_run_um.items():
-            out[:, "XYZ".index(a)] = v * 1e-3 * f
+            out[..., "XYZ".index(a)] = v * 1e-3 * f
         return out
+
+    def centre_drift_mm(self, centres: Centres) -> np.ndarray:
+        """(K, 3) the fitted drift as each centre carries it: through its touches where it
+        has them (``DriftModel.columns``), else at its time."""
+        touch = Touches.of(centres)
+        if touch is None:
+            return self.drift_mm(centres.t_s)
+        return np.einsum("knab,knb->ka", touch.sens, self.drift_mm(touch.t_s))
 
     def as_dict(self) -> dict:
         return {"shape": self.model.shape, "axes": list(self.model.axes),

@@ -13,7 +13,7 @@ import yaml
 
 from contracts.setup_files import load_artefact, load_machine, load_plan
 from daemon.analysis.touch_centres import rows_to_centres
-from identification.drift import DriftModel, Touches, estimate_drift_aware
+from identification.drift import DriftFit, DriftModel, Touches, estimate_drift_aware
 from identification.model import Centres
 from identification.spherefit import centre_sensitivity, fit_spheres
 from programs.dialects import get_dialect
@@ -108,3 +108,23 @@ def test_the_drift_aware_links_see_the_drift_touch_by_touch(warm_run):
     assert res_t < 0.5 * res_c, got
     assert abs(tau_t - 1800.0) < 0.005 * 1800.0 < abs(tau_c - 1800.0) / 4, got
     assert err_t < 0.7 * err_c, got
+
+
+def test_the_fitted_drift_is_taken_out_as_the_fit_saw_it():
+    """``corrected`` centres (daemon/analysis/thermal.py) lose the fitted drift the way the fit
+    modelled it: touch by touch, and on the fit's own time origin — a held-out centre probed
+    before the first estimate centre must not move the origin of the others (it did)."""
+    fit = DriftFit(DriftModel("linear", ("X",)), 100.0, {"X": (5.0, 0.1)}, None, None, 10.0,
+                   1.0, start_t_s=10.0)
+    np.testing.assert_allclose(fit.drift_mm(np.array([5.0, 10.0, 60.0, 110.0]))[:, 0] * 1e3,
+                               [-0.25, 0.0, 2.5, 5.0], atol=1e-12)
+    t = np.array([[8.0, 9.0, 10.0, 11.0, 14.0], [58.0, 59.0, 60.0, 61.0, 64.0]])
+    pts, _ = _ball(3)
+    sens = np.repeat(centre_sensitivity(pts, fit_spheres(pts, 12.7).centre_mm), 2, axis=0)
+    c = Centres(np.zeros(2, int), np.zeros(2, int), np.zeros(2), np.zeros(2), np.zeros((2, 3)),
+                t.mean(axis=1), t, sens)
+    want = np.einsum("knab,knb->ka", sens, fit.drift_mm(t))
+    np.testing.assert_allclose(fit.centre_drift_mm(c), want, atol=1e-15)
+    # the equator's mean time along X (1 s before the 5-touch mean here): 0.05 µm less
+    assert fit.centre_drift_mm(c)[0, 0] * 1e3 == pytest.approx(
+        (np.mean(t[0, :4]) - 10.0) * 0.05, abs=2e-3)

@@ -37,7 +37,7 @@ def corrected(data: CentreData, outcome: DriftOutcome) -> CentreData:
     if outcome.fit is None or data.centres.t_s.size != len(data.centres):
         return data
     c = data.centres
-    return replace(data, centres=replace(c, xyz_mm=c.xyz_mm - outcome.fit.drift_mm(c.t_s)))
+    return replace(data, centres=replace(c, xyz_mm=c.xyz_mm - outcome.fit.centre_drift_mm(c)))
 
 
 STABILITY_AFTER_DRIFT = (
