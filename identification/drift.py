@@ -263,21 +263,21 @@ def _final(machine: Machine, artefact: Artefact, centres: Centres, base: Estimat
     a free τ adds its column (the derivative of the drift by τ) so the drift's u carries it,
     and the links' carries the model choice's ``share`` (``_selection_share``)."""
     t = np.asarray(centres.t_s, float)
-    tc = Touches.of(centres)
+    cols0 = model.columns(t, Touches.of(centres))  # the model's columns: one build, reused
     est = base
     theta = np.zeros(len(model.axes))
     sig0 = np.asarray(base.sigma_um, float) * 1e-3
     for _ in range(2):
         lin = lin_at(machine, artefact, centres, est)
-        lin.r = lin.r - np.einsum("kim,m->ki", model.columns(t, tc), theta)
-        step, res, rw, jn, norms, sigma_mm, _ = fwls(lin, model.columns(t, tc), sig0,
+        lin.r = lin.r - np.einsum("kim,m->ki", cols0, theta)
+        step, res, rw, jn, norms, sigma_mm, _ = fwls(lin, cols0, sig0,
                                                       base.sigma_given)
         p = est.p + step[: lin.j.shape[2]]
         theta = theta + step[lin.j.shape[2]:]
         est = replace(est, p=p)
     n_par = lin.j.shape[2]
     bounded = None
-    cols = model.columns(t, tc)
+    cols = cols0
     if model.shape == "exponential":
         tau = float(model.tau_s)
         lo, hi = TAU_BOUNDS_S
@@ -287,12 +287,13 @@ def _final(machine: Machine, artefact: Artefact, centres: Centres, base: Estimat
             bounded = "upper"
         else:  # ∂δ/∂τ at θ: one more column, in mm per s of τ
             h = tau * 1e-4
+            tc = Touches.of(centres)
             dcol = (replace(model, tau_s=tau + h).columns(t, tc)
                     - replace(model, tau_s=tau - h).columns(t, tc)) / (2 * h)
             cols = np.concatenate([cols, np.einsum("kim,m->ki", dcol, theta)[..., None]],
                                   axis=2)
     lin = lin_at(machine, artefact, centres, est)
-    lin.r = lin.r - np.einsum("kim,m->ki", model.columns(t, tc), theta)
+    lin.r = lin.r - np.einsum("kim,m->ki", cols0, theta)
     _, res, rw, jn, norms, cond = solve(lin, cols, sigma_mm)
     _, s, vt = np.linalg.svd(jn, full_matrices=False)
     cov = ((vt.T / s**2) @ vt) / np.outer(norms, norms)
@@ -307,7 +308,7 @@ def _final(machine: Machine, artefact: Artefact, centres: Centres, base: Estimat
     dist = lin.dist_j if lin.dist_j.size else None
     scatter = visit_sandwich(machine, artefact, est.layout, est.p, centres, sigma_mm, dist,
                              np.ones(lin.dist_j.shape[0]), cols,
-                             np.einsum("kim,m->ki", model.columns(t, tc), theta),
+                             np.einsum("kim,m->ki", cols0, theta),
                              given=base.sigma_given, stated_urad=stated_urad)
     if scatter is not None:
         cov = scatter.cov * t_variance_factor(sig_dof)
