@@ -3,11 +3,13 @@ and awaited before the run reports itself ABORTED — journaled as cut by the st
 transmitter connection closed, no task of it left running — and a value that had already come
 when the stop arrived is journaled, not lost. End to end: the warming CNC behind its real
 asyncua front-end, a real Modbus TCP socket that answers the start and then falls silent, the
-abort through the HMI's HTTP API as an operator sends it."""
+abort through the HMI's HTTP API as an operator sends it, the control held in feed hold before
+the next pose so that the abort meets the pose it is meant to."""
 
 from __future__ import annotations
 
 import asyncio
+import re
 from collections.abc import AsyncIterator
 
 import aiohttp
@@ -15,7 +17,7 @@ import pytest
 import pytest_asyncio
 import yaml
 
-from contracts.temperatures import TemperatureChannel
+from contracts.temperatures import TemperatureChannel, TemperatureReading
 from daemon.config import load_daemon_config
 from daemon.run import temperatures as run_temperatures
 from daemon.run.session import State
@@ -23,6 +25,8 @@ from daemon.run.temperatures import STOPPED, TemperatureRecorder
 from daemon.service.service import Service
 from daemon.store.journal import Store
 from daemon.store.temperatures import temperatures
+from simulators.controller import VirtualController
+from simulators.faults import Fault, FaultPlan
 from tests.temperature_helpers import SilentTransmitter, column, silent_transmitter
 from tests.test_e2e_transports import RUN_TIMEOUT_S
 from tests.test_temperature_channels import SPINDLE, cnc, machine_entry
@@ -39,17 +43,72 @@ async def silent_after_start() -> AsyncIterator[tuple[SilentTransmitter, int]]:
         yield served
 
 
+def hold_before_pose(ctrl: VirtualController, pose: int, monkeypatch: pytest.MonkeyPatch
+                     ) -> None:
+    """The next program ``ctrl`` loads stands in feed hold at its header of pose ``pose`` (as
+    an operator holds a machine), after every touch before it and before any of the pose's own,
+    until the abort. At time_scale 0 the simulator probes a pose's 20 touches in ~10 ms of wall
+    time: without the hold the run was often at pose 1 by the time the test, polling, saw pose
+    0's read on the wire (pose 1 journaled "the previous read of this channel is still
+    waiting", as it should) or had sent its abort: 30 of 70 runs of this test alone failed."""
+    load = ctrl.load_program
+
+    async def load_holding(text: str, dialect: str, files: dict[str, str] | None = None
+                           ) -> None:
+        lines = text.replace("\r\n", "\n").replace("\r", "\n").split("\n")
+        block = next((i for i, line in enumerate(lines, 1)  # the simulator's block numbers
+                      if re.search(rf"\bPOSE {pose}\b", line)), None)
+        if block is None:
+            raise ValueError(f"the program has no POSE {pose}: nowhere to hold it")
+        ctrl.faults = FaultPlan([Fault(kind="feed_hold", at_block=block)])
+        await load(text, dialect, files)
+
+    monkeypatch.setattr(ctrl, "load_program", load_holding)
+
+
+def column_rows(store: Store, run_id: str | None) -> list[TemperatureReading]:
+    return [] if run_id is None else [r for r in temperatures(store, run_id)
+                                      if r.channel == "column"]
+
+
 def running_reads() -> list[asyncio.Task]:
     return [t for t in asyncio.all_tasks()
             if t.get_name().startswith("temperature-") and not t.done()]
 
 
+BUSY = "not read: the previous read of this channel is still waiting"
+POSES = 7  # the plan's (tests.test_e2e_transports.PLAN)
+
+
+def watch_end(rec: TemperatureRecorder, monkeypatch: pytest.MonkeyPatch) -> asyncio.Event:
+    """Set when the run, its last touch in, enters ``rec.end``: up to the wait for the pose
+    reads in flight, its first await, nothing in ``end`` yields, so the run waits there."""
+    entered = asyncio.Event()
+    end = rec.end
+
+    async def end_seen(run_id: str, t_s: float) -> None:
+        entered.set()
+        await end(run_id, t_s)
+
+    monkeypatch.setattr(rec, "end", end_seen)
+    return entered
+
+
 @pytest.mark.asyncio
 @pytest.mark.parametrize("cnc", ["opcua"], indirect=True)
+@pytest.mark.parametrize("held", [1, 2, None], ids=["pose0", "pose1", "end"])
 async def test_an_abort_cancels_the_pose_read_in_flight_before_the_run_reports_aborted(
-        cnc, silent_after_start, tmp_path, monkeypatch):
+        cnc, silent_after_start, tmp_path, monkeypatch, held):
+    """The control held before pose ``held``, the abort meets pose 0's read in flight; with
+    ``held`` 2 pose 1 was probed meanwhile (the CNC never waits for a temperature), its read
+    journaled as not asked while pose 0's still waits. ``held`` None: the program ran to its
+    end, the abort meets the run waiting for pose 0's read after its last touch (the reads
+    ``end`` took over, which ``stop`` no longer sees)."""
     rig, _, _ = cnc
     tx, port = silent_after_start
+    if held is not None:
+        hold_before_pose(rig.ctrl, held, monkeypatch)  # the abort meets the run there
+    probed = held or POSES  # the poses probed before the abort
     # the pose read waits for the transmitter's own 30 s timeout, not the 3 s cap: the abort
     # below surely meets it in flight, however loaded the machine running the test
     monkeypatch.setattr(run_temperatures, "READ_TIMEOUT_S", 120.0)
@@ -65,15 +124,18 @@ async def test_an_abort_cancels_the_pose_read_in_flight_before_the_run_reports_a
     await service.start()
     try:
         session = service.sessions["mill1"]
+        at_end = watch_end(session.temps, monkeypatch)
         rig.ctrl.raise_start_request()
-        async with asyncio.timeout(RUN_TIMEOUT_S):  # the start answered, pose 0's read sent
-            while tx.requests < 2:
+        async with asyncio.timeout(RUN_TIMEOUT_S):  # the start answered, pose 0's read sent,
+            while (tx.requests < 2 or len(column_rows(service.store, session.run_id)) < probed
+                   or (held is None and not at_end.is_set())):  # the later poses seen
                 if session.run_id is not None and not session.busy:
-                    raise AssertionError(f"run ended before its first pose: {session.reason}")
+                    raise AssertionError(f"run ended before its abort: {session.reason}")
                 await asyncio.sleep(0.01)
         run_id = session.run_id
-        assert [(r.channel, r.at) for r in temperatures(service.store, run_id)
-                if r.channel == "column"] == [("column", "start")]  # pose 0's read waits
+        assert [(r.at, r.pose, r.error) for r in column_rows(service.store, run_id)] == [
+            ("start", None, ""), *(("pose", k, BUSY) for k in range(1, probed))]  # 0's waits
+        assert at_end.is_set() == (held is None)
         async with aiohttp.ClientSession() as http:
             r = await http.post(service.hmi_url + "api/machines/mill1/abort",
                                 headers={"Authorization": f"Bearer {TOKEN}"})
@@ -90,9 +152,10 @@ async def test_an_abort_cancels_the_pose_read_in_flight_before_the_run_reports_a
     assert session.state == State.ABORTED, session.reason
     assert left == [], left  # no read of the run outlives it
     col = [r for r in readings if r.channel == "column"]
-    assert [(r.at, r.pose) for r in col] == [("start", None), ("pose", 0)], col
+    assert [(r.at, r.pose) for r in col] == [
+        ("start", None), *(("pose", k) for k in range(1, probed)), ("pose", 0)], col
     assert col[0].value_c == pytest.approx(23.5)
-    assert col[1].value_c is None and col[1].error == STOPPED, col[1]
+    assert col[-1].value_c is None and col[-1].error == STOPPED, col[-1]
     assert tx.requests == 2  # nothing asked after the stop
     spindle = [r for r in readings if r.channel == "spindle"]  # every read accounted for
     assert spindle and all(r.value_c is not None or r.error == STOPPED for r in spindle)
