@@ -35,6 +35,21 @@ NOT_PRINTED = ("not read: no RTEMP line for {where} came from the program (a pri
                "the control, or a line garbled or out of range on the link)")
 
 
+@dataclasses.dataclass
+class _Read:
+    """One read of one channel, journaled exactly once: by the read itself (its value, why not,
+    or ``STOPPED`` when the stop cut it) or by ``stop`` (a read cut before it ever ran, or one
+    still running after the stop's wait)."""
+
+    run_id: str
+    channel: str
+    at: str
+    pose: int | None
+    t_s: float
+    rnd: int
+    journaled: bool = False
+
+
 class TemperatureRecorder:
     """The channels of one machine, read through its link or their transmitters.
 
@@ -57,9 +72,9 @@ class TemperatureRecorder:
         self._rounds: list[int] = [0]  # the programs run (printed channels' accounting)
         self._poses: list[tuple[int, int]] = []  # (round, plan pose) probed, in order
         self._down: dict[str, str] = {}  # channel → why it is unreachable for this run
-        self._pending: dict[str, asyncio.Task[None]] = {}  # channel → its read in flight
-        # a read in flight → channel, pose, t, round
-        self._reading: dict[asyncio.Task[None], tuple[str, int, float, int]] = {}
+        # every read started and not yet journaled (start, pose and end reads): the one owner,
+        # which ``end`` waits on and ``stop`` accounts from — a read leaves it once journaled
+        self._reads: dict[asyncio.Task[None], _Read] = {}
 
     def sources(self) -> dict[str, str]:
         """Where each channel comes from (the run record's audit field)."""
@@ -81,33 +96,59 @@ class TemperatureRecorder:
         return [ch for ch in self.channels
                 if ch.transmitter is not None or self.link_name != "serial"]
 
-    async def _read_one(self, run_id: str, ch: TemperatureChannel, at: str, pose: int | None,
-                        t_s: float, rnd: int = 0) -> None:
-        """Read one channel and journal its value or why not (``at`` for the log; ``rnd`` the
-        re-probe round of a pose read, 0 for the run's own start and end)."""
+    def _spawn(self, run_id: str, ch: TemperatureChannel, at: str, pose: int | None,
+               t_s: float, rnd: int = 0) -> asyncio.Task[None]:
+        """Start one read of ``ch`` (``rnd`` the re-probe round of a pose read, 0 for the run's
+        own start and end), owned by ``_reads`` until journaled."""
+        rec = _Read(run_id, ch.name, at, pose, t_s, rnd)
+        task = asyncio.get_running_loop().create_task(
+            self._read_one(ch, rec), name=f"temperature-{self.machine}-{ch.name}")
+        self._reads[task] = rec
+        task.add_done_callback(self._settled)
+        return task
+
+    def _settled(self, task: asyncio.Task[None]) -> None:
+        """A read ended: journaled, it is accounted for; else (cut before it ever ran, or its
+        journal failed) it stays for ``stop`` to account and ``end`` to raise."""
+        rec = self._reads.get(task)
+        if rec is not None and rec.journaled:
+            del self._reads[task]
+
+    def _put(self, rec: _Read, value: float | None, error: str) -> None:
+        """Journal ``rec``'s one row (a second attempt, a late read after ``stop`` journaled it
+        as cut, writes nothing)."""
+        if rec.journaled:
+            log.warning("%s %s: temperature %s (%s) answered after the run stopped: %s "
+                        "not journaled", self.machine, rec.run_id, rec.channel, rec.at,
+                        "value" if value is not None else error)
+            return
+        self._journal(rec.run_id, TemperatureReading(
+            rec.channel, rec.at, rec.pose, rec.t_s, value, error,  # type: ignore[arg-type]
+            rec.rnd))
+        rec.journaled = True
+
+    async def _read_one(self, ch: TemperatureChannel, rec: _Read) -> None:
+        """Read one channel and journal its value or why not."""
         loop = asyncio.get_running_loop()
         t0 = loop.time()
         try:
-            value = await self._answer(run_id, ch, at, pose, t_s, rnd)
+            value = await self._answer(ch, rec)
         except asyncio.CancelledError:
             raise
         except Exception as e:
             why = (f"no answer in {READ_TIMEOUT_S:g} s" if isinstance(e, TimeoutError)
                    else str(e) or type(e).__name__)
-            if loop.time() - t0 >= NO_ANSWER_S and at != "end":
-                where = f"pose {pose}" if at == "pose" else at
+            if loop.time() - t0 >= NO_ANSWER_S and rec.at != "end":
+                where = f"pose {rec.pose}" if rec.at == "pose" else rec.at
                 self._down[ch.name] = f"{why} at {where}"
                 why += "; not read again until the end of the run"
-            log.warning("%s %s: temperature %s not read (%s): %s", self.machine, run_id,
-                        ch.name, at, why)
-            self._journal(run_id, TemperatureReading(
-                ch.name, at, pose, t_s, None, why, rnd))  # type: ignore[arg-type]
+            log.warning("%s %s: temperature %s not read (%s): %s", self.machine, rec.run_id,
+                        ch.name, rec.at, why)
+            self._put(rec, None, why)
         else:
-            self._journal(run_id, TemperatureReading(
-                ch.name, at, pose, t_s, float(value), "", rnd))  # type: ignore[arg-type]
+            self._put(rec, float(value), "")
 
-    async def _answer(self, run_id: str, ch: TemperatureChannel, at: str, pose: int | None,
-                      t_s: float, rnd: int) -> float:
+    async def _answer(self, ch: TemperatureChannel, rec: _Read) -> float:
         """The channel's value within ``READ_TIMEOUT_S`` (TimeoutError else). Cancelled (the run
         stopped): a value that had already come is journaled — nothing received is lost,
         whatever a Python version's ``asyncio.wait_for`` does with a cancel that meets a done
@@ -123,11 +164,9 @@ class TemperatureRecorder:
             got = (None if not read.done() or read.cancelled() or read.exception() is not None
                    else float(read.result()))
             try:
-                self._journal(run_id, TemperatureReading(
-                    ch.name, at, pose, t_s, got,  # type: ignore[arg-type]
-                    "" if got is not None else STOPPED, rnd))
+                self._put(rec, got, "" if got is not None else STOPPED)
             except Exception as e:  # the journal gone must not hide the stop
-                log.error("%s %s: temperature %s not journaled: %s", self.machine, run_id,
+                log.error("%s %s: temperature %s not journaled: %s", self.machine, rec.run_id,
                           ch.name, e)
             raise
         if not done:
@@ -139,26 +178,36 @@ class TemperatureRecorder:
     async def sample(self, run_id: str, at: str, pose: int | None, t_s: float) -> None:
         """Read every polled channel now (an unreachable one too: the start and the end try
         every channel) and journal each value or why it failed."""
-        await asyncio.gather(*(self._read_one(run_id, ch, at, pose, t_s)
-                               for ch in self._polled()))
+        await self._settle([self._spawn(run_id, ch, at, pose, t_s) for ch in self._polled()])
+
+    @staticmethod
+    async def _settle(tasks: list[asyncio.Task[None]]) -> None:
+        """Wait for ``tasks`` (each bounded by its timeout); a journal that failed fails the
+        run. Cancelled meanwhile (the run stopped): the reads are left running, still owned by
+        ``_reads``, for ``stop`` to cut and account — waiting never cancels them itself."""
+        if not tasks:
+            return
+        await asyncio.wait(tasks)
+        for task in tasks:
+            if not task.cancelled() and task.exception() is not None:
+                raise task.exception()  # type: ignore[misc]
+
+    def _busy(self, channel: str) -> bool:
+        return any(rec.channel == channel and not task.done()
+                   for task, rec in self._reads.items())
 
     def _sample_pose(self, run_id: str, pose: int, t_s: float) -> None:
         """Start the pose's reads beside the capture; what cannot be read now is journaled
         now with the reason (unreachable since …, or the last read still in flight)."""
         rnd = self._round
         for ch in self._polled():
-            busy = self._pending.get(ch.name)
             if ch.name in self._down:
                 why = (f"not read: unreachable since {self._down[ch.name]}; tried again at "
                        "the end of the run")
-            elif busy is not None and not busy.done():
+            elif self._busy(ch.name):
                 why = "not read: the previous read of this channel is still waiting"
             else:
-                task = self._pending[ch.name] = asyncio.get_running_loop().create_task(
-                    self._read_one(run_id, ch, "pose", pose, t_s, rnd),
-                    name=f"temperature-{self.machine}-{ch.name}")
-                self._reading[task] = (ch.name, pose, t_s, rnd)
-                task.add_done_callback(self._reading.pop)
+                self._spawn(run_id, ch, "pose", pose, t_s, rnd)
                 continue
             self._journal(run_id, TemperatureReading(ch.name, "pose", pose, t_s, None, why,
                                                      rnd))
@@ -261,37 +310,44 @@ class TemperatureRecorder:
         in flight (each bounded by the timeout), the last sample of every channel."""
         self.take_printed(run_id, t_s)
         self.account_printed(run_id, t_s)
-        pending, self._pending = list(self._pending.values()), {}
-        await asyncio.gather(*pending)
+        # the pose reads still in flight stay in ``_reads`` while waited for: a stop that comes
+        # now cuts and accounts for them as for any other (they were once taken out of its
+        # sight here, and one cut before it ever ran was journaled by nobody)
+        await self._settle(list(self._reads))
         await self.sample(run_id, "end", None, t_s)
         await self.close()
 
     def abandon(self) -> None:
-        """Cancel the pose reads in flight (``stop`` also waits for them)."""
-        pending, self._pending = list(self._pending.values()), {}
-        for task in pending:
+        """Cancel the reads in flight (``stop`` also waits for them and accounts for each)."""
+        for task in self._reads:
             task.cancel()
 
     async def stop(self, run_id: str) -> None:
-        """A run ended without its end sample (aborted, failed, the daemon stopping): each pose
-        read still in flight is cancelled and awaited — it journals the value it had received,
-        or ``STOPPED`` — and the transmitters are closed, before the run reports itself
-        stopped: nothing of the run outlives it, nothing it received is lost."""
-        pending = [t for t in self._pending.values() if not t.done()]
-        what = [self._reading.get(t) for t in pending]
+        """A run ended without its end sample (aborted, failed, the daemon stopping), wherever
+        it was — capturing, or waiting in ``end`` for its last reads: each read not yet
+        journaled is cancelled and awaited — it journals the value it had received, or
+        ``STOPPED`` — one cut before it ever ran is journaled ``STOPPED`` here, and the
+        transmitters are closed, before the run reports itself stopped: nothing of the run
+        outlives it, nothing it received is lost, each read has exactly one row."""
+        reads = dict(self._reads)
+        live = [t for t in reads if not t.done()]
         self.abandon()
-        if pending:
-            _, left = await asyncio.wait(pending, timeout=2 * STOP_WAIT_S)
+        if live:
+            _, left = await asyncio.wait(live, timeout=2 * STOP_WAIT_S)
             for task in left:  # a read that ignores its cancellation: said, never hidden
                 log.error("%s %s: temperature read %s still running after the run stopped",
                           self.machine, run_id, task.get_name())
-            # a read cancelled before it ever ran journaled nothing: it is cut all the same
-            have = {(r.channel, r.pose, r.reprobe_round)
-                    for r in temperatures(self.store, run_id) if r.at == "pose"}
-            for w in what:
-                if w is not None and (w[0], w[1], w[3]) not in have:
-                    self._journal(run_id, TemperatureReading(w[0], "pose", w[1], w[2], None,
-                                                             STOPPED, w[3]))
+        for task, rec in reads.items():
+            if task.done() and not task.cancelled() and task.exception() is not None:
+                log.error("%s %s: temperature %s (%s) not journaled: %s", self.machine,
+                          rec.run_id, rec.channel, rec.at, task.exception())
+            if not rec.journaled:  # cut before it ran, or still running: cut all the same
+                try:
+                    self._put(rec, None, STOPPED)
+                except Exception as e:  # the journal gone must not hide the stop
+                    log.error("%s %s: temperature %s not journaled: %s", self.machine,
+                              rec.run_id, rec.channel, e)
+            self._reads.pop(task, None)
         await self.close()
 
     def with_summary(self, run_id: str, analysis: Any) -> Any:
