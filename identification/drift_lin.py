@@ -18,6 +18,8 @@ from identification.model import Artefact, Centres, predict
 class Columns(Protocol):
     """A drift model as the selection share sees it (``identification.drift.DriftModel``)."""
 
+    axes: tuple[str, ...]
+
     def columns(self, t_s: np.ndarray, touch: Any = None) -> np.ndarray: ...
 
 
@@ -83,14 +85,17 @@ def fwls(lin: Lin, cols: np.ndarray, sigma_mm: np.ndarray, given: bool = False
 def selection_share(lin: Lin, sigma_mm: np.ndarray, t: np.ndarray,
                     scored: list[tuple[float, Columns | None]], chosen: Columns,
                     touch: Any = None) -> np.ndarray:
-    """Σ_m w_m Δ_m Δ_mᵀ over the link and setup parameters (model units): the spread of their
-    estimates over the models BIC chose among (none included), w_m ∝ e^(−BIC_m/2), Δ_m model
-    m's estimate − the chosen one's, in the linearisation at the plain estimate (the
-    unconditional variance of Burnham & Anderson, *Model Selection and Multimodel Inference*,
-    2002, §4.3.2, about the estimate reported). A choice among close models is an uncertainty
-    of the links: on the optimised plan under a 10 µm warm-up, the 15 % of runs where BIC
-    added a spurious axis covered their links at 83-93 % within 2u without it. ``touch``: the
-    centres' ``identification.drift.Touches`` (or None), as the columns take it."""
+    """Σ_m w_m Δ_m Δ_mᵀ over the link and setup parameters, then the drift over the run of X,
+    Y and Z (model units; 0 for an axis a model leaves out): the spread of their estimates over
+    the models BIC chose among (none included), w_m ∝ e^(−BIC_m/2), Δ_m model m's estimate −
+    the chosen one's, in the linearisation at the plain estimate (the unconditional variance of
+    Burnham & Anderson, *Model Selection and Multimodel Inference*, 2002, §4.3.2, about the
+    estimate reported). A choice among close models is an uncertainty of the links: on the
+    optimised plan under a 10 µm warm-up, the 15 % of runs where BIC added a spurious axis
+    covered their links at 83-93 % within 2u without it. It is one of the drift too: an axis
+    kept on a gain BIC barely grants is the one whose drift the other models put elsewhere.
+    ``touch``: the centres' ``identification.drift.Touches`` (or None), as the columns take
+    it."""
     bic = np.array([b for b, _ in scored])
     w = np.exp(-(bic - bic.min()) / 2.0)
     w /= w.sum()
@@ -98,10 +103,14 @@ def selection_share(lin: Lin, sigma_mm: np.ndarray, t: np.ndarray,
 
     def params(model: Columns | None) -> np.ndarray:
         cols = np.zeros((len(t), 3, 0)) if model is None else model.columns(t, touch)
-        return solve(lin, cols, sigma_mm)[0][:n]
+        step = solve(lin, cols, sigma_mm)[0]
+        over = np.zeros(3)  # the drift over the run is the columns' parameter, per axis
+        for j, a in enumerate(() if model is None else model.axes):
+            over["XYZ".index(a)] = step[n + j]
+        return np.concatenate([step[:n], over])
 
     p0 = params(chosen)
-    out = np.zeros((n, n))
+    out = np.zeros((n + 3, n + 3))
     for wi, (_, model) in zip(w, scored, strict=True):
         if wi > 1e-6 and model != chosen:
             d = params(model) - p0

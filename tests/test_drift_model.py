@@ -71,6 +71,24 @@ def test_a_warm_up_is_fitted_and_the_links_are_unbiased(shift):
     assert max(plain) < 1.0 and np.mean(aware) >= 0.9
 
 
+def test_a_drift_found_is_estimated_on_every_separable_axis(shift):
+    """BIC finds the warm-up (along Z here) and its shape; the drift is then estimated on X, Y
+    and Z alike (every axis is separable in the shift plan): an axis BIC would drop for being
+    small still drifts, and left out it biases the others and the links. The axes without a
+    drift come out within their u of 0, and Z's estimate is the three-axis model's."""
+    m, a = shift[:2]
+    for seed in range(3):
+        out = estimate_drift_aware(m, a, _centres(shift, seed, 8.0))
+        assert out.status == "selected", out.message
+        assert out.fit.model.axes == ("X", "Y", "Z"), out.fit.model
+        fit = out.fit.over_run_um
+        assert sorted(fit) == ["X", "Y", "Z"]
+        for ax in "XY":
+            v, u = fit[ax]
+            assert abs(v) <= 3 * u and u > 0, (ax, v, u)
+        assert fit["Z"][0] == pytest.approx(8.0, abs=3 * fit["Z"][1])
+
+
 def test_the_message_states_the_drift_and_tau(shift):
     m, a = shift[:2]
     out = estimate_drift_aware(m, a, _centres(shift, 1, 20.0))
@@ -119,7 +137,8 @@ def test_the_links_u_carries_the_choice_among_drift_models(shift, monkeypatch):
     """BIC chooses among 14 drift models; where others come close, their link estimates
     differ from the chosen one's, and that spread (weighted by e^(−BIC/2), Burnham & Anderson
     §4.3.2) is part of the links' u: never below the chosen model's own covariance, above it
-    by exactly the share."""
+    by exactly the share. So is the spread of the drift over the run (an axis another model
+    leaves out counts 0 there): the fitted drift's u² grows by its diagonal."""
     import identification.drift as drift
 
     m, a = shift[:2]
@@ -131,17 +150,29 @@ def test_the_links_u_carries_the_choice_among_drift_models(shift, monkeypatch):
         return seen["share"]
 
     monkeypatch.setattr(drift, "_selection_share", spy)
-    grown = 0
+    grown = drift_grown = 0
     for seed in range(4):
         c = _centres(shift, seed, 6.0)
         out = estimate_drift_aware(m, a, c)
         assert out.status == "selected", out.message
         share = seen["share"]
         n = share.shape[0]
-        assert np.all(np.linalg.eigvalsh(share) >= -1e-18)  # a covariance: PSD
+        ev = np.linalg.eigvalsh(share)
+        assert np.all(ev >= -1e-12 * ev.max())  # a covariance: PSD (to rounding)
         monkeypatch.setattr(drift, "_selection_share", lambda *args, n=n: np.zeros((n, n)))
-        alone = estimate_drift_aware(m, a, c).estimate
+        lone = estimate_drift_aware(m, a, c)
+        alone = lone.estimate
         monkeypatch.setattr(drift, "_selection_share", spy)
-        np.testing.assert_allclose(out.estimate.cov, alone.cov + share, rtol=1e-9, atol=1e-24)
+        k = alone.cov.shape[0]
+        assert n == k + 3  # links and setup, then the drift over the run of X, Y, Z
+        np.testing.assert_allclose(out.estimate.cov, alone.cov + share[:k, :k], rtol=1e-9,
+                                   atol=1e-24)
+        for ax, (v, u) in out.fit.over_run_um.items():
+            v0, u0 = lone.fit.over_run_um[ax]
+            assert v == v0  # the share widens, never moves
+            assert u**2 == pytest.approx(u0**2 + share[k + "XYZ".index(ax), k + "XYZ".index(ax)],
+                                         rel=1e-9)
+            drift_grown += bool(u > u0 * (1 + 1e-6))
         grown += bool(np.any(np.diag(share)[:3] > 1e-4 * np.diag(alone.cov)[:3]))
     assert grown >= 1  # the competing models do move the links
+    assert drift_grown >= 1  # and the drift
