@@ -20,6 +20,7 @@ import yaml
 from contracts.temperatures import TemperatureChannel, TemperatureReading
 from daemon.config import load_daemon_config
 from daemon.run import temperatures as run_temperatures
+from daemon.run.phases import END_READS
 from daemon.run.session import State
 from daemon.run.temperatures import STOPPED, TemperatureRecorder
 from daemon.service.service import Service
@@ -102,8 +103,9 @@ async def test_an_abort_cancels_the_pose_read_in_flight_before_the_run_reports_a
     """The control held before pose ``held``, the abort meets pose 0's read in flight; with
     ``held`` 2 pose 1 was probed meanwhile (the CNC never waits for a temperature), its read
     journaled as not asked while pose 0's still waits. ``held`` None: the program ran to its
-    end, the abort meets the run waiting for pose 0's read after its last touch (the reads
-    ``end`` took over, which ``stop`` no longer sees)."""
+    end, the abort meets the run waiting in ``end`` for pose 0's read after its last touch, and
+    its reason says so, not "during CAPTURE" (tests/test_temperature_end_abort.py: the reads
+    ``end`` waits for, each accounted for once)."""
     rig, _, _ = cnc
     tx, port = silent_after_start
     if held is not None:
@@ -137,19 +139,27 @@ async def test_an_abort_cancels_the_pose_read_in_flight_before_the_run_reports_a
             ("start", None, ""), *(("pose", k, BUSY) for k in range(1, probed))]  # 0's waits
         assert at_end.is_set() == (held is None)
         async with aiohttp.ClientSession() as http:
-            r = await http.post(service.hmi_url + "api/machines/mill1/abort",
-                                headers={"Authorization": f"Bearer {TOKEN}"})
+            auth = {"Authorization": f"Bearer {TOKEN}"}
+            r = await http.post(service.hmi_url + "api/machines/mill1/abort", headers=auth)
             body = await r.json()
+            listed = await (await http.get(service.hmi_url + f"api/runs/{run_id}",
+                                           headers=auth)).json()
         # the HMI answers once the run has ended: what it ended with is final now
         left = running_reads()
         readings = temperatures(service.store, run_id)
+        journaled = service.store.run(run_id).reason
         async with asyncio.timeout(RUN_TIMEOUT_S):  # the stop closed the transmitter's socket
             while tx._tasks and not all(t.done() for t in tx._tasks):
                 await asyncio.sleep(0.01)
     finally:
         await service.stop()
-    assert r.status == 200 and body["reason"].startswith("aborted by hmi during "), body
+    # where the run was: a touch cut (held at a pose), or none (the end's reads, the program
+    # done): the one text on the HMI's status, its run record, and the journal
+    want = f"aborted by hmi {END_READS if held is None else 'during CAPTURE'}"
+    assert r.status == 200 and body["reason"] == want, body
     assert session.state == State.ABORTED, session.reason
+    assert (listed["state"], listed["reason"]) == ("ABORTED", want), listed
+    assert journaled == want
     assert left == [], left  # no read of the run outlives it
     col = [r for r in readings if r.channel == "column"]
     assert [(r.at, r.pose) for r in col] == [

@@ -44,6 +44,13 @@ or malformed, an alarm, an identification refused, a bug)."""
 STOPPED_STATES = (State.ABORTED, State.INTERRUPTED, State.FAILED)
 """The end states without a verdict of the machine (ERROR is written back to the CNC)."""
 
+END_READS = "after the last touch, while reading the end-of-run temperatures"
+"""Where a run is that stops while it waits for its last temperature reads (issue 22): the
+program has ended, the state is still CAPTURE (no state of its own for the few seconds the
+reads are bounded by), and "during CAPTURE" would tell the operator a touch was cut. The stop's
+reason names this instead (``RunStatus.during``): composed once, the one text the HMI's status,
+its run record and the journal show."""
+
 
 class Refused(Exception):
     """A start request was refused; the message says why (e.g. a run is in progress)."""
@@ -91,6 +98,13 @@ class RunStatus:
         self._queues: set[asyncio.Queue] = set()
         self.listeners: list[Callable[[dict[str, Any]], None]] = []
         self.link_ok = True  # False after a lost link: the next run reconnects first
+        # what the run does within its state where the state's name would misreport it to a
+        # stop's reason (END_READS); cleared by the next state
+        self.step: str | None = None
+
+    def during(self) -> str:
+        """Where the run is, for a stop's reason: "during CAPTURE", or the step's own words."""
+        return self.step or f"during {self.state}"
 
     @property
     def busy(self) -> bool:
@@ -155,7 +169,7 @@ class RunStatus:
                 log.exception("status listener failed")
 
     def _enter(self, state: State, reason: str | None = None) -> None:
-        self.state = state
+        self.state, self.step = state, None
         if reason is not None:
             self.reason = reason
         if self.run_id is not None:

@@ -34,7 +34,7 @@ from daemon.run import lease as run_lease
 from daemon.run import report_job
 from daemon.run.capture import RunCapture
 from daemon.run.ending import ABORT_TIMEOUT_S, WRITE_BACK_TIMEOUT_S, await_run
-from daemon.run.phases import ControllerSilent, Refused, RunFailed, State, new_run_id
+from daemon.run.phases import END_READS, ControllerSilent, Refused, RunFailed, State, new_run_id
 from daemon.run.temperatures import TemperatureRecorder
 from daemon.store import baselines
 from daemon.store.journal import Store
@@ -168,6 +168,7 @@ class Session(RunCapture):
             await self.temps.start(run_id, self.clock.t_s())  # issue 22; before the program: 0
             hits = await self._capture(prepared)
             hits = await self._reprobe(run_id, hits, reference)
+            self.step = END_READS  # a stop from here to IDENTIFY cuts no touch: said so
             await self.temps.end(run_id, self.clock.t_s())
             self._raise_if_stopped()
             analysis = await self._identify(run_id, hits, drift_ref)
@@ -194,13 +195,13 @@ class Session(RunCapture):
             if unasked:
                 self._abort_reason = "interrupted by the daemon stopping"
                 self._abort_state = State.INTERRUPTED
-            await self._end(run_id, self._abort_state, f"{self._abort_reason} during "
-                            f"{self.state}", stop=True)
+            await self._end(run_id, self._abort_state, f"{self._abort_reason} {self.during()}",
+                            stop=True)
             if unasked:
                 raise
         except ControllerAborted as e:  # reset / abort pressed on the CNC itself
-            await self._end(run_id, State.ABORTED, f"aborted on the controller during "
-                            f"{self.state}: {e}", stop=True)
+            await self._end(run_id, State.ABORTED, f"aborted on the controller "
+                            f"{self.during()}: {e}", stop=True)
         except (ControllerSilent, LinkError) as e:
             # rumba lost the run (a link down, no results any more): INTERRUPTED, unless the
             # link delivered data that fails validation (a malformed result: FAILED)
@@ -208,15 +209,15 @@ class Session(RunCapture):
             if isinstance(e, LinkError):
                 self.link_ok = False
             await self._end(run_id, state, f"{str(e) or type(e).__name__} "
-                            f"(during {self.state})", stop=True)
+                            f"({self.during()})", stop=True)
         except (RunFailed, ControllerAlarm, pipeline.PipelineError) as e:
             # Whatever failed, the controller may still run the program (a timeout, a lost
             # result): stop it, or the next LoadProgram is refused.
             await self._end(run_id, State.FAILED, f"{str(e) or type(e).__name__} "
-                            f"(during {self.state})", stop=True)
+                            f"({self.during()})", stop=True)
         except Exception as e:  # a bug must not kill the daemon: the run fails with the cause
             log.exception("run %s crashed", run_id)
-            await self._end(run_id, State.FAILED, f"internal error during {self.state}: "
+            await self._end(run_id, State.FAILED, f"internal error {self.during()}: "
                             f"{type(e).__name__}: {e}", stop=True)
 
     async def _prepare_program(self, run_id: str, reference: tuple[str, Analysis] | None
