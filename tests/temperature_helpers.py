@@ -1,7 +1,8 @@
 """One run started from the simulated CNC with temperature channels: the daemon's Service up, the
 start request raised on the control, the verdict awaited there, the run's journal rows read back
 (tests/test_temperature_channels.py, _dnc_dialects.py, _silent.py, _reprobe.py); a Modbus TCP
-transmitter that falls silent, on a real loopback socket (_silent.py, _abort.py)."""
+transmitter that falls silent, on a real loopback socket (_silent.py, _abort.py); a run's
+recorder of one channel on a real journal (_abort.py, _end_abort.py)."""
 
 from __future__ import annotations
 
@@ -13,9 +14,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from contracts.temperatures import TemperatureReading
+from contracts.temperatures import TemperatureChannel, TemperatureReading
 from daemon.config import DaemonConfig
+from daemon.run.temperatures import TemperatureRecorder
 from daemon.service.service import Service
+from daemon.store.journal import Store
 from daemon.store.temperatures import temperatures
 from simulators.controller import VirtualController
 from tests.test_e2e_transports import RUN_TIMEOUT_S, wait_verdict_on_cnc
@@ -120,3 +123,19 @@ async def fleet_against(http: Any, url: str, machine: str, channel: str = "spind
         got = await r.json()
         assert r.status == 200, got
     return got
+
+
+@contextlib.asynccontextmanager
+async def one_channel_recorder(path: Path, link: Any
+                               ) -> AsyncIterator[tuple[Store, TemperatureRecorder]]:
+    """Run r1's recorder of one OPC UA channel read through ``link`` (a test's link that holds
+    its reads), on a real journal at ``path``; closed after the test."""
+    store = Store(path)
+    store.new_run("r1", "mill1", "test")
+    ch = TemperatureChannel(name="spindle", address="/Channel/Temperatures/Z")
+    rec = TemperatureRecorder("mill1", (ch,), link=link, store=store, link_name="opcua")
+    try:
+        yield store, rec
+    finally:
+        await rec.close()
+        store.close()

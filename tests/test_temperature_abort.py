@@ -28,7 +28,12 @@ from daemon.store.journal import Store
 from daemon.store.temperatures import temperatures
 from simulators.controller import VirtualController
 from simulators.faults import Fault, FaultPlan
-from tests.temperature_helpers import SilentTransmitter, column, silent_transmitter
+from tests.temperature_helpers import (
+    SilentTransmitter,
+    column,
+    one_channel_recorder,
+    silent_transmitter,
+)
 from tests.test_e2e_transports import RUN_TIMEOUT_S
 from tests.test_temperature_channels import SPINDLE, cnc, machine_entry
 
@@ -189,17 +194,9 @@ class HeldLink:
 async def held(tmp_path) -> AsyncIterator[tuple[Store, HeldLink, TemperatureRecorder]]:
     """Run r1's recorder of one OPC UA channel read through a ``HeldLink``, on a real journal;
     closed after the test."""
-    store = Store(tmp_path / "journal.sqlite")
-    store.new_run("r1", "mill1", "test")
     link = HeldLink()
-    ch = TemperatureChannel(name="spindle", address="/Channel/Temperatures/Z")
-    rec = TemperatureRecorder("mill1", (ch,), link=link, store=store,  # type: ignore[arg-type]
-                              link_name="opcua")
-    try:
+    async with one_channel_recorder(tmp_path / "journal.sqlite", link) as (store, rec):
         yield store, link, rec
-    finally:
-        await rec.close()
-        store.close()
 
 
 @pytest.mark.asyncio

@@ -17,6 +17,7 @@ from contracts.temperatures import TemperatureChannel
 from daemon.run.temperatures import STOPPED, TemperatureRecorder
 from daemon.store.journal import Store
 from daemon.store.temperatures import temperatures
+from tests.temperature_helpers import one_channel_recorder
 from tests.test_temperature_abort import running_reads
 
 VALUE_C = 24.25
@@ -40,17 +41,9 @@ class GatedLink:
 @pytest_asyncio.fixture
 async def gated(tmp_path) -> AsyncIterator[tuple[Store, GatedLink, TemperatureRecorder]]:
     """Run r1's recorder of one OPC UA channel read through a ``GatedLink``, on a real journal."""
-    store = Store(tmp_path / "journal.sqlite")
-    store.new_run("r1", "mill1", "test")
     link = GatedLink()
-    ch = TemperatureChannel(name="spindle", address="/Channel/Temperatures/Z")
-    rec = TemperatureRecorder("mill1", (ch,), link=link, store=store,  # type: ignore[arg-type]
-                              link_name="opcua")
-    try:
+    async with one_channel_recorder(tmp_path / "journal.sqlite", link) as (store, rec):
         yield store, link, rec
-    finally:
-        await rec.close()
-        store.close()
 
 
 async def next_step() -> None:
