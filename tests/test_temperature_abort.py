@@ -20,7 +20,7 @@ import yaml
 from contracts.temperatures import TemperatureChannel, TemperatureReading
 from daemon.config import load_daemon_config
 from daemon.run import temperatures as run_temperatures
-from daemon.run.phases import END_READS
+from daemon.run.phases import END_READS, START_READS
 from daemon.run.session import State
 from daemon.run.temperatures import STOPPED, TemperatureRecorder
 from daemon.service.service import Service
@@ -145,10 +145,17 @@ async def test_an_abort_cancels_the_pose_read_in_flight_before_the_run_reports_a
         assert at_end.is_set() == (held is None)
         async with aiohttp.ClientSession() as http:
             auth = {"Authorization": f"Bearer {TOKEN}"}
+            # the status the page gets says where the run is: CAPTURE, and after the last
+            # touch the end's reads (the card shows the step), not a probe still at work
+            live = (await (await http.get(service.hmi_url + "api/status",
+                                          headers=auth)).json())["mill1"]
             r = await http.post(service.hmi_url + "api/machines/mill1/abort", headers=auth)
             body = await r.json()
             listed = await (await http.get(service.hmi_url + f"api/runs/{run_id}",
                                            headers=auth)).json()
+        assert (live["state"], live["step"]) == (
+            "CAPTURE", END_READS if held is None else None), live
+        assert body["step"] is None, body  # cleared by the run's end state
         # the HMI answers once the run has ended: what it ended with is final now
         left = running_reads()
         readings = temperatures(service.store, run_id)
@@ -174,6 +181,73 @@ async def test_an_abort_cancels_the_pose_read_in_flight_before_the_run_reports_a
     assert tx.requests == 2  # nothing asked after the stop
     spindle = [r for r in readings if r.channel == "spindle"]  # every read accounted for
     assert spindle and all(r.value_c is not None or r.error == STOPPED for r in spindle)
+
+
+@pytest_asyncio.fixture
+async def never_answers() -> AsyncIterator[tuple[SilentTransmitter, int]]:
+    """A transmitter that never answers, not even the run's start read."""
+    async with silent_transmitter(answer_first=0) as served:
+        yield served
+
+
+@pytest.mark.asyncio
+@pytest.mark.parametrize("cnc", ["opcua"], indirect=True)
+async def test_an_abort_during_the_start_reads_names_them_not_stream(
+        cnc, never_answers, tmp_path, monkeypatch):
+    """The run waits for its start-of-run temperatures, before its program is loaded (the
+    state is STREAM already): the abort's reason says so, not "during STREAM" (no program was
+    cut), the one text on the HMI's status, its run record and the journal; the status carries
+    the step while the run is in it, and not after."""
+    rig, _, _ = cnc
+    tx, port = never_answers
+    monkeypatch.setattr(run_temperatures, "READ_TIMEOUT_S", 120.0)  # held until the abort
+    loaded: list[str] = []
+    load = rig.ctrl.load_program
+
+    async def load_seen(text: str, dialect: str, files: dict[str, str] | None = None) -> None:
+        loaded.append(text)
+        await load(text, dialect, files)
+
+    monkeypatch.setattr(rig.ctrl, "load_program", load_seen)
+    channels = [{"name": "spindle", "source": "controller", **SPINDLE[rig.transport]},
+                column(port, timeout_s=30.0)]
+    doc = {"store": {"path": str(tmp_path / "journal.sqlite")},
+           "reports_dir": str(tmp_path / "reports"),
+           "hmi": {"host": "127.0.0.1", "port": 0, "token": TOKEN},
+           "machines": [machine_entry(rig.link, channels, {})]}
+    path = tmp_path / "daemon.yaml"
+    path.write_text(yaml.safe_dump(doc, allow_unicode=True), encoding="utf-8")
+    service = Service(load_daemon_config(path))
+    await service.start()
+    try:
+        session = service.sessions["mill1"]
+        rig.ctrl.raise_start_request()
+        async with asyncio.timeout(RUN_TIMEOUT_S):  # the start read asked, never answered
+            while tx.requests < 1:
+                if session.run_id is not None and not session.busy:
+                    raise AssertionError(f"run ended before its abort: {session.reason}")
+                await asyncio.sleep(0.01)
+        run_id = session.run_id
+        async with aiohttp.ClientSession() as http:
+            auth = {"Authorization": f"Bearer {TOKEN}"}
+            live = (await (await http.get(service.hmi_url + "api/status",
+                                          headers=auth)).json())["mill1"]
+            r = await http.post(service.hmi_url + "api/machines/mill1/abort", headers=auth)
+            body = await r.json()
+            listed = await (await http.get(service.hmi_url + f"api/runs/{run_id}",
+                                           headers=auth)).json()
+        journaled = service.store.run(run_id).reason
+        col = column_rows(service.store, run_id)
+    finally:
+        await service.stop()
+    want = f"aborted by hmi {START_READS}"  # not "during STREAM": no program was cut
+    assert r.status == 200 and body["reason"] == want and body["step"] is None, body
+    assert (listed["state"], listed["reason"]) == ("ABORTED", want), listed
+    assert journaled == want
+    assert (live["state"], live["step"]) == ("STREAM", START_READS), live
+    assert loaded == [] and tx.requests == 1  # no program reached the CNC, nothing more asked
+    assert [(c.at, c.pose, c.value_c, c.error) for c in col] == [
+        ("start", None, None, STOPPED)], col
 
 
 class HeldLink:

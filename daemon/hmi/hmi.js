@@ -148,7 +148,10 @@ function render(st) {
   const state = el.querySelector(".state");
   state.textContent = st.state;
   state.className = "state " + (running ? "running" : st.state);
-  el.querySelector(".meaning").textContent = MEANING[st.state] || "";
+  // the step within the state, the daemon's own words (the start's or the end's temperature
+  // reads: CAPTURE with every touch done would say the probe still works)
+  el.querySelector(".meaning").textContent = (running && st.step) || MEANING[st.state] || "";
+  el.querySelector(".meaning").dataset.step = (running && st.step) || "";
   el.querySelector(".link-state").textContent = st.link_ok ? "controller connected" : "controller link down";
   el.querySelector(".link-state").classList.toggle("down", !st.link_ok);
   const pct = st.total ? Math.round(100 * st.done / st.total) : 0;

@@ -51,6 +51,12 @@ reads are bounded by), and "during CAPTURE" would tell the operator a touch was 
 reason names this instead (``RunStatus.during``): composed once, the one text the HMI's status,
 its run record and the journal show."""
 
+START_READS = "before the program started, while reading the start-of-run temperatures"
+"""Where a run is that stops while it waits for its first temperature reads (issue 22): the
+state is already STREAM (the program checked), yet none was loaded or sent, and "during STREAM"
+would tell the operator the program was cut. Like ``END_READS``: the stop's reason, the HMI
+status's ``step`` and its machine card show this one text."""
+
 
 class Refused(Exception):
     """A start request was refused; the message says why (e.g. a run is in progress)."""
@@ -99,12 +105,25 @@ class RunStatus:
         self.listeners: list[Callable[[dict[str, Any]], None]] = []
         self.link_ok = True  # False after a lost link: the next run reconnects first
         # what the run does within its state where the state's name would misreport it to a
-        # stop's reason (END_READS); cleared by the next state
-        self.step: str | None = None
+        # stop's reason and the HMI (START_READS, END_READS); cleared by the next state
+        self._step: str | None = None
+
+    @property
+    def step(self) -> str | None:
+        """The step within the state (``START_READS``, ``END_READS``), None outside them."""
+        return self._step
+
+    @step.setter
+    def step(self, text: str | None) -> None:
+        # published: the HMI's card shows the step the moment the run enters it, not CAPTURE
+        # with every touch done for as long as the end's reads take
+        if text != self._step:
+            self._step = text
+            self._publish()
 
     def during(self) -> str:
         """Where the run is, for a stop's reason: "during CAPTURE", or the step's own words."""
-        return self.step or f"during {self.state}"
+        return self._step or f"during {self.state}"
 
     @property
     def busy(self) -> bool:
@@ -120,6 +139,7 @@ class RunStatus:
             if self.run_id else None, "eta_s": self.eta_s(now), "verdict": self.verdict,
             "busy": self.busy, "link_ok": self.link_ok,
             "probing": self.probing if self.busy else None,
+            "step": self._step if self.busy else None,  # START_READS, END_READS, or null
         }
 
     def _probing(self, touch: Any) -> None:
@@ -169,7 +189,7 @@ class RunStatus:
                 log.exception("status listener failed")
 
     def _enter(self, state: State, reason: str | None = None) -> None:
-        self.state, self.step = state, None
+        self.state, self._step = state, None
         if reason is not None:
             self.reason = reason
         if self.run_id is not None:

@@ -34,7 +34,15 @@ from daemon.run import lease as run_lease
 from daemon.run import report_job
 from daemon.run.capture import RunCapture
 from daemon.run.ending import ABORT_TIMEOUT_S, WRITE_BACK_TIMEOUT_S, await_run
-from daemon.run.phases import END_READS, ControllerSilent, Refused, RunFailed, State, new_run_id
+from daemon.run.phases import (
+    END_READS,
+    START_READS,
+    ControllerSilent,
+    Refused,
+    RunFailed,
+    State,
+    new_run_id,
+)
 from daemon.run.temperatures import TemperatureRecorder
 from daemon.store import baselines
 from daemon.store.journal import Store
@@ -165,7 +173,9 @@ class Session(RunCapture):
             reference = self.store.last_good(self.setup.name, before=run_id)  # targets
             drift_ref = self._drift_reference(run_id)  # issue 23: a person's baseline
             prepared = await self._prepare_program(run_id, reference)
+            self.step = START_READS  # a stop here cuts no program: none was loaded yet
             await self.temps.start(run_id, self.clock.t_s())  # issue 22; before the program: 0
+            self.step = None  # STREAM proper: the program is loaded and sent next
             hits = await self._capture(prepared)
             hits = await self._reprobe(run_id, hits, reference)
             self.step = END_READS  # a stop from here to IDENTIFY cuts no touch: said so
