@@ -6,6 +6,7 @@ the same touch count as the progress bar; the PDF of a finished run; no sideways
 
 from __future__ import annotations
 
+import asyncio
 import datetime
 import time
 from zoneinfo import ZoneInfo
@@ -13,6 +14,7 @@ from zoneinfo import ZoneInfo
 import pytest
 
 from daemon.config import load_daemon_config
+from daemon.run.phases import END_READS
 from daemon.service.service import Service
 from tests.browser import chromium, tick_preflight
 from tests.daemon_helpers import thesis_rows, thesis_setup, write_daemon_yaml
@@ -191,5 +193,44 @@ async def test_start_refusals_are_shown_json_or_not(tmp_path):
                                             "r.body.error])")
             assert first is True and ok is False and "in progress" in error, error
             await svc.sessions[next(iter(svc.sessions))].wait()
+    finally:
+        await svc.stop()
+
+
+async def test_the_card_names_the_end_reads_not_capture(tmp_path, monkeypatch):
+    """After its last touch the run waits for its end-of-run temperatures, its state still
+    CAPTURE: the card says so in the daemon's one text (``phases.END_READS``) the moment the run
+    gets there (published, not polled), and drops it with the next state."""
+    svc = await start_service(tmp_path)
+    try:
+        session = next(iter(svc.sessions.values()))
+        release = asyncio.Event()
+        end = session.temps.end
+
+        async def end_held(run_id: str, t_s: float) -> None:
+            await release.wait()  # the reads of the end, as long as the test needs
+            await end(run_id, t_s)
+
+        monkeypatch.setattr(session.temps, "end", end_held)
+        async with chromium(tmp_path / "profile") as cdp:
+            sid = await cdp.page()
+            await cdp.sign_in(sid, svc.hmi_url, TOKEN)
+            card = "document.querySelector('.machine')"
+            seen = (f"[{card}.querySelector('.state').textContent, "
+                    f"{card}.querySelector('.meaning').textContent, "
+                    f"{card}.querySelector('.meaning').dataset.step]")
+            await cdp.wait_for(sid, f"{card}.querySelector('.state').textContent === 'IDLE'")
+            session.start("cli")
+            # the step, or a run stopped before it (its reason then shown at once)
+            got = await cdp.wait_for(sid, f"({card}.querySelector('.meaning').dataset.step || "
+                                          "['ABORTED', 'FAILED', 'INTERRUPTED'].includes("
+                                          f"{card}.querySelector('.state').textContent)) && "
+                                          f"{seen}")
+            assert got == ["CAPTURE", END_READS, END_READS], (got, session.reason)
+            release.set()
+            await session.wait()
+            got = await cdp.wait_for(sid, f"{card}.querySelector('.state').textContent === "
+                                          f"'IDLE' && {seen}")
+            assert got == ["IDLE", "ready", ""], (got, session.reason)
     finally:
         await svc.stop()
