@@ -221,8 +221,10 @@ async def test_the_card_names_the_end_reads_not_capture(tmp_path, monkeypatch):
                     f"{card}.querySelector('.meaning').dataset.step]")
             await cdp.wait_for(sid, f"{card}.querySelector('.state').textContent === 'IDLE'")
             session.start("cli")
-            # the step, or a run stopped before it (its reason then shown at once)
-            got = await cdp.wait_for(sid, f"({card}.querySelector('.meaning').dataset.step || "
+            # the end's step (the start's, START_READS, passes by first), or a run stopped
+            # before it (its reason then shown at once)
+            got = await cdp.wait_for(sid, f"({card}.querySelector('.meaning').dataset.step === "
+                                          f"{END_READS!r} || "
                                           "['ABORTED', 'FAILED', 'INTERRUPTED'].includes("
                                           f"{card}.querySelector('.state').textContent)) && "
                                           f"{seen}")
