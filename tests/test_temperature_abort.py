@@ -77,6 +77,37 @@ def column_rows(store: Store, run_id: str | None) -> list[TemperatureReading]:
                                       if r.channel == "column"]
 
 
+async def started_service(rig, port: int, tmp_path) -> Service:
+    """The daemon started on ``rig``'s machine: its controller's spindle channel and the column
+    transmitter on ``port`` (30 s timeout), its HMI on a free loopback port, in ``tmp_path``."""
+    channels = [{"name": "spindle", "source": "controller", **SPINDLE[rig.transport]},
+                column(port, timeout_s=30.0)]
+    doc = {"store": {"path": str(tmp_path / "journal.sqlite")},
+           "reports_dir": str(tmp_path / "reports"),
+           "hmi": {"host": "127.0.0.1", "port": 0, "token": TOKEN},
+           "machines": [machine_entry(rig.link, channels, {})]}
+    path = tmp_path / "daemon.yaml"
+    path.write_text(yaml.safe_dump(doc, allow_unicode=True), encoding="utf-8")
+    service = Service(load_daemon_config(path))
+    await service.start()
+    return service
+
+
+async def abort_via_hmi(service: Service, run_id: str
+                        ) -> tuple[dict, aiohttp.ClientResponse, dict, dict]:
+    """The HMI's status of mill1 just before, then its abort (response and body) and the
+    run's record after it, as the page and an operator's button get them."""
+    async with aiohttp.ClientSession() as http:
+        auth = {"Authorization": f"Bearer {TOKEN}"}
+        live = (await (await http.get(service.hmi_url + "api/status",
+                                      headers=auth)).json())["mill1"]
+        r = await http.post(service.hmi_url + "api/machines/mill1/abort", headers=auth)
+        body = await r.json()
+        listed = await (await http.get(service.hmi_url + f"api/runs/{run_id}",
+                                       headers=auth)).json()
+    return live, r, body, listed
+
+
 def running_reads() -> list[asyncio.Task]:
     return [t for t in asyncio.all_tasks()
             if t.get_name().startswith("temperature-") and not t.done()]
@@ -119,16 +150,7 @@ async def test_an_abort_cancels_the_pose_read_in_flight_before_the_run_reports_a
     # the pose read waits for the transmitter's own 30 s timeout, not the 3 s cap: the abort
     # below surely meets it in flight, however loaded the machine running the test
     monkeypatch.setattr(run_temperatures, "READ_TIMEOUT_S", 120.0)
-    channels = [{"name": "spindle", "source": "controller", **SPINDLE[rig.transport]},
-                column(port, timeout_s=30.0)]
-    doc = {"store": {"path": str(tmp_path / "journal.sqlite")},
-           "reports_dir": str(tmp_path / "reports"),
-           "hmi": {"host": "127.0.0.1", "port": 0, "token": TOKEN},
-           "machines": [machine_entry(rig.link, channels, {})]}
-    path = tmp_path / "daemon.yaml"
-    path.write_text(yaml.safe_dump(doc, allow_unicode=True), encoding="utf-8")
-    service = Service(load_daemon_config(path))
-    await service.start()
+    service = await started_service(rig, port, tmp_path)
     try:
         session = service.sessions["mill1"]
         at_end = watch_end(session.temps, monkeypatch)
@@ -143,16 +165,9 @@ async def test_an_abort_cancels_the_pose_read_in_flight_before_the_run_reports_a
         assert [(r.at, r.pose, r.error) for r in column_rows(service.store, run_id)] == [
             ("start", None, ""), *(("pose", k, BUSY) for k in range(1, probed))]  # 0's waits
         assert at_end.is_set() == (held is None)
-        async with aiohttp.ClientSession() as http:
-            auth = {"Authorization": f"Bearer {TOKEN}"}
-            # the status the page gets says where the run is: CAPTURE, and after the last
-            # touch the end's reads (the card shows the step), not a probe still at work
-            live = (await (await http.get(service.hmi_url + "api/status",
-                                          headers=auth)).json())["mill1"]
-            r = await http.post(service.hmi_url + "api/machines/mill1/abort", headers=auth)
-            body = await r.json()
-            listed = await (await http.get(service.hmi_url + f"api/runs/{run_id}",
-                                           headers=auth)).json()
+        # the status the page gets says where the run is: CAPTURE, and after the last touch
+        # the end's reads (the card shows the step), not a probe still at work
+        live, r, body, listed = await abort_via_hmi(service, run_id)
         assert (live["state"], live["step"]) == (
             "CAPTURE", END_READS if held is None else None), live
         assert body["step"] is None, body  # cleared by the run's end state
@@ -209,16 +224,7 @@ async def test_an_abort_during_the_start_reads_names_them_not_stream(
         await load(text, dialect, files)
 
     monkeypatch.setattr(rig.ctrl, "load_program", load_seen)
-    channels = [{"name": "spindle", "source": "controller", **SPINDLE[rig.transport]},
-                column(port, timeout_s=30.0)]
-    doc = {"store": {"path": str(tmp_path / "journal.sqlite")},
-           "reports_dir": str(tmp_path / "reports"),
-           "hmi": {"host": "127.0.0.1", "port": 0, "token": TOKEN},
-           "machines": [machine_entry(rig.link, channels, {})]}
-    path = tmp_path / "daemon.yaml"
-    path.write_text(yaml.safe_dump(doc, allow_unicode=True), encoding="utf-8")
-    service = Service(load_daemon_config(path))
-    await service.start()
+    service = await started_service(rig, port, tmp_path)
     try:
         session = service.sessions["mill1"]
         rig.ctrl.raise_start_request()
@@ -228,14 +234,7 @@ async def test_an_abort_during_the_start_reads_names_them_not_stream(
                     raise AssertionError(f"run ended before its abort: {session.reason}")
                 await asyncio.sleep(0.01)
         run_id = session.run_id
-        async with aiohttp.ClientSession() as http:
-            auth = {"Authorization": f"Bearer {TOKEN}"}
-            live = (await (await http.get(service.hmi_url + "api/status",
-                                          headers=auth)).json())["mill1"]
-            r = await http.post(service.hmi_url + "api/machines/mill1/abort", headers=auth)
-            body = await r.json()
-            listed = await (await http.get(service.hmi_url + f"api/runs/{run_id}",
-                                           headers=auth)).json()
+        live, r, body, listed = await abort_via_hmi(service, run_id)
         journaled = service.store.run(run_id).reason
         col = column_rows(service.store, run_id)
     finally:
