@@ -112,3 +112,22 @@ async def await_run(task: asyncio.Task) -> None:
         current = asyncio.current_task()
         if current is not None and current.cancelling():
             raise
+
+
+RECANCEL_S = 0.05  # how soon a task that swallowed its cancellation is cancelled again
+
+
+async def cancel_until_done(task: asyncio.Task) -> None:
+    """Cancel ``task`` and wait until it has ended, cancelling it again while it runs on.
+
+    Python 3.11's ``asyncio.wait_for`` returns the inner result instead of raising when the
+    result arrives in the same loop step as the cancellation (CPython gh-86296, fixed in 3.12);
+    pymodbus waits for every response under it, and a start-request poll cancelled at that
+    instant carried on (a Modbus daemon's stop hung for good in one CI run, its run done, the
+    poll still reading; the Modbus link now re-raises such a cancellation itself,
+    ``drivers.modbus.link``). For pollers only: a task whose cancellation runs cleanup (a run's
+    abort) must not be cancelled again. The waiting caller's own cancellation is never
+    swallowed."""
+    while not task.done():
+        task.cancel()
+        await asyncio.wait({task}, timeout=RECANCEL_S)

@@ -23,6 +23,7 @@ from aiohttp import web
 from daemon.compensation.propose import journal_analyse
 from daemon.config import DaemonConfig
 from daemon.machines.setup import MachineSetup
+from daemon.run.ending import cancel_until_done
 from daemon.run.session import Refused, Session
 from daemon.run.unattended import after_run
 from daemon.service.fleet_link import FleetLink
@@ -251,7 +252,8 @@ class Service:
     async def stop(self) -> None:
         for t in self._tasks:
             t.cancel()
-        for t in self._tasks:
+        for t in self._tasks:  # cancelled again if a Modbus read swallowed it (cancel_until_done)
+            await cancel_until_done(t)
             with contextlib.suppress(BaseException):
                 await t
         # every machine's run and report at once: their bounded waits do not add up within

@@ -47,7 +47,7 @@ from drivers.base import (
     StartRequest,
 )
 from drivers.hits import HitFactory, MalformedResult
-from drivers.modbus.registers import read_channel
+from drivers.modbus.registers import keep_cancel, read_channel
 from drivers.modbus.schema import ModbusLinkConfig
 from drivers.retry import Refused, with_backoff
 
@@ -197,8 +197,8 @@ class ModbusLink(CncLink):
         if self._client is None:
             raise LinkError("modbus link not connected")
         try:
-            rr = await self._client.read_holding_registers(
-                self.cfg.base_address + address, count=count, device_id=self.cfg.device_id)
+            rr = await keep_cancel(self._client.read_holding_registers(
+                self.cfg.base_address + address, count=count, device_id=self.cfg.device_id))
         except (TimeoutError, ModbusException, OSError) as e:
             raise LinkError(f"modbus read {address}+{count}: {e}") from None
         if rr.isError():
@@ -215,8 +215,8 @@ class ModbusLink(CncLink):
         if self._client is None:
             raise LinkError("modbus link not connected")
         try:
-            rr = await self._client.write_registers(
-                self.cfg.base_address + address, values, device_id=self.cfg.device_id)
+            rr = await keep_cancel(self._client.write_registers(
+                self.cfg.base_address + address, values, device_id=self.cfg.device_id))
         except (TimeoutError, ModbusException, OSError) as e:
             raise LinkError(f"modbus write {address}: {e}") from None
         if rr.isError():
