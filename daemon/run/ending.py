@@ -124,10 +124,10 @@ async def cancel_until_done(task: asyncio.Task) -> None:
     result arrives in the same loop step as the cancellation (CPython gh-86296, fixed in 3.12);
     pymodbus waits for every response under it, and a start-request poll cancelled at that
     instant carried on (a Modbus daemon's stop hung for good in one CI run, its run done, the
-    poll still reading; the Modbus link now re-raises such a cancellation itself,
-    ``drivers.modbus.link``). For pollers only: a task whose cancellation runs cleanup (a run's
-    abort) must not be cancelled again. The waiting caller's own cancellation is never
-    swallowed."""
+    poll still reading; every Modbus call now re-raises such a cancellation itself,
+    ``drivers.modbus.registers.keep_cancel``). For pollers only: a task whose cancellation
+    runs cleanup (a run's abort) must not be cancelled again. The waiting caller's own
+    cancellation is never swallowed."""
     while not task.done():
         task.cancel()
         await asyncio.wait({task}, timeout=RECANCEL_S)

@@ -1,5 +1,6 @@
-"""Reading a temperature channel's registers over Modbus: from the controller's own Modbus link
-or from a temperature transmitter (TCP or RTU), decoded as the channel states (contracts)."""
+"""pymodbus calls as the Modbus drivers make them: a cancellation kept (``keep_cancel``), and a
+temperature channel's registers read from the controller's own Modbus link or from a
+temperature transmitter (TCP or RTU), decoded as the channel states (contracts)."""
 
 from __future__ import annotations
 
