@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: install demo demo-hmi test test-linuxcnc demo-linuxcnc demo-compensate demo-linuxcnc-head demo-fleet linuxcnc-up linuxcnc-down lint bench golden peers clean
+.PHONY: install demo demo-hmi test test-portable test-linuxcnc demo-linuxcnc demo-compensate demo-linuxcnc-head demo-fleet linuxcnc-up linuxcnc-down lint bench golden peers clean
 LCNC_ENV := .peers/linuxcnc.env
 
 $(BIN)/python:
@@ -31,6 +31,19 @@ demo-hmi: $(STAMP)
 TEST_WORKERS ?= 3
 test: $(STAMP)
 	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist worksteal
+
+# The suite as another machine runs it: OpenBLAS on another CPU's kernels (Prescott on x86-64:
+# SSE3 only, unlike any recent CPU's own), two BLAS threads, the modules and tests in a shuffled
+# order (SEED, printed in pytest's header; default from the commit) and a CPU hog beside it
+# (HOG=0: none). A test pinned to one CPU's last bits, to the order or to the machine's speed
+# fails here before it fails in CI on another box.
+SEED ?= $(shell git rev-parse --short HEAD 2>/dev/null || echo 1)
+HOG ?= 1
+PORTABLE_CORE := $(if $(filter x86_64,$(shell uname -m)),Prescott,$(if $(filter aarch64,$(shell uname -m)),ARMV8,))
+test-portable: $(STAMP)
+	@if [ "$(HOG)" = 1 ]; then $(BIN)/python -c 'while 1: pass' & trap "kill $$!" EXIT; fi; \
+	OPENBLAS_CORETYPE=$(PORTABLE_CORE) OPENBLAS_NUM_THREADS=2 RUMBA_TEST_SHUFFLE=$(SEED) \
+	  $(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist worksteal
 
 test-linuxcnc: $(STAMP)
 	bash .ci/install-peers.sh linuxcnc

@@ -318,37 +318,48 @@ async def click_and_answer(cdp, sid: str, button: str, accept: bool) -> str:
 
 async def test_a_run_passes_while_its_page_is_refreshed_10_times_a_second(tmp_path,
                                                                           monkeypatch):
-    """Issue 20: the compensation view is computed off the event loop from the estimate the
-    run stored when it ended (identified once, in the run's worker thread); before, each GET
-    re-identified on the loop (≈ 0.4 s) and a page refreshing it starved /api/status and the
-    run's own touch timeout."""
+    """The compensation view is computed off the event loop from the estimate the run stored
+    when it ended (identified once, in the run's worker thread); before, each GET re-identified
+    on the loop (≈ 0.4 s) and a page refreshing it starved /api/status and the run's own touch
+    timeout. Asserted as behaviour, not a clock: the run ends DONE, every request of both
+    refreshers is answered, no view is built on the event loop's thread and nothing is
+    identified again (the answer times are in benchmarks/, not here)."""
+    import threading
+
+    from daemon.hmi import compensation_api
     from tests.test_compensate_stored import _counting
 
     calls = _counting(monkeypatch)
+    view_threads: list[threading.Thread] = []
+    real_get = compensation_api.Views.get
+
+    def get(self, session):
+        view_threads.append(threading.current_thread())
+        return real_get(self, session)
+
+    monkeypatch.setattr(compensation_api.Views, "get", get)
     async with world(tmp_path) as svc, aiohttp.ClientSession() as http:
         await run_once(svc)  # a finished run: the page has a proposal to show
         session = svc.sessions["mill1"]
         run_id = session.start("hmi")
-        slowest, gets = 0.0, 0
+        gets = {"api/compensation?machine=mill1": 0, "api/status": 0}
 
         async def refresh(path: str) -> None:
-            nonlocal slowest, gets
             while session.busy:
                 t0 = asyncio.get_running_loop().time()
                 r = await http.get(svc.hmi_url + path, headers=bearer())
                 assert r.status == 200, await r.text()
                 await r.read()
+                gets[path] += 1
                 dt = asyncio.get_running_loop().time() - t0
-                gets += 1
-                if path.startswith("api/status"):
-                    slowest = max(slowest, dt)
                 await asyncio.sleep(max(0.0, 0.1 - dt))
 
+        loop_thread = threading.current_thread()
         async with asyncio.timeout(180):
-            await asyncio.gather(refresh("api/compensation?machine=mill1"),
-                                 refresh("api/status"), session.wait())
+            await asyncio.gather(*(refresh(p) for p in gets), session.wait())
         assert svc.store.run(run_id).state == "DONE", svc.store.run(run_id)
-        assert gets > 20 and slowest < 1.0, (gets, slowest)
+        assert all(n >= 2 for n in gets.values()), gets  # both refreshed during the run
+        assert view_threads and loop_thread not in view_threads, view_threads
         st = await get_state(http, svc)  # the view follows the run that just ended
         assert st["run"]["id"] == run_id and not st["busy"]
         # every GET served from the stored views; each view is the run's own estimate
