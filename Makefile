@@ -33,16 +33,18 @@ test: $(STAMP)
 	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist worksteal
 
 # The suite as another machine runs it: OpenBLAS on another CPU's kernels (Prescott on x86-64:
-# SSE3 only, unlike any recent CPU's own), two BLAS threads, the modules and tests in a shuffled
-# order (SEED, printed in pytest's header; default from the commit) and a CPU hog beside it
-# (HOG=0: none). A test pinned to one CPU's last bits, to the order or to the machine's speed
-# fails here before it fails in CI on another box.
+# SSE3 only, unlike any recent CPU's own), BLAS_THREADS BLAS threads, the modules and tests in a
+# shuffled order (SEED, printed in pytest's header; default from the commit) and a CPU hog beside
+# it (HOG=0: none). A test pinned to one CPU's last bits, to the order or to the machine's speed
+# fails here before it fails in CI on another box. .ci/run runs the suite this way (no hog: the
+# LinuxCNC suite runs beside it).
 SEED ?= $(shell git rev-parse --short HEAD 2>/dev/null || echo 1)
 HOG ?= 1
+BLAS_THREADS ?= 2
 PORTABLE_CORE := $(if $(filter x86_64,$(shell uname -m)),Prescott,$(if $(filter aarch64,$(shell uname -m)),ARMV8,))
 test-portable: $(STAMP)
 	@if [ "$(HOG)" = 1 ]; then $(BIN)/python -c 'while 1: pass' & trap "kill $$!" EXIT; fi; \
-	OPENBLAS_CORETYPE=$(PORTABLE_CORE) OPENBLAS_NUM_THREADS=2 RUMBA_TEST_SHUFFLE=$(SEED) \
+	OPENBLAS_CORETYPE=$(PORTABLE_CORE) OPENBLAS_NUM_THREADS=$(BLAS_THREADS) RUMBA_TEST_SHUFFLE=$(SEED) \
 	  $(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist worksteal
 
 test-linuxcnc: $(STAMP)
