@@ -159,6 +159,7 @@ def analyse(setup: MachineSetup, hits: Sequence[ProbeHit], run_id: str = "run",
                    touches=len(rows), reference_run=reference[0] if reference else None,
                    warnings=(*data.warnings, *(str(w.message) for w in caught
                                                if str(w.message) not in data.warnings)))
+    cd = keep.get("touch_data", cd)  # the centres as the estimate used them (its frame)
     centres, ids = cd.centres, setup.artefact.ids
     health = {(h.pose, h.ball, h.repeat): h for h in cd.health}
     # The store keeps one centre per pose and ball: the first repeat's, or the re-probe that
