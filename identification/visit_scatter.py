@@ -37,6 +37,10 @@ ZERO = 1e-2  # µrad / µm: a component this small is none (the optimiser's floo
 FTOL = 1e-13
 GTOL = 1e-8
 MAX_ITER = 500
+# A variance floor on every observation (µm², (0.1 nm)²): a noise-free run's sphere fits carry a
+# covariance of ~0, and with every component at its bound V would be singular (its whitening
+# overflowing to NaN); far below any centre's real repeatability, it changes nothing measured.
+FLOOR_UM2 = 1e-8
 
 
 @dataclass
@@ -101,7 +105,7 @@ def covariance(b: VisitBlocks, theta: np.ndarray) -> np.ndarray:
     idx, cen = np.asarray(theta[:q], float), np.asarray(theta[q:], float)
     zs = b.z * idx[None, None, :]
     v = b.r0 + zs @ np.swapaxes(zs, 1, 2)
-    d = np.einsum("vna,a->vn", b.centre, cen**2)
+    d = np.einsum("vna,a->vn", b.centre, cen**2) + FLOOR_UM2
     v[:, np.arange(v.shape[1]), np.arange(v.shape[1])] += d
     return v
 
