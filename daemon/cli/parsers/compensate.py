@@ -33,6 +33,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--again", action="store_true",
                    help="with --confirm: apply a run whose compensation was rolled back, as a "
                         "new decision (refused without it)")
+    p.add_argument("--listing", metavar="FINGERPRINT",
+                   help="with --confirm: the listing fingerprint of the proposal reviewed (its "
+                        "review document and output print it); refused if what would be "
+                        "written now differs")
     p.add_argument("--verify", action="store_true",
                    help="with --confirm: when the values went live (LinuxCNC on this PC), run "
                         "the verification at once and print each link before and after")
