@@ -101,23 +101,25 @@ def _error(status: int, text: str, **extra: Any) -> web.Response:
 
 
 async def _body(request: web.Request, *fields: str) -> dict[str, Any]:
-    """The JSON object of the request with these string fields, else 400."""
+    """The JSON object of the request with these string fields ("name?": optional), else
+    400."""
     try:
         body = json.loads(await request.text())
     except (ValueError, UnicodeDecodeError):
         raise web.HTTPBadRequest(text="send a JSON object") from None
     if not isinstance(body, dict):
         raise web.HTTPBadRequest(text="send a JSON object")
+    optional = {f[:-1] for f in fields if f.endswith("?")}
+    fields = tuple(f.rstrip("?") for f in fields)
     for f in fields:
+        if f in optional and f not in body:
+            continue
         if not isinstance(body.get(f), str) or not 0 < len(body[f]) <= 64:
-            if f == "listing":  # what the person confirmed: the page always sends it
-                raise web.HTTPBadRequest(text="listing must be the proposal's "
-                                              "listing_fingerprint (GET /api/compensation): "
-                                              "what the person reviewed and confirms")
             raise web.HTTPBadRequest(text=f"{f} must be a string of 1 to 64 characters")
     if "again" in body and not isinstance(body["again"], bool):
         raise web.HTTPBadRequest(text="again must be true or false")
-    return {f: body[f] for f in fields} | ({"again": body["again"]} if "again" in body else {})
+    return {f: body[f] for f in fields if f in body} | (
+        {"again": body["again"]} if "again" in body else {})
 
 
 async def script(request: web.Request) -> web.Response:
@@ -240,10 +242,14 @@ def add_routes(app: web.Application, sessions_key: web.AppKey, store_key: web.Ap
         return web.json_response(out)
 
     async def post_confirm(request: web.Request) -> web.Response:
-        body = await _body(request, "machine", "run_id", "listing")
+        body = await _body(request, "machine", "run_id", "listing?")
         session, store = session_of(request, body["machine"], 422), request.app[store_key]
         require_journaled(request, store, session.setup.name, "engineer", "confirm",
                           "confirming a compensation", body["run_id"])
+        if not isinstance(body.get("listing"), str):  # what the person reviewed and confirms
+            raise web.HTTPBadRequest(text="listing must be the proposal's listing_fingerprint "
+                                          "(GET /api/compensation): what the person reviewed "
+                                          "and confirms")
         return audit(request, store, session.setup.name, "confirm",
                      await confirm_body(request, body), body["run_id"])
 

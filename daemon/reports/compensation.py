@@ -12,6 +12,7 @@ from contracts.yaml_files import ConfigError
 from daemon.analysis.judge import volumetric_max_um
 from daemon.analysis.result import Analysis
 from daemon.compensation import journal as cj
+from daemon.compensation.baseline_check import objections
 from daemon.compensation.listing import listing_json, row_listing
 from daemon.compensation.model import spec_of
 from daemon.machines.setup import MachineSetup
@@ -70,8 +71,10 @@ def verification_of(store: Store, run: RunRow, analysis: Analysis,
     if last.verify_run_id is None:
         cj.update(store, last.id, verify_run_id=run.id)
         # issue 23: the verification run is proposed as the drift baseline; a person confirms
-        baselines.propose(store, run.machine, run.id,
-                          f"verification run of compensation #{last.id} (run {last.run_id})")
+        if not objections(store, run.machine, run.id):  # never a FAILed one
+            baselines.propose(store, run.machine, run.id,
+                              f"verification run of compensation #{last.id} (run "
+                              f"{last.run_id})")
     links = tuple(LinkBeforeAfter(n, v.unit, v.value, v.std, analysis.links[n].value,
                                   analysis.links[n].std)
                   for n, v in sorted(source.links.items()) if n in analysis.links)
