@@ -38,6 +38,13 @@ from daemon.store.journal import FINAL_STATES, Store
 from daemon.store.machine_lock import Lease, MachineBusy
 from programs.compensation import CompensationOutput
 
+HAL_WRITE_BUDGET_S = 10.0
+"""The live write to a LinuxCNC on this PC as a whole (every setp, the HAL file, the
+read-back): each halcmd takes well under a second; past this the write fails and the old
+values are put back (``halkins.budget``)."""
+HAL_RESTORE_BUDGET_S = 10.0
+"""Putting the old values back after a failed write: a budget of its own."""
+
 
 class ApplyError(Exception):
     """Writing to the controller failed; the journal says how far it got."""
@@ -87,17 +94,19 @@ def hal_write(values: list, hal_file: Path | None = None) -> str:
         raise ApplyError(f"LinuxCNC write refused, nothing set: {e}") from None
     replaced = False
     try:
-        for pin, v in new.items():
-            halkins.setp(pin, v)
-        backup = halkins.replace_file(hal_file, patched, expect=original)
-        replaced = True
-        back = halkins.read_pins(list(new))
+        with halkins.budget(HAL_WRITE_BUDGET_S):
+            for pin, v in new.items():
+                halkins.setp(pin, v)
+            backup = halkins.replace_file(hal_file, patched, expect=original)
+            replaced = True
+            back = halkins.read_pins(list(new))
         bad = [f"{p} {back[p]!r} != {v!r}" for p, v in new.items()
                if not halkins.agrees(back[p], v)]
         if bad:
             raise halkins.HalError(f"read-back differs: {'; '.join(bad)}")
     except (halkins.HalError, OSError) as e:
-        _restore(old)
+        with halkins.budget(HAL_RESTORE_BUDGET_S, fresh=True):
+            _restore(old)
         where = _restore_file(hal_file, original, patched) if replaced else \
             f"HAL file {hal_file} unchanged"
         raise ApplyError(f"LinuxCNC write failed, old values set again, {where}: {e}") from None
