@@ -206,10 +206,14 @@ def check_guards(plan: CompensationPlan, guards: Guards) -> GuardResult:
     gain = before[1] - after[1]
     if proposed and gain < floor_um:
         b, a = pair(before[1], after[1])
-        why = (f"together they would lower the link-caused distortion max by "
-               f"{plain(gain, 2)} µm only ({b} → {a} µm), under the "
-               f"{plain(floor_um, 1)} µm a compensation must gain to be worth writing "
-               "(guards.min_effect_um)")
+        if gain > 0:
+            g, f = pair(gain, floor_um, 2)
+            how = f"would lower the link-caused distortion max by {g} µm only ({b} → {a} µm)"
+        else:
+            f = plain(floor_um, 1)
+            how = f"would not lower the link-caused distortion max ({b} → {a} µm)"
+        why = (f"together they {how}, under the {f} µm a compensation must gain to be worth "
+               "writing (guards.min_effect_um)")
         skipped += [(ch, why) for ch in proposed]
         return GuardResult([], skipped, [], [], before, why)
     return GuardResult(list(proposed), skipped, [], proposed, after)

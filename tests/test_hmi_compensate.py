@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import re
 from collections.abc import AsyncIterator
 from pathlib import Path
 
@@ -308,6 +309,8 @@ async def test_browser_confirm_with_a_second_confirmation(tmp_path):
             assert {"$TC_CARR10[1]", "$TC_CARR15[1]", "$TC_CARR18[1]"} <= {r[0] for r in shown}
             assert "link-caused distortion max" in await cdp.eval(
                 sid, f"{panel}.querySelector('.comp-dist').textContent")
+            text = await cdp.eval(sid, f"{panel}.textContent")
+            assert not re.search(r"-0\.0+(?!\d)", text), text  # no negative zero anywhere
             over = await cdp.eval(sid, "[...document.querySelectorAll('.card')].map(c => "
                                        "[c.className, c.scrollWidth, c.clientWidth])")
             assert all(sw <= cw for _, sw, cw in over), over
