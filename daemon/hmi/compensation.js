@@ -37,9 +37,9 @@ window.rumbaComp = (() => {
     const p = panels[name];
     if (!p) return;
     const d = p.data;
-    const confirmBtn = p.el.querySelector(".comp-confirm");
-    confirmBtn.disabled = p.busy || !d || !d.proposal || !d.proposal.applicable;
-    confirmBtn.title = !d ? "" : p.busy ? "a run is active" : (d.why || "");
+    // disabled with the reason stated beside it (.comp-why: "Nothing to confirm: …")
+    p.el.querySelector(".comp-confirm").disabled =
+      p.busy || !d || !d.proposal || !d.proposal.applicable;
     p.el.querySelector(".comp-rollback").disabled = p.busy || !d || !d.last_applied;
     // issue 23: only an engineer or admin confirms or rolls back; say so on the buttons
     const me = window.rumbaMe;

@@ -1,6 +1,7 @@
 """``rumba compensate RUN --config daemon.yaml``: the controller-model changes that hold the
-run's identified link errors, guarded; ``--confirm --by NAME`` applies them, ``--rollback``
-restores the values before the last applied compensation. Exit 0 done, 2 refused."""
+run's identified link errors, guarded, and what a confirmation would write (a review document,
+never a program); ``--confirm --by NAME`` writes and applies them, ``--rollback`` restores the
+values before the last applied compensation. Exit 0 done, 2 refused."""
 
 from __future__ import annotations
 

@@ -5,9 +5,11 @@ from __future__ import annotations
 import argparse
 
 DESCRIPTION = ("``rumba compensate RUN --config daemon.yaml``: the controller-model changes that "
-               "hold the run's identified link errors, guarded; ``--confirm --by NAME`` applies "
-               "them, ``--rollback`` restores the values before the last applied compensation. "
-               "Exit 0 done, 2 refused.")
+               "hold the run's identified link errors, guarded and worth writing, listed "
+               "address by address as the program would write them; a review document "
+               "(proposal-<machine>-<run>.json), never a program. ``--confirm --by NAME`` "
+               "writes the program and applies it, ``--rollback`` restores the values before "
+               "the last applied compensation. Exit 0 done, 2 refused.")
 
 
 def _run(args: argparse.Namespace) -> int:
