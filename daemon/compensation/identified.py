@@ -166,8 +166,27 @@ def plan_to_json(plan: CompensationPlan) -> str:
         "distortion_um": [list(plan.distortion_before_um), list(plan.distortion_compensable_um),
                           list(plan.distortion_after_um)],
         # the displacements behind the figures (the worth rule's effects and subsets)
-        "link_disp_mm": None if plan.link_disp_mm is None else _arr(plan.link_disp_mm),
-        "change_disp_mm": {k: _arr(v) for k, v in plan.change_disp_mm.items()}})
+        "displacements": _displacements(plan)})
+
+
+def _displacements(plan: CompensationPlan) -> dict[str, Any] | None:
+    """The plan's displacements, each probed centre's row once: the plan's centres repeat
+    every pose once per ball row (a 14-pose run: 224 rows, 56 distinct), so the distinct rows
+    and the index that rebuilds the rest (exact) are stored — a quarter of the size."""
+    if plan.link_disp_mm is None:
+        return None
+    names = list(plan.change_disp_mm)
+    stacked = np.hstack([plan.link_disp_mm, *(plan.change_disp_mm[n] for n in names)])
+    rows, index = np.unique(stacked, axis=0, return_inverse=True)
+    return {"names": names, "rows": _arr(rows), "index": [int(i) for i in np.ravel(index)]}
+
+
+def _from_displacements(d: dict[str, Any]) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    full = _unarr(d["rows"])[np.asarray(d["index"], int)]
+    names = [str(n) for n in d["names"]]
+    if full.ndim != 2 or full.shape[1] != 3 * (len(names) + 1):
+        raise ValueError(f"displacements of shape {full.shape} for {len(names)} changes")
+    return full[:, :3], {n: full[:, 3 * (i + 1):3 * (i + 2)] for i, n in enumerate(names)}
 
 
 def plan_from_json(text: str) -> CompensationPlan:
@@ -181,10 +200,9 @@ def plan_from_json(text: str) -> CompensationPlan:
         links = [{str(k): float(v) for k, v in d[f"links_{w}"].items()}
                  for w in ("identified", "compensable", "residual")]
         dist = [(float(a), float(b)) for a, b in d["distortion_um"]]
-        if d.get("link_disp_mm") is None:  # stored before the plan carried them
+        if d.get("displacements") is None:  # stored before the plan carried them
             raise ValueError("no displacements (stored before the worth rule)")
-        return CompensationPlan(changes, *links, *dist, _unarr(d["link_disp_mm"]),
-                                {str(k): _unarr(v) for k, v in d["change_disp_mm"].items()})
+        return CompensationPlan(changes, *links, *dist, *_from_displacements(d["displacements"]))
     except (TypeError, KeyError, AttributeError) as e:
         raise ValueError(f"not a stored plan: {e!r}") from None
 
