@@ -374,37 +374,3 @@ def test_siemens_program_journals_the_closing_vector_and_rolls_back(tmp_path, ca
         assert f"{v.address}={v.old:.6f}".replace("-0.000000", "0.000000") in \
             back.replace(" ", ""), (v, back)
 
-
-def test_a_pass_verification_proposes_nothing_and_says_why(tmp_path, capsys):
-    """After a PASS verification the panel proposed a further change with Confirm enabled:
-    the verification run of a compensation that PASSes proposes nothing (the worth rule's
-    rule 5), here saying that x-offset did not hold (a person looks before a second write)."""
-    from daemon.compensation.propose import propose
-    from daemon.reports.proposal import proposal_dict
-
-    cfg = _world(tmp_path, capsys)
-    assert run_cli(["compensate", "--config", cfg, "--confirm", "synth", "--by", "alice"],
-                   capsys)[0] == 0
-    log = tmp_path / "verify.csv"  # the C line moved 20 µm more: EX0C −20 µm after it
-    write_log(log, shipped_run_rows(MACHINE, CONFIG / "artefacts/thesis_4ball.yaml", PLAN,
-                                    {**LINKS, "EX0C": -60}, run_id="verify"))
-    assert run_cli(["history", "--config", cfg, "--import", str(log), "--machine", "lcnc"],
-                   capsys)[0] == 0
-    conf = load_daemon_config(cfg)
-    store = Store(conf.store_path)
-    try:
-        assert store.run("verify").verdict == "PASS"
-        p = propose(conf.machines["lcnc"], store, "verify")
-        d = proposal_dict(p)
-    finally:
-        store.close()
-    x = next(c for c in p.plan.changes if c.name == "x-offset")
-    assert abs(x.delta) > x.u_expanded and p.plan.effect_um("x-offset") > 2.0  # worth alone
-    assert p.values == [] and p.program is None and not d["applicable"]
-    assert d["state"] == "nothing" and d["writes"] == []
-    assert d["why"].startswith("nothing worth writing: run verify verifies compensation #1 "
-                               "(from run synth) and PASSed; x-offset would move again beyond "
-                               "U (the compensation did not hold"), d["why"]
-    code, out, _ = run_cli(["compensate", "--config", cfg, "verify"], capsys)
-    assert code == 0 and d["why"] in out and "-0.00" not in out, out
-    assert not (tmp_path / "reports" / "proposal-lcnc-verify.json").exists()

@@ -7,13 +7,17 @@ nothing worse; a refusal or a reason words its two figures so that they differ, 
 from __future__ import annotations
 
 import dataclasses
-from pathlib import Path
 
 import numpy as np
 import pytest
 import yaml
 
+from contracts.probing_log import write_log
 from contracts.setup_files import load_artefact, load_controller_kinematics, load_plan
+from daemon.compensation.propose import propose
+from daemon.config import load_daemon_config
+from daemon.reports.proposal import proposal_dict
+from daemon.store.journal import Store
 from identification.compensation import (
     CompensationPlan,
     Guards,
@@ -23,10 +27,12 @@ from identification.compensation import (
 )
 from identification.estimate import estimate
 from identification.worth import pair, plain
-from tests.synth import Truth, to_internal
+from tests.cli_helpers import run_cli
+from tests.synth import Truth, shipped_run_rows, to_internal
+from tests.test_compensate import CONFIG, LINKS, MACHINE, PLAN, _world
 from tests.test_compensation_math import _centres
 
-CFG = Path(__file__).resolve().parents[1] / "config"
+CFG = CONFIG
 
 
 @pytest.fixture(scope="module")
@@ -123,3 +129,35 @@ def test_numbers_never_read_minus_zero_and_pairs_differ():
     assert plain(-0.006, 2, sign=True) == "-0.01" and plain(0.5, 1, sign=True) == "+0.5"
     assert pair(4.71, 4.74) == ("4.71", "4.74") and pair(5.0, 4.0) == ("5.0", "4.0")
     assert pair(1.0, 1.0) == ("1.0000", "1.0000")  # equal: as precise as it gets
+
+
+def test_a_pass_verification_proposes_nothing_and_says_why(tmp_path, capsys):
+    """After a PASS verification the panel proposed a further change with Confirm enabled:
+    the verification run of a compensation that PASSes proposes nothing (the worth rule's
+    rule 5), here saying that x-offset did not hold (a person looks before a second write)."""
+    cfg = _world(tmp_path, capsys)
+    assert run_cli(["compensate", "--config", cfg, "--confirm", "synth", "--by", "alice"],
+                   capsys)[0] == 0
+    log = tmp_path / "verify.csv"  # the C line moved 20 µm more: EX0C −20 µm after it
+    write_log(log, shipped_run_rows(MACHINE, CONFIG / "artefacts/thesis_4ball.yaml", PLAN,
+                                    {**LINKS, "EX0C": -60}, run_id="verify"))
+    assert run_cli(["history", "--config", cfg, "--import", str(log), "--machine", "lcnc"],
+                   capsys)[0] == 0
+    conf = load_daemon_config(cfg)
+    store = Store(conf.store_path)
+    try:
+        assert store.run("verify").verdict == "PASS"
+        p = propose(conf.machines["lcnc"], store, "verify")
+        d = proposal_dict(p)
+    finally:
+        store.close()
+    x = next(c for c in p.plan.changes if c.name == "x-offset")
+    assert abs(x.delta) > x.u_expanded and p.plan.effect_um("x-offset") > 2.0  # worth alone
+    assert p.values == [] and p.program is None and not d["applicable"]
+    assert d["state"] == "nothing" and d["writes"] == []
+    assert d["why"].startswith("nothing worth writing: run verify verifies compensation #1 "
+                               "(from run synth) and PASSed; x-offset would move again beyond "
+                               "U (the compensation did not hold"), d["why"]
+    code, out, _ = run_cli(["compensate", "--config", cfg, "verify"], capsys)
+    assert code == 0 and d["why"] in out and "-0.00" not in out, out
+    assert not (tmp_path / "reports" / "proposal-lcnc-verify.json").exists()
