@@ -85,7 +85,7 @@ class Session(RunCapture):
         self._controller_dirty = False  # a stop could not reach the controller
         self.baseline: baselines.Baseline | None = None  # the current run's drift baseline
         self.following: str | None = None  # the last run's follow-up under way (_follow_up)
-        self.closing = False  # the daemon stops: no run starts any more (shutdown)
+        self.closing = False  # shutdown under way: no run starts
         self._follow_task: asyncio.Task | None = None
         self.temps = TemperatureRecorder(setup.name, setup.temperatures, link, store,
                                          str(getattr(setup.link, "transport", "")))
@@ -149,16 +149,19 @@ class Session(RunCapture):
         finish for ``report_wait_s`` (default ``REPORT_STOP_WAIT_S``) and else cancelled,
         journaled failed with the reason (``report_job.settle``): nothing is left running or
         'writing' when the journal closes."""
-        self.closing = True
-        await self.interrupt(cause)
-        # a follow-up being written (the unattended compensation: bounded by its budget) ends
-        # its transaction while the report finishes
-        follow = self._follow_task if self.following is not None else None
-        await asyncio.gather(
-            asyncio.wait({follow}) if follow is not None and not follow.done() else
-            asyncio.sleep(0),
-            report_job.settle(self._report_task, REPORT_STOP_WAIT_S if report_wait_s is None
-                              else report_wait_s))
+        self.closing = True  # while it stops: a follow-up starts no verification run
+        try:
+            await self.interrupt(cause)
+            # a follow-up being written (the unattended compensation: bounded by its budget)
+            # ends its transaction while the report finishes
+            follow = self._follow_task if self.following is not None else None
+            await asyncio.gather(
+                asyncio.wait({follow}) if follow is not None and not follow.done() else
+                asyncio.sleep(0),
+                report_job.settle(self._report_task, REPORT_STOP_WAIT_S if report_wait_s is None
+                                  else report_wait_s))
+        finally:
+            self.closing = False
 
     async def _cancel(self, state: State, reason: str) -> bool:
         if not self.busy or self._task is None:
