@@ -22,7 +22,6 @@ import time
 from collections.abc import AsyncIterator, Callable
 
 import serial
-import serial_asyncio_fast
 
 from contracts.jobs import DialectCodec, ProgramJob, Verdict
 from contracts.messages import ProbeHit
@@ -40,6 +39,7 @@ from drivers.serial.lines import (  # noqa: F401 (re-exported: the link's public
     parse_request,
 )
 from drivers.serial.schema import SerialLinkConfig
+from drivers.serial.transport import create_serial_connection
 
 log = logging.getLogger("rumba.serial")
 
@@ -162,8 +162,7 @@ class SerialDncLink(PrintedTemperatures, CncLink):
                 self._transport = _ThreadTransport(ser, proto, loop)
             else:
                 self._transport, _ = await asyncio.wait_for(
-                    serial_asyncio_fast.create_serial_connection(loop, lambda: proto,
-                                                                 self.cfg.url, **kw),
+                    create_serial_connection(loop, lambda: proto, self.cfg.url, **kw),
                     self.cfg.connect_timeout_s)
         except (TimeoutError, serial.SerialException, OSError, ValueError, termios.error) as e:
             raise LinkError(f"serial {self.cfg.url}: cannot open: {e or 'timeout'}") from None
