@@ -17,6 +17,7 @@ import pytest
 from asyncua import Client, ua
 
 from daemon.opcua.server import ResultServer
+from daemon.service.heap import freeze_startup_heap
 from daemon.store.journal import Store
 from tests.opcua_results_helpers import (
     CLIENT_URI,
@@ -48,6 +49,7 @@ class LagMonitor:
     wakeups: int = 0
     stalls: int = 0
     worst_s: float = 0.0
+    stalled_at: list[tuple[float, float]] = field(default_factory=list)  # (monotonic, lag s)
     _task: asyncio.Task | None = None
 
     def start(self) -> LagMonitor:
@@ -64,6 +66,7 @@ class LagMonitor:
             self.worst_s = max(self.worst_s, late)
             if late > self.stall_s:
                 self.stalls += 1
+                self.stalled_at.append((loop.time(), late))
 
     async def stop(self) -> None:
         if self._task is not None:
@@ -121,6 +124,7 @@ async def serve(tmp: Path, extra_runs: int = 0) -> Served:
     cert, key, pem = await make_pki(tmp)
     srv = ResultServer(server_config(tmp, cert.parent), store, ["mill1"])
     url = await srv.start()
+    freeze_startup_heap()  # as rumba run does once it serves
     return Served(srv, store, url, {"cert": cert, "key": key, "pem": pem}, tmp)
 
 

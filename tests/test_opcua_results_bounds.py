@@ -146,6 +146,8 @@ async def test_results_by_id_still_answer(served, session):
 async def test_files_left_open_are_released_with_the_session_and_limited_per_session(served):
     transfer = served.srv.machines["mill1"].transfer
     assert transfer.open == {}
+    nodes = served.srv.server.iserver.aspace._nodes
+    before = len(nodes)
     c = await secure(client(served), served)
     await c.connect()
     n = await Nodes.of(c)
@@ -172,6 +174,9 @@ async def test_files_left_open_are_released_with_the_session_and_limited_per_ses
     # the client goes away without Close: its session ends, its files are released
     await c.disconnect()
     await until(lambda: transfer.open == {}, timeout_s=4 * filetransfer.SWEEP_S + 10)
+    # the file objects are gone from the address space, and no reference points to them
+    assert len(nodes) == before
+    assert [r for n in nodes.values() for r in n.references if r.NodeId not in nodes] == []
 
 
 async def test_wrong_passwords_are_locked_out_before_the_password_is_compared(tmp_path):

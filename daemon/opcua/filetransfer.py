@@ -21,6 +21,7 @@ from typing import Any
 
 from asyncua import Server, ua
 from asyncua.common.instantiate_util import instantiate
+from asyncua.common.manage_nodes import delete_nodes
 from asyncua.server.internal_session import SessionState
 
 from contracts.opcua_security import CHANNEL
@@ -118,7 +119,7 @@ class ResultTransfer:
             f = self.open.pop(h, None)
             if f is not None:
                 self.released += 1
-                await self.server.delete_nodes([f.node], recursive=True)
+                await self._delete(f.node)
         return len(gone)
 
     @method("GenerateFileForRead", Arg("GenerateOptions", "object"))
@@ -166,6 +167,18 @@ class ResultTransfer:
                 ua.Variant(handle, ua.VariantType.UInt32),
                 ua.Variant(ua.NodeId(), ua.VariantType.NodeId)]  # no completion state machine
 
+    async def _delete(self, node: Any) -> None:
+        """Remove a temporary file object and its children. asyncua's ``delete_nodes`` also
+        looks through every reference of every node of the address space for each node
+        deleted (0.5 s per file with the Machinery nodesets, on the loop); a file object is
+        referenced only by its parent and its own children, so that one reference is removed
+        here and the subtree deleted without the search."""
+        for ref in await node.get_references(direction=ua.BrowseDirection.Inverse):
+            if ref.NodeId == self.node.nodeid:
+                await self.node.delete_reference(node.nodeid, ref.ReferenceTypeId)
+        await delete_nodes(self.server.iserver.isession, [node], recursive=True,
+                           delete_target_references=False)
+
     def _get(self, parent: ua.NodeId, handle: int) -> _Open:
         """The open file ``handle`` of this file node and of the calling session."""
         f = self.open.get(handle)
@@ -200,7 +213,7 @@ class ResultTransfer:
     async def close(self, parent: ua.NodeId, handle: int) -> list[ua.Variant]:
         f = self._get(parent, handle)
         del self.open[handle]
-        await self.server.delete_nodes([f.node], recursive=True)
+        await self._delete(f.node)
         return []
 
     async def close_all(self) -> None:
@@ -210,4 +223,4 @@ class ResultTransfer:
                 await self._sweeper
         for h in list(self.open):
             f = self.open.pop(h)
-            await self.server.delete_nodes([f.node], recursive=True)
+            await self._delete(f.node)

@@ -80,6 +80,7 @@ async def _start_opcua(cfg: Any, dsn: str, poll_s: float) -> tuple[Any, Any]:
     from contracts.yaml_files import ConfigError
     from daemon.opcua.server import OpcUaServerError, ResultServer
     from daemon.opcua.source import FleetSource
+    from daemon.service.heap import freeze_startup_heap
     from daemon.store.journal import StoreError
     from daemon.store.pg import PgStore
 
@@ -96,6 +97,7 @@ async def _start_opcua(cfg: Any, dsn: str, poll_s: float) -> tuple[Any, Any]:
         await pg.close()
         raise UserError(f"--opcua: {e}") from None
     server.follow(poll_s)
+    freeze_startup_heap()
     print(f"rumba fleet: OPC UA results {url}", flush=True)
     return server, pg
 

@@ -10,6 +10,7 @@ import signal
 from daemon.cli.main import UserError
 from daemon.config import load_daemon_config
 from daemon.service import sdnotify
+from daemon.service.heap import freeze_startup_heap
 from daemon.service.logs import setup_logging
 from daemon.service.service import Service, ServiceError
 from daemon.store.journal import StoreError
@@ -25,6 +26,7 @@ async def serve(service: Service) -> None:
         await service.start()
     except (ServiceError, StoreError) as e:
         raise UserError(str(e)) from None
+    freeze_startup_heap()
     names = ", ".join(f"{n} ({s.setup.link.transport}, {s.setup.dialect})"
                       for n, s in service.sessions.items())
     print(f"rumba: serving {names}", flush=True)
