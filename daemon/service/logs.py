@@ -114,6 +114,40 @@ def _mark_repeat(record: logging.LogRecord, held: int, span_s: float) -> None:
     record.msg = f"{record.msg} (repeated {held} times in the last {span_s:.0f} s, not logged)"
 
 
+class OneLineFormatter(logging.Formatter):
+    """For a person's terminal (``rumba verify``): ``warning: logger: message`` and, instead of
+    a traceback, the exception's type and text on the same line."""
+
+    def format(self, record: logging.LogRecord) -> str:
+        text = f"{record.levelname.lower()}: {record.name}: {record.getMessage()}"
+        if record.exc_info and record.exc_info[1] is not None:
+            exc = record.exc_info[1]
+            text += f" ({type(exc).__name__}: {exc})" if str(exc) else f" ({type(exc).__name__})"
+        return text
+
+
+def setup_terminal_logging(level: int, tracebacks: bool = False) -> RepeatFilter:
+    """Logging of a command a person watches: one line per record (tracebacks only when
+    ``tracebacks``: RUMBA_DEBUG), repeats counted; like ``setup_logging`` it leaves a root
+    logger with someone else's handlers alone."""
+    root = logging.getLogger()
+    repeats = RepeatFilter()
+    if any(not getattr(h, "rumba_handler", False) for h in root.handlers):
+        return repeats
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(logging.Formatter("%(levelname)s: %(name)s: %(message)s")
+                         if tracebacks else OneLineFormatter())
+    handler.addFilter(repeats)
+    handler.setLevel(level)  # a record a filter lowered (asyncua's reconnect noise) stays out
+    handler.rumba_handler = True  # type: ignore[attr-defined]
+    for old in list(root.handlers):
+        root.removeHandler(old)
+        old.close()
+    root.addHandler(handler)
+    root.setLevel(level)
+    return repeats
+
+
 def setup_logging(level: int, log_file: Path | None = None,
                   max_bytes: int = LOG_MAX_BYTES, backups: int = LOG_BACKUPS) -> RepeatFilter:
     """The daemon's logging: to ``log_file`` (rotated at ``max_bytes``, ``backups`` kept) or to
@@ -133,6 +167,7 @@ def setup_logging(level: int, log_file: Path | None = None,
         handler = logging.StreamHandler(sys.stderr)
     handler.setFormatter(logging.Formatter(FORMAT))
     handler.addFilter(repeats)
+    handler.setLevel(level)
     handler.rumba_handler = True  # type: ignore[attr-defined]
     for old in list(root.handlers):
         root.removeHandler(old)

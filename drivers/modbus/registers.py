@@ -40,7 +40,7 @@ async def read_channel(client: Any, ch: TemperatureChannel, device_id: int, wher
     try:
         rr = await keep_cancel(read(address, count=WORDS[ch.format], device_id=device_id))
     except (TimeoutError, ModbusException, OSError) as e:
-        raise LinkError(f"{what}: {e or type(e).__name__}") from None
+        raise LinkError(f"{what}: {str(e) or type(e).__name__}") from None
     if rr.isError():
         raise LinkError(f"{what}: exception response {rr}")
     return decode_registers(list(rr.registers), ch)

@@ -34,11 +34,14 @@ from drivers.base import (
     StartRequest,
 )
 from drivers.hits import HitFactory, MalformedResult
+from drivers.opcua.reasons import quiet_connection_loss, why
 from drivers.opcua.schema import OpcUaLinkConfig
 from drivers.retry import Refused, wait_event, with_backoff
 
 logging.getLogger("asyncua").setLevel(logging.ERROR)
 log = logging.getLogger("rumba.opcua")
+quiet_connection_loss()
+
 SUBSCRIBED = ("request", "touch_counter", "state")
 NODE_ROLES = tuple(BY_ROLE)
 """Roles whose node id may be overridden in the link config (``nodes: {role: id}``)."""
@@ -213,7 +216,7 @@ class OpcUaLink(CncLink):
             return await self._client.read_values([self._n[r] for r in roles])
         except (TimeoutError, ua.UaError, OSError, ConnectionError) as e:
             raise LinkError(f"opcua {self.cfg.url}: read {', '.join(roles)}: "
-                            f"{e or type(e).__name__}") from None
+                            f"{why(e, self.cfg.request_timeout_s)}") from None
 
     async def _read_during_run(self, roles: tuple[str, ...]) -> list[Any]:
         """A read that rides out a connection drop: asyncua reconnects in the background and
@@ -237,7 +240,7 @@ class OpcUaLink(CncLink):
             value = await self._client.get_node(nid).read_value()
         except (TimeoutError, ua.UaError, OSError, ConnectionError, ValueError) as e:
             raise LinkError(f"opcua {self.cfg.url}: temperature {channel.name} ({nid}): "
-                            f"{e or type(e).__name__}") from None
+                            f"{why(e, self.cfg.request_timeout_s)}") from None
         if (not isinstance(value, int | float) or isinstance(value, bool)
                 or not math.isfinite(value)):
             raise LinkError(f"opcua {self.cfg.url}: temperature {channel.name} ({nid}) = "
@@ -249,14 +252,14 @@ class OpcUaLink(CncLink):
             await self._n[role].write_value(_double(value))
         except (TimeoutError, ua.UaError, OSError, ConnectionError) as e:
             raise LinkError(f"opcua {self.cfg.url}: write {role}: "
-                            f"{e or type(e).__name__}") from None
+                            f"{why(e, self.cfg.request_timeout_s)}") from None
 
     async def _call(self, role: str, *args: ua.Variant) -> None:
         try:
             await self._n["methods"].call_method(self._n[role], *args)
         except (TimeoutError, ua.UaError, OSError, ConnectionError) as e:
             raise LinkError(f"opcua {self.cfg.url}: {BY_ROLE[role].path} refused: "
-                            f"{e or type(e).__name__}") from None
+                            f"{why(e, self.cfg.request_timeout_s)}") from None
 
     async def _sleep_for_change(self, timeout_s: float) -> None:
         self._wake.clear()

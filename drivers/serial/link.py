@@ -165,7 +165,8 @@ class SerialDncLink(PrintedTemperatures, CncLink):
                     create_serial_connection(loop, lambda: proto, self.cfg.url, **kw),
                     self.cfg.connect_timeout_s)
         except (TimeoutError, serial.SerialException, OSError, ValueError, termios.error) as e:
-            raise LinkError(f"serial {self.cfg.url}: cannot open: {e or 'timeout'}") from None
+            raise LinkError(f"serial {self.cfg.url}: cannot open: "
+                            f"{str(e) or 'timeout'}") from None
         self._proto = proto
 
     async def wait_start_request(self) -> StartRequest:
