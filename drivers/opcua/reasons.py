@@ -12,6 +12,9 @@ _CLOSED = {ua.StatusCodes.BadConnectionClosed, ua.StatusCodes.BadSecureChannelCl
            ua.StatusCodes.BadSessionClosed, ua.StatusCodes.BadSessionIdInvalid,
            ua.StatusCodes.BadServerHalted, ua.StatusCodes.BadCommunicationError,
            ua.StatusCodes.BadNotConnected, ua.StatusCodes.BadShutdown}
+MISSING_NODE = {ua.StatusCodes.BadNodeIdUnknown, ua.StatusCodes.BadNodeIdInvalid,
+                ua.StatusCodes.BadAttributeIdInvalid}
+"""A read refused because the node is not there: an address misspelt in the configuration."""
 
 
 def why(e: BaseException, timeout_s: float | None = None) -> str:
