@@ -1,6 +1,8 @@
 """OPC UA link (asyncua client): program transfer + start by method call, subscriptions to the
 start request, the touch counter and the controller state, result ring reads, verdict write-back
 with the request/busy/done handshake, certificate + user authentication, reconnect with backoff.
+Every request is awaited through ``drivers.cancel.keep_cancel``: an abort's cancellation that
+lands with a response is never lost.
 
 Address space: contracts/opcua_space.py (table in drivers/README.md). No touch is lost when
 notifications coalesce or the connection drops: on every wake-up the counter is read and every
@@ -34,6 +36,7 @@ from drivers.base import (
     LinkError,
     StartRequest,
 )
+from drivers.cancel import keep_cancel
 from drivers.hits import HitFactory, MalformedResult
 from drivers.opcua.reasons import MISSING_NODE, quiet_connection_loss, why
 from drivers.opcua.ring import _number, check_counter, ring_hit
@@ -156,7 +159,7 @@ class OpcUaLink(CncLink):
         if self._client is None:
             raise LinkError(f"opcua {self.cfg.url}: not connected")
         try:
-            return await self._client.read_values([self._n[r] for r in roles])
+            return await keep_cancel(self._client.read_values([self._n[r] for r in roles]))
         except (TimeoutError, ua.UaError, OSError, ConnectionError) as e:
             raise LinkError(f"opcua {self.cfg.url}: read {', '.join(roles)}: "
                             f"{why(e, self.cfg.request_timeout_s)}") from None
@@ -180,7 +183,7 @@ class OpcUaLink(CncLink):
         nid = (channel.address if channel.address.startswith("ns=")
                else f"ns={getattr(self, '_ns', 0)};s={channel.address}")
         try:
-            value = await self._client.get_node(nid).read_value()
+            value = await keep_cancel(self._client.get_node(nid).read_value())
         except ua.UaStatusCodeError as e:
             if e.code in MISSING_NODE:
                 raise ChannelMissing(f"opcua {self.cfg.url}: temperature {channel.name} "
@@ -202,14 +205,14 @@ class OpcUaLink(CncLink):
 
     async def _write(self, role: str, value: float) -> None:
         try:
-            await self._n[role].write_value(_double(value))
+            await keep_cancel(self._n[role].write_value(_double(value)))
         except (TimeoutError, ua.UaError, OSError, ConnectionError) as e:
             raise LinkError(f"opcua {self.cfg.url}: write {role}: "
                             f"{why(e, self.cfg.request_timeout_s)}") from None
 
     async def _call(self, role: str, *args: ua.Variant) -> None:
         try:
-            await self._n["methods"].call_method(self._n[role], *args)
+            await keep_cancel(self._n["methods"].call_method(self._n[role], *args))
         except (TimeoutError, ua.UaError, OSError, ConnectionError) as e:
             raise LinkError(f"opcua {self.cfg.url}: {BY_ROLE[role].path} refused: "
                             f"{why(e, self.cfg.request_timeout_s)}") from None
