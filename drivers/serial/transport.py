@@ -17,14 +17,18 @@ serial_asyncio_fast 0.16 leaves two faults in the write path of a device port (a
 Here a write is one ``os.write`` on the port's descriptor: what it takes is sent, the rest waits
 in the buffer for the writer callback, and the callback is removed as soon as the buffer is
 empty. A write error ends the transport through ``connection_lost`` (the link reports the line
-closed), never as a traceback. ``socket://`` URLs keep asyncio's own socket transport.
+closed), never as a traceback. ``socket://`` URLs keep asyncio's own socket transport; ports
+without a file descriptor (``rfc2217://``) get ``ThreadTransport``.
 """
 
 from __future__ import annotations
 
 import asyncio
+import concurrent.futures
+import contextlib
 import logging
 import os
+import threading
 import urllib.parse
 from collections.abc import Callable
 from functools import partial
@@ -74,6 +78,37 @@ class SerialPortTransport(serial_asyncio_fast.SerialTransport):
         # one line in the log, not the loop exception handler's traceback.
         log.warning("serial: %s: %s", message, exc)
         self._abort(exc)
+
+
+class ThreadTransport:
+    """For ports without a file descriptor (``rfc2217://``): a reader thread, executor writes."""
+
+    def __init__(self, ser: serial.SerialBase, proto: asyncio.Protocol,
+                 loop: asyncio.AbstractEventLoop) -> None:
+        self.ser, self.proto, self.loop = ser, proto, loop
+        self._stop = threading.Event()
+        self._writer = concurrent.futures.ThreadPoolExecutor(1, "rumba-serial-tx")
+        self._thread = threading.Thread(target=self._read, daemon=True, name="rumba-serial-rx")
+        self._thread.start()
+
+    def _read(self) -> None:
+        try:
+            while not self._stop.is_set():
+                data = self.ser.read(max(1, self.ser.in_waiting))
+                if data:
+                    self.loop.call_soon_threadsafe(self.proto.data_received, data)
+        except Exception as e:  # the port went away: report it on the loop
+            if not self._stop.is_set():
+                self.loop.call_soon_threadsafe(self.proto.connection_lost, e)
+
+    def write(self, data: bytes) -> None:
+        self._writer.submit(self.ser.write, data)  # one writer thread: order is kept
+
+    def close(self) -> None:
+        self._stop.set()
+        self._writer.shutdown(wait=False, cancel_futures=True)
+        with contextlib.suppress(Exception):
+            self.ser.close()
 
 
 async def create_serial_connection(
