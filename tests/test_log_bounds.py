@@ -37,6 +37,11 @@ def _callback_fails() -> None:
     raise AssertionError("Write buffer should not be empty")
 
 
+def _word(i: int) -> str:
+    """``i`` in letters (a message whose words, not only numbers, differ)."""
+    return "".join(chr(97 + int(d)) for d in str(i))
+
+
 def test_a_flood_of_one_traceback_is_logged_once_then_counted():
     clock = Clock()
     repeats = RepeatFilter(window_s=60, clock=clock)
@@ -79,11 +84,22 @@ def test_messages_with_other_arguments_count_as_repeats_and_others_pass():
     assert repeats.flush(lg) == 0  # said once
 
 
+def test_one_template_with_other_words_is_not_a_repeat():
+    # a run's phases share the session's template: each is logged
+    repeats = RepeatFilter(window_s=60, clock=Clock())
+    lg, out = _logger(repeats)
+    phases = ["PREPARE", "CAPTURE", "IDENTIFY", "JUDGE", "WRITE-BACK", "IDLE"]
+    for phase in phases:
+        lg.info("%s %s %s%s", "mill1", "20261128T223755Z-d62f88eeafbb", phase, "")
+    assert [ln.split()[-1] for ln in out.getvalue().splitlines()] == phases
+    assert repeats.held_total == 0
+
+
 def test_the_filter_remembers_a_bounded_number_of_messages():
     repeats = RepeatFilter(window_s=60, max_keys=100)
     lg, out = _logger(repeats)
     for i in range(5_000):
-        lg.warning(f"distinct message {i}")  # no template: every one differs
+        lg.warning(f"distinct message {_word(i)}")  # every one differs in its words
     assert len(repeats._seen) == 100
     assert out.getvalue().count("\n") == 5_000
 
@@ -99,13 +115,14 @@ def test_rumba_run_log_file_rotates_at_its_size(tmp_path):
         setup_logging(logging.INFO, Path({str(log_file)!r}), max_bytes=20_000)
         lg = logging.getLogger("rumba.flood")
         for i in range(20_000):
-            lg.warning(f"distinct {{i}} " + "x" * 40)
+            word = "".join(chr(97 + int(d)) for d in str(i))  # 12 -> "bc": other words
+            lg.warning(f"distinct {{word}} " + "x" * 40)
     """)
     subprocess.run([sys.executable, "-c", script], cwd=ROOT, check=True, timeout=120)
     files = sorted(tmp_path.glob("daemon.log*"))
     assert [f.name for f in files] == ["daemon.log", *(f"daemon.log.{i}" for i in range(1, 6))]
     assert all(f.stat().st_size <= 20_000 + 200 for f in files)
-    assert "distinct 19999" in log_file.read_text()
+    assert "distinct bjjjj" in log_file.read_text()
 
 
 def test_rumba_run_takes_log_file_and_refuses_a_silly_size(tmp_path):

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import logging
 import logging.handlers
+import re
 import sys
 import threading
 import time
@@ -36,10 +37,14 @@ class _Seen:
     first_held: float = 0.0
 
 
+_DIGITS = re.compile(r"[0-9]+")
+
+
 def _key(record: logging.LogRecord) -> tuple:
-    """What makes two records "the same message": logger, level, the message's template (its
-    arguments may differ: a flood of one fault rarely repeats a value exactly) and, with an
-    exception, its type and where it was raised."""
+    """What makes two records "the same message": logger, level, the message's text with every
+    number as '#' (a flood of one fault rarely repeats a count or a position exactly, while a
+    run's phases — one template, other words — stay distinct) and, with an exception, its type
+    and where it was raised."""
     where: tuple = ()
     if record.exc_info and record.exc_info[0] is not None:
         tb = record.exc_info[2]
@@ -47,7 +52,11 @@ def _key(record: logging.LogRecord) -> tuple:
             tb = tb.tb_next
         frame = (tb.tb_frame.f_code.co_filename, tb.tb_lineno) if tb is not None else ()
         where = (record.exc_info[0].__name__, *frame)
-    return record.name, record.levelno, str(record.msg)[:300], where
+    try:
+        text = record.getMessage()
+    except Exception:  # a record whose arguments do not fit: its template then
+        text = str(record.msg)
+    return record.name, record.levelno, _DIGITS.sub("#", text[:300]), where
 
 
 class RepeatFilter(logging.Filter):
@@ -99,8 +108,8 @@ class RepeatFilter(logging.Filter):
                 s.held = 0
         for (name, level, msg, where), held in pending:
             text = msg.split("\n", 1)[0][:200]
-            out.log(level, "the message %r of %s%s was repeated %d more times, not logged",
-                    text, name, f" ({where[0]})" if where else "", held,
+            out.log(level, "%s: %r%s was repeated %d more times (numbers as #), not logged",
+                    name, text, f" ({where[0]})" if where else "", held,
                     extra={"rumba_repeat_summary": True})
         return len(pending)
 
