@@ -152,7 +152,8 @@ X, Y, Z = (HEADER.index(c) for c in ("x_mm", "y_mm", "z_mm"))
 @pytest.mark.parametrize(("value", "match"), [
     ("1e15", "line 9: column y_mm: 1e15 outside [-100000, 100000]"),
     ("1e308", "line 9: column y_mm: 1e308 outside [-100000, 100000]"),
-    ("1_0.5", "line 9: column y_mm: expected a finite number, got '1_0.5' (ASCII decimal)"),
+    ("1_0.5", "line 9: column y_mm: expected a finite number, got '1_0.5' (ASCII decimal as "
+              "JSON writes it: -12.5, 0.25, 1e-05; no '+', '.5', '5.' or leading zero)"),
 ])
 def test_absurd_coordinates_are_one_line_naming_the_cell(log, tmp_path, capsys, value,
                                                           match) -> None:
