@@ -1,13 +1,16 @@
 """``rumba sim --serve serial|opcua|modbus|can``: one VirtualController behind one protocol
 front-end, listening on loopback until interrupted; prints where it listens (one ``listening:``
 line per endpoint, flushed, so a script can read it). Typing ``request`` on stdin raises the
-start-of-shift request as the CNC's PLC would; ``abort`` resets the control; ``quit`` stops.
+start-of-shift request as the CNC's PLC would; ``run FILE`` loads a program and cycle-starts it
+as the operator at the control does (a confirmed compensation program); ``abort`` resets the
+control; ``quit`` stops.
 """
 
 from __future__ import annotations
 
 import argparse
 import asyncio
+import glob
 import os
 import secrets
 import signal
@@ -64,8 +67,10 @@ async def serve_async(args: argparse.Namespace) -> int:
 
     truth = args.truth
     seed = args.seed if args.seed is not None else getattr(truth, "seed", 0)
+    # the control's own dialect: what a drip-fed tape and a program run at the console are in
     ctrl = VirtualController(truth, time_scale=args.time_scale, rng_seed=seed or 0,
-                             faults=getattr(args, "fault_plan", None))
+                             faults=getattr(args, "fault_plan", None),
+                             dialect=getattr(args, "dialect", None) or "fanuc")
     stop = asyncio.Event()
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGINT, signal.SIGTERM):
@@ -74,7 +79,7 @@ async def serve_async(args: argparse.Namespace) -> int:
         closer, panel = await _start(args, ctrl)
     except (OSError, ValueError) as e:
         raise ServeError(f"--serve {args.serve}: {e}") from None
-    tasks = [asyncio.create_task(_stdin(ctrl, stop, panel))]
+    tasks = [asyncio.create_task(_stdin(ctrl, stop, panel, getattr(args, "dialect", None)))]
     if args.raise_request is not None:
         async def later() -> None:
             await asyncio.sleep(args.raise_request)
@@ -168,7 +173,8 @@ async def _line_reader(f: Any) -> Callable[[], Awaitable[bytes]] | None:
     return reader.readline
 
 
-async def _stdin(ctrl: Any, stop: asyncio.Event, panel: Any = None) -> None:
+async def _stdin(ctrl: Any, stop: asyncio.Event, panel: Any = None,
+                 dialect: str | None = None) -> None:
     """Operator commands from stdin until it ends; the simulator keeps serving after that."""
     if sys.stdin is None or sys.stdin.closed:
         return
@@ -187,5 +193,35 @@ async def _stdin(ctrl: Any, stop: asyncio.Event, panel: Any = None) -> None:
         elif cmd == "quit":
             stop.set()
             return
+        elif cmd.startswith("run ") or cmd == "run":
+            _say(await _run_at_console(ctrl, line.decode(errors="replace").strip()[3:].strip(),
+                                       dialect))
         elif cmd:
-            _say(f"unknown command {cmd!r} (request, abort, quit)")
+            _say(f"unknown command {cmd!r} (request, run FILE, abort, quit)")
+
+
+async def _run_at_console(ctrl: Any, name: str, dialect: str | None) -> str:
+    """``run FILE``: what the operator does with a program at the control — load it, cycle
+    start, wait for its end; one line saying how it ended. A pattern (``*.mpf``) runs the
+    newest file it matches, as an operator picks the latest program in the list."""
+    if not name:
+        return "run: name the program file, e.g. run ~/reports/compensation_*.mpf"
+    if dialect is None:
+        return "run: the control's dialect is not known: start rumba sim with --dialect"
+    path = Path(os.path.expanduser(name))
+    if glob.has_magic(name):
+        found = [Path(f) for f in glob.glob(str(path)) if os.path.isfile(f)]
+        if not found:
+            return f"run: no file matches {path}"
+        path = max(found, key=lambda f: f.stat().st_mtime_ns)
+    try:
+        if not path.is_file():
+            return f"run: {path}: not a file"
+        text = path.read_text(encoding="utf-8")
+        await ctrl.load_program(text, dialect)
+        await ctrl.start()
+        state = await ctrl.wait_done(120)
+    except (OSError, UnicodeDecodeError, RuntimeError, ValueError, TimeoutError) as e:
+        return f"run: {path}: {e}"
+    alarm = f": {ctrl.alarm}" if state == "alarm" and ctrl.alarm else ""
+    return f"ran {path.name}: {state}{alarm}"
