@@ -30,7 +30,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--serve", choices=["serial", "opcua", "modbus", "can"],
                    help="serve the simulated controller over this transport")
     g.add_argument("--host", default="127.0.0.1", help="bind address (default 127.0.0.1)")
-    g.add_argument("--port", type=int, default=0, help="TCP port (default: a free one)")
+    g.add_argument("--port", type=int, help="TCP port (default: a free one; serial: a pty "
+                   "unless a port is given, 0 for any free one)")
     g.add_argument("--raise-request", type=float, metavar="S",
                    help="raise the start-of-shift request S seconds after start")
     g.add_argument("--baud", type=int, default=115200, help="serial: baud rate (pacing)")
@@ -102,14 +103,17 @@ async def _start(args: argparse.Namespace, ctrl: Any) -> tuple[Any, Any]:
 
         fe = SerialFrontend(ctrl, SerialSettings(baudrate=args.baud, framing=args.framing,
                                                  rx_buffer_bytes=args.rx_buffer))
-        path = await fe.open_pty()
+        # One port, one sender: a pty (the default), or raw TCP with --port (a serial-to-
+        # Ethernet converter's socket://). Both at once cannot work: the pty's session holds
+        # the port for good, so a TCP sender would be turned away at once.
         try:
-            port = await fe.open_tcp(args.host, args.port)
+            if args.port is None:
+                _say(f"listening: {await fe.open_pty()}")
+            else:
+                _say(f"listening: socket://{args.host}:{await fe.open_tcp(args.host, args.port)}")
         except OSError:
             await fe.close()
             raise
-        _say(f"listening: {path}")
-        _say(f"listening: socket://{args.host}:{port}")
         _say(f"serial: {args.baud} baud {args.framing}, XON/XOFF, receive buffer "
              f"{args.rx_buffer} bytes")
         return fe.close, None
@@ -125,7 +129,7 @@ async def _start(args: argparse.Namespace, ctrl: Any) -> tuple[Any, Any]:
         trusted = [args.trust] if args.trust else None
         fe = OpcUaFrontend(ctrl, security=args.security, cert_dir=args.cert_dir, users=users,
                            trusted_client_certs=trusted)
-        url = await fe.start(args.host, args.port)
+        url = await fe.start(args.host, args.port or 0)
         _say(f"listening: {url}")
         if fe.server_certificate is not None:
             _say(f"server certificate: {fe.server_certificate}")
@@ -136,7 +140,7 @@ async def _start(args: argparse.Namespace, ctrl: Any) -> tuple[Any, Any]:
         from simulators.frontends.modbus import ModbusFrontend
 
         fe = ModbusFrontend(ctrl, device_id=args.device_id)
-        port = await fe.start(args.host, args.port)
+        port = await fe.start(args.host, args.port or 0)
         _say(f"listening: modbus-tcp://{args.host}:{port} unit {args.device_id}")
         return fe.stop, None
     import can

@@ -80,3 +80,34 @@ def test_run_at_the_console_loads_and_starts_the_newest_program(tmp_path):
                            timeout=60)
     assert "run: the control's dialect is not known: start rumba sim with --dialect" in p.stdout
     assert "Traceback" not in p.stderr, p.stderr
+
+
+async def test_serial_with_a_port_serves_tcp_and_the_sender_keeps_the_line(tmp_path):
+    """``--serve serial --port``: one endpoint, raw TCP (a converter's socket://), and a sender
+    that connects keeps the line: the start-of-shift request typed at the console reaches it
+    (a pty opened beside it used to hold the port, and a TCP sender was closed at once)."""
+    proc = await asyncio.create_subprocess_exec(
+        *SIM[:-1], "serial", "--port", "0", cwd=tmp_path, stdin=asyncio.subprocess.PIPE,
+        stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.PIPE)
+    try:
+        async with asyncio.timeout(60):
+            line = (await proc.stdout.readline()).decode()
+        assert line.startswith("listening: socket://127.0.0.1:"), line
+        reader, writer = await asyncio.open_connection(
+            "127.0.0.1", int(line.strip().rsplit(":", 1)[1]))
+        try:
+            async with asyncio.timeout(60):
+                assert (await proc.stdout.readline()).startswith(b"serial: ")
+                proc.stdin.write(b"request\n")
+                await proc.stdin.drain()
+                got = await reader.readline()
+            assert got.strip().startswith(b"RUMBA REQUEST "), got
+        finally:
+            writer.close()
+        proc.send_signal(signal.SIGTERM)
+        async with asyncio.timeout(60):
+            await proc.wait()
+    finally:
+        if proc.returncode is None:
+            proc.kill()
+            await proc.wait()
