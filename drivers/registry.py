@@ -17,9 +17,10 @@ from drivers.linuxcnc.schema import LinuxCncLinkConfig
 from drivers.modbus.schema import ModbusLinkConfig
 from drivers.opcua.schema import OpcUaLinkConfig
 from drivers.serial.schema import SerialLinkConfig
+from drivers.sinumerik.schema import SinumerikLinkConfig
 
-LinkConfig = Annotated[SerialLinkConfig | OpcUaLinkConfig | ModbusLinkConfig | LinuxCncLinkConfig,
-                       Field(discriminator="transport")]
+LinkConfig = Annotated[SerialLinkConfig | OpcUaLinkConfig | ModbusLinkConfig | LinuxCncLinkConfig
+                       | SinumerikLinkConfig, Field(discriminator="transport")]
 
 
 TRANSPORTS: dict[str, tuple[str, str]] = {
@@ -27,7 +28,11 @@ TRANSPORTS: dict[str, tuple[str, str]] = {
     "opcua": ("drivers.opcua.link", "OpcUaLink"),
     "modbus": ("drivers.modbus.link", "ModbusLink"),
     "linuxcnc": ("drivers.linuxcnc.link", "LinuxCncLink"),
+    "sinumerik": ("drivers.sinumerik.link", "SinumerikLink"),
 }
+HANDSHAKE = frozenset({"sinumerik"})
+"""Transports whose program carries the result handshake (``CncLink.handshake``: the link
+reads the controller's variables), known without importing the link."""
 
 _CONFIGS: dict[str, type[BaseModel]] = {
     get_args(m.model_fields["transport"].annotation)[0]: m

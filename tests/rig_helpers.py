@@ -34,7 +34,7 @@ def make_truth() -> TruthModel:
 
 async def start_rig(transport: str, ctrl: VirtualController) -> Rig:
     """``ctrl`` behind the front-end of ``transport`` (serial-pty, serial-socket, opcua,
-    modbus), started on a free loopback port."""
+    modbus, sinumerik), started on a free loopback port."""
     if transport.startswith("serial"):
         from simulators.frontends.serial import SerialFrontend, SerialSettings
 
@@ -46,6 +46,15 @@ async def start_rig(transport: str, ctrl: VirtualController) -> Rig:
         link = {"transport": "serial", "url": url, "baudrate": BAUD, "framing": "7E1",
                 "request_machine": ctrl.machine_id, "tx_chunk_bytes": 64}
         return Rig(transport, ctrl, link, fe.close, {"frontend": fe})
+    if transport == "sinumerik":
+        from simulators.frontends.sinumerik import SinumerikFrontend
+
+        ctrl.dialect = "siemens"
+        fe = SinumerikFrontend(ctrl, security="none")  # security: tests/test_sinumerik_*.py
+        url = await fe.start()
+        return Rig(transport, ctrl, {"transport": "sinumerik", "url": url, "security": "none",
+                                     "nc_start_timeout_s": 60, "stop_timeout_s": 8}, fe.stop,
+                   {"frontend": fe})
     if transport == "opcua":
         from simulators.frontends.opcua import OpcUaFrontend
 
