@@ -7,7 +7,8 @@ variable the start-of-shift macro reads), and the identified link errors match t
 truth within 3 standard uncertainties.
 
 Every transport × dialect the product supports runs here (the ``linuxcnc`` transport needs a
-real LinuxCNC: tests/test_linuxcnc_e2e.py). The Heidenhain FN 16 format files travel with the
+real LinuxCNC: tests/test_linuxcnc_e2e.py); the SINUMERIK profile with its one dialect, the
+program started by the simulated PLC on the program-ready flag. The Heidenhain FN 16 format files travel with the
 program over OPC UA only; over DNC and Modbus the operator copies them to the control once,
 as on a real TNC (done here from the daemon's own generator output). Time scale 0 (as fast as
 the simulated control executes); serial at 921 600 baud so that the line pacing (≈ 92 kB/s,
@@ -176,7 +177,9 @@ async def run_start_of_shift(rig: Rig, dialect: str, tmp: Path, plan: str = PLAN
         await service.stop()
 
 
-CASES = [pytest.param(t, d, id=f"{t}-{d}") for t in TRANSPORTS for d in DIALECTS]
+CASES = [pytest.param(t, d, id=f"{t}-{d}") for t in TRANSPORTS for d in DIALECTS] + [
+    # the control's own server runs Siemens programs only (drivers/README.md)
+    pytest.param("sinumerik", "siemens", id="sinumerik-siemens")]
 
 
 @pytest.mark.asyncio(loop_scope="module")

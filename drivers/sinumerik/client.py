@@ -182,8 +182,9 @@ class SinumerikSession:
                             ) from None
 
     async def upload(self, folder: Any, name: str, text: str) -> None:
-        """``text`` as file ``name`` in ``folder`` (a FileDirectoryType): an old file of that
-        name deleted first, then CreateFile, Open(write | erase), Write in chunks, Close."""
+        """``text`` as file ``name`` in ``folder`` (a FileDirectoryType): a file of that name
+        is overwritten (Open with write | erase existing), else CreateFile; then Write in
+        chunks and Close (the control takes the program at Close)."""
         try:
             data = text.encode("ascii")
         except UnicodeEncodeError as e:
@@ -192,10 +193,12 @@ class SinumerikSession:
         where = f"sinumerik {self.cfg.url}: {name}"
         directory = UaDirectory(folder)
         try:
+            node_id = None
             for child in await folder.get_children():
                 if (await child.read_browse_name()).Name.upper() == name.upper():
-                    await directory.delete(child.nodeid)
-            node_id, _ = await directory.create_file(name, False)
+                    node_id = child.nodeid
+            if node_id is None:
+                node_id, _ = await directory.create_file(name, False)
             async with UaFile(self._client().get_node(node_id), OPEN_WRITE | OPEN_ERASE) as f:
                 for i in range(0, len(data), CHUNK_BYTES):
                     await f.write(data[i:i + CHUNK_BYTES])

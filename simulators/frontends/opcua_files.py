@@ -58,7 +58,6 @@ class SimFile:
     node: Any
     data: bytearray = field(default_factory=bytearray)
     handles: dict[int, list[int]] = field(default_factory=dict)
-    locked: str = ""  # why the owner refuses writes and deletes now ("" = free)
 
     def writer(self) -> bool:
         return any(m & 2 for m, _ in self.handles.values())
@@ -67,17 +66,21 @@ class SimFile:
 class SimFolder:
     """One FileDirectoryType folder of files, on ``server`` under ``parent``; ``name_ok`` says
     which file names the control accepts (others → BadInvalidArgument); ``on_close`` is told
-    every file closed after a write (the control's own view of its program memory)."""
+    every file closed after a write (the control's own view of its program memory);
+    ``busy`` why the control refuses to write or delete a file now ("" = it does not: a
+    program running in a channel is locked, a selected one in reset is not)."""
 
     def __init__(self, server: Server, ns: int, path: str, name: str,
                  name_ok: Callable[[str], bool] = lambda n: bool(re.fullmatch(r"[^/\\]{1,64}", n)),
-                 on_close: Callable[[SimFile], None] | None = None) -> None:
+                 on_close: Callable[[SimFile], None] | None = None,
+                 busy: Callable[[SimFile], str] = lambda f: "") -> None:
         self.server = server
         self.ns = ns
         self.path = path
         self.name = name
         self.name_ok = name_ok
         self.on_close = on_close
+        self.busy = busy
         self.files: dict[str, SimFile] = {}
         self.node: Any = None
 
@@ -133,7 +136,7 @@ class SimFolder:
         f = next((f for f in self.files.values() if f.node.nodeid == target), None)
         if f is None:
             raise _bad(ua.StatusCodes.BadNotFound)
-        if f.locked or f.handles:
+        if self.busy(f) or f.handles:
             raise _bad(ua.StatusCodes.BadInvalidState)
         del self.files[f.name.upper()]
         await self.server.delete_nodes([f.node], recursive=True)
@@ -171,7 +174,7 @@ class SimFolder:
         if mode <= 0 or mode > 15 or (mode & 12 and not mode & 2):
             raise _bad(ua.StatusCodes.BadInvalidArgument)  # erase/append need write
         if mode & 2:
-            if f.locked:
+            if self.busy(f):
                 raise _bad(ua.StatusCodes.BadNotWritable)
             if f.handles:  # Part 20: a file open for writing is open exactly once
                 raise _bad(ua.StatusCodes.BadInvalidState)

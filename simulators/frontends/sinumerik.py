@@ -167,7 +167,7 @@ class SinumerikFrontend:
                                    ua.QualifiedName(FILE_SYSTEM[-1], ns))
         for name in PROGRAM_FOLDERS:
             folder = SimFolder(server, ns, f"{'/'.join(FILE_SYSTEM)}/{name}", name,
-                               name_ok=_program_file)
+                               name_ok=_program_file, busy=self._busy)
             await folder.build(fs)
             self.folders[name] = folder
         methods = await root.add_object(ua.NodeId("/".join(METHODS), ns),
@@ -232,6 +232,13 @@ class SinumerikFrontend:
             return
         self.nc_starts += 1
 
+    def _busy(self, f: SimFile) -> str:
+        """The selected program is locked while it runs in the channel (in reset it may be
+        overwritten, and is selected again to take effect)."""
+        if f is self.selected and self.ctrl.state in ("running", "hold", "alarm"):
+            return f"selected in channel {self.channel}, {self.ctrl.state}"
+        return ""
+
     async def _select(self, path: Any, channel: Any) -> None:
         if not isinstance(path, str) or not isinstance(channel, int):
             raise Refused(ua.StatusCodes.BadTypeMismatch)
@@ -249,9 +256,6 @@ class SinumerikFrontend:
         except UnicodeDecodeError:
             raise Refused(ua.StatusCodes.BadInvalidArgument) from None
         await self.ctrl.load_program(text, "siemens")
-        if self.selected is not None:
-            self.selected.locked = ""
-        f.locked = "selected"
         self.selected = f
         await self._state_nodes["selected"].write_value(ua.Variant(path, ua.VariantType.String))
 
@@ -293,6 +297,14 @@ class SinumerikFrontend:
                 await asyncio.wait({waiter}, timeout=0.02)
             finally:
                 waiter.cancel()
+
+    def diagnose(self) -> str:
+        """Where the simulated control stands, for a test's failure message."""
+        v = self.ctrl.variables
+        ring = {n: v.get(n) for n in ("R99", "R188", "R189")}
+        hs = {r: v.get(n) for r, n in self.handshake.items()}
+        return (f"selected {self.selected.name if self.selected else None}, ring {ring}, "
+                f"handshake {hs}, pacer held {self.pacer.held}, NC starts {self.nc_starts}")
 
     async def put_program(self, name: str, text: str) -> None:
         """A part program stored on the control by other means (the operator, a USB stick)."""
