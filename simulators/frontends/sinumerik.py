@@ -190,6 +190,10 @@ class SinumerikFrontend:
         self._server.set_attribute_value_callback(nodeid, lambda *_a, n=name: self._read(n))
         self._server.set_attribute_value_setter(nodeid,
                                                 lambda nd, attr, dv, n=name: self._set(n, dv))
+        # the callback cleared the stored value, and with it the server's type check of a
+        # client's write (a Double node written as an Int32 is BadTypeMismatch): put it back
+        self._server.iserver.aspace[nodeid].attributes[ua.AttributeIds.Value].value = \
+            ua.DataValue(ua.Variant(0.0, ua.VariantType.Double))
         self._nodes[name] = nodeid
 
     def _read(self, name: str) -> ua.DataValue:
@@ -280,8 +284,8 @@ class SinumerikFrontend:
     async def _sync(self) -> None:
         """Notifications of changed variables (subscriptions fire on writes), the request flag
         the tests drop as the PLC would, the program state."""
-        request = self.handshake["request"]
         while True:
+            request = self.handshake["request"]
             raised = self.ctrl.variables.get(request, 0.0) >= 0.5
             if bool(self.ctrl.request) != raised:  # the PLC's flag follows the control's
                 self.ctrl.variables[request] = 1.0 if self.ctrl.request else 0.0
