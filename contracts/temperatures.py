@@ -119,7 +119,7 @@ def check_address(ch: TemperatureChannel, transport: str, family: str) -> None:
     """A controller channel's address must suit the run's transport (ValueError otherwise)."""
     if ch.source == "transmitter":
         return
-    if transport == "opcua":
+    if transport in ("opcua", "sinumerik"):  # sinumerik: an R parameter's node, a GUD's …
         ok, form = OPCUA_ADDRESS.fullmatch(ch.address), "an OPC UA node id (ns=2;s=…) or /path"
     elif transport == "modbus":
         modbus_address(ch.address)

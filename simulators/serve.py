@@ -1,7 +1,8 @@
-"""``rumba sim --serve serial|opcua|modbus|can``: one VirtualController behind one protocol
-front-end, listening on loopback until interrupted; prints where it listens (one ``listening:``
-line per endpoint, flushed, so a script can read it). Typing ``request`` on stdin raises the
-start-of-shift request as the CNC's PLC would; ``abort`` resets the control; ``quit`` stops.
+"""``rumba sim --serve serial|opcua|modbus|can|sinumerik``: one VirtualController behind one
+protocol front-end, listening on loopback until interrupted; prints where it listens (one
+``listening:`` line per endpoint, flushed, so a script can read it). Typing ``request`` on stdin
+raises the start-of-shift request as the CNC's PLC would; ``abort`` resets the control; ``quit``
+stops (``start`` / ``abort``: the CAN panel's buttons, or a SINUMERIK's NC start and RESET).
 """
 
 from __future__ import annotations
@@ -24,7 +25,7 @@ class ServeError(Exception):
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group("serve (controller-side protocol front-ends)")
-    g.add_argument("--serve", choices=["serial", "opcua", "modbus", "can"],
+    g.add_argument("--serve", choices=["serial", "opcua", "modbus", "can", "sinumerik"],
                    help="serve the simulated controller over this transport")
     g.add_argument("--host", default="127.0.0.1", help="bind address (default 127.0.0.1)")
     g.add_argument("--port", type=int, default=0, help="TCP port (default: a free one)")
@@ -41,6 +42,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="opcua: folder for the server certificate (made on first start)")
     g.add_argument("--trust", type=Path, metavar="DIR",
                    help="opcua: accept only client certificates found in DIR")
+    g.add_argument("--no-plc-start", action="store_true",
+                   help="sinumerik: the PLC does not press NC start on program-ready (type "
+                        "'start' for the operator's NC start)")
     g.add_argument("--user", default="rumba", help="opcua: user name (password from "
                    "$RUMBA_SIM_PASSWORD, else generated and printed)")
     g.add_argument("--device-id", type=int, default=1, help="modbus: unit id")
@@ -108,8 +112,9 @@ async def _start(args: argparse.Namespace, ctrl: Any) -> tuple[Any, Any]:
         _say(f"serial: {args.baud} baud {args.framing}, XON/XOFF, receive buffer "
              f"{args.rx_buffer} bytes")
         return fe.close, None
-    if kind == "opcua":
+    if kind in ("opcua", "sinumerik"):
         from simulators.frontends.opcua import OpcUaFrontend
+        from simulators.frontends.sinumerik import SinumerikFrontend
 
         users = None
         if args.security != "none":
@@ -118,15 +123,25 @@ async def _start(args: argparse.Namespace, ctrl: Any) -> tuple[Any, Any]:
             if "RUMBA_SIM_PASSWORD" not in os.environ:
                 _say(f"opcua user: {args.user} password: {password}")
         trusted = [args.trust] if args.trust else None
-        fe = OpcUaFrontend(ctrl, security=args.security, cert_dir=args.cert_dir, users=users,
-                           trusted_client_certs=trusted)
+        panel = None
+        if kind == "sinumerik":
+            ctrl.dialect = "siemens"
+            fe = SinumerikFrontend(ctrl, security=args.security, cert_dir=args.cert_dir,
+                                   users=users, trusted_client_certs=trusted,
+                                   plc_starts=not args.no_plc_start)
+            panel = _MachinePanel(fe)
+        else:
+            fe = OpcUaFrontend(ctrl, security=args.security, cert_dir=args.cert_dir,
+                               users=users, trusted_client_certs=trusted)
         url = await fe.start(args.host, args.port)
         _say(f"listening: {url}")
+        if panel is not None:
+            _say("sinumerik: type 'start' for NC start, 'abort' for RESET at the machine")
         if fe.server_certificate is not None:
             _say(f"server certificate: {fe.server_certificate}")
         if args.security != "none" and trusted is None:
             _say("note: any valid client certificate is accepted (give --trust DIR to pin)")
-        return fe.stop, None
+        return fe.stop, panel
     if kind == "modbus":
         from simulators.frontends.modbus import ModbusFrontend
 
@@ -146,6 +161,20 @@ async def _start(args: argparse.Namespace, ctrl: Any) -> tuple[Any, Any]:
     _say(f"listening: can {args.can_interface}:{args.can_channel} base id "
          f"{args.can_base_id:#05x} (type 'start' or 'abort' to press a button)")
     return panel.close, panel
+
+
+class _MachinePanel:
+    """The machine's NC start and RESET keys, for a control that offers no remote start."""
+
+    def __init__(self, frontend: Any) -> None:
+        self.fe = frontend
+        self._tasks: set[asyncio.Task] = set()
+
+    def press(self, button: str) -> None:
+        coro = self.fe.nc_start() if button == "start" else self.fe.ctrl.abort()
+        task = asyncio.get_running_loop().create_task(coro)
+        self._tasks.add(task)
+        task.add_done_callback(self._tasks.discard)
 
 
 async def _line_reader(f: Any) -> Callable[[], Awaitable[bytes]] | None:

@@ -325,3 +325,26 @@ async def test_a_program_without_the_handshake_is_refused_before_anything_is_wri
     finally:
         await link.close()
         await fe.stop()
+
+
+async def test_compensation_program_into_part_programs_not_selected(pki, secure, truth):
+    """The reviewed $TC_CARR program goes into "Part Programs" (a second one replaces it), is
+    neither selected nor started; a control that cannot be reached is one clear error."""
+    from drivers.sinumerik.transfer import send_part_program, send_part_program_blocking
+
+    ctrl, fe = secure
+    text = "; RUMBA COMPENSATION\n$TC_CARR15[1]=-0.038056\nM30\n"
+    selected_before = fe.selected
+    assert await send_part_program(secure_cfg(pki, fe), "RUMBA_CARR", text) == "RUMBA_CARR.MPF"
+    cfg = secure_cfg(pki, fe)
+    assert await asyncio.to_thread(send_part_program_blocking, cfg, "RUMBA_CARR",
+                                   text.replace("-0.038056", "0")) == "RUMBA_CARR.MPF"
+    f = fe.folders["Part Programs"].file("RUMBA_CARR.MPF")
+    assert f is not None and b"$TC_CARR15[1]=0\n" in f.data
+    assert fe.selected is selected_before and ctrl.state not in ("running", "hold")
+    with pytest.raises(LinkError, match="part-program name"):
+        await send_part_program(cfg, "rumba carr", text)
+    dead = SinumerikLinkConfig(transport="sinumerik", url="opc.tcp://127.0.0.1:9/",
+                               security="none", connect_timeout_s=1)
+    with pytest.raises(LinkError, match="refused"):
+        await send_part_program(dead, "RUMBA_CARR", text)

@@ -191,10 +191,28 @@ def _write(setup: MachineSetup, reports_dir: Path, spec_base: ControllerKinemati
         raise ApplyError(str(e)) from None
     if local:
         note = hal_write(written)
+    elif getattr(setup.link, "transport", "") == "sinumerik":
+        note = _send_to_sinumerik(setup, text, path, by)
     else:
         note = (f"{spec_base.family}: the operator loads/enters {path.name} on the control "
                 f"(confirmed by {by})")
     return path, text, note, written
+
+
+def _send_to_sinumerik(setup: MachineSetup, text: str, path: Path, by: str) -> str:
+    """The reviewed program into the control's "Part Programs" over its OPC UA file system
+    (not selected, not started: a person does that at the machine); when the control cannot
+    be reached the operator loads the file from the reports directory, as without the link."""
+    from drivers.base import LinkError
+    from drivers.sinumerik.transfer import COMPENSATION_PROGRAM, send_part_program_blocking
+
+    try:
+        name = send_part_program_blocking(setup.link, COMPENSATION_PROGRAM, text)
+    except (LinkError, OSError) as e:
+        return (f"siemens: {path.name} NOT sent to the control ({e}): the operator loads it "
+                f"there (confirmed by {by})")
+    return (f"siemens: sent to the control's Part Programs as {name} (a copy of {path.name}): "
+            f"the operator selects it and presses NC start (confirmed by {by})")
 
 
 def _no_run(store: Store, machine: str) -> None:

@@ -39,6 +39,7 @@ from contracts.sinumerik_space import (
     role_path,
     select_path,
 )
+from simulators import thermal
 from simulators.frontends import cancel_tasks
 from simulators.frontends.opcua_files import Refused, SimFile, SimFolder, method
 from simulators.frontends.opcua_server import free_port, secure_server
@@ -284,11 +285,21 @@ class SinumerikFrontend:
     async def _sync(self) -> None:
         """Notifications of changed variables (subscriptions fire on writes), the request flag
         the tests drop as the PLC would, the program state."""
+        seen = {role: bool(getattr(self.ctrl, role)) for role in ("done", "busy")}
         while True:
             request = self.handshake["request"]
             raised = self.ctrl.variables.get(request, 0.0) >= 0.5
             if bool(self.ctrl.request) != raised:  # the PLC's flag follows the control's
                 self.ctrl.variables[request] = 1.0 if self.ctrl.request else 0.0
+            for role in ("done", "busy"):  # cleared on the control's side (its new request)
+                now = bool(getattr(self.ctrl, role))
+                if now != seen[role] and (self.ctrl.variables.get(self.handshake[role], 0.0)
+                                          >= 0.5) != now:
+                    self.ctrl.variables[self.handshake[role]] = 1.0 if now else 0.0
+                seen[role] = now
+            for axis, value in self.ctrl.sensor_temperatures().items():
+                # the PLC copies the structure sensors into R91-R93 (also when no program runs)
+                dict.__setitem__(self.ctrl.variables, thermal.SIEMENS_VARIABLE[axis], value)
             dirty, self._dirty = self._dirty, set()
             assert self._server is not None
             for name in sorted(dirty):
@@ -301,6 +312,10 @@ class SinumerikFrontend:
                 await asyncio.wait({waiter}, timeout=0.02)
             finally:
                 waiter.cancel()
+
+    async def operator_select(self, name: str) -> None:
+        """The operator selects part program ``name`` at the machine (``Refused`` as Select)."""
+        await self._select(select_path(name), self.channel)
 
     def diagnose(self) -> str:
         """Where the simulated control stands, for a test's failure message."""
