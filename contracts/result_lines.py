@@ -28,6 +28,12 @@ RESULT_COUNTERS = {"fanuc": "#599", "haas": "#599", "siemens": "R99", "heidenhai
                    "linuxcnc": "#3999"}
 """The variable each dialect's program sets to the touch's seq after writing its slot."""
 
+STOP_PROGRAMS = {"heidenhain": ("RUMBASTP.H", "Q1689")}
+"""(program, variable) of a dialect whose link cannot write the controller's variables (LSV2
+reads files and states, it writes no Q parameter): before each probing move the program calls
+the small stop program the link writes next to it and ends (M30, no error) when it set the
+variable to 1; the link writes it with 0 before the run and with 1 to stop it."""
+
 HANDSHAKE_VARIABLES = {"fanuc": ("#688", "#689"), "haas": ("#688", "#689"),
                        "siemens": ("R188", "R189")}
 """(ack, stop) of a program whose results a link reads from the controller's variables (the

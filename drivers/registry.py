@@ -14,13 +14,14 @@ from pydantic import BaseModel, Field, ValidationError
 from contracts.jobs import DialectCodec
 from drivers.base import CncLink
 from drivers.linuxcnc.schema import LinuxCncLinkConfig
+from drivers.lsv2.schema import Lsv2LinkConfig
 from drivers.modbus.schema import ModbusLinkConfig
 from drivers.opcua.schema import OpcUaLinkConfig
 from drivers.serial.schema import SerialLinkConfig
 from drivers.sinumerik.schema import SinumerikLinkConfig
 
 LinkConfig = Annotated[SerialLinkConfig | OpcUaLinkConfig | ModbusLinkConfig | LinuxCncLinkConfig
-                       | SinumerikLinkConfig, Field(discriminator="transport")]
+                       | SinumerikLinkConfig | Lsv2LinkConfig, Field(discriminator="transport")]
 
 
 TRANSPORTS: dict[str, tuple[str, str]] = {
@@ -29,8 +30,9 @@ TRANSPORTS: dict[str, tuple[str, str]] = {
     "modbus": ("drivers.modbus.link", "ModbusLink"),
     "linuxcnc": ("drivers.linuxcnc.link", "LinuxCncLink"),
     "sinumerik": ("drivers.sinumerik.link", "SinumerikLink"),
+    "lsv2": ("drivers.lsv2.link", "Lsv2Link"),
 }
-HANDSHAKE = frozenset({"sinumerik"})
+HANDSHAKE = frozenset({"sinumerik", "lsv2"})
 """Transports whose program carries the result handshake (``CncLink.handshake``: the link
 reads the controller's variables), known without importing the link."""
 

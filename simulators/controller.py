@@ -92,6 +92,7 @@ class VirtualController(MachineSide):
         self.files: dict[str, str] = {}  # the control's file store (F-PRINT format files …)
         self.messages: list[str] = []
         self.printed: list[str] = []  # output lines of the current/last program
+        self.print_files: dict[str, list[str]] = {}  # FN 16 output files by name (TNC)
         self.touches: list[TouchRecord] = []
         self.front_faults: set[str] = set()  # active transport faults for the front-ends
         self.request = False

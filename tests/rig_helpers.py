@@ -34,7 +34,7 @@ def make_truth() -> TruthModel:
 
 async def start_rig(transport: str, ctrl: VirtualController) -> Rig:
     """``ctrl`` behind the front-end of ``transport`` (serial-pty, serial-socket, opcua,
-    modbus, sinumerik), started on a free loopback port."""
+    modbus, sinumerik, lsv2), started on a free loopback port."""
     if transport.startswith("serial"):
         from simulators.frontends.serial import SerialFrontend, SerialSettings
 
@@ -55,6 +55,15 @@ async def start_rig(transport: str, ctrl: VirtualController) -> Rig:
         return Rig(transport, ctrl, {"transport": "sinumerik", "url": url, "security": "none",
                                      "nc_start_timeout_s": 60, "stop_timeout_s": 8}, fe.stop,
                    {"frontend": fe})
+    if transport == "lsv2":
+        from simulators.frontends.lsv2 import Lsv2Frontend
+
+        ctrl.dialect = "heidenhain"
+        fe = Lsv2Frontend(ctrl)  # the operator starts the transferred RUMBA.H at once
+        port = await fe.start()
+        return Rig(transport, ctrl, {"transport": "lsv2", "host": "127.0.0.1", "port": port,
+                                     "poll_interval_s": 0.05, "nc_start_timeout_s": 60,
+                                     "stop_timeout_s": 8}, fe.stop, {"frontend": fe})
     if transport == "opcua":
         from simulators.frontends.opcua import OpcUaFrontend
 

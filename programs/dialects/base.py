@@ -18,6 +18,7 @@ from contracts.result_lines import (
     RESULT_FIELDS,
     RING_SLOTS,
     SLOT_FIELDS,
+    STOP_PROGRAMS,
     parse_result_line,
 )
 from contracts.setup_files import SAFE_NAME
@@ -297,6 +298,9 @@ class Dialect:
         or None; a dialect without them refuses (its links read no variables)."""
         if not program.handshake:
             return None
+        stop = STOP_PROGRAMS.get(self.label)
+        if stop is not None:  # the link writes files, not variables: a called stop program
+            return {"stop_program": Code(stop[0]), "stop": Code(stop[1])}
         pair = HANDSHAKE_VARIABLES.get(self.label)
         if pair is None:
             raise ProgramError(f"the {self.label} dialect has no result handshake: its links "
