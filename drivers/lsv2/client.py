@@ -63,6 +63,10 @@ class Lsv2Session:
         except (LSV2StateException, LSV2DataException, LSV2InputException, ValueError,
                 NotImplementedError) as e:  # refused or not understood: the line still works
             raise LinkError(f"{self.where}: {what}: {e or type(e).__name__}") from None
+        except Exception as e:  # pylsv2 raises a bare Exception for a malformed error
+            self.con = None  # telegram (found by tests/test_lsv2_link.py's fuzz): a protocol
+            raise LinkError(f"{self.where}: {what}: protocol error from the TNC: "  # error
+                            f"{type(e).__name__} {str(e)[:80]}") from None
 
     def _open(self) -> tuple[Any, str, bool]:
         con = pyLSV2.LSV2(self.cfg.host, port=self.cfg.port, timeout=self.cfg.timeout_s,

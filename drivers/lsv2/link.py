@@ -248,7 +248,11 @@ class Lsv2Link(CncLink):
     async def abort(self) -> None:
         """RUMBASTP.H with Q1689 = 1: the program ends (M30) at its next touch; a program not
         yet started ends at once when started. Waits until the TNC says it ended;
-        ``LinkError`` for a program stopped there (NC stop) or not ending in time."""
+        ``LinkError`` for a program stopped there (NC stop) or not ending in time.
+
+        pylsv2 replaces a file by deleting it, then writing it: a touch that calls the stop
+        program in between finds none, and the TNC stops the program with an error ("file not
+        found") — stopped all the same, with a message to acknowledge there."""
         if self._s.con is None:
             raise LinkError(f"{self._s.where}: not connected: the program was not stopped")
         self._stop_asked = True
