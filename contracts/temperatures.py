@@ -126,6 +126,8 @@ def check_address(ch: TemperatureChannel, transport: str, family: str) -> None:
         return
     elif transport == "linuxcnc":
         ok, form = HAL_PIN.fullmatch(ch.address), "a HAL pin name"
+    elif transport == "haas":  # a macro variable read over the data port (?Q600)
+        ok, form = MACRO_VARIABLE["fanuc"].fullmatch(ch.address), VARIABLE_FORM["fanuc"]
     elif transport == "serial":
         pat = MACRO_VARIABLE.get(family)
         if family == "linuxcnc":

@@ -13,6 +13,7 @@ from pydantic import BaseModel, Field, ValidationError
 
 from contracts.jobs import DialectCodec
 from drivers.base import CncLink
+from drivers.haas.schema import HaasLinkConfig
 from drivers.linuxcnc.schema import LinuxCncLinkConfig
 from drivers.lsv2.schema import Lsv2LinkConfig
 from drivers.modbus.schema import ModbusLinkConfig
@@ -21,7 +22,8 @@ from drivers.serial.schema import SerialLinkConfig
 from drivers.sinumerik.schema import SinumerikLinkConfig
 
 LinkConfig = Annotated[SerialLinkConfig | OpcUaLinkConfig | ModbusLinkConfig | LinuxCncLinkConfig
-                       | SinumerikLinkConfig | Lsv2LinkConfig, Field(discriminator="transport")]
+                       | SinumerikLinkConfig | Lsv2LinkConfig | HaasLinkConfig,
+                       Field(discriminator="transport")]
 
 
 TRANSPORTS: dict[str, tuple[str, str]] = {
@@ -31,8 +33,9 @@ TRANSPORTS: dict[str, tuple[str, str]] = {
     "linuxcnc": ("drivers.linuxcnc.link", "LinuxCncLink"),
     "sinumerik": ("drivers.sinumerik.link", "SinumerikLink"),
     "lsv2": ("drivers.lsv2.link", "Lsv2Link"),
+    "haas": ("drivers.haas.link", "HaasLink"),
 }
-HANDSHAKE = frozenset({"sinumerik", "lsv2"})
+HANDSHAKE = frozenset({"sinumerik", "lsv2", "haas"})
 """Transports whose program carries the result handshake (``CncLink.handshake``: the link
 reads the controller's variables), known without importing the link."""
 

@@ -34,7 +34,7 @@ def make_truth() -> TruthModel:
 
 async def start_rig(transport: str, ctrl: VirtualController) -> Rig:
     """``ctrl`` behind the front-end of ``transport`` (serial-pty, serial-socket, opcua,
-    modbus, sinumerik, lsv2), started on a free loopback port."""
+    modbus, sinumerik, lsv2, haas), started on a free loopback port."""
     if transport.startswith("serial"):
         from simulators.frontends.serial import SerialFrontend, SerialSettings
 
@@ -64,6 +64,24 @@ async def start_rig(transport: str, ctrl: VirtualController) -> Rig:
         return Rig(transport, ctrl, {"transport": "lsv2", "host": "127.0.0.1", "port": port,
                                      "poll_interval_s": 0.05, "nc_start_timeout_s": 60,
                                      "stop_timeout_s": 8}, fe.stop, {"frontend": fe})
+    if transport == "haas":
+        import shutil
+        import tempfile
+        from pathlib import Path
+
+        from simulators.frontends.haas import HaasFrontend
+
+        ctrl.dialect = "haas"
+        share = Path(tempfile.mkdtemp(prefix="rumba-haas-share-"))
+        fe = HaasFrontend(ctrl, share)  # the start-of-shift routine runs O09100 on ready
+        port = await fe.start()
+
+        async def close() -> None:
+            await fe.stop()
+            shutil.rmtree(share, ignore_errors=True)
+        return Rig(transport, ctrl, {"transport": "haas", "host": "127.0.0.1", "port": port,
+                                     "program_dir": str(share), "poll_interval_s": 0.02,
+                                     "nc_start_timeout_s": 60}, close, {"frontend": fe})
     if transport == "opcua":
         from simulators.frontends.opcua import OpcUaFrontend
 

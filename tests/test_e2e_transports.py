@@ -180,7 +180,8 @@ async def run_start_of_shift(rig: Rig, dialect: str, tmp: Path, plan: str = PLAN
 CASES = [pytest.param(t, d, id=f"{t}-{d}") for t in TRANSPORTS for d in DIALECTS] + [
     # the control's own server runs Siemens programs only (drivers/README.md)
     pytest.param("sinumerik", "siemens", id="sinumerik-siemens"),
-    pytest.param("lsv2", "heidenhain", id="lsv2-heidenhain")]
+    pytest.param("lsv2", "heidenhain", id="lsv2-heidenhain"),
+    pytest.param("haas", "haas", id="haas-haas")]
 
 
 @pytest.mark.asyncio(loop_scope="module")

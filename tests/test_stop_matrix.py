@@ -32,8 +32,8 @@ from simulators.controller import VirtualController
 from tests.rig_helpers import make_truth, start_rig
 from tests.stop_helpers import REPORT_JOB, Hold, held_session, until_reached, write_config
 
-TRANSPORTS = ("opcua", "modbus", "serial-pty", "sinumerik", "lsv2")
-DIALECT = {"sinumerik": "siemens", "lsv2": "heidenhain"}  # a control's own dialect only
+TRANSPORTS = ("opcua", "modbus", "serial-pty", "sinumerik", "lsv2", "haas")
+DIALECT = {"sinumerik": "siemens", "lsv2": "heidenhain", "haas": "haas"}  # their own only
 PHASES = ("PREPARE", "CAPTURE", "IDENTIFY", "WRITE-BACK")
 OPERATOR = ("hmi", "CAN panel")  # session.abort(source): a person
 DAEMON = "the daemon stopping"  # session.interrupt(cause), as Service.stop (SIGTERM on rumba run)
