@@ -1,5 +1,5 @@
-"""``rumba sim --serve serial|opcua|modbus|can|sinumerik``: one VirtualController behind one
-protocol front-end, listening on loopback until interrupted; prints where it listens (one
+"""``rumba sim --serve serial|opcua|modbus|can|sinumerik|lsv2|haas``: one VirtualController behind
+one protocol front-end, listening on loopback until interrupted; prints where it listens (one
 ``listening:`` line per endpoint, flushed, so a script can read it). Typing ``request`` on stdin
 raises the start-of-shift request as the CNC's PLC would; ``abort`` resets the control; ``quit``
 stops (``start`` / ``abort``: the CAN panel's buttons, or a SINUMERIK's NC start and RESET).
@@ -25,7 +25,8 @@ class ServeError(Exception):
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group("serve (controller-side protocol front-ends)")
-    g.add_argument("--serve", choices=["serial", "opcua", "modbus", "can", "sinumerik"],
+    g.add_argument("--serve", choices=["serial", "opcua", "modbus", "can", "sinumerik", "lsv2",
+                                       "haas"],
                    help="serve the simulated controller over this transport")
     g.add_argument("--host", default="127.0.0.1", help="bind address (default 127.0.0.1)")
     g.add_argument("--port", type=int, default=0, help="TCP port (default: a free one)")
@@ -42,9 +43,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="opcua: folder for the server certificate (made on first start)")
     g.add_argument("--trust", type=Path, metavar="DIR",
                    help="opcua: accept only client certificates found in DIR")
+    g.add_argument("--share", type=Path,
+                   help="haas: the folder the machine reads O09100.nc from (its network share)")
     g.add_argument("--no-plc-start", action="store_true",
-                   help="sinumerik: the PLC does not press NC start on program-ready (type "
-                        "'start' for the operator's NC start)")
+                   help="sinumerik, lsv2, haas: nothing starts rumba's program by itself "
+                        "(type 'start' for the operator's NC start)")
     g.add_argument("--user", default="rumba", help="opcua: user name (password from "
                    "$RUMBA_SIM_PASSWORD, else generated and printed)")
     g.add_argument("--device-id", type=int, default=1, help="modbus: unit id")
@@ -142,6 +145,26 @@ async def _start(args: argparse.Namespace, ctrl: Any) -> tuple[Any, Any]:
         if args.security != "none" and trusted is None:
             _say("note: any valid client certificate is accepted (give --trust DIR to pin)")
         return fe.stop, panel
+    if kind == "lsv2":
+        from simulators.frontends.lsv2 import Lsv2Frontend
+
+        ctrl.dialect = "heidenhain"
+        fe = Lsv2Frontend(ctrl, auto_start=None if args.no_plc_start else "TNC:\\RUMBA\\RUMBA.H")
+        port = await fe.start(args.host, args.port)
+        _say(f"listening: lsv2://{args.host}:{port} (TNC640; type 'start' for NC start of "
+             "TNC:\\RUMBA\\RUMBA.H, 'abort' for internal stop)")
+        return fe.stop, _MachinePanel(fe, lambda: fe.nc_start("TNC:\\RUMBA\\RUMBA.H"))
+    if kind == "haas":
+        from simulators.frontends.haas import HaasFrontend
+
+        if args.share is None or not args.share.is_dir():
+            raise ValueError("--share DIR (an existing folder: the machine's network share)")
+        ctrl.dialect = "haas"
+        fe = HaasFrontend(ctrl, args.share, auto_start=not args.no_plc_start)
+        port = await fe.start(args.host, args.port)
+        _say(f"listening: haas-mdc://{args.host}:{port} share {args.share} (type 'start' "
+             "for cycle start of O09100, 'abort' for RESET)")
+        return fe.stop, _MachinePanel(fe, fe.cycle_start)
     if kind == "modbus":
         from simulators.frontends.modbus import ModbusFrontend
 
@@ -166,12 +189,14 @@ async def _start(args: argparse.Namespace, ctrl: Any) -> tuple[Any, Any]:
 class _MachinePanel:
     """The machine's NC start and RESET keys, for a control that offers no remote start."""
 
-    def __init__(self, frontend: Any) -> None:
+    def __init__(self, frontend: Any, start: Callable[[], Awaitable[None]] | None = None
+                 ) -> None:
         self.fe = frontend
+        self.start = start or frontend.nc_start
         self._tasks: set[asyncio.Task] = set()
 
     def press(self, button: str) -> None:
-        coro = self.fe.nc_start() if button == "start" else self.fe.ctrl.abort()
+        coro = self.start() if button == "start" else self.fe.ctrl.abort()
         task = asyncio.get_running_loop().create_task(coro)
         self._tasks.add(task)
         task.add_done_callback(self._tasks.discard)
