@@ -222,10 +222,12 @@ def run_mean_c(pose_c: Sequence[float | None], start_c: float | None,
     """A run's temperature on one channel, the one definition the report, the CLI, the HMI and
     the fleet page use (issue 22 item 4): the mean of the values read at the poses — the
     instants the geometry was measured — else of the start and end values that were read. A
-    reading that is missing is left out, never stood in for by another one."""
-    values = [float(v) for v in pose_c if v is not None]
-    if not values:
-        values = [float(v) for v in (start_c, end_c) if v is not None]
+    reading that is missing (or not a finite number: a store written by hand) is left out,
+    never stood in for by another one."""
+    def read(vs: Sequence[float | None]) -> list[float]:
+        return [float(v) for v in vs if v is not None and math.isfinite(v)]
+
+    values = read(pose_c) or read((start_c, end_c))
     return sum(values) / len(values) if values else None
 
 

@@ -39,6 +39,11 @@ class LinkError(Exception):
     """The link failed (connection lost, protocol violation, timeout); message says which."""
 
 
+class ChannelMissing(LinkError):
+    """A temperature channel's address does not exist on the controller (a node id or register
+    misspelt in daemon.yaml): reading it again will not help."""
+
+
 class ControllerAlarm(Exception):
     """The controller stopped the program with an alarm (e.g. probe did not trigger)."""
 

@@ -216,3 +216,18 @@ def test_a_port_answering_garbage_bytes_fails_clearly_within_its_timeout(garbage
             await server.wait_closed()
 
     asyncio.run(one())
+
+
+async def test_temperature_from_a_macro_variable_the_machine_copies_a_sensor_into(truth,
+                                                                                 tmp_path):
+    from contracts.temperatures import TemperatureChannel
+
+    ctrl, fe, link = await rig(truth, tmp_path)
+    await link.connect()
+    try:
+        ctrl.variables["#593"] = 21.75
+        ch = TemperatureChannel(name="spindle", address="#593")
+        assert await link.read_temperature(ch) == pytest.approx(21.75, abs=1e-6)
+    finally:
+        await link.close()
+        await fe.stop()

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import logging
 import threading
 
 import pytest
@@ -45,6 +46,33 @@ SHORT = {"CAN panel": "CAN", DAEMON: "daemon-stop", "link loss": "link-loss", SI
          REPORT_JOB: "report-job"}
 PARAMS = [pytest.param(t, p, c, id=f"{t}-{SHORT.get(p, p)}-{SHORT.get(c, c)}")
           for t, p, c in ROWS]
+
+
+class _Tracebacks(logging.Handler):
+    """Every log record that carries a traceback (the loop's exception handler logs one for a
+    failed callback)."""
+
+    def __init__(self) -> None:
+        super().__init__(logging.DEBUG)
+        self.records: list[logging.LogRecord] = []
+
+    def emit(self, record: logging.LogRecord) -> None:
+        if record.exc_info or "Traceback" in record.getMessage():
+            self.records.append(record)
+
+
+@pytest.fixture(autouse=True)
+def no_traceback_logged():
+    """The stops leave the log free of tracebacks: none logged by the daemon's code, its
+    libraries or the event loop, in the row or after it."""
+    handler = _Tracebacks()
+    root = logging.getLogger()
+    root.addHandler(handler)
+    try:
+        yield
+    finally:
+        root.removeHandler(handler)
+    assert not handler.records, [f"{r.name}: {r.getMessage()[:300]}" for r in handler.records]
 
 
 @pytest_asyncio.fixture(scope="module", loop_scope="module")

@@ -17,6 +17,7 @@ import math
 import re
 
 from drivers.base import LinkError
+from drivers.cancel import keep_cancel
 from drivers.retry import Refused
 
 log = logging.getLogger("rumba.haas")
@@ -132,7 +133,7 @@ class DataPort:
                 self._writer.write(command.encode("ascii") + b"\r\n")
                 async with asyncio.timeout(self.timeout_s):
                     await self._writer.drain()
-                    answer = await self._lines.get()
+                    answer = await keep_cancel(self._lines.get())
             except (TimeoutError, OSError) as e:
                 await self.close()
                 raise LinkError(f"{self.where}: {command}: no answer "

@@ -1,7 +1,8 @@
 """The OPC UA side of the SINUMERIK link: the secured session (Basic256Sha256 and user/password,
 asyncua's reconnection), nodes by role, browsing by display name, method calls typed from the
 method's own InputArguments, and the part program written through the server's file system
-(OPC UA Part 5 Annex C: FileDirectoryType.CreateFile, FileType.Open / Write / Close).
+(OPC UA Part 5 Annex C: FileDirectoryType.CreateFile, FileType.Open / Write / Close). Reads,
+writes and calls are awaited through ``drivers.cancel.keep_cancel``, as the gateway link's.
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ from contracts.sinumerik_space import (
     role_path,
 )
 from drivers.base import LinkError
+from drivers.cancel import keep_cancel
 from drivers.retry import Refused
 from drivers.sinumerik.schema import SinumerikLinkConfig
 
@@ -115,13 +117,14 @@ class SinumerikSession:
 
     async def read(self, nodes: list[Any], what: str) -> list[Any]:
         try:
-            return await self._client().read_values(nodes)
+            return await keep_cancel(self._client().read_values(nodes))
         except (TimeoutError, ua.UaError, OSError, ConnectionError) as e:
             raise LinkError(f"sinumerik {self.cfg.url}: read {what}: {status_name(e)}") from None
 
     async def write_double(self, node: Any, value: float, what: str) -> None:
         try:
-            await node.write_value(ua.DataValue(ua.Variant(float(value), ua.VariantType.Double)))
+            await keep_cancel(node.write_value(
+                ua.DataValue(ua.Variant(float(value), ua.VariantType.Double))))
         except (TimeoutError, ua.UaError, OSError, ConnectionError) as e:
             raise LinkError(f"sinumerik {self.cfg.url}: write {what} = {value:g}: "
                             f"{status_name(e)}") from None
@@ -176,7 +179,7 @@ class SinumerikSession:
                                 f"type {arg.DataType} not supported")
             variants.append(ua.Variant(value, vtype))
         try:
-            return await parent.call_method(method, *variants)
+            return await keep_cancel(parent.call_method(method, *variants))
         except (TimeoutError, ua.UaError, OSError, ConnectionError) as e:
             raise LinkError(f"sinumerik {self.cfg.url}: {what} refused: {status_name(e)}"
                             ) from None

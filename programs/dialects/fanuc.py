@@ -15,6 +15,7 @@ class Fanuc(Dialect):
     """Fanuc 0i/30i macro B (also Haas): G31, #5061-#5065, DPRNT, #3000 alarm."""
 
     name, extension, counter, slot_prefix, slot_base = "fanuc", "nc", "#599", "#", 600
+    result_print = re.compile(r"DPRNT\[RUMBA\*")
     tcpm_off, tcpm_note = "G49", "G43.4 G43.5 TCPM MUST BE OFF - G49 BELOW"
     result_channel = "DPRNT on the DNC serial port (POPEN/PCLOS)"
     verdict_variable = VERDICT_VARIABLES["fanuc"]
