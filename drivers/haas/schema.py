@@ -7,7 +7,7 @@ from typing import Literal
 
 from pydantic import Field, field_validator
 
-from contracts.yaml_files import StrictModel
+from contracts.yaml_files import HostName, StrictModel
 
 ROLES = ("request", "busy", "done", "program_ready")
 DEFAULT_VARIABLES = {"request": 690, "busy": 691, "done": 692, "program_ready": 693}
@@ -19,7 +19,7 @@ class HaasLinkConfig(StrictModel):
     the verdict; the program goes to the machine's network share (``program_dir``)."""
 
     transport: Literal["haas"]
-    host: str = Field(min_length=1, max_length=253)
+    host: HostName
     port: int = Field(5051, ge=1, le=65535)  # Setting 143
     # NGC renumbered the user macro variables: legacy #600 is #10600 (0: a control that
     # answers for the legacy numbers)

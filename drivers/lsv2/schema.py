@@ -7,7 +7,7 @@ from typing import Literal
 
 from pydantic import Field, field_validator
 
-from contracts.yaml_files import StrictModel
+from contracts.yaml_files import HostName, StrictModel
 
 TNC_DIR = re.compile(r"^TNC:(\\[A-Z0-9_]{1,16}){1,4}$")
 
@@ -17,7 +17,7 @@ class Lsv2LinkConfig(StrictModel):
     19000; results from the FN 16 file the program writes next to itself (drivers/README.md)."""
 
     transport: Literal["lsv2"]
-    host: str = Field(min_length=1, max_length=253)
+    host: HostName
     port: int = Field(19000, ge=1, le=65535)
     directory: str = "TNC:\\RUMBA"  # the program, its format files, stop and verdict programs
     request_machine: str | None = Field(None, pattern=r"^[A-Za-z0-9_.-]{1,32}$")
