@@ -18,8 +18,10 @@ $(STAMP): pyproject.toml | $(BIN)/python
 
 install: $(STAMP)
 
+# PROFILE=sinumerik: the control's own OPC UA server as Siemens ships it (default: the gateway)
+PROFILE ?= gateway
 demo: $(STAMP)
-	$(BIN)/python -m demos.e2e
+	$(BIN)/python -m demos.e2e --profile $(PROFILE)
 
 # simulated CNC + daemon + HMI until Ctrl-C; prints the URL and a one-time login (HMI_PORT=0: any)
 HMI_PORT ?= 8470

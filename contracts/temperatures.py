@@ -119,13 +119,15 @@ def check_address(ch: TemperatureChannel, transport: str, family: str) -> None:
     """A controller channel's address must suit the run's transport (ValueError otherwise)."""
     if ch.source == "transmitter":
         return
-    if transport == "opcua":
+    if transport in ("opcua", "sinumerik"):  # sinumerik: an R parameter's node, a GUD's …
         ok, form = OPCUA_ADDRESS.fullmatch(ch.address), "an OPC UA node id (ns=2;s=…) or /path"
     elif transport == "modbus":
         modbus_address(ch.address)
         return
     elif transport == "linuxcnc":
         ok, form = HAL_PIN.fullmatch(ch.address), "a HAL pin name"
+    elif transport == "haas":  # a macro variable read over the data port (?Q600)
+        ok, form = MACRO_VARIABLE["fanuc"].fullmatch(ch.address), VARIABLE_FORM["fanuc"]
     elif transport == "serial":
         pat = MACRO_VARIABLE.get(family)
         if family == "linuxcnc":

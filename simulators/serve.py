@@ -1,9 +1,10 @@
-"""``rumba sim --serve serial|opcua|modbus|can``: one VirtualController behind one protocol
-front-end, listening on loopback until interrupted; prints where it listens (one ``listening:``
-line per endpoint, flushed, so a script can read it). Typing ``request`` on stdin raises the
-start-of-shift request as the CNC's PLC would; ``run FILE`` loads a program and cycle-starts it
-as the operator at the control does (a confirmed compensation program); ``abort`` resets the
-control; ``quit`` stops.
+"""``rumba sim --serve serial|opcua|modbus|can|sinumerik|lsv2|haas``: one VirtualController
+behind one protocol front-end, listening on loopback until interrupted; prints where it listens
+(one ``listening:`` line per endpoint, flushed, so a script can read it). Typing ``request`` on
+stdin raises the start-of-shift request as the CNC's PLC would; ``run FILE`` loads a program and
+cycle-starts it as the operator at the control does (a confirmed compensation program);
+``abort`` resets the control; ``quit`` stops (``start`` / ``abort``: the CAN panel's buttons, or
+a SINUMERIK's NC start and RESET).
 """
 
 from __future__ import annotations
@@ -27,7 +28,8 @@ class ServeError(Exception):
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group("serve (controller-side protocol front-ends)")
-    g.add_argument("--serve", choices=["serial", "opcua", "modbus", "can"],
+    g.add_argument("--serve", choices=["serial", "opcua", "modbus", "can", "sinumerik", "lsv2",
+                                       "haas"],
                    help="serve the simulated controller over this transport")
     g.add_argument("--host", default="127.0.0.1", help="bind address (default 127.0.0.1)")
     g.add_argument("--port", type=int, help="TCP port (default: a free one; serial: a pty "
@@ -45,6 +47,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="opcua: folder for the server certificate (made on first start)")
     g.add_argument("--trust", type=Path, metavar="DIR",
                    help="opcua: accept only client certificates found in DIR")
+    g.add_argument("--share", type=Path,
+                   help="haas: the folder the machine reads O09100.nc from (its network share)")
+    g.add_argument("--no-plc-start", action="store_true",
+                   help="sinumerik, lsv2, haas: nothing starts rumba's program by itself "
+                        "(type 'start' for the operator's NC start)")
     g.add_argument("--user", default="rumba", help="opcua: user name (password from "
                    "$RUMBA_SIM_PASSWORD, else generated and printed)")
     g.add_argument("--device-id", type=int, default=1, help="modbus: unit id")
@@ -117,8 +124,9 @@ async def _start(args: argparse.Namespace, ctrl: Any) -> tuple[Any, Any]:
         _say(f"serial: {args.baud} baud {args.framing}, XON/XOFF, receive buffer "
              f"{args.rx_buffer} bytes")
         return fe.close, None
-    if kind == "opcua":
+    if kind in ("opcua", "sinumerik"):
         from simulators.frontends.opcua import OpcUaFrontend
+        from simulators.frontends.sinumerik import SinumerikFrontend
 
         users = None
         if args.security != "none":
@@ -127,15 +135,45 @@ async def _start(args: argparse.Namespace, ctrl: Any) -> tuple[Any, Any]:
             if "RUMBA_SIM_PASSWORD" not in os.environ:
                 _say(f"opcua user: {args.user} password: {password}")
         trusted = [args.trust] if args.trust else None
-        fe = OpcUaFrontend(ctrl, security=args.security, cert_dir=args.cert_dir, users=users,
-                           trusted_client_certs=trusted)
+        panel = None
+        if kind == "sinumerik":
+            ctrl.dialect = "siemens"
+            fe = SinumerikFrontend(ctrl, security=args.security, cert_dir=args.cert_dir,
+                                   users=users, trusted_client_certs=trusted,
+                                   plc_starts=not args.no_plc_start)
+            panel = _MachinePanel(fe)
+        else:
+            fe = OpcUaFrontend(ctrl, security=args.security, cert_dir=args.cert_dir,
+                               users=users, trusted_client_certs=trusted)
         url = await fe.start(args.host, args.port or 0)
         _say(f"listening: {url}")
+        if panel is not None:
+            _say("sinumerik: type 'start' for NC start, 'abort' for RESET at the machine")
         if fe.server_certificate is not None:
             _say(f"server certificate: {fe.server_certificate}")
         if args.security != "none" and trusted is None:
             _say("note: any valid client certificate is accepted (give --trust DIR to pin)")
-        return fe.stop, None
+        return fe.stop, panel
+    if kind == "lsv2":
+        from simulators.frontends.lsv2 import Lsv2Frontend
+
+        ctrl.dialect = "heidenhain"
+        fe = Lsv2Frontend(ctrl, auto_start=None if args.no_plc_start else "TNC:\\RUMBA\\RUMBA.H")
+        port = await fe.start(args.host, args.port or 0)
+        _say(f"listening: lsv2://{args.host}:{port} (TNC640; type 'start' for NC start of "
+             "TNC:\\RUMBA\\RUMBA.H, 'abort' for internal stop)")
+        return fe.stop, _MachinePanel(fe, lambda: fe.nc_start("TNC:\\RUMBA\\RUMBA.H"))
+    if kind == "haas":
+        from simulators.frontends.haas import HaasFrontend
+
+        if args.share is None or not args.share.is_dir():
+            raise ValueError("--share DIR (an existing folder: the machine's network share)")
+        ctrl.dialect = "haas"
+        fe = HaasFrontend(ctrl, args.share, auto_start=not args.no_plc_start)
+        port = await fe.start(args.host, args.port or 0)
+        _say(f"listening: haas-mdc://{args.host}:{port} share {args.share} (type 'start' "
+             "for cycle start of O09100, 'abort' for RESET)")
+        return fe.stop, _MachinePanel(fe, fe.cycle_start)
     if kind == "modbus":
         from simulators.frontends.modbus import ModbusFrontend
 
@@ -155,6 +193,22 @@ async def _start(args: argparse.Namespace, ctrl: Any) -> tuple[Any, Any]:
     _say(f"listening: can {args.can_interface}:{args.can_channel} base id "
          f"{args.can_base_id:#05x} (type 'start' or 'abort' to press a button)")
     return panel.close, panel
+
+
+class _MachinePanel:
+    """The machine's NC start and RESET keys, for a control that offers no remote start."""
+
+    def __init__(self, frontend: Any, start: Callable[[], Awaitable[None]] | None = None
+                 ) -> None:
+        self.fe = frontend
+        self.start = start or frontend.nc_start
+        self._tasks: set[asyncio.Task] = set()
+
+    def press(self, button: str) -> None:
+        coro = self.start() if button == "start" else self.fe.ctrl.abort()
+        task = asyncio.get_running_loop().create_task(coro)
+        self._tasks.add(task)
+        task.add_done_callback(self._tasks.discard)
 
 
 async def _line_reader(f: Any) -> Callable[[], Awaitable[bytes]] | None:

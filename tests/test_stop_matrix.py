@@ -33,7 +33,8 @@ from simulators.controller import VirtualController
 from tests.rig_helpers import make_truth, start_rig
 from tests.stop_helpers import REPORT_JOB, Hold, held_session, until_reached, write_config
 
-TRANSPORTS = ("opcua", "modbus", "serial-pty")
+TRANSPORTS = ("opcua", "modbus", "serial-pty", "sinumerik", "lsv2", "haas")
+DIALECT = {"sinumerik": "siemens", "lsv2": "heidenhain", "haas": "haas"}  # their own only
 PHASES = ("PREPARE", "CAPTURE", "IDENTIFY", "WRITE-BACK")
 OPERATOR = ("hmi", "CAN panel")  # session.abort(source): a person
 DAEMON = "the daemon stopping"  # session.interrupt(cause), as Service.stop (SIGTERM on rumba run)
@@ -97,7 +98,8 @@ def _link(rig, trigger: str) -> dict:
 
 
 async def _open(rig, tmp_path, monkeypatch, hold: Hold, trigger: str = ""):
-    cfg = load_daemon_config(write_config(tmp_path, _link(rig, trigger)))
+    cfg = load_daemon_config(write_config(tmp_path, _link(rig, trigger),
+                                          dialect=DIALECT.get(rig.transport, "fanuc")))
     setup = cfg.machines["mill1"]
     store = Store(cfg.store_path)
     link = make_link(setup)
@@ -133,6 +135,8 @@ async def _dnc_program_ended(rig, verdict_sent: bool) -> None:
 def _diagnose(rig) -> str:
     """Where the simulated control stands (a run that never started names it)."""
     fe = rig.extra.get("frontend")
+    if fe is not None and hasattr(fe, "diagnose"):
+        return f"control {rig.ctrl.state}, resets {rig.ctrl.resets}; {fe.diagnose()}"
     tape = "" if fe is None else (
         f"; tape: in program {fe._in_program}, blocks {fe._tape_blocks}, discard "
         f"{fe._discard}, xoff {fe._xoff}, buffer {bytes(fe._buf[:60])!r}, alarms {fe.alarms}")

@@ -10,9 +10,11 @@ from contracts.yaml_files import HostName, StrictModel
 
 
 class ModbusLinkConfig(StrictModel):
-    """Modbus TCP client for the rumba register map (contracts/modbus_map.py)."""
+    """Modbus TCP client for the rumba register map (contracts/modbus_map.py): the gateway
+    profile, a map a PLC or an edge box implements (no control ships it)."""
 
     transport: Literal["modbus"]
+    profile: Literal["gateway"] = "gateway"  # the only one: said in the config, not assumed
     host: HostName = "127.0.0.1"
     port: int = Field(502, ge=1, le=65535)
     device_id: int = Field(1, ge=0, le=255)

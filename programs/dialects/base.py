@@ -13,7 +13,14 @@ import numpy as np
 
 from contracts.jobs import VERDICT_CODES
 from contracts.messages import ProbeHit
-from contracts.result_lines import RESULT_FIELDS, RING_SLOTS, SLOT_FIELDS, parse_result_line
+from contracts.result_lines import (
+    HANDSHAKE_VARIABLES,
+    RESULT_FIELDS,
+    RING_SLOTS,
+    SLOT_FIELDS,
+    STOP_PROGRAMS,
+    parse_result_line,
+)
 from contracts.setup_files import SAFE_NAME
 from contracts.temperatures import MACRO_VARIABLE
 from programs.cycletime import CycleTime, estimate
@@ -305,7 +312,22 @@ class Dialect:
                     mv.linear_rapid for mv in program.moves) else "",
                 "blocks": self.blocks(program), "counter": Code(self.counter),
                 "temperatures": self.temperature_prints(program),
-                "miss_tol": fmt(MISS_TOL_MM), "r1": program.rotary[0], "r2": program.rotary[1]}
+                "miss_tol": fmt(MISS_TOL_MM), "r1": program.rotary[0], "r2": program.rotary[1],
+                "handshake": self.handshake(program)}
+
+    def handshake(self, program: Program) -> dict | None:
+        """The ring wait and stop check (``Program.handshake``): the variables the link writes,
+        or None; a dialect without them refuses (its links read no variables)."""
+        if not program.handshake:
+            return None
+        stop = STOP_PROGRAMS.get(self.label)
+        if stop is not None:  # the link writes files, not variables: a called stop program
+            return {"stop_program": Code(stop[0]), "stop": Code(stop[1])}
+        pair = HANDSHAKE_VARIABLES.get(self.label)
+        if pair is None:
+            raise ProgramError(f"the {self.label} dialect has no result handshake: its links "
+                               "read the results another way")
+        return {"ack": Code(pair[0]), "stop": Code(pair[1]), "slots": RING_SLOTS}
 
     def render(self, program: Program, cycle_time: CycleTime | None = None) -> str:
         """The program text (LF line ends; transports convert); ``cycle_time``: the program's

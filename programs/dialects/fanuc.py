@@ -48,8 +48,12 @@ class Fanuc(Dialect):
         return ["1.", "#5061", "#5062", "#5063", *rot]
 
     program_number = 9100
+    stop_block = 99998  # the handshake's end at a stop request: above every move number
 
     def context(self, program: Program, cycle_time: CycleTime) -> dict:
         ctx = super().context(program, cycle_time)
         ctx["info"] = [x.upper() for x in ctx["info"]]
-        return {**ctx, "program_number": self.program_number}
+        if ctx["handshake"] and any(b.n >= self.stop_block for b in ctx["blocks"]):
+            raise ProgramError(f"program of {len(ctx['blocks'])} moves: its block numbers "
+                               f"reach N{self.stop_block}, the handshake's stop block")
+        return {**ctx, "program_number": self.program_number, "stop_block": self.stop_block}
