@@ -1,3 +1,4 @@
+# ruff: noqa: E402  (BLAS threads are set before numpy is first imported)
 """The map of the linear axes on the simulator: Monte Carlo of prediction error and coverage.
 
 Per seed a machine is drawn — the 18 motion errors of its linear axes random smooth (Legendre
@@ -22,6 +23,11 @@ RMS of the truth and of the difference (vector magnitudes), the share of compone
 
 from __future__ import annotations
 
+import os
+
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")  # small dense problems: threads only contend (×7 slower)
+
 import json
 import sys
 import time
@@ -44,7 +50,6 @@ from identification.linmap.field import (
 )
 from identification.linmap.fit import MapOptions, fit_map
 from identification.linmap.problem import Placement
-from identification.model import CalibratedDistance
 from programs.generate import generate
 from simulators.errors_schema import errors_from_dict
 from simulators.offline import run_sync
@@ -187,6 +192,7 @@ def table(rows: list[dict]) -> str:
     ratio = np.array([r["diff_rms_um"] / r["truth_rms_um"] for r in rows])
     cov = np.array([r["cover2u"] for r in rows])
     zm = np.array([r["z_mean"] for r in rows])
+    se = float(zm.std(ddof=1) / np.sqrt(len(rows))) if len(rows) > 1 else 0.0
     lines = [f"N = {len(rows)} seeds, {HELD_OUT} held-out points each",
              f"machine time per map: {np.mean([r['machine_time_s'] for r in rows]) / 60:.1f} "
              "min (simulated)",
@@ -198,8 +204,8 @@ def table(rows: list[dict]) -> str:
              f"seeds within max(25 % of truth RMS, 1 µm): {sum(ok)}/{len(rows)}",
              f"2u coverage of the components: {100 * cov.mean():.1f} % (seed min "
              f"{100 * cov.min():.1f} %)",
-             f"bias: mean d/u {zm.mean():+.3f} ± {zm.std(ddof=1) / np.sqrt(len(rows)) if len(rows) > 1 else 0:.3f} "
-             f"(se over seeds); sd(d/u) {np.mean([r['z_sd'] for r in rows]):.2f}",
+             f"bias: mean d/u {zm.mean():+.3f} ± {se:.3f} (se over seeds); sd(d/u) "
+             f"{np.mean([r['z_sd'] for r in rows]):.2f}",
              f"fit time median {np.median([r['fit_s'] for r in rows]):.1f} s"]
     return "\n".join(lines)
 

@@ -106,9 +106,9 @@ class Fit(_Model):
     sigma_dof: float | None  # None: σ given (infinite dof)
     iterations: int
     converged: bool
-    condition_number: float
+    condition_number: float | None
     prior: dict[str, Any]
-    visit_scatter: dict[str, list[float]] | None  # component → [σ, u(σ), p]
+    visit_scatter: dict[str, list[float | None]] | None  # component → [σ, u(σ), p]; null: NaN
     refit: str
 
 
