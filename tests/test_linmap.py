@@ -100,9 +100,9 @@ def test_the_field_jacobian_matches_finite_differences():
 
 @pytest.fixture(scope="module")
 def thesis_maps():
-    """The thesis machine (Table B.2 links, a degree-3 random smooth map over more than the covered box), the
-    4-ball artefact at its place (with its true calibrated distance) and moved out and up: 24
-    poses each, exact touches, no noise."""
+    """The thesis machine (Table B.2 links, a degree-3 random smooth map over more than the
+    covered box), the 4-ball artefact at its place (with its true calibrated distance) and
+    moved out and up: 24 poses each, exact touches, no noise."""
     m = machine("thesis_wcbxfzyt")
     truth = map_truth(m, seed=7, order=3, links=to_internal(THESIS_LINKS_UM_URAD),
                       ranges_mm={"X": [-400, 400], "Y": [-300, 300], "Z": [-100, 400]})
@@ -133,7 +133,7 @@ def test_a_noiseless_map_is_recovered(thesis_maps):
     points inside the covered box within 0.02 µm RMS of the truth (measured 0.001 µm; the
     truth's is 11 µm) and the centres fitted to 0.01 µm. (The links are not compared: the
     constant part of each angular error over the covered range is a link, EBX's is EB0C.)"""
-    m, truth, pls, exact = thesis_maps
+    m, truth, pls, _ = thesis_maps
     est = fit_map(m, list(pls), MapOptions(degrees={"X": 3, "Y": 3, "Z": 3},
                                            visit_scatter=False))
     diff, size, _ = _field_error(m, truth, est)
@@ -193,24 +193,24 @@ def test_observability_names_scale_squareness_and_the_stylus():
 
 
 def test_predictions_refuse_points_outside_the_covered_box(thesis_maps):
-    m, truth, pls, _ = thesis_maps
+    m, _, pls, _ = thesis_maps
     from daemon.analysis.linear_map import model_of
 
     est = fit_map(m, list(pls), MapOptions(degrees={"X": 2, "Y": 2, "Z": 2},
                                            visit_scatter=False))
     model = model_of(m, est)
-    lo, hi = model.box_mm["Y"]
+    hi = model.box_mm["Y"][1]
     inside = np.array([[np.mean(model.box_mm["X"]), hi, np.mean(model.box_mm["Z"])]])
     assert predict_field(model, inside).error_um.shape == (1, 3)
     with pytest.raises(OutsideCoverage, match=r"point 2: Y = .* outside the covered range"):
-        predict_field(model, np.vstack([inside, inside + [0.0, 0.01, 0.0]]))
+        predict_field(model, np.vstack([inside, inside + np.array([0.0, 0.01, 0.0])]))
 
 
 def test_compare_maps_removes_the_rigid_motion_of_their_difference(thesis_maps):
     """A map against itself with a rigid translation and rotation of its workpiece (the links
     EX0C and EB0C at rotary zero): 0; against the map of other data: the size of their
     difference."""
-    m, truth, pls, _ = thesis_maps
+    m, _, pls, _ = thesis_maps
     from daemon.analysis.linear_map import model_of
 
     est = fit_map(m, list(pls), MapOptions(degrees={"X": 2, "Y": 2, "Z": 2},
