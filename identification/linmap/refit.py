@@ -19,8 +19,8 @@ from collections.abc import Sequence
 import numpy as np
 
 from identification.kinematics import Machine
-from identification.linmap.problem import JointLayout, Placement, _g, centre_jq
-from identification.spherefit import fit_spheres
+from identification.linmap.problem import JointLayout, MapError, Placement, _g, centre_jq
+from identification.spherefit import SphereFitError, fit_spheres
 
 NEWTON_STEPS = 2
 
@@ -41,7 +41,11 @@ def refit_centres(machine: Machine, placements: Sequence[Placement], layout: Joi
         rot_n = {a: np.repeat(v, n) for a, v in rot.items()}
         g_pts = _g(machine, rot_n, np.repeat(balls_w, n, axis=0),
                    pl.points_mm.reshape(-1, 3), state).reshape(k, n, 3)
-        delta = fit_spheres(g_pts, pl.radius_mm, fixed_radius=pl.fixed_radius).centre_mm
+        try:
+            delta = fit_spheres(g_pts, pl.radius_mm, fixed_radius=pl.fixed_radius).centre_mm
+        except SphereFitError as e:  # the touches fitted in controller coordinates already
+            raise MapError(f"{pl.name}: sphere fit in the estimate's frame failed: "
+                           f"{e.reason}") from None
         for _ in range(NEWTON_STEPS):
             q = q + np.linalg.solve(jq, (delta - _g(machine, rot, balls_w, q, state))[..., None]
                                     )[..., 0]
