@@ -194,3 +194,17 @@ def test_a_saved_map_gives_the_same_figures(report, files, tmp_path):  # noqa: F
     a = _rows((rep / "map.html").read_text(encoding="utf-8"), "map-figures")
     b = _rows((tmp_path / "again" / "map.html").read_text(encoding="utf-8"), "map-figures")
     assert a == b and len(a) == 3
+
+
+def test_a_map_without_a_limit_is_reported_not_judged(report, files, tmp_path):  # noqa: F811
+    """No --limit-um / --config: the badge and the table say so, no PASS is invented."""
+    raw = json.loads((files[0] / "r.json").read_text())
+    raw["figures"]["volumetric_max_um"].update(status=None, limit=None)
+    (tmp_path / "m.json").write_text(json.dumps(raw))
+    code, _, se = run_cli(["map", "--machine", str(MACHINE), "--map", str(tmp_path / "m.json"),
+                           "--report", str(tmp_path / "r")])
+    assert code == 0, se
+    html = (tmp_path / "r" / "map.html").read_text(encoding="utf-8")
+    mx = _rows(html, "map-figures")[1][2]
+    assert mx[2] == "—" and "not judged" in mx[3]
+    assert '<span class="badge">NOT JUDGED</span>' in html and ">PASS<" not in html

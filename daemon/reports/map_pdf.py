@@ -19,7 +19,14 @@ from matplotlib.patches import FancyBboxPatch
 
 from contracts.linear_map import LinearMapFile
 from daemon.reports.audit import local_time
-from daemon.reports.map_text import box_text, figure_rows, states, title, unobservable_lines
+from daemon.reports.map_text import (
+    box_text,
+    degrees_text,
+    figure_rows,
+    states,
+    title,
+    unobservable_lines,
+)
 from daemon.reports.pdf import (
     A4_IN,
     FOOTER_IN,
@@ -73,8 +80,8 @@ def _page1(fig: Figure, doc: LinearMapFile) -> float:
         p.y += p.line_in
         p.wrapped(r.detail, width=WIDTH - 20, color="#444444", indent="")
     p.wrapped("Volumetric error: tool tip actual minus nominal relative to the workpiece, "
-              "commanded X, Y, Z with the rotary axes at zero, workpiece frame; "
-              + doc.rigid_convention + ".", width=WIDTH, color="#444444")
+              "commanded X, Y, Z with the rotary axes at zero, workpiece frame; rigid "
+              "convention: " + doc.rigid_convention + ".", width=WIDTH, color="#444444")
     _head(p, "Placements")
     for n, pl in enumerate(doc.placements, 1):
         p.wrapped(f"{n} ({pl.name}): {pl.log} with {pl.artefact}: {pl.centres} centres, "
@@ -82,7 +89,7 @@ def _page1(fig: Figure, doc: LinearMapFile) -> float:
     fit = doc.fit
     p.wrapped(f"Fit: residual RMS {fit.residual_rms_um:.3f} µm, {fit.iterations} iteration(s), "
               + ("converged" if fit.converged else "NOT converged")
-              + (f"; degrees {doc.order.degrees} by {doc.order.method}" if doc.order else ""),
+              + (f"; degrees {degrees_text(doc)} by {doc.order.method}" if doc.order else ""),
               width=WIDTH)
     h = doc.holdout
     if h is not None:

@@ -140,8 +140,8 @@ def draw_slices(fig: Canvas, sl: Sequence[Slice]) -> bool:
         p, e = s.points_mm, s.error_um
         n = math.isqrt(len(p))
         gi, gj = p[:, s.i].reshape(n, n), p[:, s.j].reshape(n, n)
-        ax.pcolormesh(gi, gj, e[:, s.k].reshape(n, n), cmap=cmap, norm=norm, shading="gouraud",
-                      alpha=0.85)
+        ax.contourf(gi, gj, e[:, s.k].reshape(n, n), levels=np.linspace(-cmax, cmax, 21),
+                    cmap=cmap, norm=norm, alpha=0.85)
         lo_i, hi_i = gi.min(), gi.max()
         lo_j, hi_j = gj.min(), gj.max()
         ax.plot([lo_i, hi_i, hi_i, lo_i, lo_i], [lo_j, lo_j, hi_j, hi_j, lo_j], ls="--",

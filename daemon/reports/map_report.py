@@ -21,6 +21,7 @@ from daemon.reports.map_pdf import write_map_pdf
 from daemon.reports.map_plots import draw_functions, draw_slices, draw_volume, slices
 from daemon.reports.map_text import (
     box_text,
+    degrees_text,
     figure_rows,
     states,
     title,
@@ -49,6 +50,7 @@ table{border-collapse:collapse;margin:1em 0}td,th{border:1px solid #ccc;padding:
 text-align:right}th{background:#f3f3f3}td.l,th.l{text-align:left}
 .PASS{color:#1b873f}.WARN{color:#c77700;font-weight:bold}.FAIL{color:#c62828;font-weight:bold}
 tr.none td{color:#777;background:#f6f6f6}.nobs{font-weight:bold;color:#555}
+table.functions td:first-child,table.functions td:nth-child(2){white-space:nowrap}
 img{max-width:100%;border:1px solid #eee;margin:.5em 0}small{color:#666}
 @media print{@page{size:A4;margin:12mm}body{margin:0;max-width:none;font-size:10pt}
 .noprint{display:none}h2{break-after:avoid}img,table{break-inside:avoid}
@@ -65,8 +67,8 @@ img{max-width:100%;border:1px solid #eee;margin:.5em 0}small{color:#666}
 <td class="l {{ f.status }}">{{ f.status or "—" }}</td><td class="l"><small>{{ f.detail }}</small>
 </td></tr>{% endfor %}</table>
 <p><small>Volumetric error: the tool tip's actual minus nominal position relative to the
-workpiece at commanded X, Y, Z with the rotary axes at zero, in the workpiece frame; a map is
-defined up to a rigid-body motion: {{ d.rigid_convention }}.</small></p>
+workpiece at commanded X, Y, Z with the rotary axes at zero, in the workpiece frame; rigid
+convention: {{ d.rigid_convention }}.</small></p>
 <h2>Placements</h2><table><tr><th class="l">placement</th><th class="l">log</th>
 <th class="l">artefact</th><th>centres</th><th>poses</th><th>residual RMS µm</th></tr>
 {% for p in d.placements %}<tr><td class="l">{{ loop.index }} ({{ p.name }})</td>
@@ -74,7 +76,7 @@ defined up to a rigid-body motion: {{ d.rigid_convention }}.</small></p>
 <td>{{ p.poses }}</td><td>{{ '%.3f' % p.residual_rms_um }}</td></tr>{% endfor %}</table>
 <p>Fit: residual RMS {{ '%.3f' % d.fit.residual_rms_um }} µm, {{ d.fit.iterations }}
 iteration(s), {{ 'converged' if d.fit.converged else 'NOT converged' }}{% if d.order %};
-degrees {{ d.order.degrees }} chosen by {{ d.order.method }}{% endif %}.</p>
+degrees {{ degrees }} chosen by {{ d.order.method }}{% endif %}.</p>
 {% if d.holdout %}<p>Held-out placement ({{ d.holdout.log }}, {{ d.holdout.centres }} centres):
 RMS {{ '%.2f' % d.holdout.rms_before_um }} → {{ '%.2f' % d.holdout.rms_after_um }} µm, max
 {{ '%.2f' % d.holdout.max_before_um }} → {{ '%.2f' % d.holdout.max_after_um }} µm without → with
@@ -130,7 +132,8 @@ def render_html(doc: LinearMapFile, plots: dict[str, bytes | None]) -> str:
     status = doc.figures.volumetric_max_um.status
     return _TEMPLATE.render(
         d=doc, status=status, colour=VERDICT_COLOURS.get(status or "", "#555555"),
-        box=box_text(doc), names=NAMES, figures=figure_rows(doc), st=states(doc),
+        box=box_text(doc), names=NAMES, degrees=degrees_text(doc), figures=figure_rows(doc),
+        st=states(doc),
         name=title, unit=unit_text, unobservable=unobservable_lines(doc),
         plots=[(k, PLOTS[k][0], base64.b64encode(v).decode("ascii") if v else None)
                for k, v in plots.items()],

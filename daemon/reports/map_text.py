@@ -94,6 +94,11 @@ def box_text(doc: LinearMapFile) -> str:
                      for a in doc.basis.axes)
 
 
+def degrees_text(doc: LinearMapFile) -> str:
+    """``X 2, Y 2, Z 2``: the Legendre degree of each axis' functions."""
+    return ", ".join(f"{a.axis} {a.degree}" for a in doc.basis.axes)
+
+
 def unobservable_lines(doc: LinearMapFile) -> list[str]:
     """What the data do not determine, in words: the scale, whole functions, single degrees of
     a function, links (the daily check's statement), then the range the map holds."""
