@@ -208,3 +208,24 @@ def test_a_map_without_a_limit_is_reported_not_judged(report, files, tmp_path): 
     mx = _rows(html, "map-figures")[1][2]
     assert mx[2] == "—" and "not judged" in mx[3]
     assert '<span class="badge">NOT JUDGED</span>' in html and ">PASS<" not in html
+
+
+def test_the_words_follow_the_observability_statement(report):
+    """Scale unobservable (no calibrated distance): said first; functions sharing a reason are
+    named on one line; a link the statement names is listed."""
+    from daemon.reports.map_text import unobservable_lines
+
+    doc = report[1]
+    obs = doc.observability
+    lines = unobservable_lines(doc)
+    assert not any(x.startswith("Isotropic scale") for x in lines)
+    stmt = {"isotropic_scale": "no calibrated distance", **obs.unobservable}
+    lines = unobservable_lines(doc.model_copy(update={"observability": obs.model_copy(
+        update={"scale_observable": False, "unobservable": stmt})}))
+    assert lines[0] == "Isotropic scale of the linear axes: no calibrated distance"
+    gone = [f.name for f in doc.functions if not f.terms]
+    by_y = [n for n in gone if n[2] == "Y"]
+    assert f"{', '.join(by_y)} are not observable: with one stylus" in "\n".join(lines)
+    links = [k for k in obs.unobservable if "_P" not in k and len(k) == 4]
+    assert links and all(k in next(x for x in lines if x.startswith("Link errors"))
+                         for k in links)

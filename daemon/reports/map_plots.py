@@ -54,7 +54,7 @@ def draw_functions(fig: Canvas, doc: LinearMapFile) -> bool:
     by_name = {f.name: f for f in doc.functions}
     if not by_name:
         return False
-    gs = _fixed_margins(fig, (6, 3), top_in=0.62, bottom_in=0.45, wspace=0.28, hspace=0.6,
+    gs = _fixed_margins(fig, (6, 3), top_in=0.75, bottom_in=0.45, wspace=0.28, hspace=0.6,
                         left_in=0.7, right_in=0.12)
     for r, d in enumerate(ROWS):
         for c, a in enumerate("XYZ"):
@@ -90,7 +90,9 @@ def draw_functions(fig: Canvas, doc: LinearMapFile) -> bool:
             if r == len(ROWS) - 1:
                 ax.set_xlabel(f"{a} commanded / mm")
     fig.suptitle("Motion errors of the linear axes (ISO 230-1) over their covered ranges: "
-                 "estimate with its ±2u band (k=2)", fontsize=9)
+                 "estimate with its ±2u band (k=2)\n(in part): a degree of it is held by "
+                 "another parameter (named in the table); the curve is the part the data "
+                 "determine", fontsize=8.5)
     return True
 
 
