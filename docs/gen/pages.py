@@ -9,10 +9,13 @@ from docs.gen.text import header
 def daemon_yaml() -> str:
     from daemon.config import DaemonFile
     from drivers.can.schema import CanPanelConfig
+    from drivers.haas.schema import HaasLinkConfig
     from drivers.linuxcnc.schema import LinuxCncLinkConfig
+    from drivers.lsv2.schema import Lsv2LinkConfig
     from drivers.modbus.schema import ModbusLinkConfig
     from drivers.opcua.schema import OpcUaLinkConfig
     from drivers.serial.schema import SerialLinkConfig
+    from drivers.sinumerik.schema import SinumerikLinkConfig
 
     out = [header("daemon.yaml", "daemon/config.py, daemon/machines/setup.py and the link "
                                  "schemas in drivers/*/schema.py"),
@@ -23,8 +26,13 @@ def daemon_yaml() -> str:
            "`rumba run --config FILE --check`. Examples: `config/daemon.yaml` (a shop PC, "
            "commented), `config/examples/daemon_sim.yaml` (the simulator on this computer).\n",
            "## Keys\n", section(DaemonFile, intro="")]
-    for title, model in (("serial DNC", SerialLinkConfig), ("OPC UA", OpcUaLinkConfig),
-                         ("Modbus TCP", ModbusLinkConfig), ("LinuxCNC", LinuxCncLinkConfig)):
+    for title, model in (("serial DNC", SerialLinkConfig),
+                         ("SINUMERIK OPC UA (the control's own server)", SinumerikLinkConfig),
+                         ("HEIDENHAIN LSV2", Lsv2LinkConfig),
+                         ("Haas NGC data port", HaasLinkConfig),
+                         ("OPC UA gateway profile", OpcUaLinkConfig),
+                         ("Modbus TCP gateway profile", ModbusLinkConfig),
+                         ("LinuxCNC", LinuxCncLinkConfig)):
         out += [f"## machines[].link: {title}\n",
                 section(model, "machines[].link.")]
     out += ["## can_panel\n", section(CanPanelConfig, "can_panel.")]
