@@ -20,6 +20,8 @@ PAGES: dict[str, Callable[[], str]] = {
     "simulator-files.md": pages.errors_yaml,
     "probing-log.md": formats.probing_log,
     "centres-file.md": formats.centres_file,
+    "map-file.md": formats.linear_map,
+    "map-points.md": formats.map_points,
     "ceilings.md": formats.ceilings,
     "opcua-map.md": maps.opcua,
     "modbus-map.md": maps.modbus,

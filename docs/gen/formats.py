@@ -123,6 +123,9 @@ CEILINGS = [
     ("contracts.probing_log", "MAX_ID_CHARS", ""),
     ("contracts.centres_file", "MAX_CENTRE_ROWS", ""),
     ("contracts.centres_file", "MAX_U_UM", "µm"),
+    ("contracts.linear_map", "MAX_MAP_BYTES", "bytes"),
+    ("contracts.map_points", "MAX_POINTS", ""),
+    ("contracts.map_points", "MAX_ABS_MM", "mm"),
     ("contracts.importers.common", "MAX_IMPORT_LINES", ""),
     ("contracts.result_lines", "MAX_RESULT_MM", "mm"),
     ("contracts.result_lines", "MAX_RESULT_DEG", "°"),
@@ -142,6 +145,9 @@ FALLBACK = {
     "MAX_PROGRAM_BYTES": "size of a program `rumba sim --run` reads",
     "MAX_TOKEN_FILE_BYTES": "size of a token file (HMI, fleet page, webhook)",
     "MAX_U_UM": "a centre's stated uncertainty `u_um`",
+    "MAX_MAP_BYTES": "size of a map file `rumba map --map` reads",
+    "MAX_POINTS": "points of a `rumba map --predict` file",
+    "MAX_ABS_MM": "a commanded coordinate of a `rumba map --predict` point",
     "MAX_LOG_BYTES": "size of a probing log or centres file",
     "MAX_LINE_BYTES": "length of one line of a probing log or centres file",
     "MAX_LOG_ROWS": "touch rows of a probing log",
@@ -217,4 +223,43 @@ def measured() -> str:
         "(or `python -m benchmarks NAME`) runs them again on yours. Accuracy claims rest on "
         "Monte Carlo runs over seeds; each states its N.\n",
         includes or "No benchmark result is recorded yet.",
+    ])
+
+
+def linear_map() -> str:
+    import contracts.linear_map as lm
+    from docs.gen.schemas import section
+
+    text = section(lm.LinearMapFile, intro="")
+    # the model's field is schema_ (a pydantic name); the file's key is "schema"
+    text = text.replace("`schema_`", "`schema`")
+    return "\n".join([
+        header("Linear-axis map file", "contracts/linear_map.py"),
+        "The map of the linear axes as `rumba map --json` writes it (and `map.json` of "
+        "`--report`, identical); `rumba map --map` reads it back to predict or to re-draw the "
+        f"report. JSON, UTF-8, at most {lm.MAX_MAP_BYTES // 2**20} MiB; the first key is "
+        f"`\"schema\": \"{lm.SCHEMA}\"`, and a file with another schema, an unknown key or a "
+        "wrong type is refused in one line naming the file and the key. JSON has no NaN: a "
+        "number that is not finite (a σ without degrees of freedom) is written as `null`.\n",
+        "## Conventions\n",
+        _module_doc(lm),
+        "## Keys\n",
+        text,
+    ])
+
+
+def map_points() -> str:
+    import contracts.map_points as mp
+
+    return "\n".join([
+        header("Map points and predictions", "contracts/map_points.py"),
+        "`rumba map --predict POINTS.csv --out PRED.csv` (with `--map MAP.json` or the "
+        "placements) writes the volumetric error the map predicts at commanded points. The "
+        "points file's header is exactly:\n",
+        f"```text\n{','.join(mp.POINTS_HEADER)}\n```\n",
+        f"and the predictions file's:\n\n```text\n{','.join(mp.PREDICTION_HEADER)}\n```\n",
+        f"At most {mp.MAX_POINTS:,}".replace(",", " ") + " points, each coordinate within "
+        + f"±{mp.MAX_ABS_MM:g} mm.\n",
+        "## Reading and writing rules\n",
+        _module_doc(mp),
     ])

@@ -14,8 +14,9 @@ def opcua() -> str:
     rows = [[code(n.role), code(n.path), n.kind, n.writer, cell(n.doc)] for n in s.NODES]
     return "\n".join([
         header("OPC UA address map", "contracts/opcua_space.py"),
-        "What the controller's OPC UA server offers for `transport: opcua` (the daemon is the "
-        "client). String node ids in the namespace "
+        "The **gateway profile**: what a PLC's or an edge box's OPC UA server implements for "
+        "`transport: opcua` (the daemon is the client); no control ships it — a SINUMERIK as "
+        "delivered is `transport: sinumerik`, its own server. String node ids in the namespace "
         f"{code(s.NAMESPACE_URI)}, SINUMERIK-style: the handshake and the touch counter are R "
         "parameters of channel 1 (Double, as on an 840D), the results channel GUD arrays, "
         "program handling a method set. Every id can be replaced per machine in the link's "
@@ -37,8 +38,9 @@ def modbus() -> str:
             in m.SLOT_LAYOUT]
     return "\n".join([
         header("Modbus TCP register map", "contracts/modbus_map.py"),
-        "What the controller (or its gateway) serves for `transport: modbus` (the daemon is the "
-        f"client). Map id {m.MAP_ID:#06x}, version {m.MAP_VERSION}. All data are holding "
+        "The **gateway profile**: what the control's PLC or a gateway beside it serves for "
+        "`transport: modbus` (the daemon is the client); rumba's own map, which no control "
+        f"ships. Map id {m.MAP_ID:#06x}, version {m.MAP_VERSION}. All data are holding "
         "registers (function codes 3 read, 6/16 write), protocol addresses 0-based (Modicon "
         "reference = address + 40001) relative to the link's `base_address`. Byte order "
         "big-endian inside a register; 32-bit values high word first (ABCD). Positions are "
