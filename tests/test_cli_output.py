@@ -1,6 +1,6 @@
-"""What the CLI prints for people: the README's `rumba verify` example runs as shipped (against
-`rumba sim --serve`), `rumba gcode` reports a real safety margin, the demo gives every value its
-unit, the self-check table names its columns in full, spans read the same everywhere."""
+"""What the CLI prints for people: the first tutorial's `rumba verify` example runs as shipped
+(against `rumba sim --serve`), `rumba gcode` reports a real safety margin, the demo gives every
+value its unit, the self-check table names its columns in full, spans read the same everywhere."""
 
 from __future__ import annotations
 

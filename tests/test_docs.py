@@ -1,6 +1,7 @@
 """The manual (docs/): its reference pages are what the code generates now, the site builds
 with every warning an error (links, anchors, includes), every shell example is run or says why
-not, the README's links reach the manual, and no page names the project's issues."""
+not, the README is short and its links reach the manual, and no page names the project's
+issues."""
 
 from __future__ import annotations
 
@@ -15,7 +16,8 @@ import pytest
 from tests.docs_examples import DOCS, KINDS, ROOT, blocks, make_recipe, pages, run_page
 
 SHELL = ("sh", "bash", "shell", "console")
-READMES = [ROOT / "README.md", DOCS / "README.next.md"]
+README = ROOT / "README.md"
+README_MAX_LINES = 250  # what a newcomer reads in five minutes; the rest is the manual's
 
 
 def test_reference_pages_are_what_the_code_generates_now():
@@ -48,9 +50,7 @@ def test_site_builds_with_warnings_as_errors(tmp_path):
 
 def test_every_shell_example_is_run_or_says_why_not():
     problems = []
-    for path in [*pages(), DOCS / "README.next.md"]:
-        if not path.exists():
-            continue
+    for path in [*pages(), README]:
         for b in blocks(path):
             if b.lang in SHELL:
                 if b.kind not in KINDS or b.kind == "stdin":
@@ -79,25 +79,26 @@ def _covered(b) -> list[str]:
 
 def test_no_page_names_the_projects_issues():
     found = [f"{p.relative_to(ROOT)}:{n}: {line.strip()}"
-             for p in [*pages(), DOCS / "README.next.md"] if p.exists()
+             for p in [*pages(), README]
              for n, line in enumerate(p.read_text(encoding="utf-8").splitlines(), 1)
              if re.search(r"\bissues? \d+", line, re.I)]
     assert found == []
 
 
-@pytest.mark.parametrize("readme", READMES, ids=lambda p: p.name)
-def test_the_readme_links_resolve(readme):
-    """Relative links and images of a README reach a file (a manual page, a picture)."""
-    if not readme.exists():
-        pytest.skip(f"{readme.name} not written")
-    text = readme.read_text(encoding="utf-8")
+def test_the_readme_links_resolve_and_lead_to_the_first_check():
+    """Relative links and images of the README reach a file (a manual page, a picture), and a
+    newcomer's path starts there: the README links the first tutorial."""
+    text = README.read_text(encoding="utf-8")
     links = re.findall(r"\]\(([^)\s]+)\)", text) + re.findall(r'src="([^"]+)"', text)
     local = [link.split("#")[0] for link in links if not re.match(r"[a-z]+:", link)]
-    # README.next.md is written for the repository's root, where it will replace README.md
     missing = [link for link in local if link and not (ROOT / link).exists()]
     assert missing == []
-    if readme.name == "README.next.md":  # it lives in docs/ until it is swapped in: from root
-        assert any(link.endswith("docs/tutorials/first-check.md") for link in local)
+    assert "docs/tutorials/first-check.md" in local
+
+
+def test_the_readme_is_short():
+    lines = README.read_text(encoding="utf-8").splitlines()
+    assert len(lines) <= README_MAX_LINES, f"README.md: {len(lines)} lines"
 
 
 def _runnable(path: Path) -> bool:

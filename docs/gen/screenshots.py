@@ -78,11 +78,11 @@ async def _page(cdp, sid: str, url: str, shot: Path, height: int = 900) -> None:
 
 
 def _readme_html(work: Path) -> Path:
-    """README.next.md rendered as GitHub would show it (Python-Markdown, images from the
+    """README.md rendered as GitHub would show it (Python-Markdown, images from the
     repository's root)."""
     import markdown
 
-    body = markdown.markdown((ROOT / "docs/README.next.md").read_text(encoding="utf-8"),
+    body = markdown.markdown((ROOT / "README.md").read_text(encoding="utf-8"),
                              extensions=["tables", "fenced_code"])
     page = work / "readme.html"
     page.write_text(f"<!doctype html><meta charset=utf-8><base href='{ROOT.as_uri()}/'>"
