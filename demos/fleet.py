@@ -28,6 +28,7 @@ import yaml
 from contracts.jobs import VERDICT_CODES
 from demos.e2e import CONFIG, ERRORS, MACHINE, PLAN, ROOT, stop_process
 from demos.limits import tolerances
+from demos.progress import RunProgress
 
 ARTEFACT = "artefacts/thesis_4ball.yaml"
 BAUD = 115_200  # a common DNC rate
@@ -133,14 +134,15 @@ ENDED = ("DONE", "FAILED", "ABORTED", "INTERRUPTED")
 
 async def runs_ended(hmis: dict[str, str], token: str,
                      procs: dict[str, asyncio.subprocess.Process] | None = None,
-                     stall_s: float = STALL_S, before: dict[str, str | None] | None = None
-                     ) -> dict[str, dict]:
+                     stall_s: float = STALL_S, before: dict[str, str | None] | None = None,
+                     progress: RunProgress | None = None) -> dict[str, dict]:
     """Wait on each daemon's own state of its run (its HMI's /api/status, bearer token) until
     every machine's run has ended; the statuses. A run that ends FAILED, ABORTED or
     INTERRUPTED, or a daemon that exits, fails at once with the reason (``DemoFailed``); a
     slow run is waited for as long as its touches or states move (``DemoStalled`` only after
     ``stall_s`` without any change): a busy computer is slow, not stuck. ``before``: each
-    machine's run id before the starts (default none: fresh journals)."""
+    machine's run id before the starts (default none: fresh journals); ``progress`` is told
+    every status read (a line per pose)."""
     import aiohttp
 
     started: dict[str, str] = {}
@@ -155,6 +157,8 @@ async def runs_ended(hmis: dict[str, str], token: str,
             for name, url in hmis.items():
                 async with http.get(url + "api/status") as r:
                     now[name] = (await r.json())[name]
+                if progress is not None:
+                    progress.update(name, now[name])
             for name, st in now.items():
                 if st["run_id"] and st["run_id"] != (before or {}).get(name):
                     started[name] = st["run_id"]
@@ -280,7 +284,8 @@ async def demo(time_scale: float, out: Path, stay: bool) -> int:
             ctrl.raise_start_request()
         # each daemon's own run state first (a failed run ends the demo at once, naming why),
         # then the fleet store the journals drain to
-        await runs_ended(hmis, token, dict(zip(ctrls, procs, strict=True)))
+        await runs_ended(hmis, token, dict(zip(ctrls, procs, strict=True)),
+                         progress=RunProgress(t1))
         fleet = await fleet_in_store(pg.dsn, list(ctrls), lambda: [
             (len(c.touches), c.state) for c in ctrls.values()])
         for name, c in ctrls.items():
