@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: install demo demo-hmi test test-portable test-linuxcnc demo-linuxcnc demo-compensate demo-linuxcnc-head demo-fleet linuxcnc-up linuxcnc-down lint bench golden peers clean
+.PHONY: install docs demo demo-hmi test test-portable test-linuxcnc demo-linuxcnc demo-compensate demo-linuxcnc-head demo-fleet linuxcnc-up linuxcnc-down lint bench golden peers clean
 LCNC_ENV := .peers/linuxcnc.env
 
 $(BIN)/python:
@@ -13,13 +13,15 @@ $(BIN)/python:
 
 $(STAMP): pyproject.toml | $(BIN)/python
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -e '.[test]'
+	$(BIN)/python -m pip install --quiet -e '.[test,docs]'
 	@touch $(STAMP)
 
 install: $(STAMP)
 
+# PROFILE=sinumerik: the control's own OPC UA server as Siemens ships it (default: the gateway)
+PROFILE ?= gateway
 demo: $(STAMP)
-	$(BIN)/python -m demos.e2e
+	$(BIN)/python -m demos.e2e --profile $(PROFILE)
 
 # simulated CNC + daemon + HMI until Ctrl-C; prints the URL and a one-time login (HMI_PORT=0: any)
 HMI_PORT ?= 8470
@@ -79,6 +81,12 @@ demo-linuxcnc-head: $(STAMP)
 demo-fleet: $(STAMP)
 	bash .ci/install-peers.sh postgresql mosquitto
 	$(BIN)/python -m demos.fleet
+
+# The manual: reference pages regenerated from the code (docs/gen), then the site built into
+# build/site with every warning an error (links, anchors, includes). Open build/site/index.html.
+docs: $(STAMP)
+	$(BIN)/python -m docs.gen
+	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict --quiet
 
 lint: $(STAMP)
 	$(BIN)/ruff check .

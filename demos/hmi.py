@@ -169,9 +169,10 @@ async def serve(work: Path, port: int, time_scale: float) -> int:
         cfg.write_text(daemon_yaml(work, url, pki, sim.server_certificate, port))
         password = write_secrets(work)
         env = {**os.environ, "RUMBA_DEMO_OPCUA_PASSWORD": opcua_password}
-        with log.open("wb") as err:
+        with log.open("ab") as err:  # the daemon's log (rotated by it) and its stderr
             daemon = await asyncio.create_subprocess_exec(
                 sys.executable, "-m", "daemon.cli", "run", "--config", str(cfg),
+                "--log-file", str(log),
                 cwd=Path(__file__).resolve().parents[1], env=env,
                 stdout=asyncio.subprocess.PIPE, stderr=err,
                 start_new_session=True)  # Ctrl-C reaches us; we stop the daemon in order

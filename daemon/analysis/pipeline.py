@@ -72,8 +72,11 @@ def prepare(setup: MachineSetup, run_id: str,
         printed = tuple(ch.address for ch in setup.temperatures  # issue 22: DNC prints them
                         if ch.source == "controller"
                         and getattr(setup.link, "transport", "") == "serial")
+        from drivers.registry import HANDSHAKE  # the link reads the controller's variables
+
         g = generate(setup.machine, setup.machine_file, setup.artefact, setup.plan,
-                     setup.dialect, targets, printed)
+                     setup.dialect, targets, printed,
+                     handshake=getattr(setup.link, "transport", "") in HANDSHAKE)
         for name in g.aux_files:  # they become files on the controller (and next to `gcode -o`)
             plain_name(name, f"{setup.dialect} auxiliary file")
     except SafetyError as e:

@@ -9,6 +9,7 @@ import time
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from contracts.controller_kinematics import ControllerKinematics
 from daemon.compensation import journal as cj
@@ -146,21 +147,40 @@ def _check_hal(setup: MachineSetup, spec: ControllerKinematics, store: Store) ->
     return True
 
 
-def _write(family: str, reports_dir: Path, out: CompensationOutput, by: str, local: bool
-           ) -> tuple[Path, str]:
-    """Program/page for the record, then the controller itself where rumba can reach it."""
+def _write(family: str, reports_dir: Path, out: CompensationOutput, by: str, local: bool,
+           link: Any = None) -> tuple[Path, str]:
+    """Program/page for the record, then the controller itself where rumba can reach it
+    (``link``: the machine's link section; a SINUMERIK's file system takes the program)."""
     try:
         path = write_program(out, reports_dir)
     except OSError as e:  # the row is reserved: journal it as a failed write
         raise ApplyError(f"{out.filename} not written: {e}") from None
     if local:
         note = hal_write(out.values)
+    elif getattr(link, "transport", "") == "sinumerik":
+        note = _send_to_sinumerik(link, out.text, path, by)
     else:
         note = (f"{family}: the operator loads/enters {path.name} on the control "
                 f"(confirmed by {by})")
     # what the controller gets, address by address, kept with the journal row
     return path, note + "; writes " + ", ".join(f"{r.address}={r.written}"
                                                  for r in out.listing)
+
+
+def _send_to_sinumerik(link: Any, text: str, path: Path, by: str) -> str:
+    """The reviewed program into the control's "Part Programs" over its OPC UA file system
+    (not selected, not started: a person does that at the machine); when the control cannot
+    be reached the operator loads the file from the reports directory, as without the link."""
+    from drivers.base import LinkError
+    from drivers.sinumerik.transfer import COMPENSATION_PROGRAM, send_part_program_blocking
+
+    try:
+        name = send_part_program_blocking(link, COMPENSATION_PROGRAM, text)
+    except (LinkError, OSError) as e:
+        return (f"siemens: {path.name} NOT sent to the control ({e}): the operator loads it "
+                f"there (confirmed by {by})")
+    return (f"siemens: sent to the control's Part Programs as {name} (a copy of {path.name}): "
+            f"the operator selects it and presses NC start (confirmed by {by})")
 
 
 def _no_run(store: Store, machine: str) -> None:
@@ -263,7 +283,7 @@ def confirm(setup: MachineSetup, store: Store, reports_dir: Path, p: Proposal, b
         except cj.DecisionTaken as e:
             raise CompensationRefused(str(e)) from None
         try:
-            path, note = _write(family, reports_dir, out, by, local)
+            path, note = _write(family, reports_dir, out, by, local, setup.link)
         except ApplyError as e:
             cj.finish_apply(store, row, "refused", p.values, str(e), None)
             raise ApplyError(f"{e} (journal #{row})") from None
@@ -292,7 +312,7 @@ def rollback(setup: MachineSetup, store: Store, reports_dir: Path, by: str, *,
         local = _check_hal(setup, before, store)
         try:
             out = program_of(before, last.values, last.run_id, setup.name, rollback=True)
-            path, note = _write(spec.family, reports_dir, out, by, local)
+            path, note = _write(spec.family, reports_dir, out, by, local, setup.link)
         except (ApplyError, CompensationRefused) as e:
             row = cj.record(store, setup.name, last.run_id, spec.family, "refused", values,
                             confirmed_by=by, reason=f"{reason}: {e}")

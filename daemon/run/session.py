@@ -90,6 +90,13 @@ class Session(RunCapture):
         self.temps = TemperatureRecorder(setup.name, setup.temperatures, link, store,
                                          str(getattr(setup.link, "transport", "")))
         self.clock = RunClock()  # the current run's touch and temperature times
+        link.on_step = self._machine_step  # what the run waits for at the machine (NC start)
+
+    def _machine_step(self, text: str | None) -> None:
+        """The link says what the run waits for at the machine ("waiting for NC start …",
+        None once the program runs): the status's step while the run is busy."""
+        if self.busy:
+            self.step = text
 
     async def reconnect(self) -> None:
         """Close the link and connect it again with backoff; the status shows it up again."""
