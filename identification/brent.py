@@ -74,3 +74,58 @@ def minimize_bounded(f: Callable[[float], float], lo: float, hi: float, xatol: f
                 v, fv = u, fu
         if evals >= max_eval:
             return x, fx, evals
+
+
+RTOL_ROOT = 4.0 * 2.220446049250313e-16  # the smallest relative tolerance scipy's brentq takes
+
+
+def find_root(f: Callable[[float], float], a: float, b: float, xtol: float = 2e-12,
+              rtol: float = RTOL_ROOT, max_iter: int = 100) -> float:
+    """A zero of ``f`` in [a, b], where f(a) and f(b) differ in sign, to ``xtol + rtol·|x|``:
+    Brent's zeroin (ch. 4 of the book above) in the form scipy's ``brentq`` implements —
+    bisection, secant or inverse quadratic steps — so the same iterates and root to the last
+    bit (tests/test_brent.py). ValueError when the signs agree or f is NaN; RuntimeError when
+    ``max_iter`` steps do not converge."""
+    def value(x: float) -> float:
+        y = float(f(x))
+        if math.isnan(y):
+            raise ValueError(f"the function is NaN at {x!r}")
+        return y
+
+    xpre, xcur = float(a), float(b)
+    fpre, fcur = value(xpre), value(xcur)
+    if fpre * fcur > 0:
+        raise ValueError("f(a) and f(b) must have different signs")
+    if fpre == 0:
+        return xpre
+    if fcur == 0:
+        return xcur
+    xblk = fblk = spre = scur = 0.0  # xblk: the end that brackets the root with xcur
+    for _ in range(max_iter):
+        if fpre * fcur < 0:
+            xblk, fblk = xpre, fpre
+            spre = scur = xcur - xpre
+        if abs(fblk) < abs(fcur):  # keep the better estimate in xcur
+            xpre, xcur, xblk = xcur, xblk, xcur
+            fpre, fcur, fblk = fcur, fblk, fcur
+        delta = (xtol + rtol * abs(xcur)) / 2
+        sbis = (xblk - xcur) / 2
+        if fcur == 0 or abs(sbis) < delta:
+            return xcur
+        if abs(spre) > delta and abs(fcur) < abs(fpre):
+            if xpre == xblk:  # secant through the bracket
+                stry = -fcur * (xcur - xpre) / (fcur - fpre)
+            else:  # inverse quadratic through the last three
+                dpre = (fpre - fcur) / (xpre - xcur)
+                dblk = (fblk - fcur) / (xblk - xcur)
+                stry = -fcur * (fblk * dblk - fpre * dpre) / (dblk * dpre * (fblk - fpre))
+            if 2 * abs(stry) < min(abs(spre), 3 * abs(sbis) - delta):  # a good short step
+                spre, scur = scur, stry
+            else:
+                spre = scur = sbis
+        else:
+            spre = scur = sbis
+        xpre, fpre = xcur, fcur
+        xcur += scur if abs(scur) > delta else (delta if sbis > 0 else -delta)
+        fcur = value(xcur)
+    raise RuntimeError(f"no root to {xtol:g} in {max_iter} iterations")

@@ -26,6 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from identification.brent import find_root
 from identification.visit_blocks import (
     EIG_RCOND,
     FLOOR_UM2,
@@ -160,14 +161,12 @@ def _interval(rise: Callable[[float], float], est: float) -> tuple[float, float]
     σ̂ is skewed (a scaled χ with ~ν dof): the curvature's symmetric ± 2u at a low σ̂ is too
     short upwards; the likelihood interval is not (issue 21, bench_scatter: 2u held the true
     B repeatability in ~80-88 % of the null runs)."""
-    from scipy.optimize import brentq  # lazy, as in estimate_components
-
     def f(v: float) -> float:
         return rise(v) - CHI2_1_95
 
     lo = 0.0
     if est > ZERO and f(0.0) > 0:
-        lo = brentq(f, 0.0, est, xtol=1e-3 * max(est, ZERO))
+        lo = find_root(f, 0.0, est, xtol=1e-3 * max(est, ZERO))
     hi, top = est, max(est, 1.0)
     while hi < MAX_SIGMA:
         hi = min(2.0 * max(hi, top / 2), MAX_SIGMA)
@@ -175,7 +174,7 @@ def _interval(rise: Callable[[float], float], est: float) -> tuple[float, float]
             break
     else:
         return lo, math.inf
-    hi = brentq(f, est, hi, xtol=1e-3 * max(est, ZERO))
+    hi = find_root(f, est, hi, xtol=1e-3 * max(est, ZERO))
     return lo, hi
 
 

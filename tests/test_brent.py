@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from scipy.optimize import minimize_scalar
 
-from identification.brent import minimize_bounded
+from identification.brent import find_root, minimize_bounded
 
 
 def _functions() -> list[tuple[str, object, float, float]]:
@@ -42,3 +42,45 @@ def test_same_steps_as_scipy(xatol):
 def test_an_empty_interval_is_refused():
     with pytest.raises(ValueError, match="empty interval"):
         minimize_bounded(lambda x: x, 1.0, 1.0)
+
+
+def _roots() -> list[tuple[str, object, float, float]]:
+    rng = np.random.default_rng(5)
+    out = [
+        ("linear", lambda x: 2.0 * x - 1.0, 0.0, 3.0),
+        ("cubic", lambda x: x**3 - 2.0 * x - 5.0, 2.0, 3.0),
+        ("root at an end", lambda x: x - 1.0, 1.0, 4.0),
+        ("steep", lambda x: math.expm1(20.0 * (x - 0.37)), 0.0, 1.0),
+        ("flat near the root", lambda x: (x - 0.8) ** 5, 0.0, 3.0),
+        ("a likelihood rise minus χ²₁(95 %)", lambda s: 14 * (math.log(s / 0.6) + 0.36 / s**2
+                                                              - 1.0) - 3.841, 0.6, 4.0),
+    ]
+    for k in range(12):
+        r = rng.uniform(-3, 3)
+        c = rng.normal(size=3)
+        out.append((f"random {k}", lambda x, r=r, c=c: (x - r) * (1.5 + math.tanh(
+            float(np.polyval(c, x)))), r - rng.uniform(0.1, 3), r + rng.uniform(0.1, 3)))
+    return out
+
+
+@pytest.mark.parametrize("xtol", [2e-12, 1e-3, 1e-6])
+def test_same_root_as_scipy_brentq(xtol):
+    from scipy.optimize import brentq
+
+    for name, f, lo, hi in _roots():
+        calls: list[float] = []
+        try:
+            ref, info = brentq(f, lo, hi, xtol=xtol, full_output=True)
+        except RuntimeError:  # not converged in 100 iterations: neither may this one
+            with pytest.raises(RuntimeError, match="no root"):
+                find_root(f, lo, hi, xtol=xtol)
+            continue
+        x = find_root(lambda v, f=f, calls=calls: calls.append(v) or f(v), lo, hi, xtol=xtol)
+        assert x == ref and len(calls) == info.function_calls, name
+
+
+def test_a_root_not_bracketed_or_nan_is_refused():
+    with pytest.raises(ValueError, match="different signs"):
+        find_root(lambda x: x * x + 1.0, -1.0, 1.0)
+    with pytest.raises(ValueError, match="NaN"):
+        find_root(lambda x: math.nan if x > 0.5 else x - 1.0, 0.0, 2.0)
