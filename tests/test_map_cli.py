@@ -188,7 +188,7 @@ def test_a_chip_on_a_ball_is_left_out_of_the_map(files, tmp_path):
     r = rows[k]
     rows[k] = replace(r, x_mm=r.x_mm - r.dir_x * 0.02, y_mm=r.y_mm - r.dir_y * 0.02)
     write_log(tmp_path / "chip.csv", rows)
-    code, so, se = run_cli(["map", "--machine", str(MACHINE), "--placement",
+    code, _, se = run_cli(["map", "--machine", str(MACHINE), "--placement",
                             str(tmp_path / "chip.csv"), out[0][1], "--placement", *out[1],
                             "--max-degree", "2", "--json", str(tmp_path / "m.json")])
     assert code == 0, se

@@ -80,8 +80,12 @@ def _check_args(args: argparse.Namespace) -> None:
                           "--placement")
     if bool(args.predict) != bool(args.out):
         raise _user_error("--predict POINTS.csv and --out PRED.csv go together")
-    if args.placement and not (args.json or args.predict):
-        raise _user_error("nothing to write: give --json OUT.json and/or --predict/--out")
+    if args.placement and not (args.json or args.predict or args.report):
+        raise _user_error("nothing to write: give --json OUT.json, --report DIR and/or "
+                          "--predict/--out")
+    if args.map and not (args.predict or args.report):
+        raise _user_error("--map: nothing to do: give --predict POINTS.csv --out PRED.csv "
+                          "and/or --report DIR")
     if not 1 <= args.max_degree <= MAX_DEGREE_CAP:
         raise _user_error(f"--max-degree: expected 1..{MAX_DEGREE_CAP}, got {args.max_degree}")
     if args.limit_um and args.config:
@@ -160,14 +164,45 @@ def render(d: LinearMapFile, console: Console) -> None:
         console.print(f"warning: {w}", markup=False, highlight=False)
 
 
+def _report_dir(report: str | None) -> None:
+    """The report directory made and proven writable before the fit (minutes) runs."""
+    if report is None:
+        return
+    from daemon.reports.map_report import check_report_dir
+
+    try:
+        check_report_dir(report)
+    except OSError as e:
+        raise _user_error(f"--report {report}: cannot write the report there: "
+                          f"{e.strerror or e}") from None
+
+
+def write_report(report: str | None, doc: LinearMapFile, model: MapModel) -> None:
+    if report is None:
+        return
+    from daemon.reports.map_report import write_map_report  # matplotlib: only when asked
+
+    try:
+        paths = write_map_report(report, doc, model)
+    except OSError as e:
+        raise _user_error(f"--report {report}: cannot write the report: "
+                          f"{e.strerror or e}") from None
+    print(f"wrote the map report {paths['html']} (and {paths['pdf'].name}, "
+          f"{paths['json'].name})")
+
+
 def cmd_map(args: argparse.Namespace) -> int:
     """`rumba map` (``daemon.cli.parsers.map``)."""
     _check_args(args)
+    _report_dir(args.report)
     if args.map:
         machine, _ = load_machine(args.machine)
-        model = map_model(machine, load_map(args.map), args.map)
-        n = predict_points(model, args.predict, args.out)
-        print(f"wrote {n} predictions to {args.out}")
+        saved = load_map(args.map)
+        model = map_model(machine, saved, args.map)
+        if args.predict:
+            n = predict_points(model, args.predict, args.out)
+            print(f"wrote {n} predictions to {args.out}")
+        write_report(args.report, saved, model)
         return 0
     from daemon.analysis.linear_map import run_map  # the fit's modules (scipy): when it runs
 
@@ -196,4 +231,5 @@ def cmd_map(args: argparse.Namespace) -> int:
     if args.predict:
         n = predict_points(run.model, args.predict, args.out)
         print(f"wrote {n} predictions to {args.out}")
+    write_report(args.report, run.document, run.model)
     return 0

@@ -31,6 +31,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--map", metavar="MAP.json", help="a map written by `rumba map --json` "
                    "(instead of --placement): predict from it")
     p.add_argument("--json", metavar="OUT.json", help="write the map (contracts/linear_map.py)")
+    p.add_argument("--report", metavar="DIR",
+                   help="write the map report into DIR: map.html, map.pdf (A4, for filing) and "
+                        "map.json (the map, as --json); with --map: the report of a saved map")
     p.add_argument("--predict", metavar="POINTS.csv",
                    help="commanded points, header x_mm,y_mm,z_mm (rotary axes at zero)")
     p.add_argument("--out", metavar="PRED.csv", help="--predict: where the predictions go")
