@@ -34,14 +34,7 @@ def open_regular(path: Path | str, error: type[Exception]) -> BinaryIO:
     read. Opened non-blocking and checked again on the open descriptor, so a FIFO swapped in
     between the two checks cannot block either."""
     name = str(path)
-    try:
-        mode = os.stat(path).st_mode
-    except OSError as e:
-        raise error(f"{name}: cannot read: {e.strerror or e}") from None
-    except ValueError as e:  # a NUL in the path
-        raise error(f"{name}: cannot read: {e}") from None
-    if not stat.S_ISREG(mode):
-        raise error(f"{name}: is {_kind(mode)}: expected a regular file")
+    check_regular(path, error)
     try:
         fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_NOCTTY | os.O_CLOEXEC)
     except OSError as e:
@@ -54,6 +47,21 @@ def open_regular(path: Path | str, error: type[Exception]) -> BinaryIO:
     except BaseException:
         os.close(fd)
         raise
+
+
+def check_regular(path: Path | str, error: type[Exception]) -> None:
+    """One ``error`` line unless ``path`` is a regular file that exists (by its metadata alone,
+    nothing opened): the refusal ``open_regular`` gives, for a command to give it before it
+    loads anything (its argument checks)."""
+    name = str(path)
+    try:
+        mode = os.stat(path).st_mode
+    except OSError as e:
+        raise error(f"{name}: cannot read: {e.strerror or e}") from None
+    except ValueError as e:  # a NUL in the path
+        raise error(f"{name}: cannot read: {e}") from None
+    if not stat.S_ISREG(mode):
+        raise error(f"{name}: is {_kind(mode)}: expected a regular file")
 
 
 def read_bounded(path: Path | str, error: type[Exception], max_bytes: int,

@@ -191,7 +191,7 @@ class StrictModel(BaseModel):
     only a YAML true/false (pydantic would take 'yes', 'on', 1, '1' — ``unattended: 'yes'``
     would switch on unattended compensation from a quoted string)."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False, defer_build=True)
 
     @field_validator("*", mode="before")
     @classmethod

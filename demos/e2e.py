@@ -36,6 +36,7 @@ import yaml
 
 from contracts.jobs import VERDICT_CODES
 from demos.limits import tolerances
+from demos.progress import RunProgress, watch
 
 ROOT = Path(__file__).resolve().parents[1]
 CONFIG = ROOT / "config"
@@ -137,10 +138,12 @@ async def demo(time_scale: float, work: Path, profile: str = "gateway") -> int:
     daemon = await asyncio.create_subprocess_exec(
         sys.executable, "-m", "daemon.cli", "run", "--config", str(cfg), cwd=ROOT, env=env,
         stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.DEVNULL)
+    watcher = None
     try:
         hmi = await _hmi(daemon.stdout, 60)
         print(f"daemon up ({time.monotonic() - t0:.1f} s); the CNC raises its start-of-shift "
               "request")
+        watcher = asyncio.create_task(watch({"demo-hmc": hmi}, token, RunProgress(t0)))
         ctrl.raise_start_request()
         async with asyncio.timeout(240):
             while not (ctrl.done and ctrl.verdict):
@@ -171,6 +174,8 @@ async def demo(time_scale: float, work: Path, profile: str = "gateway") -> int:
         print(f"demo wall time {time.monotonic() - t0:.1f} s")
         return 0 if verdict in ("PASS", "WARN", "FAIL") else 1
     finally:
+        if watcher is not None:
+            watcher.cancel()
         await stop_process(daemon)
         await sim.stop()
 

@@ -19,7 +19,7 @@ import signal
 import sys
 import tempfile
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Coroutine
 from pathlib import Path
 from typing import Any
 
@@ -28,6 +28,7 @@ import yaml
 from contracts.jobs import VERDICT_CODES
 from demos.e2e import CONFIG, ERRORS, MACHINE, PLAN, ROOT, stop_process
 from demos.limits import tolerances
+from demos.progress import RunProgress
 
 ARTEFACT = "artefacts/thesis_4ball.yaml"
 BAUD = 115_200  # a common DNC rate
@@ -40,6 +41,10 @@ MACHINES = (("hmc-fanuc", "fanuc", "opcua"), ("mill-siemens", "siemens", "modbus
 
 async def start_cnc(dialect: str, transport: str, time_scale: float) -> tuple[Any, dict, Any]:
     """A simulated control behind its real front-end: (controller, link section, stop)."""
+    if transport == "modbus":
+        remote = await RemoteCnc.start(dialect, time_scale)
+        return remote, {"transport": "modbus", "host": remote.host, "port": remote.port}, \
+            remote.stop
     from simulators.controller import VirtualController
     from simulators.truth import TruthModel
 
@@ -50,12 +55,6 @@ async def start_cnc(dialect: str, transport: str, time_scale: float) -> tuple[An
 
         fe = OpcUaFrontend(ctrl, security="none")  # loopback demo; real controls: SignAndEncrypt
         return ctrl, {"transport": "opcua", "url": await fe.start(), "security": "none"}, fe.stop
-    if transport == "modbus":
-        from simulators.frontends.modbus import ModbusFrontend
-
-        fe = ModbusFrontend(ctrl)
-        port = await fe.start("127.0.0.1", 0)
-        return ctrl, {"transport": "modbus", "host": "127.0.0.1", "port": port}, fe.stop
     from simulators.frontends.serial import SerialFrontend, SerialSettings
 
     # A 4 KiB receive buffer (the simulator's default is a pessimistic 256 B): the simulated
@@ -65,6 +64,57 @@ async def start_cnc(dialect: str, transport: str, time_scale: float) -> tuple[An
     url = await fe.open_pty()  # a real tty device, as a DNC line on a USB adapter
     return ctrl, {"transport": "serial", "url": url, "baudrate": BAUD, "framing": "7E1",
                   "request_machine": ctrl.machine_id, "tx_chunk_bytes": 64}, fe.close
+
+
+class RemoteCnc:
+    """A simulated control in a process of its own (``rumba sim --serve modbus``), as a real
+    control is a machine of its own. Modbus is one request and one answer per register access
+    (four per streamed block): in the demo's process, sharing one event loop with the serial
+    control's byte pacing and the OPC UA server, every answer waited its turn — the stream
+    crawled at ~9 ms a request while the serial run went on, 0.6 ms once it had ended."""
+
+    touches: tuple = ()  # not observed from here: the daemons' own statuses show the progress
+    state = "served"
+
+    def __init__(self, proc: asyncio.subprocess.Process, host: str, port: int) -> None:
+        self.proc, self.host, self.port = proc, host, port
+
+    @classmethod
+    async def start(cls, dialect: str, time_scale: float) -> RemoteCnc:
+        proc = await asyncio.create_subprocess_exec(
+            sys.executable, "-m", "daemon.cli", "sim", "--machine", str(CONFIG / MACHINE),
+            "--artefact", str(CONFIG / ARTEFACT), "--errors", str(CONFIG / ERRORS),
+            "--serve", "modbus", "--time-scale", f"{time_scale:g}", "--dialect", dialect,
+            cwd=ROOT, stdin=asyncio.subprocess.PIPE, stdout=asyncio.subprocess.PIPE)
+        assert proc.stdout is not None
+        while not (line := (await proc.stdout.readline()).decode()).startswith("listening:"):
+            if not line:
+                raise DemoFailed(f"the simulated {dialect} control exited (code "
+                                 f"{await proc.wait()})")
+        asyncio.get_running_loop().create_task(_drain(proc.stdout))
+        host, port = line.split("modbus-tcp://", 1)[1].split()[0].rsplit(":", 1)
+        return cls(proc, host, int(port))
+
+    def raise_start_request(self) -> None:
+        assert self.proc.stdin is not None
+        self.proc.stdin.write(b"request\n")
+
+    async def verdict(self) -> int:
+        """The VERDICT register the daemon wrote back, read over the control's own link."""
+        from pymodbus.client import AsyncModbusTcpClient
+
+        from contracts.modbus_map import addr
+
+        client = AsyncModbusTcpClient(self.host, port=self.port)
+        try:
+            await client.connect()
+            rr = await client.read_holding_registers(addr("VERDICT"), count=1, device_id=1)
+            return int(rr.registers[0])
+        finally:
+            client.close()
+
+    async def stop(self) -> None:
+        await stop_process(self.proc)
 
 
 def daemon_yaml(work: Path, name: str, dialect: str, link: dict, dsn: str, mqtt_port: int,
@@ -133,14 +183,15 @@ ENDED = ("DONE", "FAILED", "ABORTED", "INTERRUPTED")
 
 async def runs_ended(hmis: dict[str, str], token: str,
                      procs: dict[str, asyncio.subprocess.Process] | None = None,
-                     stall_s: float = STALL_S, before: dict[str, str | None] | None = None
-                     ) -> dict[str, dict]:
+                     stall_s: float = STALL_S, before: dict[str, str | None] | None = None,
+                     progress: RunProgress | None = None) -> dict[str, dict]:
     """Wait on each daemon's own state of its run (its HMI's /api/status, bearer token) until
     every machine's run has ended; the statuses. A run that ends FAILED, ABORTED or
     INTERRUPTED, or a daemon that exits, fails at once with the reason (``DemoFailed``); a
     slow run is waited for as long as its touches or states move (``DemoStalled`` only after
     ``stall_s`` without any change): a busy computer is slow, not stuck. ``before``: each
-    machine's run id before the starts (default none: fresh journals)."""
+    machine's run id before the starts (default none: fresh journals); ``progress`` is told
+    every status read (a line per pose)."""
     import aiohttp
 
     started: dict[str, str] = {}
@@ -155,6 +206,8 @@ async def runs_ended(hmis: dict[str, str], token: str,
             for name, url in hmis.items():
                 async with http.get(url + "api/status") as r:
                     now[name] = (await r.json())[name]
+                if progress is not None:
+                    progress.update(name, now[name])
             for name, st in now.items():
                 if st["run_id"] and st["run_id"] != (before or {}).get(name):
                     started[name] = st["run_id"]
@@ -262,9 +315,9 @@ async def demo(time_scale: float, out: Path, stay: bool) -> int:
             ctrl, link, stop = await start_cnc(dialect, transport, time_scale)
             stack.push_async_callback(stop)
             cfg = daemon_yaml(out / name, name, dialect, link, pg.dsn, mqtt.port, token_file)
-            if transport != "opcua":  # what an operator copies to the control once (FN 16
+            if transport == "serial":  # what an operator copies to the control once (FN 16
                 setup = load_daemon_config(cfg).machines[name]  # format files: no file
-                ctrl.files.update(prepare(setup, "setup").job.files)  # transfer on DNC/Modbus)
+                ctrl.files.update(prepare(setup, "setup").job.files)  # transfer on DNC)
             ctrls[name] = ctrl
             # The daemon's log, rotated by the daemon; its stderr (a start-up error) appended
             log_file = out / name / "daemon.log"
@@ -283,11 +336,13 @@ async def demo(time_scale: float, out: Path, stay: bool) -> int:
             ctrl.raise_start_request()
         # each daemon's own run state first (a failed run ends the demo at once, naming why),
         # then the fleet store the journals drain to
-        await runs_ended(hmis, token, dict(zip(ctrls, procs, strict=True)))
+        await runs_ended(hmis, token, dict(zip(ctrls, procs, strict=True)),
+                         progress=RunProgress(t1))
         fleet = await fleet_in_store(pg.dsn, list(ctrls), lambda: [
             (len(c.touches), c.state) for c in ctrls.values()])
         for name, c in ctrls.items():
-            cnc = VERDICT_NAMES.get(int(c.verdict), c.verdict) if c.verdict else "none"
+            code = await c.verdict() if isinstance(c, RemoteCnc) else c.verdict
+            cnc = VERDICT_NAMES.get(int(code), code) if code else "none"
             print(f"  {name}: verdict on the CNC {cnc}")
         print(f"three checks done and in the fleet store in {time.monotonic() - t1:.1f} s; "
               f"MQTT messages seen: {json.dumps(dict(sorted(counts.items())))}")
@@ -315,6 +370,31 @@ async def demo(time_scale: float, out: Path, stay: bool) -> int:
         print("stopped: daemons, simulated CNCs, fleet page, mosquitto, PostgreSQL")
 
 
+async def interruptible(work: Coroutine[Any, Any, int]) -> int:
+    """Run ``work`` with Ctrl-C cancelling it. Ctrl-C reaches every process of the terminal's
+    process group at once, the daemons and the simulated controls too, so what the demo was
+    waiting on (a daemon's HMI) may fail before the cancellation lands: once Ctrl-C was pressed,
+    whatever ``work`` ends with is that interruption (``KeyboardInterrupt``), not a failure."""
+    loop = asyncio.get_running_loop()
+    task = asyncio.ensure_future(work)
+    pressed = []
+
+    def on_sigint() -> None:  # once: a second Ctrl-C must not cut the clean-up short
+        if not pressed:
+            task.cancel()
+        pressed.append(True)
+
+    loop.add_signal_handler(signal.SIGINT, on_sigint)
+    try:
+        return await task
+    except BaseException:
+        if pressed:
+            raise KeyboardInterrupt from None
+        raise
+    finally:
+        loop.remove_signal_handler(signal.SIGINT)
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m demos.fleet", description=__doc__)
     ap.add_argument("--time-scale", type=float, default=0.02,
@@ -327,11 +407,13 @@ def main(argv: list[str] | None = None) -> int:
     out = (args.out or Path(tempfile.mkdtemp(prefix="rumba-fleet-demo-"))).resolve()
     out.mkdir(parents=True, exist_ok=True)
     try:
-        return asyncio.run(demo(args.time_scale, out, not args.exit))
+        return asyncio.run(interruptible(demo(args.time_scale, out, not args.exit)))
     except (DemoStalled, DemoFailed) as e:
         print(f"demo-fleet: {e} (in {out})", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
+        print(f"demo-fleet: interrupted; everything it started is stopped (files in {out})",
+              file=sys.stderr)
         return 130
 
 

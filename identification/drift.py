@@ -43,8 +43,8 @@ import math
 from dataclasses import dataclass, field, replace
 
 import numpy as np
-from scipy.optimize import minimize_scalar
 
+from identification.brent import minimize_bounded
 from identification.drift_lin import Lin, fwls, lin_at, solve
 from identification.drift_lin import selection_share as _selection_share
 from identification.drift_shape import DriftModel, Touches, shape_values
@@ -271,8 +271,8 @@ def _profile(proj: _Projector, t: np.ndarray, model: DriftModel, n_base: int,
     vals = [bic_at(g) for g in grid]
     i = int(np.argmin(vals))
     a, b = grid[max(i - 1, 0)], grid[min(i + 1, _GRID - 1)]
-    r = minimize_scalar(bic_at, bounds=(a, b), method="bounded", options={"xatol": 1e-3})
-    x, v = (float(r.x), float(r.fun)) if r.fun < vals[i] else (float(grid[i]), vals[i])
+    rx, rf, _ = minimize_bounded(bic_at, float(a), float(b), xatol=1e-3)
+    x, v = (rx, rf) if rf < vals[i] else (float(grid[i]), vals[i])
     return replace(model, tau_s=float(math.exp(x))), v
 
 

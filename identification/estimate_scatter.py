@@ -121,7 +121,8 @@ def visit_sandwich(machine: Machine, artefact: Artefact, layout: Layout, p: np.n
     centre = {2 + a: float(sig_um[a]) for a in range(3)} if given else {}
     start = [5.0, 5.0, *sig_um]
     # the tests' p-values are reported (``Estimate.visit_scatter``), never a gate
-    fit = estimate_components(b, names, start, test=(0, 1), fixed=centre or None)
+    fit = estimate_components(b, names, start, test=(0, 1), fixed=centre or None,
+                              intervals=False)  # σ, u(σ) and p are reported, not the interval
     comps = {n: (float(fit.sigma[i]), float(fit.std[i]), float(fit.p_value[i]))
              for i, n in enumerate(names)}
     stated = {i: float(stated_urad[a]) for i, a in enumerate(machine.rotary_axes[:2])

@@ -237,7 +237,8 @@ def _conjugate(r0: np.ndarray, m: np.ndarray) -> np.ndarray:
     return h @ m @ h.T
 
 
-def _location_htm(axis: Axis, links: Mapping[str, float], n: int) -> np.ndarray | None:
+def _location_htm(axis: Axis, links: Mapping[str, float]) -> np.ndarray | None:
+    """(1, 4, 4) the axis' location errors (the same for every pose: broadcast by ``@``)."""
     e = np.zeros(6)
     for name, slot in _location_slots(axis):
         v = links.get(name, 0.0)
@@ -245,7 +246,7 @@ def _location_htm(axis: Axis, links: Mapping[str, float], n: int) -> np.ndarray 
             e[slot] = v
     if not e.any():
         return None
-    m = _small_htm(np.broadcast_to(e, (n, 6)))
+    m = _small_htm(e[None, :])
     r0 = axis_frame(axis)
     return m if r0 is None else _conjugate(r0, m)
 
@@ -269,9 +270,9 @@ def axis_htm(
             m = _conjugate(r0, m)
         p = np.asarray(axis.point_mm, float)
         if p.any():
-            m = _trans(np.broadcast_to(p, (n, 3))) @ m @ _trans(np.broadcast_to(-p, (n, 3)))
+            m = _trans(p[None, :]) @ m @ _trans(-p[None, :])
     if links:
-        loc = _location_htm(axis, links, n)
+        loc = _location_htm(axis, links)
         if loc is not None:
             m = loc @ m
     if motion_error is not None:

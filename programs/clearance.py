@@ -11,6 +11,7 @@ from programs.geometry import tip_affine
 from programs.model import Program, ball_positions
 
 TOL_MM = 1e-6
+BOUND_MM = 1e-6  # a bound is trusted to this (its rounding: ~1e-13 of a few hundred mm)
 
 
 def tip_in_workpiece(prog: Program, q: np.ndarray) -> np.ndarray:
@@ -75,26 +76,51 @@ def keepout_slack(prog: Program, pa: np.ndarray, pb: np.ndarray, own: np.ndarray
     gap = seg_seg(pa_k, pb_k, top_k, bot_k).reshape(nb, n) - (r_rod + rs)[:, None]
     slacks.append(gap - np.where(is_own, 0.0, standoff) + TOL_MM)
     kinds.append(("stylus comes {gap:.3f} mm from the rod of ball {ball}", gap))
-    if stem is not None:
-        e2 = tile(stem * plan.stylus_length_mm)
-        e1 = pb_k - pa_k
-        r_st = plan.stem_radius_mm
-        gap = point_par(c_k, pa_k, e1, e2).reshape(nb, n) - r_ball[:, None] - r_st
-        slacks.append(np.where(free, np.inf, gap - standoff + TOL_MM))
-        kinds.append(("stylus stem comes {gap:.3f} mm from ball {ball}", gap))
-        gap = seg_par(top_k, bot_k, pa_k, e1, e2).reshape(nb, n) - r_rod[:, None] - r_st
-        slacks.append(np.where(is_own, np.inf, gap - standoff + TOL_MM))
-        kinds.append(("stylus stem comes {gap:.3f} mm from the rod of ball {ball}", gap))
     t = mf.table
-    hit = below_disc(pa, pb, t.surface_z_mm + t.clearance_mm + rs,
-                      t.radius_mm + t.clearance_mm + rs)
-    slacks.append(np.where(hit, -1.0, np.inf)[None, :])
-    kinds.append((f"stylus enters the table keep-out (surface z {t.surface_z_mm:g} + clearance "
-                  f"{t.clearance_mm:g} mm, radius {t.radius_mm:g} mm)", np.zeros((1, n))))
+    table = below_disc(pa, pb, t.surface_z_mm + t.clearance_mm + rs,
+                       t.radius_mm + t.clearance_mm + rs)
+    boxes = []
     for box in mf.keep_out:
         grow = rs + t.clearance_mm
         lo, hi = np.array(box.min_mm) - grow, np.array(box.max_mm) + grow
-        slacks.append(np.where(seg_box(pa, pb, lo, hi), -1.0, np.inf)[None, :])
+        boxes.append(seg_box(pa, pb, lo, hi))
+    if stem is not None:
+        # The stem's parallelograms against every ball and rod, exactly only where a pair can
+        # be a segment's tightest: a pair whose bound (its parallelogram's bounding sphere) is
+        # already looser than what the segment has got leaves the minimum and the reason as
+        # they are — the same numbers, most of the far pairs never computed.
+        got = np.minimum(np.minimum(slacks[0], slacks[1]).min(axis=0, initial=np.inf),
+                         np.where(table | np.any(boxes, axis=0), -1.0, np.inf))
+        e1, e2 = pb - pa, stem * plan.stylus_length_mm
+        mid = pa + 0.5 * e1 + 0.5 * e2
+        reach = 0.5 * (np.linalg.norm(e1, axis=1) + np.linalg.norm(e2, axis=1))
+        r_st = plan.stem_radius_mm
+        near = np.linalg.norm(mid[None] - balls_w[:, None], axis=2) - reach[None]
+        bound = np.maximum(near, 0.0) - (r_ball + r_st + standoff)[:, None] + TOL_MM
+        gap = np.full((nb, n), np.inf)
+        need = np.nonzero((~free & (bound - BOUND_MM <= got[None])).ravel())[0]
+        if need.size:
+            gap.ravel()[need] = point_par(c_k[need], pa_k[need], tile(e1)[need],
+                                          tile(e2)[need]) - np.repeat(r_ball, n)[need] - r_st
+        slacks.append(np.where(free, np.inf, gap - standoff + TOL_MM))
+        kinds.append(("stylus stem comes {gap:.3f} mm from ball {ball}", gap))
+        got = np.minimum(got, slacks[-1].min(axis=0, initial=np.inf))
+        half = 0.5 * np.linalg.norm(top - bot, axis=1)
+        near = (np.linalg.norm(mid[None] - (0.5 * (top + bot))[:, None], axis=2)
+                - reach[None] - half[:, None])
+        bound = np.maximum(near, 0.0) - (r_rod + r_st + standoff)[:, None] + TOL_MM
+        gap = np.full((nb, n), np.inf)
+        need = np.nonzero((~is_own & (bound - BOUND_MM <= got[None])).ravel())[0]
+        if need.size:
+            gap.ravel()[need] = seg_par(top_k[need], bot_k[need], pa_k[need], tile(e1)[need],
+                                        tile(e2)[need]) - np.repeat(r_rod, n)[need] - r_st
+        slacks.append(np.where(is_own, np.inf, gap - standoff + TOL_MM))
+        kinds.append(("stylus stem comes {gap:.3f} mm from the rod of ball {ball}", gap))
+    slacks.append(np.where(table, -1.0, np.inf)[None, :])
+    kinds.append((f"stylus enters the table keep-out (surface z {t.surface_z_mm:g} + clearance "
+                  f"{t.clearance_mm:g} mm, radius {t.radius_mm:g} mm)", np.zeros((1, n))))
+    for box, hit in zip(mf.keep_out, boxes, strict=True):
+        slacks.append(np.where(hit, -1.0, np.inf)[None, :])
         kinds.append((f"stylus enters keep-out box {box.name}", np.zeros((1, n))))
     every = np.concatenate(slacks, axis=0)  # (rows, n)
     row_kind = np.concatenate([np.full(len(x), i) for i, x in enumerate(slacks)])
@@ -121,10 +147,17 @@ def seg_point(a: np.ndarray, b: np.ndarray, p: np.ndarray) -> np.ndarray:
     return np.linalg.norm(a + t[:, None] * ab - p, axis=1)
 
 
+def _edges(p0: np.ndarray, e1: np.ndarray, e2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The four edges of parallelograms p0 + s·e1 + t·e2, stacked (4 N, 3): start, end."""
+    p1, p2 = p0 + e1, p0 + e2
+    p12 = p0 + e1 + e2
+    return np.concatenate([p0, p2, p0, p1]), np.concatenate([p1, p12, p2, p12])
+
+
 def point_par(c: np.ndarray, p0: np.ndarray, e1: np.ndarray, e2: np.ndarray) -> np.ndarray:
     """Distance from points c to parallelograms p0 + s·e1 + t·e2 (s, t in [0, 1])."""
-    edges = [(p0, p0 + e1), (p0 + e2, p0 + e1 + e2), (p0, p0 + e2), (p0 + e1, p0 + e1 + e2)]
-    d = np.min([seg_point(a, b, c) for a, b in edges], axis=0)
+    a, b = _edges(p0, e1, e2)
+    d = seg_point(a, b, np.tile(c, (4, 1))).reshape(4, -1).min(axis=0)  # one pass, 4 edges
     n = np.cross(e1, e2)
     nn = np.linalg.norm(n, axis=1)
     ok = nn > 1e-9 * np.maximum(np.linalg.norm(e1, axis=1) * np.linalg.norm(e2, axis=1), 1e-300)
@@ -145,9 +178,11 @@ def seg_par(r0: np.ndarray, r1: np.ndarray, p0: np.ndarray, e1: np.ndarray,
              e2: np.ndarray) -> np.ndarray:
     """Distance from segments r0→r1 to parallelograms p0 + s·e1 + t·e2: the closer of the
     segment to the four edges and its end points to the face, 0 where it pierces the face."""
-    edges = [(p0, p0 + e1), (p0 + e2, p0 + e1 + e2), (p0, p0 + e2), (p0 + e1, p0 + e1 + e2)]
-    d = np.min([seg_seg(r0, r1, a, b) for a, b in edges]
-               + [point_par(r0, p0, e1, e2), point_par(r1, p0, e1, e2)], axis=0)
+    a, b = _edges(p0, e1, e2)
+    n = len(r0)
+    edge = seg_seg(np.tile(r0, (4, 1)), np.tile(r1, (4, 1)), a, b).reshape(4, n).min(axis=0)
+    ends = point_par(np.concatenate([r0, r1]), *(np.tile(x, (2, 1)) for x in (p0, e1, e2)))
+    d = np.minimum(edge, ends.reshape(2, n).min(axis=0))
     m = np.stack([e1, e2, r0 - r1], axis=2)  # p0 + s e1 + t e2 = r0 + w (r1 - r0)
     det = np.linalg.det(m)
     ok = np.abs(det) > 1e-9

@@ -18,8 +18,6 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.sparse.csgraph import minimum_spanning_tree
-from scipy.spatial.distance import cdist
 
 from programs.model import Move, Program, plan_visits
 
@@ -93,11 +91,32 @@ def lower_bound(prog: Program) -> float:
     for pts in groups.values():
         p = np.array(pts)
         if len(p) > 1:
-            tour_mm += float(minimum_spanning_tree(cdist(p, p)).sum())
+            tour_mm += mst_length_mm(p)
     rot = [np.array([plan.poses[ip].b_deg, plan.poses[ip].c_deg]) for _, ip in plan_visits(plan)]
     index_s = sum(_index_s(prog, a, b) for a, b in itertools.pairwise(rot))
     dwell_s = plan.dwell_s * len(prog.touches)
     return probing_s + tour_mm / dyn.rapid_mm_min * 60.0 + index_s + dwell_s
+
+
+def mst_length_mm(p: np.ndarray) -> float:
+    """Length of a minimum spanning tree of the points ``p`` (N, 3) under straight distances:
+    Prim's algorithm on the dense distance matrix (N is a pose's touches, a few dozen), the
+    edges summed in the order (i < j, row-major) scipy's ``minimum_spanning_tree(cdist).sum()``
+    sums them, so the total is the same to the last bit, without scipy's import."""
+    d = np.sqrt(((p[:, None, :] - p[None, :, :]) ** 2).sum(axis=2))
+    n = len(p)
+    inside = np.zeros(n, bool)
+    inside[0] = True
+    best, parent = d[0].copy(), np.zeros(n, int)
+    edges = []
+    for _ in range(n - 1):
+        j = int(np.argmin(np.where(inside, np.inf, best)))
+        edges.append((min(parent[j], j), max(parent[j], j), best[j]))
+        inside[j] = True
+        closer = d[j] < best
+        parent[closer] = j
+        best = np.where(closer, d[j], best)
+    return float(np.sum([w for _, _, w in sorted(edges)])) if edges else 0.0
 
 
 def probe_s(mv: Move, approach_mm_min: float) -> float:

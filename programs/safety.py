@@ -239,10 +239,14 @@ def _check_segments(prog: Program, qa: np.ndarray, qb: np.ndarray, owner: np.nda
             fail(line[j], f"probing line misses the centre of ball "
                           f"{art.balls[own[line[j]]].id} by {off[j]:.4f} mm")
     # a dog-leg of a retract leaving its ball must only move away from the ball centre
-    for j in np.nonzero((own >= 0) & dog)[0]:
-        c = balls_w[own[j]]
-        if seg_point(pa[j][None], pb[j][None], c[None])[0] < np.linalg.norm(pa[j] - c) - TOL_MM:
-            fail(j, "a non-linear rapid of this retract would cut into the ball")
+    legs = np.nonzero((own >= 0) & dog)[0]
+    if legs.size:
+        c = balls_w[own[legs]]
+        near = seg_point(pa[legs], pb[legs], c)
+        start = np.array([np.linalg.norm(pa[j] - cj) for j, cj in zip(legs, c, strict=True)])
+        bad = np.nonzero(near < start - TOL_MM)[0]
+        if bad.size:
+            fail(legs[bad[0]], "a non-linear rapid of this retract would cut into the ball")
     stem = stem_direction(prog, qa[:, 3:5])
     slack, explain = keepout_slack(prog, pa, pb, own, stem)
     bad = np.nonzero(slack < 0)[0]

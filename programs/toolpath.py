@@ -304,6 +304,7 @@ def _pose_touches(prog: Program, bld: _Builder, pf: PoseFrame, ip: int, rep: int
                 edge_ok[(tb, ta)] = good_path
 
             best = None
+            lengths: dict[int, float] = {}  # per segment: the 8 orders share them
             for first in (1, 2, 3, 4):
                 for step in (1, -1):
                     visit = [(first - 1 + step * i) % 4 + 1 for i in range(4)]
@@ -311,7 +312,7 @@ def _pose_touches(prog: Program, bld: _Builder, pf: PoseFrame, ip: int, rep: int
                                              for seg in edges[(ta, tb)]] + up_pole[visit[-1]]
                     good = (down_ok[visit[0]] and up_ok[visit[-1]]
                             and all(edge_ok[e] for e in itertools.pairwise(visit)))
-                    cost = sum(float(np.linalg.norm(p1 - p0)) for p0, p1 in path)
+                    cost = sum(_length(seg, lengths) for seg in path)
                     cost += float(np.linalg.norm(here - path[0][0])) if known else 0.0
                     # rounded: ties break by order, not noise
                     rank = (not good, not over_ok[visit[0]], round(cost, 6))
@@ -364,6 +365,13 @@ def _pose_touches(prog: Program, bld: _Builder, pf: PoseFrame, ip: int, rep: int
             else:  # only out of the ball: the next transit rises as far as it must
                 bld.emit("retract", _axes({k: z_pole}), **kw)
     return seq
+
+
+def _length(seg: tuple[np.ndarray, np.ndarray], known: dict[int, float]) -> float:
+    """|seg|, computed once per segment object (``known``: by its id, the segments alive)."""
+    if id(seg) not in known:
+        known[id(seg)] = float(np.linalg.norm(seg[1] - seg[0]))
+    return known[id(seg)]
 
 
 def _axes(values: Mapping[int, float]) -> list[float | None]:

@@ -13,6 +13,7 @@ from contracts.yaml_files import ConfigError
 from drivers.can.panel import CanPanel, attach, lamp_for
 from drivers.can.schema import CanPanelConfig
 from simulators.frontends.can import SimulatedPanel
+from tests.waiting import until
 
 
 def channel() -> str:
@@ -62,8 +63,8 @@ async def test_buttons_start_and_abort_and_lamps_follow_the_session():
         panel.press("start", repeats=3)  # a bouncing button is one press
         await panel.wait_lamp("running")
         session.publish(done=10)
-        await asyncio.sleep(0.1)
-        assert panel.progress == 25 and panel.flags & 0x01  # blinking while running
+        await until(lambda: panel.progress == 25, 10, "the progress frame")
+        assert panel.flags & 0x01  # blinking while running
         panel.press("start")  # refused by the session (run in progress): no crash
         await asyncio.sleep(0.05)
         assert session.started == ["can"]
@@ -73,8 +74,7 @@ async def test_buttons_start_and_abort_and_lamps_follow_the_session():
         session.publish(state="IDLE", busy=False, verdict={"status": "WARN"})
         await panel.wait_lamp("warn")
         session.publish(link_ok=False)
-        await asyncio.sleep(0.1)
-        assert panel.flags & 0x02  # link down flag
+        await until(lambda: panel.flags & 0x02, 10, "the link down flag")
     finally:
         await attached.close()
         await panel.close()
@@ -87,12 +87,8 @@ async def test_lamp_heartbeat_repeats_the_state():
     listener = can.Bus(interface="virtual", channel=ch)
     try:
         daemon_side.set_lamp("pass")
-        await asyncio.sleep(0.25)
-        frames = []
-        while (msg := listener.recv(timeout=0)) is not None:
-            frames.append(msg)
-        assert len(frames) >= 4
-        assert all(f.arbitration_id == 0x641 and f.data[0] == 3 for f in frames)
+        frames = [await asyncio.to_thread(listener.recv, 10) for _ in range(4)]  # heartbeats
+        assert all(f is not None and f.arbitration_id == 0x641 and f.data[0] == 3 for f in frames)
         alive = [f.data[3] for f in frames]
         assert len(set(alive)) == len(alive)  # alive counter advances
     finally:

@@ -18,6 +18,7 @@ def test_internal_error_is_one_line_with_a_crash_file(tmp_path: Path, monkeypatc
     monkeypatch.delenv("RUMBA_DEBUG", raising=False)
     monkeypatch.setenv("RUMBA_CRASH_DIR", str(tmp_path))
     monkeypatch.setattr(history, "cmd_history", boom)
+    (tmp_path / "none.yaml").write_text("")  # an existing file: past the arguments' check
     code = main(["history", "--config", str(tmp_path / "none.yaml")])
     err = capsys.readouterr().err
     assert code == EX_SOFTWARE
@@ -35,5 +36,6 @@ def test_debug_lets_the_defect_through(tmp_path: Path, monkeypatch) -> None:
 
     monkeypatch.setenv("RUMBA_DEBUG", "1")
     monkeypatch.setattr(history, "cmd_history", boom)
+    (tmp_path / "none.yaml").write_text("")
     with pytest.raises(ZeroDivisionError):
         main(["history", "--config", str(tmp_path / "none.yaml")])

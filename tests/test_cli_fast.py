@@ -21,9 +21,10 @@ ROOT = Path(__file__).resolve().parents[1]
 CFG = ROOT / "config"
 HEAVY = ("numpy", "scipy", "matplotlib", "aiohttp", "asyncua", "pymodbus", "pydantic",
          "pydantic_core", "yaml", "rich", "serial", "can")
-# scipy.optimize is the analysis' own now (issue 21's REML of the visit scatter, issue 22's
-# warm-up τ profile); scipy.stats (~1 s to import) and the I/O stacks stay out of analyze
-NOT_FOR_ANALYZE = ("scipy.stats", "matplotlib", "aiohttp", "asyncua", "pymodbus")
+# the REML of the visit scatter (Newton, identification/visit_reml.py) and the warm-up τ
+# profile (Brent, identification/brent.py) need no scipy: analyze imports none of it (0.4 s
+# CPU for scipy.optimize, ~1 s for scipy.stats), nor the I/O stacks
+NOT_FOR_ANALYZE = ("scipy", "matplotlib", "aiohttp", "asyncua", "pymodbus")
 
 
 def _imported(code: str, names: tuple[str, ...]) -> list[str]:
@@ -39,6 +40,63 @@ def _imported(code: str, names: tuple[str, ...]) -> list[str]:
 
 def test_building_the_parser_imports_no_heavy_module():
     assert _imported("import daemon.cli.main as m\nm.build_parser()", HEAVY) == []
+
+
+M_, A_ = str(CFG / "machines/thesis_wcbxfzyt.yaml"), str(CFG / "artefacts/thesis_4ball.yaml")
+LOG_ = str(CFG / "examples/thesis_annexB_14poses.csv")
+PLAN_ = str(CFG / "plans/thesis_annexB_14poses.yaml")
+# argument errors a command finds before it imports its work (daemon/cli/arguments.py), with
+# the message it gave after loading everything
+LATE_ERRORS = [
+    (["analyze", "--log", "no-such.csv", "--machine", M_, "--artefact", A_],
+     "error: no-such.csv: cannot read: No such file or directory"),
+    (["analyze", "--log", LOG_, "--machine", str(CFG), "--artefact", A_],
+     f"error: {CFG}: is a directory: expected a regular file"),
+    (["analyze", "--log", LOG_, "--machine", M_, "--artefact", A_, "--validate-poses", "3,x"],
+     "error: --validate-poses: expected a comma list of pose numbers as in the log's pose "
+     "column, got '3,x'"),
+    (["analyze", "--log", LOG_, "--machine", M_, "--artefact", A_, "--repeatability-um", "0"],
+     "error: --repeatability-um: expected one or three positive numbers (x,y,z centre std in "
+     "µm), got '0'"),
+    (["analyze", "--log", LOG_, "--machine", M_, "--artefact", A_, "--json", "/no/such/a.json"],
+     "error: --json /no/such/a.json: cannot write: No such file or directory"),
+    (["analyze", "--centres", LOG_, "--machine", M_, "--artefact", A_, "--write-centres", "c"],
+     "error: --write-centres: needs --log (the centres of its touches)"),
+    (["gap", "--log", LOG_, "--machine", M_, "--artefact", A_, "--families", "heat"],
+     "error: --families: unknown ['heat']; expected a comma list of thermal_drift, "
+     "linear_scale, straightness, angular_motion, rotary_positioning, rotary_error_motion, "
+     "gravity_sag, probe_pretravel, artefact_instability"),
+    (["gap", "--machine", M_, "--artefact", A_],
+     "error: gap: --log (or --centres), --machine and --artefact are required (or "
+     "--selfcheck)"),
+    (["gap", "--log", LOG_, "--holdout", "no-such.csv", "--machine", M_, "--artefact", A_],
+     "error: no-such.csv: cannot read: No such file or directory"),
+    (["gcode", "--machine", M_, "--artefact", A_, "--plan", "no-such.yaml", "--dialect",
+      "fanuc"], "error: no-such.yaml: cannot read: No such file or directory"),
+    (["gcode", "--machine", M_, "--artefact", A_, "--plan", PLAN_, "--dialect", "fanuc", "-o",
+      "/no/such/p.nc"], "error: /no/such/p.nc: cannot write: No such file or directory"),
+    (["plan", "--machine", M_, "--artefact", A_, "--target", "no-such.yaml"],
+     "error: no-such.yaml: cannot read: No such file or directory"),
+    (["verify", "--config", "no-such.yaml", "--machine", "m"],
+     "error: no-such.yaml: cannot read: No such file or directory"),
+    (["run", "--config", "no-such.yaml"],
+     "error: no-such.yaml: cannot read: No such file or directory"),
+    (["history", "--config", "no-such.yaml"],
+     "error: no-such.yaml: cannot read: No such file or directory"),
+]
+
+
+@pytest.mark.parametrize(("argv", "message"), LATE_ERRORS)
+def test_argument_errors_are_answered_before_the_work_is_imported(argv, message):
+    code = ("import contextlib, io, sys\nimport daemon.cli.main as m\nerr = io.StringIO()\n"
+            "with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(err):\n"
+            f"    rc = m.main({argv!r})\n"
+            "print(rc, err.getvalue().strip(), file=sys.stderr)")
+    probe = (f"{code}\nprint(','.join(n for n in {HEAVY!r} if n in sys.modules))")
+    out = subprocess.run([sys.executable, "-c", probe], cwd=ROOT, capture_output=True,
+                         text=True, timeout=120)
+    assert out.stderr.strip() == f"2 {message}"
+    assert out.stdout.strip() == ""  # no heavy module
 
 
 @pytest.mark.parametrize("argv", [["--help"], ["analyze", "--help"], ["sim", "--help"],
@@ -73,12 +131,14 @@ def test_light_copies_equal_their_sources():
     from contracts.centres_file import FRAMES
     from contracts.importers import FORMATS
     from contracts.result_lines import DIALECT_NAMES
+    from identification.effects import FAMILIES
     from identification.gap.split import SPLITS
     from programs.dialects import DIALECTS
 
     assert choices.CENTRES_FORMATS == FORMATS
     assert choices.CENTRES_FRAMES == FRAMES
     assert choices.GAP_SPLITS == SPLITS
+    assert choices.GAP_FAMILIES == FAMILIES
     assert choices.DIALECT_NAMES == DIALECT_NAMES
     assert tuple(sorted(DIALECTS)) == choices.GCODE_DIALECTS
 

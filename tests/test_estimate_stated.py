@@ -27,8 +27,8 @@ from tests.synth import make_rows, true_centres
 ROOT = Path(__file__).resolve().parents[1]
 CFG = ROOT / "config"
 FOUR = {"B": 4.0, "C": 4.0}
-# The links' u carry the REML variance components, found to the optimum (analytic gradient,
-# identification/visit_scatter.GTOL): between BLAS kernels and thread counts they agree to 3e-10
+# The links' u carry the REML variance components, found to the optimum (Newton with the exact
+# Hessian, identification/visit_reml): between BLAS kernels and thread counts they agree to 3e-10
 # relative (1e-8 with the drift's τ), measured on Prescott, Sandybridge, Haswell and AVX-512
 # kernels; 1e-6 keeps a margin of 100 and is far below what a stated value moves (×1.05-2.4).
 U_RTOL = 1e-6
@@ -119,12 +119,14 @@ def test_the_drift_aware_estimate_gives_the_verdict_once(sv):
 
 def test_without_a_stated_value_the_estimate_is_the_one_before(sv):
     """The u of these two runs without a stated value, as the estimate gives them with nothing
-    stated (the code before the stated repeatability gave the same within the REML's old
-    stopping tolerance, 4e-6): nothing moves, and no stated entry shows; the drift-aware run's
-    too (the drift fitted on every separable axis, the choice's share over the shapes)."""
+    stated: nothing moves, and no stated entry shows; the drift-aware run's too (the drift
+    fitted on every separable axis, the choice's share over the shapes). The plain run's are
+    those of the REML optimum, σ̂_B 0.155 µrad: the optimiser in σ before stopped at σ_B = 0,
+    where −2ℓ still fell along σ_B² (∂/∂σ_B² = −0.025; 3e-4 lower at the optimum), and gave
+    these u up to 0.25 % apart (EB0C 0.8237 then)."""
     m, a = sv.machine, sv.artefact
-    before = [3.5929983, 2.3096523, 0.1774271, 2.6339496, 0.8236585, 2.2803844, 3.5778980,
-              2.5263755]
+    before = [3.5934693, 2.3097185, 0.1773432, 2.6338671, 0.8256806, 2.2799924, 3.5777120,
+              2.5260037]
     c = _centres(sv, 10, 4.0)
     for kw in ({}, {"rotary_repeatability_urad": None}, {"rotary_repeatability_urad": {}}):
         e = estimate(m, a, c, **kw)

@@ -135,7 +135,8 @@ def test_known_rotary_positioning_leaves_the_sag(setup, tmp_path):
 @pytest.mark.parametrize("bad", ["warp_drive", "rotary_positioning:Q", "gravity_sag:X",
                                  "thermal_drift:B"])
 def test_cli_known_bad_names_are_one_line(tmp_path, capsys, bad):
-    log = tmp_path / "never-read.csv"
+    log = tmp_path / "never-read.csv"  # exists (the arguments' check), refused before read
+    log.write_text("")
     code = _gap_cli(log, tmp_path / "x.json", "--known", f"linear_scale:X,{bad}")
     err = capsys.readouterr().err
     assert code == 2 and err.count("\n") == 1 and err.startswith("error: --known")

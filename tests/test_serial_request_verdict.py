@@ -21,6 +21,7 @@ from programs.geometry import ProgramError
 from simulators.controller import VERDICT_VARIABLE, VirtualController
 from simulators.frontends.serial import SerialFrontend, SerialSettings
 from tests.transport_sim import MACRO_VERDICT_VARIABLE, first_touch_of, make_truth, real_setup
+from tests.waiting import settle, until
 
 # ------------------------------------------------------------------------ request grammar
 
@@ -117,7 +118,7 @@ async def test_start_request_then_verdict_program_over_the_line(tcp):
     try:
         assert link.capabilities.start_request and link.capabilities.writes_verdict
         waiter = asyncio.create_task(link.wait_start_request())
-        await asyncio.sleep(0.05)
+        await settle()
         assert not waiter.done()  # nothing asked yet
         vc.raise_start_request()
         req = await asyncio.wait_for(waiter, 5)
@@ -141,7 +142,9 @@ async def test_other_lines_and_other_machines_never_start_a_run():
         vc.output("RUMBA 1 0 0 B1 1 1 1.0 2.0 3.0 0.0 0.0")  # stray result line
         vc.output("RUMBA REQUEST MI~L7")  # garbled request
         vc.raise_start_request()  # the simulated CNC names itself THESIS_WCBXFZYT
-        await asyncio.sleep(0.3)
+        await until(lambda: list(link._proto.unsolicited)[-1:] == [
+            f"RUMBA REQUEST {vc.machine_id}"], 10, "the three lines read")
+        await settle()
         assert not waiter.done()
         assert list(link._proto.unsolicited)[-3:] == [
             "RUMBA 1 0 0 B1 1 1 1.0 2.0 3.0 0.0 0.0", "RUMBA REQUEST MI~L7",
@@ -206,7 +209,7 @@ async def test_request_during_a_run_is_refused_and_a_lost_line_ends_the_wait():
         assert link._proto.requests.empty()
         assert not link._tape_open  # the control in alarm dropped the tape itself
         waiter = asyncio.create_task(link.wait_start_request())
-        await asyncio.sleep(0.05)
+        await settle()
         await fe.close()  # the line goes away
         with pytest.raises(LinkError, match="closed"):
             await asyncio.wait_for(waiter, 5)

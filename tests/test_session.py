@@ -15,6 +15,7 @@ from daemon.store import baselines
 from daemon.store.journal import Store
 from tests.daemon_helpers import thesis_rows, thesis_setup
 from tests.replay_link import Faults, ReplayLink, prepare_from_rows
+from tests.waiting import until
 
 
 @pytest.fixture
@@ -71,7 +72,7 @@ async def test_full_run_walks_every_state_journals_and_writes_back(env):
 async def test_second_trigger_during_run_is_refused_with_reason(env):
     s, _ = make(env, delay_s=0.002)
     run_id = s.start("cnc")
-    await asyncio.sleep(0.05)
+    await until(lambda: s.done >= 1, 30, "the run's first hit")
     with pytest.raises(Refused, match=rf"run {run_id} in progress .*started by cnc.*hmi"):
         s.start("hmi")
     assert s.run_id == run_id and s.trigger == "cnc"  # the running run is untouched

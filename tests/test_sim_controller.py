@@ -13,6 +13,7 @@ from simulators.controller import VirtualController as VC
 from simulators.faults import Fault, FaultPlan
 from tests.sim_helpers import TABLE_B2, truth_with
 from tests.sim_programs import program
+from tests.waiting import settle, until
 
 SIMPLE = "%\nG21 G90\nG00 Z300.\nG00 X100.\nG01 X110. F600.\nG04 X2.\nG00 B90.\nM30\n%\n"
 
@@ -73,7 +74,7 @@ async def test_drip_feed_waits_for_blocks_and_forward_goto():
     await vc.feed_block("%")
     await vc.feed_block("#100=1")
     await vc.feed_block("IF[#100EQ1]GOTO20")
-    await asyncio.sleep(0.01)
+    await settle()
     assert vc.state == "running"  # waiting for the N20 block that has not arrived yet
     await vc.feed_block("#101=99")
     await vc.feed_block("N20 #102=7")
@@ -93,7 +94,7 @@ async def test_abort_stops_at_once_and_keeps_alarm():
     vc = VC(truth_with({}), time_scale=1.0)
     await vc.load_program("%\nG04 X30.\nM30\n%\n", "fanuc")
     await vc.start()
-    await asyncio.sleep(0.05)
+    await until(lambda: vc.state == "running", 10, "the dwell")
     t0 = time.perf_counter()
     await vc.abort()
     assert vc.state == "idle" and time.perf_counter() - t0 < 0.5
@@ -109,8 +110,7 @@ async def test_feed_hold_and_resume():
     vc = VC(truth_with({}), faults=FaultPlan([Fault(kind="feed_hold", at_block=3)]))
     await vc.load_program(SIMPLE, "fanuc")
     await vc.start()
-    await asyncio.sleep(0.02)
-    assert vc.state == "hold"
+    await until(lambda: vc.state == "hold", 10, "the feed hold")
     await vc.start()  # cycle start resumes
     assert await vc.wait_done(5) == "done"
 

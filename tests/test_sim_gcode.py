@@ -3,8 +3,6 @@ own miss semantics, output lines, alarms and control flow."""
 
 from __future__ import annotations
 
-import asyncio
-
 import numpy as np
 import pytest
 
@@ -12,6 +10,7 @@ from simulators.controller import VirtualController
 from simulators.gcode import DIALECTS
 from tests.sim_helpers import TABLE_B2, analytic_contact, truth_with
 from tests.sim_programs import program
+from tests.waiting import until
 
 POSES = [(0.0, 0.0), (30.0, 60.0), (-45.0, 330.0)]
 
@@ -199,8 +198,8 @@ async def test_program_stop_holds_until_cycle_start(dialect, stop):
     vc = VirtualController(truth)
     await vc.load_program(f"G0 Z300.\n{stop}\nG0 Z310.\n{end}\n", dialect)
     await vc.start()
-    await asyncio.sleep(0.02)
-    assert vc.state == "hold" and vc.position()["Z"] == 300.0
+    await until(lambda: vc.state == "hold", 10, "the program stop")
+    assert vc.position()["Z"] == 300.0
     await vc.start()
     assert await vc.wait_done(5) == "done" and vc.position()["Z"] == 310.0
 

@@ -12,6 +12,7 @@ from daemon.cli.commands.verify import verify
 from tests.cli_helpers import free_port, run_cli
 from tests.daemon_helpers import thesis_rows, thesis_setup, write_daemon_yaml
 from tests.replay_link import Faults, ReplayLink, prepare_from_rows
+from tests.waiting import until
 
 # --------------------------------------------------------------------------------- verify
 
@@ -110,7 +111,7 @@ async def test_can_panel_start_abort_and_lamps(tmp_path):
     reader = asyncio.create_task(read_lamps())
     session = svc.sessions["mill1"]
     try:
-        await asyncio.sleep(0.3)  # one heartbeat: the idle lamp
+        await until(lambda: lamps == ["idle"], 10, "one heartbeat: the idle lamp")
         panel.send(button_frame(0x640, "start", 1))
         async with asyncio.timeout(10):
             while session.done < 5:
@@ -128,7 +129,7 @@ async def test_can_panel_start_abort_and_lamps(tmp_path):
             while session.state != "IDLE" or session.busy:
                 await asyncio.sleep(0.02)
         assert session.verdict["status"] == "PASS"
-        await asyncio.sleep(0.5)
+        await until(lambda: lamps[-1:] == ["pass"], 10, "the pass lamp")
         assert lamps == ["idle", "running", "error", "running", "pass"], lamps
         assert [r.trigger for r in svc.store.runs()] == ["can", "can"]
     finally:

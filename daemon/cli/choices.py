@@ -13,6 +13,10 @@ CENTRES_FRAMES = ("machine", "instrument")
 """``contracts.centres_file.FRAMES``: the frames of a centres file."""
 GAP_SPLITS = ("auto", "pose", "time")
 """``identification.gap.split.SPLITS``: the held-out splits of `rumba gap`."""
+GAP_FAMILIES = ("thermal_drift", "linear_scale", "straightness", "angular_motion",
+                "rotary_positioning", "rotary_error_motion", "gravity_sag", "probe_pretravel",
+                "artefact_instability")
+"""``identification.effects.FAMILIES``: the effect families of `rumba gap --families`."""
 DIALECT_NAMES = ("fanuc", "haas", "siemens", "heidenhain", "linuxcnc")
 """``contracts.result_lines.DIALECT_NAMES``: every controller dialect, in its order."""
 GCODE_DIALECTS = ("fanuc", "heidenhain", "linuxcnc", "siemens")

@@ -15,10 +15,10 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import stats
 
 from identification.effects import Effect
 from identification.gap.linear import FullFit, HeldOut, Problem, columns, fit, held_out, projected
+from identification.tails import f_sf
 
 ALPHA = 1e-3  # family-wise level for the candidate tests
 ALIKE = 0.9  # |cos| between visible contributions above which two candidates are confounded
@@ -73,7 +73,7 @@ def f_test(prev: FullFit, new: FullFit) -> tuple[float, float]:
         return 1.0, 0.0
     dof = max(new.n_obs - new.rank, 1)
     f = ((prev.rss_w - new.rss_w) / r) / max(new.rss_w / dof, 1e-300)
-    p = float(stats.f.sf(max(f, 0.0), r, dof))
+    p = f_sf(max(f, 0.0), r, dof)
     # χ² form of BIC (weights known up to the floor): Δ = ΔRSS + Δk ln n.
     return p, float(new.rss_w - prev.rss_w + r * np.log(new.n_obs))
 
@@ -81,7 +81,7 @@ def f_test(prev: FullFit, new: FullFit) -> tuple[float, float]:
 def gap_p_value(ho: HeldOut, sigma_dof: int) -> float:
     """Is the held-out gap above the floor? The whitened mean-square ratio is F(n, dof_σ)
     distributed under pure noise, since the floor itself is estimated with dof_σ."""
-    return float(stats.f.sf(ho.ratio, ho.n_obs, max(sigma_dof, 1)))
+    return f_sf(ho.ratio, ho.n_obs, max(sigma_dof, 1))
 
 
 def score(problem: Problem, cands: list[Candidate], selected: list[Candidate],

@@ -13,10 +13,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import stats
 
 from identification.gap.data import Groups
 from identification.gap.linear import HeldOut
+from identification.tails import f_sf, t_sf
 
 ALPHA = 1e-3
 
@@ -61,7 +61,7 @@ def breakdowns(groups: Groups, ho: HeldOut, ball_ids: list[str],
         # setup parameters much more than the form residual does).
         ratio = float(np.sum(ew**2) / np.sum(ho.expected[mask][:, cols]))
         # F(n, dof_σ), not χ²(n): the floor itself is estimated from the form residuals.
-        p = float(stats.f.sf(ratio, n, groups.sigma_dof))
+        p = f_sf(ratio, n, groups.sigma_dof)
         cells.append(Cell(by, key, n, float(np.sqrt(np.mean(eu[obs] ** 2))), ratio, p))
 
     poses = sorted(set(zip(c.b_deg[g].round(3), c.c_deg[g].round(3), strict=True)))
@@ -111,7 +111,7 @@ def _direction_cells(groups: Groups, ho: HeldOut) -> list[Cell]:
         r = rad[:, k]
         sd = max(float(np.std(r, ddof=1)), groups.sigma_touch_um * 0.5)
         tstat = float(np.mean(r) / (sd / np.sqrt(n)))
-        p = float(2 * stats.t.sf(abs(tstat), n - 1))
+        p = 2 * t_sf(abs(tstat), n - 1)
         ratio = float(np.mean(r**2) / max(groups.sigma_touch_um**2, 1e-12))
         out.append(Cell("direction", f"touch {k + 1}", n, float(np.sqrt(np.mean(r**2))), ratio, p))
     return out

@@ -20,6 +20,7 @@ from identification.gap.linear import Problem, live
 from identification.gap.step_ball import Step, find_step
 from identification.kinematics import Machine
 from identification.model import Artefact, Centres, Layout, predict
+from identification.tails import chi2_sf
 from identification.visit_scatter import (
     LR_ALPHA,
     ScatterFit,
@@ -278,8 +279,6 @@ def confounded(vs: VisitScatter | None, problem: Problem, groups: Groups, cands:
     the components can be estimated again with it as a fixed effect. Only candidates whose
     F-test on the sphere fits' whitening alone (no components: nothing inflated to hide
     behind) reaches ``SCREEN_P`` are profiled."""
-    from scipy import stats
-
     if vs is None or not any(vs.finding()["components"][i]["detected"]
                              for i in range(len(vs.fit.names))) or not cands:
         return None
@@ -309,7 +308,7 @@ def confounded(vs: VisitScatter | None, problem: Problem, groups: Groups, cands:
     best = None
     for c in screened:
         lr = max(nll0 - ml(np.concatenate([fixed_base, c.cols], axis=2)), 0.0)
-        p = float(stats.chi2.sf(lr, c.visible_dof)) * len(cands)
+        p = chi2_sf(lr, c.visible_dof) * len(cands)
         if p < alpha and (best is None or p < best["p_value"]):
             best = {"effect": c.effect.family, "axis": c.effect.axis, "p_value": p,
                     "params": list(c.effect.param_names)}

@@ -19,8 +19,8 @@ from collections.abc import Callable, Sequence
 from dataclasses import replace
 
 import numpy as np
-from scipy.optimize import minimize_scalar
 
+from identification.brent import minimize_bounded
 from identification.effects import Effect, make_effect
 from identification.gap.attribute import Candidate, effect_params
 from identification.gap.linear import Problem, columns, fit, held_out, projected
@@ -98,10 +98,9 @@ def _profiled(machine: Machine, axis: str, problem: Problem, base: np.ndarray,
         return None  # τ at its upper bound: the curve is straightening, the line says it
     best = float(grid[i])
     if 0 < i < _GRID - 1:
-        r = minimize_scalar(at, bounds=(grid[i - 1], grid[i + 1]), method="bounded",
-                            options={"xatol": 1e-3})
-        if r.fun < vals[i]:
-            best = float(r.x)
+        x, fx, _ = minimize_bounded(at, grid[i - 1], grid[i + 1], xatol=1e-3)
+        if fx < vals[i]:
+            best = float(x)
     cand = cache[best][1]
     assert cand is not None
     tau = math.exp(best)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import functools
 import re
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -60,7 +61,10 @@ def _finalize(v: object) -> object:
     return v
 
 
+@functools.cache
 def _env() -> jinja2.Environment:
+    """The templates' one environment: each template is compiled to Python once per process,
+    not for every program (a dialect object per run, per plan candidate)."""
     return jinja2.Environment(
         loader=jinja2.FileSystemLoader(str(TEMPLATES)), undefined=jinja2.StrictUndefined,
         autoescape=False, trim_blocks=True, lstrip_blocks=True, keep_trailing_newline=True,

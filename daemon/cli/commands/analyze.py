@@ -24,6 +24,7 @@ from daemon.analysis.identify import (
 )
 from daemon.analysis.result import Analysis
 from daemon.analysis.touch_centres import rows_to_centres
+from daemon.cli.arguments import parse_poses, parse_repeatability
 from daemon.cli.choices import DEFAULT_STYLUS_DIAMETER_MM
 from daemon.cli.tables import print_long_table
 from daemon.reports.index_scatter import index_scatter_lines
@@ -51,29 +52,6 @@ def parse_links(text: str, candidates: Sequence[str]) -> tuple[str, ...] | None:
         raise _user_error(f"--links: unknown link error(s) {bad or [text]}; this machine has "
                           f"{', '.join(candidates)} (or 'all' / 'none')")
     return names
-
-
-def parse_poses(text: str | None) -> list[int]:
-    if not text:
-        return []
-    try:
-        return sorted({int(x) for x in text.split(",") if x.strip()})
-    except ValueError:
-        raise _user_error(f"--validate-poses: expected a comma list of pose numbers as in the "
-                          f"log's pose column, got {text!r}") from None
-
-
-def parse_repeatability(text: str | None) -> list[float] | None:
-    if not text:
-        return None
-    try:
-        v = [float(x) for x in text.split(",")]
-    except ValueError:
-        v = []
-    if len(v) not in (1, 3) or not all(np.isfinite(x) and x > 0 for x in v):
-        raise _user_error(f"--repeatability-um: expected one or three positive numbers "
-                          f"(x,y,z centre std in µm), got {text!r}")
-    return v * 3 if len(v) == 1 else v
 
 
 def run_analysis(log: Path | str, machine_path: Path | str, artefact_path: Path | str,

@@ -15,8 +15,8 @@ from contracts.probing_log import LogRow, ProbeLogError, read_log
 from contracts.setup_files import load_artefact, load_machine, load_plan
 from daemon.analysis import centres_input
 from daemon.analysis.touch_centres import columns, one_run_balls
+from daemon.cli.arguments import parse_families, parse_repeatability
 from daemon.cli.choices import DEFAULT_STYLUS_DIAMETER_MM
-from daemon.cli.commands.analyze import parse_repeatability
 from identification.effects import FAMILIES, Effect, library
 from identification.gap import Options, TouchData, diagnose
 from identification.gap.chip_floor import message as chip_message
@@ -62,14 +62,7 @@ def touches_from_rows(rows: Sequence[LogRow], artefact: Artefact, source: str) -
 
 
 def _families(text: str | None) -> tuple[str, ...]:
-    if not text:
-        return FAMILIES
-    names = tuple(x.strip() for x in text.split(",") if x.strip())
-    bad = [x for x in names if x not in FAMILIES]
-    if bad or not names:
-        raise _user_error(f"--families: unknown {bad or [text]}; expected a comma list of "
-                          f"{', '.join(FAMILIES)}")
-    return names
+    return parse_families(text, FAMILIES)
 
 
 def _known(values: Sequence[str] | None, machine: Machine, artefact: Artefact,
@@ -244,6 +237,13 @@ def _selfcheck(args: argparse.Namespace) -> int:
     return 0 if not failed else 1
 
 
+def _write(path: str, text: str, flag: str) -> None:
+    try:
+        Path(path).write_text(text, encoding="utf-8")
+    except OSError as e:
+        raise _user_error(f"{flag} {path}: cannot write: {e.strerror}") from None
+
+
 def cmd_gap(args: argparse.Namespace) -> int:
     """`rumba gap` (``daemon.cli.parsers.gap``): the self-check or one diagnosis."""
     if args.selfcheck:
@@ -291,12 +291,11 @@ def cmd_gap(args: argparse.Namespace) -> int:
         raise _user_error(f"{args.log or args.centres}: {e}") from None
     _print_report(rep)
     if args.json:
-        Path(args.json).write_text(json.dumps(rep, indent=1), encoding="utf-8")
+        _write(args.json, json.dumps(rep, indent=1), "--json")
         print(f"wrote {args.json}")
     if args.html:
         from daemon.reports.gap import render
 
-        Path(args.html).write_text(render(rep, title=f"Gap diagnosis — {args.log}"),
-                                   encoding="utf-8")
+        _write(args.html, render(rep, title=f"Gap diagnosis — {args.log}"), "--html")
         print(f"wrote {args.html}")
     return 0

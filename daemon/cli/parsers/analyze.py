@@ -16,6 +16,19 @@ def _run(args: argparse.Namespace) -> int:
     return cmd_analyze(args)
 
 
+def _check(args: argparse.Namespace) -> None:
+    from daemon.cli import arguments
+
+    arguments.inputs(args, ("log", "centres", "machine", "artefact"))
+    if args.centres:
+        arguments.inputs(args, ("plan",))
+    arguments.parse_poses(args.validate_poses)
+    arguments.parse_repeatability(args.repeatability_um)
+    if args.write_centres and not args.log:
+        raise arguments.user_error("--write-centres: needs --log (the centres of its touches)")
+    arguments.output_folder(args.json, f"--json {args.json}")
+
+
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser("analyze", help="identify setup and link errors from a probing log",
                               description=DESCRIPTION)
@@ -49,4 +62,4 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--json", default=None, metavar="OUT.json", help="write the results as JSON")
     p.add_argument("--write-centres", default=None, metavar="OUT.csv",
                    help="--log: also write its centres (sphere fits) as a centres CSV")
-    p.set_defaults(func=_run)
+    p.set_defaults(func=_run, preflight=_check)

@@ -18,6 +18,12 @@ def _run(args: argparse.Namespace) -> int:
     return cmd_baseline(args)
 
 
+def _check(args: argparse.Namespace) -> None:
+    from daemon.cli import arguments
+
+    arguments.inputs(args, ("config",))
+
+
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("baseline", help="show or set the run a machine's drift is judged "
                        "against (a person confirms it)", description=DESCRIPTION)
@@ -31,4 +37,4 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="with set: make a run the baseline although it FAILed, predates a "
                         "compensation or was identified against a model the controller no "
                         "longer runs; the reason is journaled with the objections")
-    p.set_defaults(func=_run)
+    p.set_defaults(func=_run, preflight=_check)

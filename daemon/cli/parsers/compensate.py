@@ -18,6 +18,12 @@ def _run(args: argparse.Namespace) -> int:
     return cmd_compensate(args)
 
 
+def _check(args: argparse.Namespace) -> None:
+    from daemon.cli import arguments
+
+    arguments.inputs(args, ("config",))
+
+
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("compensate", help="write the identified link errors back into the "
                        "controller's kinematic model (guarded, journaled, reversible)",
@@ -42,4 +48,4 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--verify", action="store_true",
                    help="with --confirm: when the values went live (LinuxCNC on this PC), run "
                         "the verification at once and print each link before and after")
-    p.set_defaults(func=_run)
+    p.set_defaults(func=_run, preflight=_check)

@@ -16,6 +16,26 @@ def _run(args: argparse.Namespace) -> int:
     return cmd_gap(args)
 
 
+def _check(args: argparse.Namespace) -> None:
+    from daemon.cli import arguments
+    from daemon.cli.choices import GAP_FAMILIES
+
+    if args.selfcheck:
+        return
+    if not ((args.log or args.centres) and args.machine and args.artefact):
+        raise arguments.user_error("gap: --log (or --centres), --machine and --artefact are "
+                                   "required (or --selfcheck)")
+    if args.log and args.centres:
+        raise arguments.user_error("gap: --log or --centres, not both")
+    arguments.inputs(args, ("machine", "artefact", "log", "centres", "holdout"))
+    if args.centres:
+        arguments.inputs(args, ("plan",))
+    arguments.parse_repeatability(args.repeatability_um)
+    arguments.parse_families(args.families, GAP_FAMILIES)
+    arguments.output_folder(args.json, f"--json {args.json}")
+    arguments.output_folder(args.html, f"--html {args.html}")
+
+
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("gap", help="sim-to-real gap diagnosis: locate, attribute, quantify",
                        description=DESCRIPTION)
@@ -55,4 +75,4 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--seeds", type=int, default=None, help="self-check seeds per case")
     p.add_argument("--full", action="store_true",
                    help="self-check on the 14-pose plan and a 49-pose grid")
-    p.set_defaults(func=_run)
+    p.set_defaults(func=_run, preflight=_check)

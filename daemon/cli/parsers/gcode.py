@@ -14,6 +14,13 @@ def _run(args: argparse.Namespace) -> int:
     return run(args)
 
 
+def _check(args: argparse.Namespace) -> None:
+    from daemon.cli import arguments
+
+    arguments.inputs(args, ("machine", "artefact", "plan", "targets"))
+    arguments.output_folder(args.output, str(args.output))
+
+
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "gcode", help="generate a checked probing program for one controller dialect",
@@ -30,4 +37,4 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--targets", type=Path, metavar="estimate.json",
                    help="ball/stylus setup errors of the last run (`rumba analyze --json`): "
                         "targets from the estimate, smaller standoff and overtravel")
-    p.set_defaults(func=_run)
+    p.set_defaults(func=_run, preflight=_check)

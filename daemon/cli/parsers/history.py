@@ -11,6 +11,12 @@ def _run(args: argparse.Namespace) -> int:
     return cmd_history(args)
 
 
+def _check(args: argparse.Namespace) -> None:
+    from daemon.cli import arguments
+
+    arguments.inputs(args, ("config", "import_csv"))
+
+
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("history", help="list runs and trends; export/import probing logs")
     p.add_argument("--config", required=True, help="daemon.yaml (names the journal)")
@@ -28,4 +34,4 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--plot", metavar="PNG", help="--against-temperature: also a scatter plot")
     p.add_argument("--csv", metavar="OUT", help="output file for --export")
     p.add_argument("--no-analyse", action="store_true", help="--import: journal only")
-    p.set_defaults(func=_run)
+    p.set_defaults(func=_run, preflight=_check)

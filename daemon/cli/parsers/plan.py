@@ -24,6 +24,13 @@ def _run(args: argparse.Namespace) -> int:
     return run(args)
 
 
+def _check(args: argparse.Namespace) -> None:
+    from daemon.cli import arguments
+
+    arguments.inputs(args, ("machine", "artefact", "target"))
+    arguments.output_folder(args.output, str(args.output))
+
+
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "plan", help="optimise the poses of a plan: target link uncertainties, least time",
@@ -45,4 +52,4 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("-o", "--output", type=Path, metavar="PLAN.yaml",
                    help="plan file to write (default: <name>.yaml here)")
     p.add_argument("--force", action="store_true", help="overwrite the output file")
-    p.set_defaults(func=_run)
+    p.set_defaults(func=_run, preflight=_check)

@@ -12,6 +12,12 @@ def _run(args: argparse.Namespace) -> int:
     return cmd_run(args)
 
 
+def _check(args: argparse.Namespace) -> None:
+    from daemon.cli import arguments
+
+    arguments.inputs(args, ("config",))
+
+
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("run", help="run the verification service (sessions, triggers, HMI)")
     p.add_argument("--config", required=True, help="daemon.yaml")
@@ -23,4 +29,4 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "(default: stderr, i.e. the journal under systemd)")
     p.add_argument("--log-max-mb", type=int, default=10, metavar="N",
                    help="size at which --log-file rotates (default 10 MiB)")
-    p.set_defaults(func=_run)
+    p.set_defaults(func=_run, preflight=_check)

@@ -16,6 +16,22 @@ def _run(args: argparse.Namespace) -> int:
     return main(args)
 
 
+def _check(args: argparse.Namespace) -> None:
+    from daemon.cli import arguments
+
+    if args.time_scale < 0:
+        raise arguments.user_error("--time-scale must be >= 0")
+    arguments.inputs(args, ("machine", "artefact", "errors", "faults"))
+    if getattr(args, "serve", None):
+        return
+    if args.run is None:
+        raise arguments.user_error("give --run PROGRAM (offline) or --serve TRANSPORT")
+    if args.dialect is None or args.log is None:
+        raise arguments.user_error("--run needs --dialect and --log OUT.csv")
+    arguments.inputs(args, ("run",))
+    arguments.output_folder(args.log, str(args.log))
+
+
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
         "sim", help="software CNC with injected errors: run a program offline or serve it",
@@ -36,7 +52,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--run-id", help="run_id column of the log (default: program file stem)")
     if importlib.util.find_spec("simulators.serve") is not None:  # --serve and its options
         add_later(p, _serve_arguments)
-    p.set_defaults(func=_run)
+    p.set_defaults(func=_run, preflight=_check)
 
 
 def _serve_arguments(p: argparse.ArgumentParser) -> None:

@@ -11,6 +11,12 @@ def _run(args: argparse.Namespace) -> int:
     return cmd_verify(args)
 
 
+def _check(args: argparse.Namespace) -> None:
+    from daemon.cli import arguments
+
+    arguments.inputs(args, ("config",))
+
+
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("verify", help="run one verification now (exit 0 pass, 1 fail, 2 error)")
     p.add_argument("--config", required=True, help="daemon.yaml")
@@ -23,4 +29,4 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--daemon", action="store_true",
                    help="ask the running daemon of this config (through its HMI API) instead "
                         "of driving the link from this process")
-    p.set_defaults(func=_run)
+    p.set_defaults(func=_run, preflight=_check)
