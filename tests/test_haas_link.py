@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import asyncio
 import math
+from pathlib import Path
 
 import pytest
 from hypothesis import given, settings
@@ -231,3 +232,19 @@ async def test_temperature_from_a_macro_variable_the_machine_copies_a_sensor_int
     finally:
         await link.close()
         await fe.stop()
+
+
+def test_the_share_folder_is_relative_to_daemon_yaml_as_every_other_path(tmp_path,
+                                                                          monkeypatch):
+    from daemon.machines.setup import validate_link
+
+    etc = tmp_path / "etc" / "rumba"
+    etc.mkdir(parents=True)
+    monkeypatch.chdir(tmp_path)  # rumba started elsewhere than the configuration's folder
+    cfg = validate_link({"transport": "haas", "host": "10.0.0.24", "program_dir": "share"},
+                        "machines[0].link", etc)
+    assert Path(cfg.program_dir) == etc / "share"
+    absolute = tmp_path / "mnt" / "haas"
+    cfg = validate_link({"transport": "haas", "host": "10.0.0.24",
+                         "program_dir": str(absolute)}, "machines[0].link", etc)
+    assert Path(cfg.program_dir) == absolute

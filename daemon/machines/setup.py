@@ -189,11 +189,15 @@ def named_file(base: Path, p: str, key: str) -> Path:
 
 def validate_link(link: dict[str, Any], where: str, base: Path) -> Any:
     """The transport section, validated by the drivers' own schema (drivers/<transport>/schema.py);
-    relative certificate paths are resolved against daemon.yaml's directory."""
+    relative certificate paths, and a Haas share's folder, are resolved against daemon.yaml's
+    directory as every other path of the file (LinuxCNC's program_dir must be absolute: it
+    is the control's own path, which the link refuses relative)."""
     from drivers.registry import link_config
 
     link = dict(link)
-    for k in ("certificate", "private_key", "server_certificate"):
+    keys = ("certificate", "private_key", "server_certificate") + (
+        ("program_dir",) if link.get("transport") == "haas" else ())
+    for k in keys:
         if isinstance(link.get(k), str):
             link[k] = str(resolve_path(base, link[k]))
     cfg = link_config(link, where)
