@@ -4,7 +4,9 @@ Units in the file: link rotations (EA0B, EB0Z …) in µrad, link translations (
 setup errors in µm, noise in µm, positions of obstacles in mm. Effect parameters are given in the
 units the effect model declares (``identification.effects``); the loader converts to mm / rad.
 ``rotary_error_motion`` is in the axis' fixed frame, ISO 230-7 (options ``orders``,
-``components``; config/errors/README.md), as the gap diagnosis reports it.
+``components``; config/errors/README.md), as the gap diagnosis reports it. A linear axis'
+``cyclic_error`` (a pitch error) and ``local_bump`` are effects too, outside the diagnosis'
+library (``identification.axis_local_effects``; positions in controller mm).
 """
 
 from __future__ import annotations
