@@ -82,14 +82,18 @@ def pattern_explained(machine: Machine, artefact: Artefact, data: TouchData, gro
     return [k for k in candidates if k not in still]
 
 
-def settle(run: Run, explained: Callable[[dict, list[int]], list[int]]) -> dict:
+def settle(run: Run, explained: Callable[[dict, list[int]], list[int]],
+           positions: Callable[[list[int]], np.ndarray] | None = None) -> dict:
     """The diagnosis with the outlier test settled both ways (module docstring). ``run``
     diagnoses the run with given group indices kept in (``keep``) or left out (``drop``)
-    beyond the test's own outliers; ``explained``: ``pattern_explained`` bound to the run."""
+    beyond the test's own outliers; ``explained``: ``pattern_explained`` bound to the run;
+    ``positions``: the groups' centres (controller mm), for ``along_structure``."""
     rep, parts = run()
     named = [o["index"] for o in parts["outliers"]]
     keep: frozenset[int] = frozenset()
-    if named and rep["verdict"].get("selected"):
+    if named and positions is not None and not rep["verdict"].get("selected"):
+        rep, parts, keep = along_structure(run, rep, parts, named, positions)
+    if named and not keep and rep["verdict"].get("selected"):
         back = explained(rep, named)
         if back:
             keep = frozenset(back)
@@ -109,6 +113,41 @@ def settle(run: Run, explained: Callable[[dict, list[int]], list[int]]) -> dict:
                 - {o["index"] for o in parts["outliers"]}):
             return _clean(pole_verdict(outlier_verdict(rest, rest_parts), suspect))
     return _clean(outlier_verdict(creep_note(rep), parts))
+
+
+TOUCH_REACH_MM = 16.0  # a ball's touches reach this far from its centre (Ø 25.4 + stylus)
+
+
+def along_structure(run: Run, rep: dict, parts: dict, named: list[int],
+                    positions: Callable[[list[int]], np.ndarray]
+                    ) -> tuple[dict, dict, frozenset[int]]:
+    """A local defect of a guideway deforms the probed sphere of every ball visit that
+    straddles it: the sphere stage names those visits chips, and with them left out the
+    rest may show nothing. So the run is diagnosed again with them kept in; they go back
+    into the diagnosis when it then finds structure along an axis that reaches them (a
+    local shape: within its width and a ball's touch reach) and either more than one visit
+    was named — a chip is one visit — or the rest already showed the structure."""
+    rest_found = bool((rep.get("structure") or {}).get("found"))
+    visits = {(o["log"], o["repeat"], o["pose"]) for o in parts["outliers"]}
+    if len(visits) < 2 and not rest_found:
+        return rep, parts, frozenset()
+    keep = frozenset(named)
+    rep_k, parts_k = run(keep=keep)
+    st = rep_k.get("structure") or {}
+    loc = st.get("located") or {}
+    if not st.get("found") or not loc:
+        return rep, parts, frozenset()
+    q = positions(named)[:, "XYZ".index(loc["axis"])]
+    if loc["shape"] == "local" and np.any(
+            np.abs(q - loc["centre_mm"]) > loc["width_mm"] / 2 + TOUCH_REACH_MM):
+        return rep, parts, frozenset()
+    parts_k["explained_visits"] = [
+        {k: v for k, v in o.items() if k != "index"}
+        | {"explained_by": f"structure along {loc['axis']}",
+           "note": f"its sphere departs where the structure along {loc['axis']} lies: a "
+                   "pattern along the axis, not a chip on one visit"}
+        for o in parts["outliers"]]
+    return rep_k, parts_k, keep
 
 
 def creep_note(rep: dict) -> dict:

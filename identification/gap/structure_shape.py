@@ -1,0 +1,133 @@
+"""Where and how large the structure along an axis is: a cyclic or a local shape fitted to it.
+
+Once ``structure`` has found that the residuals are a function of one axis' position, the
+report says where along it, how large and on which scale. Two shapes are scanned on the
+standardised residuals (weighted least squares, one amplitude per observation channel): a
+cyclic one, cos/sin of 2πx/P over a grid of periods P (a least-squares periodogram of
+unevenly spaced positions, Lomb 1976 / Scargle 1982), and a local one, a raised cosine of
+full width w centred at c over a grid of (c, w). The better by BIC (χ² form, the grid's
+nonlinear parameter counted) is the located shape; its columns also let the visit components
+be estimated with the structure held fixed (``structure_floor``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+CHANNELS = ("x", "y", "z", "form")
+MIN_PERIOD_MM = 6.0  # below the ball's touch spread a period reaches the centres only faintly
+N_PERIODS = 90
+MIN_WIDTH_MM = 12.0
+N_WIDTHS = 10
+CENTRE_STEP_MM = 2.5
+
+
+@dataclass(frozen=True)
+class Shape:
+    """A located shape along one axis (controller mm; µm in the observation channels)."""
+
+    kind: str  # "cyclic" | "local"
+    scale_mm: float  # the period, or the full width of the local shape
+    centre_mm: float | None  # local: where; cyclic: None
+    amplitude_um: np.ndarray  # (c,) per channel: cyclic amplitude, or the local height (signed)
+    span_mm: tuple[float, float]  # the positions the balls took along the axis
+    explained: float  # share of the standardised residual sum of squares it takes
+
+    @property
+    def channel(self) -> int:
+        return int(np.argmax(np.abs(self.amplitude_um)))
+
+    @property
+    def size_um(self) -> float:
+        return float(np.abs(self.amplitude_um[self.channel]))
+
+    def basis(self, q_mm: np.ndarray) -> np.ndarray:
+        """(G, k) the shape's basis functions at the positions ``q_mm``."""
+        if self.kind == "cyclic":
+            w = 2.0 * np.pi * q_mm / self.scale_mm
+            return np.stack([np.cos(w), np.sin(w)], axis=1)
+        return bump(q_mm, self.centre_mm, self.scale_mm)[:, None]
+
+    def columns(self, q_mm: np.ndarray, channels: int) -> np.ndarray:
+        """(G, 4, k · channels): the basis in every live observation channel (fixed effects
+        that stand for the structure when the visit components are estimated)."""
+        b = self.basis(q_mm)
+        out = np.zeros((len(q_mm), 4, b.shape[1] * channels))
+        for ch in range(channels):
+            out[:, ch, ch * b.shape[1]:(ch + 1) * b.shape[1]] = b
+        return out
+
+    def describe(self, axis: str) -> str:
+        ch = CHANNELS[self.channel]
+        what = f"centre {ch}" if ch != "form" else "sphere form residual"
+        if self.kind == "cyclic":
+            return (f"cyclic, period ≈ {self.scale_mm:.0f} mm, ≈ {self.size_um:.1f} µm "
+                    f"amplitude ({what}) over {axis} {self.span_mm[0]:.0f}…{self.span_mm[1]:.0f}"
+                    " mm")
+        lo, hi = self.centre_mm - self.scale_mm / 2, self.centre_mm + self.scale_mm / 2
+        return (f"local, ≈ {self.size_um:.1f} µm ({what}) at {axis} ≈ {self.centre_mm:.0f} mm, "
+                f"over ≈ {self.scale_mm:.0f} mm ({lo:.0f}…{hi:.0f} mm)")
+
+    def as_dict(self, axis: str | None) -> dict:
+        out = {"axis": axis, "shape": self.kind, "size_um": round(self.size_um, 3),
+               "channel": CHANNELS[self.channel],
+               "amplitude_um": {CHANNELS[k]: round(float(v), 3)
+                                for k, v in enumerate(self.amplitude_um)},
+               "span_mm": [round(self.span_mm[0], 1), round(self.span_mm[1], 1)],
+               "explained_fraction": round(self.explained, 3)}
+        if self.kind == "cyclic":
+            out["period_mm"] = round(self.scale_mm, 1)
+        else:
+            out |= {"centre_mm": round(self.centre_mm, 1), "width_mm": round(self.scale_mm, 1)}
+        return out
+
+
+def bump(q_mm: np.ndarray, centre_mm: float, width_mm: float) -> np.ndarray:
+    """The raised cosine ½(1 + cos(2π(x − c)/w)) on |x − c| ≤ w/2, 0 elsewhere."""
+    u = np.clip((q_mm - centre_mm) / (0.5 * width_mm), -1.0, 1.0)
+    return 0.5 * (1.0 + np.cos(np.pi * u))
+
+
+def _fit(basis: np.ndarray, r: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per candidate (…) and channel: weighted LS of ``r`` (G, c) on ``basis`` (…, G, k) with
+    weights ``w`` (G, c); returns (the reduction of the weighted RSS (…), coefficients
+    (…, c, k))."""
+    bw = np.einsum("...gk,gc->...cgk", basis, w)
+    gram = np.einsum("...cgk,...gl->...ckl", bw, basis)
+    rhs = np.einsum("...cgk,gc->...ck", bw, r)
+    k = basis.shape[-1]
+    gram = gram + 1e-12 * np.eye(k) * np.maximum(np.trace(gram, axis1=-2, axis2=-1), 1e-30
+                                                 )[..., None, None]
+    coef = np.linalg.solve(gram, rhs[..., None])[..., 0]
+    return np.einsum("...ck,...ck->...", coef, rhs), coef
+
+
+def locate(q_mm: np.ndarray, r_um: np.ndarray, sd_um: np.ndarray, live: np.ndarray) -> Shape:
+    """The shape along one axis (positions ``q_mm`` (G,)) that best fits the residuals
+    ``r_um`` (G, c) weighted by 1/``sd_um``² over the ``live`` observations."""
+    w = np.where(live, 1.0 / sd_um**2, 0.0)
+    lo, hi = float(q_mm.min()), float(q_mm.max())
+    span = max(hi - lo, 2 * MIN_PERIOD_MM)
+    total = float(np.sum(w * r_um**2))
+    n, c = int(live.sum()), r_um.shape[1]
+    periods = np.geomspace(MIN_PERIOD_MM, span, N_PERIODS)
+    ang = 2.0 * np.pi * q_mm[None, :] / periods[:, None]
+    red_c, coef_c = _fit(np.stack([np.cos(ang), np.sin(ang)], axis=2), r_um, w)
+    i = int(np.argmax(red_c))
+    cyc = Shape("cyclic", float(periods[i]), None, np.hypot(*coef_c[i].T), (lo, hi),
+                float(red_c[i] / total) if total > 0 else 0.0)
+    widths = np.geomspace(MIN_WIDTH_MM, max(span, 2 * MIN_WIDTH_MM), N_WIDTHS)
+    centres = np.arange(lo, hi + CENTRE_STEP_MM, CENTRE_STEP_MM)
+    grid = [(cc, ww) for ww in widths for cc in centres]
+    basis = np.stack([bump(q_mm, cc, ww) for cc, ww in grid])[:, :, None]
+    red_l, coef_l = _fit(basis, r_um, w)
+    j = int(np.argmax(red_l))
+    loc = Shape("local", float(grid[j][1]), float(grid[j][0]), coef_l[j][:, 0], (lo, hi),
+                float(red_l[j] / total) if total > 0 else 0.0)
+    # BIC in χ² form on standardised residuals: −reduction + k ln n (k: the amplitudes and
+    # the scanned period, or centre and width)
+    bic_c = -red_c[i] + (2 * c + 1) * np.log(max(n, 2))
+    bic_l = -red_l[j] + (c + 2) * np.log(max(n, 2))
+    return cyc if bic_c < bic_l else loc
