@@ -138,3 +138,15 @@ def test_the_structure_test_holds_its_level_under_centre_scatter(setup):
     rep = diagnose(machine, artefact, data[0], STYLUS_R, holdout=data[1])
     assert rep["verdict"]["effect"] == "none" and not rep["structure"]["found"]
     assert rep["noise"]["parts"]["ball_visit_um"] > 0.2
+
+
+@pytest.mark.parametrize("scenario,axis", [("cyclic_error", "Z"), ("local_bump+scatter", "X")])
+def test_selfcheck_holds_the_linear_axis_errors(scenario, axis):
+    # rumba gap --selfcheck: a cyclic error and a local bump of each linear axis, with and
+    # without index scatter, at a machine's sizes: never `none`, located along their axis
+    from identification.gap import selfcheck
+
+    machine, artefact, poses = annex_b_setup()
+    assert selfcheck.axes_of(scenario, machine, artefact) == ["X", "Y", "Z"]
+    case = selfcheck.run_case(machine, artefact, poses, STYLUS_R, scenario, axis, 17)
+    assert case.ok and case.located and case.verdict != "none", case

@@ -91,9 +91,7 @@ def settle(run: Run, explained: Callable[[dict, list[int]], list[int]],
     rep, parts = run()
     named = [o["index"] for o in parts["outliers"]]
     keep: frozenset[int] = frozenset()
-    if named and positions is not None and not rep["verdict"].get("selected"):
-        rep, parts, keep = along_structure(run, rep, parts, named, positions)
-    if named and not keep and rep["verdict"].get("selected"):
+    if named and rep["verdict"].get("selected"):
         back = explained(rep, named)
         if back:
             keep = frozenset(back)
@@ -105,6 +103,8 @@ def settle(run: Run, explained: Callable[[dict, list[int]], list[int]],
                 | {"explained_by": label,
                    "note": "its centre departs as the effect predicts: a pattern across "
                            "visits, not a chip on one"} for o in named]
+    if named and not keep and positions is not None:
+        rep, parts, keep = along_structure(run, rep, parts, named, positions)
     suspect = parts["outlier_test"].get("pole_suspect")
     if rep["verdict"]["effect"] == "unexplained" and suspect is not None:
         rest, rest_parts = run(keep=keep, drop=frozenset({suspect["index"]}))
