@@ -122,7 +122,7 @@ def run_one(row: str, plan: str, s: int, machine, artefact, plans) -> dict:
     ratio = v["holdout_rms_after_um"] / max(rigid_floor, 1e-9)
     library = v["effect"] not in LIBRARY_NOT
     limit = AFTER_LIMIT[bool(scatter)]
-    caught = v["effect"] == "unexplained" or (library and ratio <= limit)
+    caught = bool(v["effect"] == "unexplained" or (library and ratio <= limit))
     located = bool(st.get("found")) and st.get("axis") == axis
     return {"row": row, "plan": plan, "seed": s, "axis": axis, **what,
             "verdict": v["effect"], "verdict_axis": v["axis"], "after_ratio": round(ratio, 3),

@@ -118,7 +118,8 @@ diagnosis below is that of the other visits.</p>{% endif %}
 <td class="n">{{ c.p_value }}</td><td class="n">{{ c.delta_bic }}</td>
 <td class="n">{{ c.visible_dof }}/{{ c.n_params }}</td>
 <td>{% for k, p in c.params.items() %}{{ k }} = {{ "%.3g"|format(p.value) }}
-± {{ "%.2g"|format(p.std) }} {{ p.unit }}<br>{% endfor %}</td>
+{%- if p.std is not none %} ± {{ "%.2g"|format(p.std) }}{% endif %} {{ p.unit }}<br>
+{%- endfor %}</td>
 <td>{{ c.indistinguishable_from|join(", ") }}</td></tr>{% endfor %}</table>
 {% if r.invisible %}<h3>Not visible on this probing pattern</h3><ul>
 {% for i in r.invisible %}<li>{{ i.effect }}{% if i.axis %} {{ i.axis }}{% endif %}:

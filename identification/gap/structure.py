@@ -10,27 +10,36 @@ residuals cannot tell the second from the independent centre scatter of a ball v
 that changes from ball to ball looks random to it): that component takes the error up and the
 floor rises to meet the gap.
 
-The test, per controller axis a ∈ {X, Y, Z}, uses only what the visit model cannot produce:
-pairs of ball visits from *different* indexations whose centres lie within ``h`` of each other
-along a (``LAGS_MM``). Their residuals — the generalised-least-squares residuals of the twin on
-every group, training and held-out together, under the run's scatter components, with each
-visit's best rigid index displacement (its BLUP) removed and each observation standardised —
-are uncorrelated under the visit model whatever the size of its components, and positively
-correlated when the residual is a function of the axis position that varies more slowly than
-``h``: the statistic, per observation channel (centre x, y, z, form residual: an error reaches
-them differently), is their mean product over the mean square, a Moran's I restricted to
-pairs that are neighbours along one axis (Moran 1950, Biometrika 37:17; Cliff & Ord 1981,
-"Spatial Processes", ch. 1-2; the short-lag end of the semivariogram, Cressie 1993 §2.2).
-Its null distribution is a Monte Carlo test under the fitted visit model (Besag & Diggle 1977,
-Appl. Statist. 26:327): ``DRAWS`` residual vectors drawn from the model with the run's
+The test works on the generalised-least-squares residuals of the twin on every group, training
+and held-out together, under the run's scatter components, with each visit's best rigid index
+displacement (its BLUP) removed and each observation standardised. Per controller axis
+a ∈ {X, Y, Z} and observation channel (centre x, y, z, form residual: an error reaches them
+differently — a pitch error's local slope moves the fitted radius, hence the centre along the
+spindle, more than the centre along the axis), three statistics:
+
+* neighbours: the mean product of the residuals of ball visits from *different* indexations
+  whose centres lie within h of each other along a (``LAGS_MM``), over the mean square — a
+  Moran's I restricted to the pairs the visit model cannot correlate (Moran 1950, Biometrika
+  37:17; Cliff & Ord 1981, "Spatial Processes", ch. 1-2; the short-lag end of the
+  semivariogram, Cressie 1993 §2.2): zero under the visit model whatever the size of its
+  components, positive for any function of the position smoother than h;
+* cyclic: the largest share of the channel's sum of squares one sinusoid of the position
+  takes, over periods from the touch spread to the span (a least-squares periodogram of
+  unevenly spaced positions, Lomb 1976, Astrophys. Space Sci. 39:447; Scargle 1982, ApJ
+  263:835) — a smooth/periodic regression on the axis coordinate, the pitch error's matched
+  filter;
+* local: the same for one raised-cosine bump, over centres and widths (a scan statistic).
+
+Their null distribution is a Monte Carlo test under the fitted visit model (Besag & Diggle
+1977, Appl. Statist. 26:327): ``DRAWS`` residual vectors drawn from the model with the run's
 components, projected off the same fixed columns and treated the same way, so the leverage of
-the twin, the held-out groups and the index scatter are all in it. Each (axis, lag, channel)
-statistic is standardised by its Monte Carlo mean and spread; the largest over the three axes,
-the lags and the channels is the test statistic, the Monte Carlo distribution of that maximum
-its reference — the single-step max-T adjustment of Westfall & Young (1993, "Resampling-Based
-Multiple Testing" §2.5), which holds the family-wise level ``ALPHA`` over axes, lags and
-channels and gives each axis an adjusted p-value. The draws come from a fixed seed: a log
-always gives the same answer.
+the twin, the held-out groups and the index scatter are all in it; the statistics are shares
+and correlations, free of the components' scale. Each is standardised by its Monte Carlo mean
+and spread; the largest over the axes, channels, lags and shapes is the test statistic, the
+Monte Carlo distribution of that maximum its reference — the single-step max-T adjustment of
+Westfall & Young (1993, "Resampling-Based Multiple Testing" §2.5), which holds the family-wise
+level ``ALPHA`` over all of them and gives each axis an adjusted p-value. The draws come from a
+fixed seed: a log always gives the same answer.
 """
 
 from __future__ import annotations
@@ -42,11 +51,12 @@ import numpy as np
 
 from identification.gap.data import Groups
 from identification.gap.linear import Problem, live
-from identification.gap.structure_shape import Shape, locate
+from identification.gap.structure_shape import Shape, locate, scan_bases
 from identification.visit_scatter import VisitBlocks, arrange, covariance
 
-ALPHA = 0.01  # family-wise level over the three axes, the lags and the channels
-LAGS_MM = (3.0, 6.0, 12.0, 24.0)  # neighbours along the axis: a 20 mm period needs ≤ 5 mm
+ALPHA = 0.01  # family-wise level over the axes, channels, lags and shapes
+LAGS_MM = (6.0, 12.0, 24.0)  # neighbours along the axis
+MIN_GROUPS = 8  # fewer ball visits hold no pattern along an axis
 DRAWS = 500  # Monte Carlo residual vectors: p-values to 0.002
 MIN_PAIRS = 5  # an (axis, lag) with fewer neighbour pairs is not tested
 SEED = 2301  # the Monte Carlo draws' fixed seed (a log always gives the same answer)
@@ -66,7 +76,7 @@ class Structure:
     shape: Shape | None  # located along ``axis`` when found
     fixed: tuple[str, ...] = ()  # effects held fixed besides the twin (labels)
     draws: int = DRAWS
-    notes: list[str] = field(default_factory=list)
+    others: dict[str, Shape] = field(default_factory=dict)  # other axes significant alone
 
     @property
     def found(self) -> bool:
@@ -79,12 +89,20 @@ class Structure:
                "axis": self.axis if self.found else None,
                "lag_mm": self.lag_mm if self.found else None,
                "with_effects": list(self.fixed), "draws": self.draws,
-               "test": "Monte Carlo max-T over axes and lags of the neighbour correlation of "
-                       "residuals from different visits (rigid index displacement removed)",
+               "test": "Monte Carlo max-T over axes, channels, neighbour lags and shapes of "
+                       "the neighbour correlation of residuals from different visits and "
+                       "the largest cyclic and local shape along each axis (rigid index "
+                       "displacement removed)",
                "message": self.message()}
         if self.found and self.shape is not None:
             out["located"] = self.shape.as_dict(self.axis)
+            out["also_located"] = [sh.as_dict(a) for a, sh in self.others.items()]
         return out
+
+    def shapes(self) -> dict[str, Shape]:
+        """Every located shape by axis, the main one first."""
+        main = {self.axis: self.shape} if self.found and self.shape is not None else {}
+        return main | self.others
 
     def message(self) -> str:
         ps = ", ".join(f"{a} p = {p:.2g}" for a, p in self.axes_p.items())
@@ -93,11 +111,13 @@ class Structure:
             return (f"no structure along X, Y or Z{fixed} ({ps}; α = {ALPHA:g} over the "
                     "axes): what the visits leave is not a function of an axis' position")
         where = self.shape.describe(self.axis) if self.shape is not None else ""
+        others = [f"{a}: {sh.describe(a)}" for a, sh in self.others.items()]
         return (f"structure along {self.axis}{fixed}{': ' + where if where else ''} (p = "
-                f"{self.p_value:.2g} over X, Y, Z; {ps}) — neighbours along {self.axis} from "
-                "different visits agree: a function of the axis position that comes back "
-                "where the axis returns (a pitch error, a local defect of a guideway), not "
-                "visit scatter")
+                f"{self.p_value:.2g} over X, Y, Z; {ps})"
+                + (f"; also along {'; '.join(others)}" if others else "")
+                + f" — ball visits of different indexations follow one function of the "
+                f"{self.axis} position, which comes back where the axis returns (a pitch "
+                "error, a local defect of a guideway): not visit scatter")
 
 
 def _blocks(problem: Problem, groups: Groups, vs, cols: np.ndarray) -> VisitBlocks:
@@ -156,18 +176,49 @@ def neighbour_pairs(pos_mm: np.ndarray, visit: np.ndarray, lags: Sequence[float]
     return out
 
 
+def _pair_stats(allr: np.ndarray, pairs: list, chans: list[int]
+                ) -> tuple[list[tuple], list[np.ndarray]]:
+    """Near-pair correlation per (axis, lag, channel): mean product over mean square."""
+    den = np.maximum(np.mean(allr**2, axis=1), 1e-300)  # (draws, c)
+    keys, stats = [], []
+    for a, h, i, j in pairs:
+        for k in chans:
+            keys.append(("pairs", a, h, k))
+            stats.append(np.einsum("bp,bp->b", allr[:, i, k], allr[:, j, k]) / len(i)
+                         / den[:, k])
+    return keys, stats
+
+
+def _scan_stats(allr: np.ndarray, pos_mm: np.ndarray, chans: list[int]
+                ) -> tuple[list[tuple], list[np.ndarray]]:
+    """Per (shape family, axis, channel): the largest share of the channel's sum of squares
+    one cyclic (period scanned) or local (centre and width scanned) shape takes."""
+    z = allr[:, :, chans]
+    tot = np.maximum(np.sum(z**2, axis=1), 1e-300)  # (draws, c')
+    keys, stats = [], []
+    for a in range(3):
+        for family, (phi, k) in scan_bases(pos_mm[:, a]).items():
+            zt = np.ascontiguousarray(z.transpose(0, 2, 1)).reshape(-1, z.shape[1])
+            proj = ((zt @ phi.T) ** 2).reshape(z.shape[0], z.shape[2], -1)
+            if k == 2:
+                proj = proj[..., 0::2] + proj[..., 1::2]
+            best = proj.max(axis=2) / tot
+            for n, ch in enumerate(chans):
+                keys.append((family, a, None, ch))
+                stats.append(best[:, n])
+    return keys, stats
+
+
 def test_structure(problem: Problem, groups: Groups, vs, cols: np.ndarray,
                    fixed: Sequence[str] = (), draws: int = DRAWS) -> Structure | None:
     """Is what the fixed columns ``cols`` (the twin, and the effects named in ``fixed``) leave
     a function of an axis' position? None without a visit model (``vs``) to test against."""
     from identification.gap.scatter import visit_ids
 
-    if vs is None:
+    if vs is None or len(groups) < MIN_GROUPS:
         return None
-    visit = visit_ids(groups)
-    pairs = neighbour_pairs(groups.centres.xyz_mm, visit)
-    if not pairs:
-        return None
+    pos = groups.centres.xyz_mm
+    pairs = neighbour_pairs(pos, visit_ids(groups))
     res = _Residuals(_blocks(problem, groups, vs, cols), vs.fit.sigma, len(groups))
     rng = np.random.default_rng(SEED)
     sim = res(rng.standard_normal((draws, res.yw.size)))
@@ -177,26 +228,28 @@ def test_structure(problem: Problem, groups: Groups, vs, cols: np.ndarray,
     sd = np.where(ok, sd, 1.0)
     allr = np.concatenate([obs_um[None], sim]) / sd * ok  # (1 + draws, G, c)
     chans = [k for k in range(allr.shape[2]) if ok[:, k].any()]
-    den = np.mean(allr**2, axis=1)  # (1 + draws, c)
-    # one statistic per axis, lag and observation channel: an error along an axis reaches
-    # the channels differently (a pitch error's local slope moves the fitted radius, hence
-    # the centre along the spindle, more than the centre along the axis itself)
-    keys = [(a, h, k) for a, h, _, _ in pairs for k in chans]
-    stats = np.array([np.einsum("bp,bp->b", allr[:, i, k], allr[:, j, k]) / len(i)
-                      / np.maximum(den[:, k], 1e-300) for _, _, i, j in pairs for k in chans])
+    # one statistic per axis and observation channel (an error along an axis reaches the
+    # channels differently: a pitch error's local slope moves the fitted radius, hence the
+    # centre along the spindle, more than the centre along the axis itself), per neighbour
+    # lag and per shape family
+    keys, stats = _pair_stats(allr, pairs, chans)
+    k2, s2 = _scan_stats(allr, pos, chans)
+    keys, stats = keys + k2, np.array(stats + s2)
     mu, spread = stats[:, 1:].mean(axis=1), stats[:, 1:].std(axis=1)
     z = (stats - mu[:, None]) / np.where(spread > 0, spread, 1.0)[:, None]
     t_sim = z[:, 1:].max(axis=0)
     p = float((1 + np.sum(t_sim >= z[:, 0].max())) / (draws + 1))
     axes_p, axes_z = {}, {}
     for a in range(3):
-        k = [n for n, (aa, *_) in enumerate(keys) if aa == a]
-        if k:
-            za = float(z[k, 0].max())
-            axes_z[AXES[a]] = za
-            axes_p[AXES[a]] = float((1 + np.sum(t_sim >= za)) / (draws + 1))
-    best_a, best_h, _ = keys[int(np.argmax(z[:, 0]))]
-    shape = None
+        k = [n for n, key in enumerate(keys) if key[1] == a]
+        za = float(z[k, 0].max())
+        axes_z[AXES[a]] = za
+        axes_p[AXES[a]] = float((1 + np.sum(t_sim >= za)) / (draws + 1))
+    _, best_a, best_h, _ = keys[int(np.argmax(z[:, 0]))]
+    shape, others = None, {}
     if p < ALPHA:
-        shape = locate(groups.centres.xyz_mm[:, best_a], obs_um, sd, ok)
-    return Structure(p, axes_p, axes_z, AXES[best_a], best_h, shape, tuple(fixed), draws)
+        shape = locate(pos[:, best_a], obs_um, sd, ok)
+        others = {a: locate(pos[:, AXES.index(a)], obs_um, sd, ok) for a, pa in axes_p.items()
+                  if pa < ALPHA and a != AXES[best_a]}
+    return Structure(p, axes_p, axes_z, AXES[best_a], best_h, shape, tuple(fixed), draws,
+                     others)

@@ -84,10 +84,8 @@ def credit(problem: Problem, groups: Groups, vs: VisitScatter | None, base: np.n
     if vs is None or floor is None or not floor.found:
         return vs, found
     extra = list(vs.extra)
-    shape_cols = []
-    if floor.shape is not None:
-        q = groups.centres.xyz_mm[:, AXES.index(floor.axis)]
-        shape_cols = [floor.shape.columns(q, groups.channels)]
+    shape_cols = [sh.columns(groups.centres.xyz_mm[:, AXES.index(a)], groups.channels)
+                  for a, sh in floor.shapes().items()]
     why = f"structure along {floor.axis} (p = {floor.p_value:.2g})"
     held = estimate_scatter(problem, groups, vs.z, vs.axes, extra + shape_cols, stated_urad,
                             withheld=why)
@@ -114,9 +112,10 @@ def unexplained_message(found: StructureFinding, selected: Sequence, frac: float
     """The verdict's sentence for structure no library effect removes."""
     s = found.twin
     where = s.shape.describe(s.axis) if s.shape is not None else "a function of its position"
+    also = "".join(f"; also along {a}: {sh.describe(a)}" for a, sh in s.others.items())
     out = (f"structure along {s.axis} that no library effect explains: {where} (p = "
-           f"{s.p_value:.2g} over X, Y, Z; neighbours along {s.axis} from different visits "
-           "agree — not visit scatter)")
+           f"{s.p_value:.2g} over X, Y, Z{also}; ball visits of different indexations follow "
+           f"one function of the position — not visit scatter)")
     if selected and found.selected is not None:
         names = ", ".join(c.label for c in selected)
         out += (f"; {names} takes {100 * frac:.0f} % of the held-out excess but leaves it "

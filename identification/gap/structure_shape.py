@@ -22,6 +22,10 @@ N_PERIODS = 90
 MIN_WIDTH_MM = 12.0
 N_WIDTHS = 10
 CENTRE_STEP_MM = 2.5
+# the test's scan (``scan_bases``): coarser, since it runs on every Monte Carlo draw
+SCAN_PERIODS = 60
+SCAN_WIDTHS = 8
+SCAN_CENTRE_STEP = 0.25  # of the width
 
 
 @dataclass(frozen=True)
@@ -131,3 +135,28 @@ def locate(q_mm: np.ndarray, r_um: np.ndarray, sd_um: np.ndarray, live: np.ndarr
     bic_c = -red_c[i] + (2 * c + 1) * np.log(max(n, 2))
     bic_l = -red_l[j] + (c + 2) * np.log(max(n, 2))
     return cyc if bic_c < bic_l else loc
+
+
+def scan_bases(q_mm: np.ndarray) -> dict[str, tuple[np.ndarray, int]]:
+    """The test's scan along one axis: {"cyclic": (rows (2·periods, G), 2), "local":
+    (rows (candidates, G), 1)} — each cyclic pair orthonormal over the groups, each bump
+    of unit norm — so that a candidate's share of a standardised residual is its squared
+    projection."""
+    lo, hi = float(q_mm.min()), float(q_mm.max())
+    span = max(hi - lo, 2 * MIN_PERIOD_MM)
+    rows = []
+    for period in np.geomspace(MIN_PERIOD_MM, span, SCAN_PERIODS):
+        w = 2.0 * np.pi * q_mm / period
+        qr, r = np.linalg.qr(np.stack([np.cos(w), np.sin(w)], axis=1))
+        if abs(r[1, 1]) < 1e-9 * abs(r[0, 0]):
+            qr[:, 1] = 0.0
+        rows += [qr[:, 0], qr[:, 1]]
+    bumps = []
+    for width in np.geomspace(MIN_WIDTH_MM, max(span, 2 * MIN_WIDTH_MM), SCAN_WIDTHS):
+        for c in np.arange(lo, hi + 1e-9, SCAN_CENTRE_STEP * width):
+            b = bump(q_mm, c, width)
+            n = np.linalg.norm(b)
+            if n > 0:
+                bumps.append(b / n)
+    return {"cyclic": (np.array(rows), 2), "local": (np.array(bumps), 1)}
+
