@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from identification.effects import Effect, model_name
-from identification.gap.data import Groups
+from identification.gap.data import Groups, visit_ids
 from identification.gap.linear import Problem, live
 from identification.gap.step_ball import Step, find_step
 from identification.gap.structure import AXES, Structure, test_structure
@@ -148,11 +148,6 @@ def index_columns(machine: Machine, artefact: Artefact, layout: Layout, p: np.nd
         q1, _ = predict(machine, artefact, layout, p, moved)
         out[:, :3, k] = (q1 - q0) * 1e3 / h_urad
     return out, axes
-
-
-def visit_ids(groups: Groups) -> np.ndarray:
-    """One id per indexation: (repeat, pose)."""
-    return groups.repeat.astype(np.int64) * 1_000_000 + groups.centres.pose
 
 
 def estimate_scatter(problem: Problem, groups: Groups, z: np.ndarray, axes: tuple[str, ...],

@@ -49,7 +49,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from identification.gap.data import Groups
+from identification.gap.data import Groups, visit_ids
 from identification.gap.linear import Problem, live
 from identification.gap.structure_shape import Shape, locate, scan_bases
 from identification.visit_scatter import VisitBlocks, arrange, covariance
@@ -121,8 +121,6 @@ class Structure:
 
 
 def _blocks(problem: Problem, groups: Groups, vs, cols: np.ndarray) -> VisitBlocks:
-    from identification.gap.scatter import visit_ids
-
     cov = np.zeros((len(groups), 4, 4))
     cov[:, :3, :3] = groups.centre_cov_um2
     cov[:, 3, 3] = groups.sigma_touch_um**2
@@ -213,8 +211,6 @@ def test_structure(problem: Problem, groups: Groups, vs, cols: np.ndarray,
                    fixed: Sequence[str] = (), draws: int = DRAWS) -> Structure | None:
     """Is what the fixed columns ``cols`` (the twin, and the effects named in ``fixed``) leave
     a function of an axis' position? None without a visit model (``vs``) to test against."""
-    from identification.gap.scatter import visit_ids
-
     if vs is None or len(groups) < MIN_GROUPS:
         return None
     pos = groups.centres.xyz_mm
