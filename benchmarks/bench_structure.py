@@ -20,7 +20,9 @@ held-out gap comes down to the trigger-noise-and-rigid-scatter floor (held-out R
 ≤ ``AFTER_LIMIT`` (1.5 under scatter) × the held-out floor of the model with it, scaled to the
 floor's trigger and index parts): never ``none``, never a chip (``measurement_outlier``,
 ``pole_defect``) or a knocked ball; "located" — the twin's residuals show structure along the
-injected axis; both; and, for the null rows, not ``unexplained`` and no structure found.
+injected axis; both; "right axis" — caught, and located along the injected axis or read as a
+library effect of that axis at the floor (a bump at the end of the travel is a straightness to
+the plan); and, for the null rows, not ``unexplained`` and no structure found.
 Plans: holdout-new (config/plans/shift_holdout_14poses.yaml, seven estimate poses and the
 seven validate poses as a separate log) and shift-14 (the annex-B indexations plus the
 drift-check revisit, one log, leave-one-pose-out).
@@ -124,9 +126,13 @@ def run_one(row: str, plan: str, s: int, machine, artefact, plans) -> dict:
     limit = AFTER_LIMIT[bool(scatter)]
     caught = bool(v["effect"] == "unexplained" or (library and ratio <= limit))
     located = bool(st.get("found")) and st.get("axis") == axis
+    # or a library effect of that axis takes the held-out gap down to the floor: the error
+    # is explained there (a bump at the end of the travel is a straightness to the plan)
+    named = library and v["axis"] == axis and ratio <= limit
     return {"row": row, "plan": plan, "seed": s, "axis": axis, **what,
             "verdict": v["effect"], "verdict_axis": v["axis"], "after_ratio": round(ratio, 3),
-            "caught": caught, "located": located, "structure_p": st.get("p_value"),
+            "caught": caught, "located": located, "named_axis": bool(named),
+            "structure_p": st.get("p_value"),
             "structure_axis": st.get("axis"), "shape": (st.get("located") or {}),
             "floor_parts": {k: parts.get(k) for k in ("trigger_um", "index_um",
                                                        "ball_visit_um")},
@@ -135,7 +141,8 @@ def run_one(row: str, plan: str, s: int, machine, artefact, plans) -> dict:
 
 def summary(runs: list[dict]) -> str:
     lines = [f"{'row':16s} {'plan':12s} {'N':>4s} {'not none':>8s} {'caught':>7s} "
-             f"{'located':>8s} {'both':>6s} {'not unexpl.':>11s} {'no struct.':>10s}  verdicts"]
+             f"{'located':>8s} {'both':>6s} {'right axis':>10s} {'not unexpl.':>11s} "
+             f"{'no struct.':>10s}  verdicts"]
     keys = sorted({(r["row"], r["plan"]) for r in runs},
                   key=lambda k: (ROWS.index(k[0]), PLANS.index(k[1])))
     for row, plan in keys:
@@ -151,6 +158,7 @@ def summary(runs: list[dict]) -> str:
             f"{row:16s} {plan:12s} {n:4d} {pct(lambda r: r['verdict'] != 'none'):>8s} "
             f"{pct(lambda r: r['caught']):>7s} {pct(lambda r: r['located']):>8s} "
             f"{pct(lambda r: r['caught'] and r['located']):>6s} "
+            f"{pct(lambda r: r['caught'] and (r['located'] or r.get('named_axis'))):>10s} "
             f"{pct(lambda r: r['verdict'] != 'unexplained'):>11s} "
             f"{pct(lambda r: not r['structure_p'] or r['structure_p'] >= 0.01):>10s}  "
             + ", ".join(f"{k} {c}" for k, c in verdicts.most_common()))

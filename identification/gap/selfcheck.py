@@ -238,7 +238,8 @@ def run_case(machine: Machine, artefact: Artefact, poses: Sequence[tuple[float, 
     floor = rep["noise_floor_um"]
     after = (top["holdout_rms_um"] / floor) if top else float("nan")
     v = rep["verdict"]
-    located = scenario in STRUCTURE and structure_located(rep, axis)
+    limit = AFTER_LIMIT_SCATTER if scattered else AFTER_LIMIT
+    located = scenario in STRUCTURE and structure_located(rep, axis, limit)
     if displaced is not None:
         b, c = poses[displaced]
         key = f"b={round(b, 3):g},c={round(c, 3):g}"
@@ -248,7 +249,7 @@ def run_case(machine: Machine, artefact: Artefact, poses: Sequence[tuple[float, 
               and v["effect"] == family
               and after <= (AFTER_LIMIT_SCATTER if scattered else AFTER_LIMIT))
     elif scenario in STRUCTURE:
-        ok = located and caught(rep, AFTER_LIMIT_SCATTER if scattered else AFTER_LIMIT)
+        ok = located and caught(rep, limit)
         after = rigid_after_ratio(rep)
     elif knocked is not None:
         ok = step_named(rep, knocked, artefact.ids)

@@ -61,7 +61,12 @@ def caught(rep: dict, limit: float) -> bool:
     return v["effect"] not in NOT_LIBRARY and rigid_after_ratio(rep) <= limit
 
 
-def located(rep: dict, axis: str) -> bool:
-    """Structure found along ``axis`` on the twin's residuals."""
-    st = rep.get("structure") or {}
-    return bool(st.get("found")) and st.get("axis") == axis
+def located(rep: dict, axis: str, limit: float) -> bool:
+    """Structure found along ``axis`` on the twin's residuals — or a library effect of that
+    axis takes the held-out gap down to ``limit`` × the rigid floor (a bump at the end of the
+    travel is a straightness to the plan)."""
+    st, v = rep.get("structure") or {}, rep["verdict"]
+    if st.get("found") and st.get("axis") == axis:
+        return True
+    return v["effect"] not in NOT_LIBRARY and v["axis"] == axis \
+        and rigid_after_ratio(rep) <= limit

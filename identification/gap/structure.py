@@ -12,10 +12,12 @@ floor rises to meet the gap.
 
 The test works on the generalised-least-squares residuals of the twin on every group, training
 and held-out together, under the run's scatter components, with each visit's best rigid index
-displacement (its BLUP) removed and each observation standardised. Per controller axis
-a ∈ {X, Y, Z} and observation channel (centre x, y, z, form residual: an error reaches them
-differently — a pitch error's local slope moves the fitted radius, hence the centre along the
-spindle, more than the centre along the axis), three statistics:
+displacement (its BLUP) removed and each observation standardised and winsorised at ±3.5
+(one visit's gross residual, a chip below what the outlier test names, is no shape of an
+axis). Per controller axis a ∈ {X, Y, Z} and observation channel (centre x, y, z, form
+residual: an error reaches them differently — a pitch error's local slope moves the fitted
+radius, hence the centre along the spindle, more than the centre along the axis), three
+statistics:
 
 * neighbours: the mean product of the residuals of ball visits from *different* indexations
   whose centres lie within h of each other along a (``LAGS_MM``), over the mean square — a
@@ -24,7 +26,9 @@ spindle, more than the centre along the axis), three statistics:
   semivariogram, Cressie 1993 §2.2): zero under the visit model whatever the size of its
   components, positive for any function of the position smoother than h;
 * cyclic: the largest share of the channel's sum of squares one sinusoid of the position
-  takes, over periods from the touch spread to the span (a least-squares periodogram of
+  takes between visits (the squared projection without each visit's products with itself:
+  a shape counts as far as different visits agree on it), over periods from the touch spread
+  to the span (a least-squares periodogram of
   unevenly spaced positions, Lomb 1976, Astrophys. Space Sci. 39:447; Scargle 1982, ApJ
   263:835) — a smooth/periodic regression on the axis coordinate, the pitch error's matched
   filter;
@@ -51,12 +55,13 @@ import numpy as np
 
 from identification.gap.data import Groups, visit_ids
 from identification.gap.linear import Problem, live
-from identification.gap.structure_shape import Shape, locate, scan_bases
+from identification.gap.structure_shape import Shape, cross_visit, locate, scan_bases
 from identification.visit_scatter import VisitBlocks, arrange, covariance
 
 ALPHA = 0.01  # family-wise level over the axes, channels, lags and shapes
 LAGS_MM = (6.0, 12.0, 24.0)  # neighbours along the axis
 MIN_GROUPS = 8  # fewer ball visits hold no pattern along an axis
+CLIP = 3.5  # standardised residuals are winsorised here (Hampel's 3.5σ, as data.REJECT_Z)
 DRAWS = 500  # Monte Carlo residual vectors: p-values to 0.002
 MIN_PAIRS = 5  # an (axis, lag) with fewer neighbour pairs is not tested
 SEED = 2301  # the Monte Carlo draws' fixed seed (a log always gives the same answer)
@@ -187,17 +192,17 @@ def _pair_stats(allr: np.ndarray, pairs: list, chans: list[int]
     return keys, stats
 
 
-def _scan_stats(allr: np.ndarray, pos_mm: np.ndarray, chans: list[int]
+def _scan_stats(allr: np.ndarray, pos_mm: np.ndarray, visit: np.ndarray, chans: list[int]
                 ) -> tuple[list[tuple], list[np.ndarray]]:
     """Per (shape family, axis, channel): the largest share of the channel's sum of squares
-    one cyclic (period scanned) or local (centre and width scanned) shape takes."""
+    one cyclic (period scanned) or local (centre and width scanned) shape takes between
+    visits (``structure_shape.cross_visit``)."""
     z = allr[:, :, chans]
     tot = np.maximum(np.sum(z**2, axis=1), 1e-300)  # (draws, c')
     keys, stats = [], []
     for a in range(3):
         for family, (phi, k) in scan_bases(pos_mm[:, a]).items():
-            zt = np.ascontiguousarray(z.transpose(0, 2, 1)).reshape(-1, z.shape[1])
-            proj = ((zt @ phi.T) ** 2).reshape(z.shape[0], z.shape[2], -1)
+            proj = cross_visit(z, phi, visit)
             if k == 2:
                 proj = proj[..., 0::2] + proj[..., 1::2]
             best = proj.max(axis=2) / tot
@@ -213,8 +218,8 @@ def test_structure(problem: Problem, groups: Groups, vs, cols: np.ndarray,
     a function of an axis' position? None without a visit model (``vs``) to test against."""
     if vs is None or len(groups) < MIN_GROUPS:
         return None
-    pos = groups.centres.xyz_mm
-    pairs = neighbour_pairs(pos, visit_ids(groups))
+    pos, visit = groups.centres.xyz_mm, visit_ids(groups)
+    pairs = neighbour_pairs(pos, visit)
     res = _Residuals(_blocks(problem, groups, vs, cols), vs.fit.sigma, len(groups))
     rng = np.random.default_rng(SEED)
     sim = res(rng.standard_normal((draws, res.yw.size)))
@@ -222,14 +227,17 @@ def test_structure(problem: Problem, groups: Groups, vs, cols: np.ndarray,
     sd = sim.std(axis=0)
     ok = live(problem)[:, : sd.shape[1]] & (sd > 0)
     sd = np.where(ok, sd, 1.0)
-    allr = np.concatenate([obs_um[None], sim]) / sd * ok  # (1 + draws, G, c)
+    # Winsorised at ±CLIP (Huber's ψ): one visit's gross residual — a pole chip below what
+    # the outlier test names — must not pass for a local shape of the axis; a structure is
+    # carried by several visits, each of which it moves by a few standard deviations
+    allr = np.clip(np.concatenate([obs_um[None], sim]) / sd, -CLIP, CLIP) * ok
     chans = [k for k in range(allr.shape[2]) if ok[:, k].any()]
     # one statistic per axis and observation channel (an error along an axis reaches the
     # channels differently: a pitch error's local slope moves the fitted radius, hence the
     # centre along the spindle, more than the centre along the axis itself), per neighbour
     # lag and per shape family
     keys, stats = _pair_stats(allr, pairs, chans)
-    k2, s2 = _scan_stats(allr, pos, chans)
+    k2, s2 = _scan_stats(allr, pos, visit, chans)
     keys, stats = keys + k2, np.array(stats + s2)
     mu, spread = stats[:, 1:].mean(axis=1), stats[:, 1:].std(axis=1)
     z = (stats - mu[:, None]) / np.where(spread > 0, spread, 1.0)[:, None]
@@ -244,8 +252,9 @@ def test_structure(problem: Problem, groups: Groups, vs, cols: np.ndarray,
     _, best_a, best_h, _ = keys[int(np.argmax(z[:, 0]))]
     shape, others = None, {}
     if p < ALPHA:
-        shape = locate(pos[:, best_a], obs_um, sd, ok)
-        others = {a: locate(pos[:, AXES.index(a)], obs_um, sd, ok) for a, pa in axes_p.items()
-                  if pa < ALPHA and a != AXES[best_a]}
+        r_um = allr[0] * sd  # the observed residual, winsorised
+        shape = locate(pos[:, best_a], r_um, sd, ok, visit)
+        others = {a: locate(pos[:, AXES.index(a)], r_um, sd, ok, visit)
+                  for a, pa in axes_p.items() if pa < ALPHA and a != AXES[best_a]}
     return Structure(p, axes_p, axes_z, AXES[best_a], best_h, shape, tuple(fixed), draws,
                      others)

@@ -2,12 +2,14 @@
 
 Once ``structure`` has found that the residuals are a function of one axis' position, the
 report says where along it, how large and on which scale. Two shapes are scanned on the
-standardised residuals (weighted least squares, one amplitude per observation channel): a
-cyclic one, cos/sin of 2πx/P over a grid of periods P (a least-squares periodogram of
-unevenly spaced positions, Lomb 1976 / Scargle 1982), and a local one, a raised cosine of
-full width w centred at c over a grid of (c, w). The better by BIC (χ² form, the grid's
-nonlinear parameter counted) is the located shape; its columns also let the visit components
-be estimated with the structure held fixed (``structure_floor``).
+standardised residuals, one amplitude per observation channel: a cyclic one, cos/sin of
+2πx/P over a grid of periods P (a least-squares periodogram of unevenly spaced positions,
+Lomb 1976 / Scargle 1982), and a local one, a raised cosine of full width w centred at c over
+a grid of (c, w). Each candidate is scored by what different visits agree on
+(``cross_visit``), the better family by BIC (χ² form, the grid's nonlinear
+parameter counted) is the located shape, and its size comes from the weighted least-squares
+fit; its columns also let the visit components be estimated with the structure held fixed
+(``structure_floor``).
 """
 
 from __future__ import annotations
@@ -108,33 +110,80 @@ def _fit(basis: np.ndarray, r: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, n
     return np.einsum("...ck,...ck->...", coef, rhs), coef
 
 
-def locate(q_mm: np.ndarray, r_um: np.ndarray, sd_um: np.ndarray, live: np.ndarray) -> Shape:
-    """The shape along one axis (positions ``q_mm`` (G,)) that best fits the residuals
-    ``r_um`` (G, c) weighted by 1/``sd_um``² over the ``live`` observations."""
+def cross_visit(z: np.ndarray, phi: np.ndarray, visit: np.ndarray) -> np.ndarray:
+    """(draws, c, m): the squared projection (φ·z)² of the residuals ``z`` (draws, G, c) on
+    each unit-norm shape φ (m, G), without what each visit contributes with itself:
+    (Σ_v S_v)² − Σ_v S_v², S_v = Σ_{g ∈ v} φ_g z_g — only products of different visits.
+    A shape counts in so far as the visits agree on it — it comes back where the axis
+    returns; one visit alone (a chip, an index error not quite removed) adds nothing."""
+    d, g, c = z.shape
+    zt = np.ascontiguousarray(z.transpose(0, 2, 1)).reshape(-1, g)
+    i, j = np.triu_indices(g, 1)
+    same = visit[i] == visit[j]
+    i, j = i[same], j[same]
+    own = (zt**2) @ (phi**2).T + 2.0 * ((zt[:, i] * zt[:, j]) @ (phi[:, i] * phi[:, j]).T)
+    return ((zt @ phi.T) ** 2 - own).reshape(d, c, -1)
+
+
+def locate(q_mm: np.ndarray, r_um: np.ndarray, sd_um: np.ndarray, live: np.ndarray,
+           visit: np.ndarray) -> Shape:
+    """The shape along one axis (positions ``q_mm`` (G,)) on which the visits (``visit``
+    (G,) ids) agree best — the largest share of the standardised residuals between visits
+    (``cross_visit``) — with its size from the weighted least-squares fit of the
+    residuals ``r_um`` (G, c) by 1/``sd_um``² over the ``live`` observations."""
     w = np.where(live, 1.0 / sd_um**2, 0.0)
+    z = np.where(live, r_um / sd_um, 0.0)[None]
     lo, hi = float(q_mm.min()), float(q_mm.max())
     span = max(hi - lo, 2 * MIN_PERIOD_MM)
-    total = float(np.sum(w * r_um**2))
+    total = float(np.sum(z**2))
     n, c = int(live.sum()), r_um.shape[1]
     periods = np.geomspace(MIN_PERIOD_MM, span, N_PERIODS)
-    ang = 2.0 * np.pi * q_mm[None, :] / periods[:, None]
-    red_c, coef_c = _fit(np.stack([np.cos(ang), np.sin(ang)], axis=2), r_um, w)
+    red_c = cross_visit(z, _cyclic_rows(q_mm, periods), visit)[0].sum(axis=0)
+    red_c = red_c[0::2] + red_c[1::2]
     i = int(np.argmax(red_c))
-    cyc = Shape("cyclic", float(periods[i]), None, np.hypot(*coef_c[i].T), (lo, hi),
+    ang = 2.0 * np.pi * q_mm / periods[i]
+    _, coef = _fit(np.stack([np.cos(ang), np.sin(ang)], axis=1), r_um, w)
+    cyc = Shape("cyclic", float(periods[i]), None, np.hypot(*coef.T), (lo, hi),
                 float(red_c[i] / total) if total > 0 else 0.0)
     widths = np.geomspace(MIN_WIDTH_MM, max(span, 2 * MIN_WIDTH_MM), N_WIDTHS)
-    centres = np.arange(lo, hi + CENTRE_STEP_MM, CENTRE_STEP_MM)
-    grid = [(cc, ww) for ww in widths for cc in centres]
-    basis = np.stack([bump(q_mm, cc, ww) for cc, ww in grid])[:, :, None]
-    red_l, coef_l = _fit(basis, r_um, w)
+    grid = [(cc, ww) for ww in widths for cc in np.arange(lo, hi + CENTRE_STEP_MM,
+                                                          CENTRE_STEP_MM)]
+    rows, grid = _bump_rows(q_mm, grid)
+    red_l = cross_visit(z, rows, visit)[0].sum(axis=0)
     j = int(np.argmax(red_l))
-    loc = Shape("local", float(grid[j][1]), float(grid[j][0]), coef_l[j][:, 0], (lo, hi),
+    _, coef = _fit(bump(q_mm, *grid[j])[:, None], r_um, w)
+    loc = Shape("local", float(grid[j][1]), float(grid[j][0]), coef[:, 0], (lo, hi),
                 float(red_l[j] / total) if total > 0 else 0.0)
     # BIC in χ² form on standardised residuals: −reduction + k ln n (k: the amplitudes and
     # the scanned period, or centre and width)
     bic_c = -red_c[i] + (2 * c + 1) * np.log(max(n, 2))
     bic_l = -red_l[j] + (c + 2) * np.log(max(n, 2))
     return cyc if bic_c < bic_l else loc
+
+
+def _cyclic_rows(q_mm: np.ndarray, periods: np.ndarray) -> np.ndarray:
+    """(2·periods, G): per period the cos/sin pair made orthonormal over the groups."""
+    rows = []
+    for period in periods:
+        w = 2.0 * np.pi * q_mm / period
+        qr, r = np.linalg.qr(np.stack([np.cos(w), np.sin(w)], axis=1))
+        if abs(r[1, 1]) < 1e-9 * abs(r[0, 0]):
+            qr[:, 1] = 0.0
+        rows += [qr[:, 0], qr[:, 1]]
+    return np.array(rows)
+
+
+def _bump_rows(q_mm: np.ndarray, grid: list[tuple[float, float]]
+               ) -> tuple[np.ndarray, list[tuple[float, float]]]:
+    """The unit-norm bumps of the (centre, width) grid that reach a ball, and their grid."""
+    rows, kept = [], []
+    for c, w in grid:
+        b = bump(q_mm, c, w)
+        n = np.linalg.norm(b)
+        if n > 0:
+            rows.append(b / n)
+            kept.append((c, w))
+    return np.array(rows), kept
 
 
 def scan_bases(q_mm: np.ndarray) -> dict[str, tuple[np.ndarray, int]]:
@@ -144,19 +193,7 @@ def scan_bases(q_mm: np.ndarray) -> dict[str, tuple[np.ndarray, int]]:
     projection."""
     lo, hi = float(q_mm.min()), float(q_mm.max())
     span = max(hi - lo, 2 * MIN_PERIOD_MM)
-    rows = []
-    for period in np.geomspace(MIN_PERIOD_MM, span, SCAN_PERIODS):
-        w = 2.0 * np.pi * q_mm / period
-        qr, r = np.linalg.qr(np.stack([np.cos(w), np.sin(w)], axis=1))
-        if abs(r[1, 1]) < 1e-9 * abs(r[0, 0]):
-            qr[:, 1] = 0.0
-        rows += [qr[:, 0], qr[:, 1]]
-    bumps = []
-    for width in np.geomspace(MIN_WIDTH_MM, max(span, 2 * MIN_WIDTH_MM), SCAN_WIDTHS):
-        for c in np.arange(lo, hi + 1e-9, SCAN_CENTRE_STEP * width):
-            b = bump(q_mm, c, width)
-            n = np.linalg.norm(b)
-            if n > 0:
-                bumps.append(b / n)
-    return {"cyclic": (np.array(rows), 2), "local": (np.array(bumps), 1)}
-
+    widths = np.geomspace(MIN_WIDTH_MM, max(span, 2 * MIN_WIDTH_MM), SCAN_WIDTHS)
+    grid = [(c, w) for w in widths for c in np.arange(lo, hi + 1e-9, SCAN_CENTRE_STEP * w)]
+    return {"cyclic": (_cyclic_rows(q_mm, np.geomspace(MIN_PERIOD_MM, span, SCAN_PERIODS)), 2),
+            "local": (_bump_rows(q_mm, grid)[0], 1)}

@@ -91,7 +91,13 @@ def settle(run: Run, explained: Callable[[dict, list[int]], list[int]],
     rep, parts = run()
     named = [o["index"] for o in parts["outliers"]]
     keep: frozenset[int] = frozenset()
-    if named and rep["verdict"].get("selected"):
+    # a rest left with structure along an axis: are the named visits part of it? (before
+    # asking whether a library effect that leaves the structure predicts them)
+    structured = bool((rep.get("structure") or {}).get("found")) \
+        and rep["verdict"]["effect"] == "unexplained"
+    if named and positions is not None and structured:
+        rep, parts, keep = along_structure(run, rep, parts, named, positions)
+    if named and not keep and rep["verdict"].get("selected"):
         back = explained(rep, named)
         if back:
             keep = frozenset(back)
@@ -103,7 +109,7 @@ def settle(run: Run, explained: Callable[[dict, list[int]], list[int]],
                 | {"explained_by": label,
                    "note": "its centre departs as the effect predicts: a pattern across "
                            "visits, not a chip on one"} for o in named]
-    if named and not keep and positions is not None:
+    if named and not keep and positions is not None and not structured:
         rep, parts, keep = along_structure(run, rep, parts, named, positions)
     suspect = parts["outlier_test"].get("pole_suspect")
     if rep["verdict"]["effect"] == "unexplained" and suspect is not None:
@@ -125,8 +131,9 @@ def along_structure(run: Run, rep: dict, parts: dict, named: list[int],
     straddles it: the sphere stage names those visits chips, and with them left out the
     rest may show nothing. So the run is diagnosed again with them kept in; they go back
     into the diagnosis when it then finds structure along an axis that reaches them (a
-    local shape: within its width and a ball's touch reach) and either more than one visit
-    was named — a chip is one visit — or the rest already showed the structure."""
+    local shape: most of them within one width and a ball's touch reach of its centre) and
+    either more than one visit was named — a chip is one visit — or the rest already showed
+    the structure."""
     rest_found = bool((rep.get("structure") or {}).get("found"))
     visits = {(o["log"], o["repeat"], o["pose"]) for o in parts["outliers"]}
     if len(visits) < 2 and not rest_found:
@@ -138,8 +145,10 @@ def along_structure(run: Run, rep: dict, parts: dict, named: list[int],
     if not st.get("found") or not loc:
         return rep, parts, frozenset()
     q = positions(named)[:, "XYZ".index(loc["axis"])]
-    if loc["shape"] == "local" and np.any(
-            np.abs(q - loc["centre_mm"]) > loc["width_mm"] / 2 + TOUCH_REACH_MM):
+    # a local shape fitted with its worst-deformed visits in is narrower than the bump (their
+    # spheres bend most where it is steepest, at its flanks): one width either side
+    if loc["shape"] == "local" and np.mean(
+            np.abs(q - loc["centre_mm"]) <= loc["width_mm"] + TOUCH_REACH_MM) < 0.5:
         return rep, parts, frozenset()
     parts_k["explained_visits"] = [
         {k: v for k, v in o.items() if k != "index"}
