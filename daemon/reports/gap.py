@@ -13,6 +13,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from identification.gap.locate import shown_locations
+from identification.gap.structure_shape import bump
 
 _TEMPLATE = jinja2.Environment(autoescape=True).from_string("""<!doctype html>
 <html lang="en"><head><meta charset="utf-8"><title>{{ title }}</title>
@@ -52,13 +53,14 @@ th{background:#f3f3f3}td.n{text-align:right;font-variant-numeric:tabular-nums}
 {% if st.located %}<p>Located along {{ st.located.axis }}: {{ st.located.shape }} shape,
 {% if st.located.shape == "cyclic" %}period {{ st.located.period_mm }} mm{% else %}centred at
 {{ st.located.centre_mm }} mm over {{ st.located.width_mm }} mm{% endif %},
-{{ st.located.size_um }} µm in centre {{ st.located.channel }} (the ball centres reach
+{{ st.located.size_um }} µm in {% if st.located.channel == "form" %}the sphere form
+residual{% else %}centre {{ st.located.channel }}{% endif %} (the ball centres reach
 {{ st.located.span_mm[0] }}…{{ st.located.span_mm[1] }} mm).
 {% if st.explained_by_selected %}The selected effects remove it.{% endif %}</p>{% endif %}
 {% if along %}<img alt="residuals along the axis" src="data:image/png;base64,{{ along }}">
 {% endif %}
 <p>Test: {{ st.test }}; {{ st.draws }} Monte Carlo draws under the run's visit model,
-family-wise α = {{ st.alpha }} over the axes, lags and channels. Decision rule: structure
+family-wise α = {{ st.alpha }} over the axes, channels, lags and shapes. Decision rule: structure
 found, the centre scatter per ball visit is not credited to the floor (trigger noise and rigid
 index scatter only); none, it is.</p>{% endif %}
 {% if r.ball_step %}<p><b>Ball moved:</b> {{ r.ball_step.message }}.</p>{% endif %}
@@ -197,6 +199,15 @@ def _along_plot(rep: dict) -> str | None:
                                           strict=True)):
         ax.plot(q, e[:, k], "o", ms=3, color=color, label=f"centre {name}")
     ax.axhline(0.0, color="k", lw=0.5)
+    coef = (loc.get("coefficients_um") or {}).get(loc["channel"])
+    if coef is not None and loc["channel"] != "form":
+        grid = np.linspace(*loc["span_mm"], 600)
+        w = 2 * np.pi * grid / loc.get("period_mm", 1.0)
+        y = (coef[0] * np.cos(w) + coef[1] * np.sin(w)) if loc["shape"] == "cyclic" else \
+            coef[0] * bump(grid, loc["centre_mm"], loc["width_mm"])
+        k = "xyz".index(loc["channel"])
+        ax.plot(grid, y, "-", color=("#c0392b", "#27ae60", "#2980b9")[k], lw=1.2,
+                label=f"located {loc['shape']} shape, centre {loc['channel']}")
     ax.set_xlabel(f"{loc['axis']} of the ball centre (mm)")
     ax.set_ylabel("held-out residual of the twin (µm)")
     ax.legend(fontsize=7)

@@ -40,6 +40,7 @@ class Shape:
     amplitude_um: np.ndarray  # (c,) per channel: cyclic amplitude, or the local height (signed)
     span_mm: tuple[float, float]  # the positions the balls took along the axis
     explained: float  # share of the standardised residual sum of squares it takes
+    coef_um: np.ndarray | None = None  # (c, k) per channel, on ``basis``: the fitted shape
 
     @property
     def channel(self) -> int:
@@ -87,6 +88,9 @@ class Shape:
             out["period_mm"] = round(self.scale_mm, 1)
         else:
             out |= {"centre_mm": round(self.centre_mm, 1), "width_mm": round(self.scale_mm, 1)}
+        if self.coef_um is not None:  # cos, sin (cyclic) or the height (local) per channel
+            out["coefficients_um"] = {CHANNELS[k]: [round(float(v), 4) for v in row]
+                                      for k, row in enumerate(self.coef_um)}
         return out
 
 
@@ -144,7 +148,7 @@ def locate(q_mm: np.ndarray, r_um: np.ndarray, sd_um: np.ndarray, live: np.ndarr
     ang = 2.0 * np.pi * q_mm / periods[i]
     _, coef = _fit(np.stack([np.cos(ang), np.sin(ang)], axis=1), r_um, w)
     cyc = Shape("cyclic", float(periods[i]), None, np.hypot(*coef.T), (lo, hi),
-                float(red_c[i] / total) if total > 0 else 0.0)
+                float(red_c[i] / total) if total > 0 else 0.0, coef)
     widths = np.geomspace(MIN_WIDTH_MM, max(span, 2 * MIN_WIDTH_MM), N_WIDTHS)
     grid = [(cc, ww) for ww in widths for cc in np.arange(lo, hi + CENTRE_STEP_MM,
                                                           CENTRE_STEP_MM)]
@@ -153,7 +157,7 @@ def locate(q_mm: np.ndarray, r_um: np.ndarray, sd_um: np.ndarray, live: np.ndarr
     j = int(np.argmax(red_l))
     _, coef = _fit(bump(q_mm, *grid[j])[:, None], r_um, w)
     loc = Shape("local", float(grid[j][1]), float(grid[j][0]), coef[:, 0], (lo, hi),
-                float(red_l[j] / total) if total > 0 else 0.0)
+                float(red_l[j] / total) if total > 0 else 0.0, coef)
     # BIC in χ² form on standardised residuals: −reduction + k ln n (k: the amplitudes and
     # the scanned period, or centre and width)
     bic_c = -red_c[i] + (2 * c + 1) * np.log(max(n, 2))
