@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: install demo demo-hmi test test-linuxcnc demo-linuxcnc demo-compensate demo-linuxcnc-head demo-fleet linuxcnc-up linuxcnc-down lint bench golden peers clean
+.PHONY: install docs demo demo-hmi test test-portable test-linuxcnc demo-linuxcnc demo-compensate demo-linuxcnc-head demo-fleet linuxcnc-up linuxcnc-down lint bench golden peers clean
 LCNC_ENV := .peers/linuxcnc.env
 
 $(BIN)/python:
@@ -13,13 +13,15 @@ $(BIN)/python:
 
 $(STAMP): pyproject.toml | $(BIN)/python
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -e '.[test]'
+	$(BIN)/python -m pip install --quiet -e '.[test,docs]'
 	@touch $(STAMP)
 
 install: $(STAMP)
 
+# PROFILE=sinumerik: the control's own OPC UA server as Siemens ships it (default: the gateway)
+PROFILE ?= gateway
 demo: $(STAMP)
-	$(BIN)/python -m demos.e2e
+	$(BIN)/python -m demos.e2e --profile $(PROFILE)
 
 # simulated CNC + daemon + HMI until Ctrl-C; prints the URL and a one-time login (HMI_PORT=0: any)
 HMI_PORT ?= 8470
@@ -31,6 +33,21 @@ demo-hmi: $(STAMP)
 TEST_WORKERS ?= 3
 test: $(STAMP)
 	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist worksteal
+
+# The suite as another machine runs it: OpenBLAS on another CPU's kernels (Prescott on x86-64:
+# SSE3 only, unlike any recent CPU's own), BLAS_THREADS BLAS threads, the modules and tests in a
+# shuffled order (SEED, printed in pytest's header; default from the commit) and a CPU hog beside
+# it (HOG=0: none). A test pinned to one CPU's last bits, to the order or to the machine's speed
+# fails here before it fails in CI on another box. .ci/run runs the suite this way (no hog: the
+# LinuxCNC suite runs beside it).
+SEED ?= $(shell git rev-parse --short HEAD 2>/dev/null || echo 1)
+HOG ?= 1
+BLAS_THREADS ?= 2
+PORTABLE_CORE := $(if $(filter x86_64,$(shell uname -m)),Prescott,$(if $(filter aarch64,$(shell uname -m)),ARMV8,))
+test-portable: $(STAMP)
+	@if [ "$(HOG)" = 1 ]; then $(BIN)/python -c 'while 1: pass' & trap "kill $$!" EXIT; fi; \
+	OPENBLAS_CORETYPE=$(PORTABLE_CORE) OPENBLAS_NUM_THREADS=$(BLAS_THREADS) RUMBA_TEST_SHUFFLE=$(SEED) \
+	  $(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist worksteal
 
 test-linuxcnc: $(STAMP)
 	bash .ci/install-peers.sh linuxcnc
@@ -64,6 +81,12 @@ demo-linuxcnc-head: $(STAMP)
 demo-fleet: $(STAMP)
 	bash .ci/install-peers.sh postgresql mosquitto
 	$(BIN)/python -m demos.fleet
+
+# The manual: reference pages regenerated from the code (docs/gen), then the site built into
+# build/site with every warning an error (links, anchors, includes). Open build/site/index.html.
+docs: $(STAMP)
+	$(BIN)/python -m docs.gen
+	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict --quiet
 
 lint: $(STAMP)
 	$(BIN)/ruff check .

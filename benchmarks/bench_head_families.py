@@ -6,7 +6,9 @@ Per seed: random link errors on the identifiable set (±40 µm / ±40 µrad unif
 errors (ball 200 µm, probe 100 µm 1σ), touch noise 0.3 µm, per-visit centre scatter
 [0.66, 0.98, 0.44] µm, rotary indexing repeatability 5 µrad 1σ per axis, and a little warm-up
 (Z 1 µm, τ 900 s, from cold) — the realistic conditions of the house rules. Prints N, the
-coverage (links within 3u / links), the largest |error|/u, and the mean error (bias) per link.
+coverage (links within 3u / links), the largest |error|/u, and the mean error (bias) per link,
+for the centres fitted as the analysis fits them (in the frame the estimate corrects,
+identification/touch_frame.py) and, for comparison, fitted in controller axes.
 
     nice -n 10 .venv/bin/python -m benchmarks.bench_head_families --seeds 20
 """
@@ -22,7 +24,7 @@ import numpy as np
 
 from contracts.plan_targets import CandidateGrid
 from contracts.setup_files import load_artefact, load_machine, load_plan
-from daemon.analysis.touch_centres import rows_to_centres
+from daemon.analysis.touch_centres import estimate_frame, in_frame, rows_to_centres
 from identification.estimate import estimate
 from identification.identifiability import identifiable_links, nominal_centres
 from programs.dialects import get_dialect
@@ -55,8 +57,9 @@ def errors_for(machine_name: str, links: tuple[str, ...], seed: int,
 
 
 def run_one(machine, mf, artefact, plan, dialect: str, errors: dict, seed: int
-            ) -> tuple[list[str], np.ndarray, np.ndarray, dict]:
-    """Simulate one run; (link names, estimate, std, truth) in µm / µrad."""
+            ) -> dict[str, tuple[list[str], np.ndarray, np.ndarray, dict]]:
+    """Simulate one run; per fit ("frame": as the analysis, "controller axes"): (link names,
+    estimate, std, truth) in µm / µrad."""
     truth = TruthModel.build(machine, mf, artefact, errors_from_dict(errors))
     d = get_dialect(dialect)
     prog = build_program(machine, mf, artefact, plan, two_speed=False)
@@ -64,13 +67,17 @@ def run_one(machine, mf, artefact, plan, dialect: str, errors: dict, seed: int
                                   seed=seed))
     if res.state != "done":
         raise RuntimeError(f"seed {seed}: the simulated run ended {res.state}: {res.alarm}")
-    data = rows_to_centres(res.rows, artefact, truth.stylus_radius_mm)
+    raw = rows_to_centres(res.rows, artefact, truth.stylus_radius_mm)
+    out = {}
     with np.errstate(all="ignore"):
-        est = estimate(machine, artefact, data.centres, None)
-    si = est.links_si()
-    names = list(si)
-    return (names, np.array([si[n][0] for n in names]), np.array([si[n][1] for n in names]),
-            errors["links"])
+        frame = estimate_frame(machine, artefact, raw, np.ones(len(raw.centres), bool))
+        for label, data in (("frame", in_frame(machine, artefact, raw, frame)),
+                            ("controller axes", raw)):
+            si = estimate(machine, artefact, data.centres, None).links_si()
+            names = list(si)
+            out[label] = (names, np.array([si[n][0] for n in names]),
+                          np.array([si[n][1] for n in names]), errors["links"])
+    return out
 
 
 def optimised_plan(machine, mf, artefact, plan, links: tuple[str, ...]):
@@ -105,27 +112,37 @@ def main() -> None:
         print(f"  optimised plan: {len(chosen.poses)} poses {chosen.poses} "
               f"({time.perf_counter() - t0:.1f} s)")
         for label, plan in (("shipped", shipped), ("optimised", opt)):
-            z, errs, covered, total = [], [], 0, 0
             t0 = time.perf_counter()
-            for seed in range(args.seeds):
-                errors = errors_for(machine.name, ida.links, seed, tuple(machine.rotary_axes))
-                names, p, u, true = run_one(machine, mf, artefact, plan, dialect, errors, seed)
-                if tuple(names) != ida.links:
-                    raise RuntimeError(f"estimated set {names} != rank set {ida.links}")
-                t = np.array([true[n] for n in names])
-                z.append((p - t) / u)
-                errs.append(p - t)
-                covered += int(np.sum(np.abs(p - t) <= 3 * u))
-                total += len(names)
-            z_a, e_a = np.array(z), np.array(errs)
-            print(f"  {label} plan ({len(plan.poses)} poses, {dialect}), N = {args.seeds}: "
-                  f"{covered}/{total} links within 3u; max |err|/u {np.abs(z_a).max():.2f}; "
+            runs = [run_one(machine, mf, artefact, plan, dialect,
+                            errors_for(machine.name, ida.links, seed,
+                                       tuple(machine.rotary_axes)), seed)
+                    for seed in range(args.seeds)]
+            print(f"  {label} plan ({len(plan.poses)} poses, {dialect}), N = {args.seeds}, "
                   f"{time.perf_counter() - t0:.0f} s")
-            for k, n in enumerate(names):
-                unit = "µrad" if n[1] in "ABC" else "µm"
-                print(f"    {n}: bias {e_a[:, k].mean():+.3f} {unit}, RMS err "
-                      f"{np.sqrt((e_a[:, k] ** 2).mean()):.3f}, z RMS "
-                      f"{np.sqrt((z_a[:, k] ** 2).mean()):.2f}")
+            for fit in ("frame", "controller axes"):
+                report(fit, [r[fit] for r in runs], ida.links)
+
+
+def report(fit: str, runs: list[tuple[list[str], np.ndarray, np.ndarray, dict]],
+           links: tuple[str, ...]) -> None:
+    """Coverage, largest |err|/u, z RMS (overall and per link) and bias of one fit's runs."""
+    z, errs, covered, total = [], [], 0, 0
+    for names, p, u, true in runs:
+        if tuple(names) != links:
+            raise RuntimeError(f"estimated set {names} != rank set {links}")
+        t = np.array([true[n] for n in names])
+        z.append((p - t) / u)
+        errs.append(p - t)
+        covered += int(np.sum(np.abs(p - t) <= 3 * u))
+        total += len(names)
+    z_a, e_a = np.array(z), np.array(errs)
+    print(f"    centres fitted in {fit}: {covered}/{total} links within 3u; max |err|/u "
+          f"{np.abs(z_a).max():.2f}; z RMS {np.sqrt((z_a ** 2).mean()):.2f}")
+    for k, n in enumerate(links):
+        unit = "µrad" if n[1] in "ABC" else "µm"
+        print(f"      {n}: bias {e_a[:, k].mean():+.3f} {unit}, RMS err "
+              f"{np.sqrt((e_a[:, k] ** 2).mean()):.3f}, z RMS "
+              f"{np.sqrt((z_a[:, k] ** 2).mean()):.2f}")
 
 
 if __name__ == "__main__":

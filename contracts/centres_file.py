@@ -37,10 +37,12 @@ import numpy as np
 
 from contracts.probing_log import (
     CONTROL_RE,
+    COUNT_SYNTAX,
     FLOAT_RE,
     INT_RE,
     MAX_ID_CHARS,
     MAX_LOG_ROWS,
+    NUMBER_SYNTAX,
     RANGES,
     TOUCHES_PER_BALL,
     PoseRow,
@@ -163,15 +165,14 @@ def _cell(name: str, lineno: int, col: str, cell: str) -> object:
     if kind == "int":
         if not INT_RE.fullmatch(cell) or int(cell) < 0:
             raise CentresFileError(f"{name}: line {lineno}: column {col}: expected an integer "
-                                   f"≥ 0, got {cell[:40]!r} (ASCII digits, no minus sign, "
-                                   "< 1e9)")
+                                   f"≥ 0, got {cell[:40]!r} ({COUNT_SYNTAX})")
         return int(cell)
     if col == "u_um" and not cell.strip():
         return math.nan
     lo, hi = _RANGES_C[col]
     if not FLOAT_RE.fullmatch(cell):
         raise CentresFileError(f"{name}: line {lineno}: column {col}: expected a finite number, "
-                               f"got {cell[:40]!r} (ASCII decimal)")
+                               f"got {cell[:40]!r} ({NUMBER_SYNTAX})")
     v = float(cell)
     if not lo <= v <= hi or (col == "u_um" and v <= 0.0):
         bound = f"(0, {hi:g}]" if col == "u_um" else f"[{lo:g}, {hi:g}]"

@@ -73,6 +73,9 @@ class GuardsFile(StrictModel):
     max_cumulative_um: float | None = Field(None, gt=0, le=10000)
     max_cumulative_urad: float | None = Field(None, gt=0, le=100000)
     unattended: bool = False
+    # the worth rule (identification/worth.py): a change must move a probed ball centre by at
+    # least this, and the changes together lower the max link-caused distortion by as much
+    min_effect_um: float = Field(2.0, ge=0, le=1000)
 
 
 class ParamFile(StrictModel):
@@ -161,6 +164,7 @@ class ControllerKinematics:
     max_cumulative_um: float | None = None  # None: max_change_um
     max_cumulative_urad: float | None = None  # None: max_change_urad
     read_back: str = "when_written"
+    min_effect_um: float = 2.0  # guards.min_effect_um: the worth rule's threshold
 
     def to_math(self) -> list[ControllerParam]:
         """The parameters as ``identification.compensation`` sees them."""
@@ -303,7 +307,8 @@ def controller_kinematics(section: ControllerKinematicsFile, machine: Machine,
     return ControllerKinematics(section.family, g.max_change_um, g.max_change_urad,
                                 g.max_total_um, g.unattended, tuple(params),
                                 g.max_cumulative_um or g.max_change_um,
-                                g.max_cumulative_urad or g.max_change_urad, section.read_back)
+                                g.max_cumulative_urad or g.max_change_urad, section.read_back,
+                                g.min_effect_um)
 
 
 __all__ = ["FAMILIES", "ControllerKinematics", "ControllerKinematicsFile", "ControllerParamSpec",

@@ -31,6 +31,11 @@ class DialectCodec(Protocol):
         """The small program that sets the controller's verdict variable to ``code``."""
         ...
 
+    def last_printed_seq(self, text: str) -> int:
+        """The seq of the last touch whose result line ``text`` (the part of a program a DNC
+        link fed) prints; 0 if none."""
+        ...
+
 
 @dataclass(frozen=True)
 class Verdict:

@@ -6,6 +6,7 @@ never used."""
 from __future__ import annotations
 
 import hmac
+from contextvars import ContextVar
 from typing import Any
 
 from asyncua import Server, ua
@@ -33,6 +34,10 @@ class PasswordUsers(UserManager):
             return User(role=UserRole.User, name=username)
         return None
 
+
+CHANNEL: ContextVar[Any] = ContextVar("rumba_opcua_channel", default=None)
+"""The connection whose request is being served (asyncua's ``UaProcessor``: the peer address
+``name``, its ``session``), for a user manager or a method that needs to know who asks."""
 
 DISCOVERY = (ua.NodeId(ua.ObjectIds.GetEndpointsRequest_Encoding_DefaultBinary),
              ua.NodeId(ua.ObjectIds.FindServersRequest_Encoding_DefaultBinary))
@@ -64,6 +69,7 @@ def _guard(processor: Any) -> None:
         if (processor._connection.security_policy.URI == SecurityPolicyNone.URI
                 and typeid not in DISCOVERY):
             raise ServiceError(ua.StatusCodes.BadSecurityModeRejected)
+        CHANNEL.set(processor)
         return await inner(typeid, requesthdr, seqhdr, body)
     processor._process_message = process
 

@@ -1,16 +1,17 @@
 """The probing-log CSV (DESIGN.md contract): read and validate, write.
 
 Format: first line ``# rumba-probing-log v1``, then the header ``HEADER``, one row per touch.
-Reading is strict: a malformed row, a number that is not plain ASCII decimal (``1_0``, ``٣``,
-``nan`` and ``inf`` are refused), a coordinate beyond its ceiling, an unknown ball id, a touch
-outside 1..5, a duplicated (run, repeat, pose, ball, touch) or a duplicated (run, seq) is a
-``ProbeLogError`` naming file, line and column — the data are ambiguous and nothing can be
-guessed. A ball-pose with fewer than five touches (an aborted run) is dropped with a
-``ProbeLogWarning``: the other groups are complete and the estimator itself reports whether what
-is left is still enough. Gaps in ``seq`` (hits lost in transfer, untriggered touches the daemon
-leaves out of an export, rows deleted by hand) are a ``ProbeLogWarning`` listing the missing
-ranges: every row names its own pose, ball and touch, so the touches present are unaffected and
-the ball-poses the lost ones belonged to are dropped (and named) as incomplete.
+Reading is strict: a malformed row, a number not written as JSON writes one (``+1.5``, ``.5``,
+``1_0``, ``٣``, ``nan`` and ``inf`` are refused: ``FLOAT_RE``), a coordinate beyond its ceiling,
+an unknown ball id, a touch outside 1..5, a duplicated (run, repeat, pose, ball, touch) or a
+duplicated (run, seq) is a ``ProbeLogError`` naming file, line and column — the data are
+ambiguous and nothing can be guessed. A ball-pose with fewer than five touches (an aborted run)
+is dropped with a ``ProbeLogWarning``: the other groups are complete and the estimator itself
+reports whether what is left is still enough. Gaps in ``seq`` (hits lost in transfer,
+untriggered touches the daemon leaves out of an export, rows deleted by hand) are a
+``ProbeLogWarning`` listing the missing ranges: every row names its own pose, ball and touch, so
+the touches present are unaffected and the ball-poses the lost ones belonged to are dropped (and
+named) as incomplete.
 
 Ceilings (a log beyond them is refused with one line, before it can exhaust memory or time):
 ``MAX_LOG_BYTES`` = 64 MiB per file, ``MAX_LOG_ROWS`` = 250 000 touch rows (100 repeats of a
@@ -68,11 +69,17 @@ RANGES = {"t_s": (0.0, 1e8), "b_cmd_deg": (-MAX_ABS_DEG, MAX_ABS_DEG),
           "dir_y": (-10.0, 10.0), "dir_z": (-10.0, 10.0), "x_mm": (-MAX_ABS_MM, MAX_ABS_MM),
           "y_mm": (-MAX_ABS_MM, MAX_ABS_MM), "z_mm": (-MAX_ABS_MM, MAX_ABS_MM),
           "feed_mm_min": (0.0, 1e6)}
-# ASCII only: Python's int()/float() also take '٣', '１', '1_0', ' nan', 'infinity'. The
-# integer columns (seq, repeat, pose, touch) are counters ≥ 0: a minus sign is refused, so a
-# '-0' (which int() reads as 0, and no writer produces) cannot pass for a counter.
-INT_RE = re.compile(r"[ \t]*\+?[0-9]{1,9}[ \t]*")
-FLOAT_RE = re.compile(r"[ \t]*[+-]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]{1,3})?[ \t]*")
+# The contract's numbers are written as JSON writes them (RFC 8259 §6), in ASCII, blanks
+# around allowed: an optional minus, digits without a leading zero, an optional fraction, an
+# optional exponent — what rumba's writer (Python's repr) and spreadsheets produce. Nothing
+# else: not '+111.17', '.5', '5.', '007', '1_0', '٣' or '１' (Python's float() takes them all),
+# nor 'nan' or 'inf'. The integer columns (seq, repeat, pose, touch) are counters ≥ 0: no sign
+# at all, so a '-0' (which int() reads as 0) cannot pass for a counter.
+INT_RE = re.compile(r"[ \t]*(?:0|[1-9][0-9]{0,8})[ \t]*")
+FLOAT_RE = re.compile(r"[ \t]*-?(?:0|[1-9][0-9]*)(?:\.[0-9]+)?(?:[eE][+-]?[0-9]{1,3})?[ \t]*")
+NUMBER_SYNTAX = ("ASCII decimal as JSON writes it: -12.5, 0.25, 1e-05; no '+', '.5', '5.' or "
+                 "leading zero")
+COUNT_SYNTAX = "ASCII digits, no sign, no leading zero, < 1e9"
 _ROWS_WHAT = "touch rows (the reader's ceiling; one run is far smaller)"
 
 
@@ -208,13 +215,12 @@ def _bad_cell(name: str, lineno: int, cells: Sequence[str]) -> ProbeLogError:
         elif i in _INT_COLS:
             if not INT_RE.fullmatch(cell):
                 return ProbeLogError(f"{name}: line {lineno}: column {col}: expected an "
-                                     f"integer, got {cell[:40]!r} (ASCII digits, no minus "
-                                     "sign, < 1e9)")
+                                     f"integer, got {cell[:40]!r} ({COUNT_SYNTAX})")
         else:
             lo, hi = RANGES[col]
             if not FLOAT_RE.fullmatch(cell):
                 return ProbeLogError(f"{name}: line {lineno}: column {col}: expected a finite "
-                                     f"number, got {cell[:40]!r} (ASCII decimal)")
+                                     f"number, got {cell[:40]!r} ({NUMBER_SYNTAX})")
             if not lo <= float(cell) <= hi:
                 return ProbeLogError(f"{name}: line {lineno}: column {col}: {cell.strip()} "
                                      f"outside [{lo:g}, {hi:g}]")

@@ -23,6 +23,27 @@ counter Q1599), LinuxCNC user parameter #3998 (next to the ring)."""
 
 RING_SLOTS = 8
 """Result slots on the controller, reused in turn (touch seq k lands in slot (k-1) % 8)."""
+
+RESULT_COUNTERS = {"fanuc": "#599", "haas": "#599", "siemens": "R99", "heidenhain": "Q1599",
+                   "linuxcnc": "#3999"}
+"""The variable each dialect's program sets to the touch's seq after writing its slot."""
+
+STOP_PROGRAMS = {"heidenhain": ("RUMBASTP.H", "Q1689")}
+"""(program, variable) of a dialect whose link cannot write the controller's variables (LSV2
+reads files and states, it writes no Q parameter): before each probing move the program calls
+the small stop program the link writes next to it and ends (M30, no error) when it set the
+variable to 1; the link writes it with 0 before the run and with 1 to stop it."""
+
+HANDSHAKE_VARIABLES = {"fanuc": ("#688", "#689"), "haas": ("#688", "#689"),
+                       "siemens": ("R188", "R189")}
+"""(ack, stop) of a program whose results a link reads from the controller's variables (the
+SINUMERIK OPC UA server, the Haas data port): the link writes ack = the last touch counter it has
+read, and the program waits before a probing move while counter - ack = ``RING_SLOTS`` (the slot
+it would overwrite is unread); stop = 1 makes the program end at its next touch (M30 after a
+message: no alarm to acknowledge). Next to the ring: Fanuc/Haas common variables #688/#689
+(Haas NGC #10688/#10689, general purpose, kept at power off), Siemens R188/R189 (MD28050
+MM_NUM_R_PARAM >= 190). The program never writes either: an ack or a stop written before the
+cycle start holds."""
 RESULT_FIELDS = ("seq", "rep", "pose", "ball", "touch", "trig", "x", "y", "z", "r1", "r2")
 """The fields of one result, in the order of a result line and of a slot's variables."""
 SLOT_FIELDS = len(RESULT_FIELDS)

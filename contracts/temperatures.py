@@ -119,13 +119,15 @@ def check_address(ch: TemperatureChannel, transport: str, family: str) -> None:
     """A controller channel's address must suit the run's transport (ValueError otherwise)."""
     if ch.source == "transmitter":
         return
-    if transport == "opcua":
+    if transport in ("opcua", "sinumerik"):  # sinumerik: an R parameter's node, a GUD's …
         ok, form = OPCUA_ADDRESS.fullmatch(ch.address), "an OPC UA node id (ns=2;s=…) or /path"
     elif transport == "modbus":
         modbus_address(ch.address)
         return
     elif transport == "linuxcnc":
         ok, form = HAL_PIN.fullmatch(ch.address), "a HAL pin name"
+    elif transport == "haas":  # a macro variable read over the data port (?Q600)
+        ok, form = MACRO_VARIABLE["fanuc"].fullmatch(ch.address), VARIABLE_FORM["fanuc"]
     elif transport == "serial":
         pat = MACRO_VARIABLE.get(family)
         if family == "linuxcnc":
@@ -220,10 +222,12 @@ def run_mean_c(pose_c: Sequence[float | None], start_c: float | None,
     """A run's temperature on one channel, the one definition the report, the CLI, the HMI and
     the fleet page use (issue 22 item 4): the mean of the values read at the poses — the
     instants the geometry was measured — else of the start and end values that were read. A
-    reading that is missing is left out, never stood in for by another one."""
-    values = [float(v) for v in pose_c if v is not None]
-    if not values:
-        values = [float(v) for v in (start_c, end_c) if v is not None]
+    reading that is missing (or not a finite number: a store written by hand) is left out,
+    never stood in for by another one."""
+    def read(vs: Sequence[float | None]) -> list[float]:
+        return [float(v) for v in vs if v is not None and math.isfinite(v)]
+
+    values = read(pose_c) or read((start_c, end_c))
     return sum(values) / len(values) if values else None
 
 

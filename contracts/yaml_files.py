@@ -2,14 +2,22 @@
 
 from __future__ import annotations
 
+import ipaddress
 import re
 import types
 import typing
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any
 
 import yaml
-from pydantic import BaseModel, ConfigDict, ValidationError, ValidationInfo, field_validator
+from pydantic import (
+    AfterValidator,
+    BaseModel,
+    ConfigDict,
+    ValidationError,
+    ValidationInfo,
+    field_validator,
+)
 
 from contracts.input_files import read_bounded
 
@@ -193,6 +201,29 @@ class StrictModel(BaseModel):
                 and not (v is None and field.annotation is not bool):
             raise ValueError(f"expected true or false, got {_one_line(repr(v), 40)}")
         return v
+
+
+_LABEL = r"[A-Za-z0-9_](?:[A-Za-z0-9_-]{0,61}[A-Za-z0-9_])?"
+_HOST = re.compile(rf"(?=.{{1,253}}\Z){_LABEL}(?:\.{_LABEL})*\.?")
+
+
+def host_name(v: str) -> str:
+    """A host to connect to or listen on: an IPv4 or IPv6 address, or a DNS name (RFC 1123
+    labels, '_' tolerated as some site DNS uses it); never empty, no blanks, no scheme or
+    port."""
+    try:
+        ipaddress.ip_address(v)
+        return v
+    except ValueError:
+        pass
+    if not _HOST.fullmatch(v):
+        raise ValueError(f"{v!r}: expected a host name or an IP address (e.g. broker.local, "
+                         "192.168.1.20, ::1)")
+    return v
+
+
+HostName = Annotated[str, AfterValidator(host_name)]
+"""A configuration field naming a host (``host_name``)."""
 
 
 def validate_file(model: type[BaseModel], path: Path | str, data: Any) -> Any:

@@ -18,6 +18,7 @@ from pydantic import Field, field_validator, model_validator
 from contracts.input_files import read_bounded
 from contracts.yaml_files import (
     ConfigError,
+    HostName,
     StrictModel,
     format_validation,
     read_yaml,
@@ -37,7 +38,7 @@ class TlsFile(StrictModel):
 
 class HmiFile(StrictModel):
     enabled: bool = True
-    host: str = "127.0.0.1"
+    host: HostName = "127.0.0.1"
     port: int = Field(8470, ge=0, le=65535)  # 0 = any free port (tests, demo)
     token: str | None = Field(None, min_length=16)
     token_file: str | None = None

@@ -8,7 +8,14 @@ compensation is within the machine file's guards, an engineer confirms it (`rumb
 --confirm --by`), the reviewed $TC_CARR program is loaded into the control, and the
 verification run PASSes.
 
-``python -m demos.e2e [--time-scale S] [--out DIR]`` prints the verdict and report path.
+``--profile sinumerik``: the same story on the control's own OPC UA server as Siemens ships it
+(the SINUMERIK profile: the program written into "Part Programs" and selected, the machine's PLC
+presses NC start on the start request, results from the program's R parameters), the reviewed
+compensation program sent into "Part Programs" for the operator to select and start. The default
+``--profile gateway`` is rumba's own address space (a PLC or an edge box implements it).
+
+``python -m demos.e2e [--profile gateway|sinumerik] [--time-scale S] [--out DIR]`` prints the
+verdict and report path.
 """
 
 from __future__ import annotations
@@ -47,7 +54,9 @@ def tolerances_yaml(indent: int = 4) -> str:
     return "".join(" " * indent + line for line in text.splitlines(keepends=True))
 
 
-def _daemon_yaml(work: Path, url: str, pki: Path, server_cert: Path, token_file: Path) -> str:
+def _daemon_yaml(work: Path, url: str, pki: Path, server_cert: Path, token_file: Path,
+                 profile: str = "gateway") -> str:
+    transport = "sinumerik" if profile == "sinumerik" else "opcua  # the gateway profile"
     return f"""# written by demos/e2e.py
 store: {{path: {work / 'journal.sqlite'}}}
 reports_dir: {work / 'reports'}
@@ -59,7 +68,7 @@ machines:
     plan: {CONFIG / PLAN}
     dialect: {DIALECT}
     link:
-      transport: opcua
+      transport: {transport}
       url: '{url}'
       security: Basic256Sha256_SignAndEncrypt
       certificate: {pki / 'client/cert.der'}
@@ -94,10 +103,11 @@ async def _hmi(stdout: asyncio.StreamReader, timeout_s: float) -> str:
                 return line.split("rumba: HMI at ", 1)[1].strip()
 
 
-async def demo(time_scale: float, work: Path) -> int:
+async def demo(time_scale: float, work: Path, profile: str = "gateway") -> int:
     from contracts.opcua_certs import ensure_certificate
     from simulators.controller import VirtualController
     from simulators.frontends.opcua import OpcUaFrontend
+    from simulators.frontends.sinumerik import SinumerikFrontend
     from simulators.truth import TruthModel
 
     t0 = time.monotonic()
@@ -109,16 +119,20 @@ async def demo(time_scale: float, work: Path) -> int:
     password = secrets.token_urlsafe(16)
     truth = TruthModel.from_files(CONFIG / MACHINE, CONFIG / ARTEFACT, CONFIG / ERRORS)
     ctrl = VirtualController(truth, time_scale=time_scale, dialect=DIALECT)
-    sim = OpcUaFrontend(ctrl, cert_dir=pki / "server", users={"rumba": password},
-                        trusted_client_certs=[pki / "trusted"])
+    front = SinumerikFrontend if profile == "sinumerik" else OpcUaFrontend
+    sim = front(ctrl, cert_dir=pki / "server", users={"rumba": password},
+                trusted_client_certs=[pki / "trusted"])
     url = await sim.start()
-    print(f"simulated CNC (OPC UA, SignAndEncrypt) at {url}; errors {ERRORS}")
+    what = ("SINUMERIK OPC UA server: file system, Select, R parameters; its PLC presses NC "
+            "start on the start request" if profile == "sinumerik" else
+            "rumba gateway address space")
+    print(f"simulated CNC (OPC UA, SignAndEncrypt, {what}) at {url}; errors {ERRORS}")
     token_file = work / "hmi.token"
     token = secrets.token_urlsafe(24)
     token_file.write_text(token)
     token_file.chmod(0o600)
     cfg = work / "daemon.yaml"
-    cfg.write_text(_daemon_yaml(work, url, pki, sim.server_certificate, token_file))
+    cfg.write_text(_daemon_yaml(work, url, pki, sim.server_certificate, token_file, profile))
     env = {**os.environ, "RUMBA_DEMO_OPCUA_PASSWORD": password}
     daemon = await asyncio.create_subprocess_exec(
         sys.executable, "-m", "daemon.cli", "run", "--config", str(cfg), cwd=ROOT, env=env,
@@ -152,7 +166,7 @@ async def demo(time_scale: float, work: Path) -> int:
         if report and Path(report).with_suffix(".pdf").is_file():
             print(f"report for filing (PDF, A4): {Path(report).with_suffix('.pdf')}")
         if verdict == "FAIL" and not await compensate_and_verify(cfg, env, ctrl, st["run_id"],
-                                                                 hmi, token):
+                                                                 hmi, token, sim):
             return 1
         print(f"demo wall time {time.monotonic() - t0:.1f} s")
         return 0 if verdict in ("PASS", "WARN", "FAIL") else 1
@@ -171,7 +185,7 @@ async def _rumba(env: dict[str, str], *args: str) -> tuple[int, str]:
 
 
 async def compensate_and_verify(cfg: Path, env: dict[str, str], ctrl, run_id: str, hmi: str,
-                                token: str) -> bool:
+                                token: str, sim=None) -> bool:
     """The FAIL's follow-up: the proposal, an engineer's confirmation, the reviewed program
     loaded into the control (as an operator does on a SINUMERIK), the verification run."""
     print(f"\nFAIL: an engineer reviews the compensation proposal and confirms it (rumba "
@@ -184,12 +198,22 @@ async def compensate_and_verify(cfg: Path, env: dict[str, str], ctrl, run_id: st
                     if ln.startswith("program: ")), "")
     if code != 0 or not program:
         return False
-    await ctrl.load_program(Path(program).read_text(encoding="utf-8"), DIALECT)
-    await ctrl.start()
+    if hasattr(sim, "operator_select"):  # the SINUMERIK profile sent it into Part Programs
+        from drivers.sinumerik.transfer import COMPENSATION_PROGRAM
+
+        print(f"  the operator selects {COMPENSATION_PROGRAM}.MPF (sent by rumba) and presses "
+              "NC start")
+        await sim.operator_select(COMPENSATION_PROGRAM)
+        await sim.nc_start()
+        name = f"{COMPENSATION_PROGRAM}.MPF"
+    else:  # the gateway profile: the operator loads the file from the reports folder
+        await ctrl.load_program(Path(program).read_text(encoding="utf-8"), DIALECT)
+        await ctrl.start()
+        name = Path(program).name
     if await ctrl.wait_done(60) != "done":
         print(f"error: the control refused the compensation program: {ctrl.alarm}")
         return False
-    print(f"  the control ran {Path(program).name}: its $TC_CARR values now hold the change")
+    print(f"  the control ran {name}: its $TC_CARR values now hold the change")
     print("verification run: the CNC raises its start request again")
     ctrl.raise_start_request()
     while not (ctrl.done and ctrl.verdict):
@@ -231,10 +255,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", type=Path,
                     help="folder for journal, reports and config (default: a new temp folder, "
                          "kept so the report can be opened)")
+    ap.add_argument("--profile", choices=("gateway", "sinumerik"), default="gateway",
+                    help="the control's OPC UA as rumba's gateway address space (default) or as "
+                         "a SINUMERIK's own server")
     args = ap.parse_args(argv)
     out = args.out or Path(tempfile.mkdtemp(prefix="rumba-demo-"))
     out.mkdir(parents=True, exist_ok=True)
-    return asyncio.run(demo(args.time_scale, out.resolve()))
+    return asyncio.run(demo(args.time_scale, out.resolve(), args.profile))
 
 
 if __name__ == "__main__":

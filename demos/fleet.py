@@ -266,10 +266,13 @@ async def demo(time_scale: float, out: Path, stay: bool) -> int:
                 setup = load_daemon_config(cfg).machines[name]  # format files: no file
                 ctrl.files.update(prepare(setup, "setup").job.files)  # transfer on DNC/Modbus)
             ctrls[name] = ctrl
-            with (out / name / "daemon.log").open("ab") as log:  # the daemon's stderr
+            # The daemon's log, rotated by the daemon; its stderr (a start-up error) appended
+            log_file = out / name / "daemon.log"
+            with log_file.open("ab") as log:
                 proc = await asyncio.create_subprocess_exec(
-                    sys.executable, "-m", "daemon.cli", "run", "--config", str(cfg), cwd=ROOT,
-                    stdout=asyncio.subprocess.PIPE, stderr=log)
+                    sys.executable, "-m", "daemon.cli", "run", "--config", str(cfg),
+                    "--log-file", str(log_file), cwd=ROOT, stdout=asyncio.subprocess.PIPE,
+                    stderr=log)
             procs.append(proc)
             hmis[name] = await banner(proc, name)
             print(f"  {name}: {dialect} over {transport}; HMI at {hmis[name]}")

@@ -4,9 +4,10 @@ prints the URL and a one-time login (user ``demo``, engineer, a random password)
 until Ctrl-C, which stops the daemon (SIGTERM: it ends a run cleanly) and the simulator.
 
 The demo machine FAILs its first check against the demo's shop limits (demos/limits.py); the
-compensation panel proposes $TC_CARR changes within the machine file's guards; once the
-engineer confirms, the reviewed program is loaded into the simulated SINUMERIK (what the
-operator does at the control) and the next check PASSes.
+compensation panel proposes $TC_CARR changes within the machine file's guards (a proposal is
+never a program); once the engineer confirms, the program that confirmation wrote is loaded
+into the simulated SINUMERIK (what the operator does at the control; nothing the journal does
+not show as confirmed is run) and the next check PASSes.
 
 ``python -m demos.hmi [--port P] [--out DIR] [--time-scale S]``
 """
@@ -83,21 +84,61 @@ async def _banner(stdout: asyncio.StreamReader) -> str:
             return line.split("rumba: HMI at ", 1)[1].strip()
 
 
-async def load_compensations(ctrl, reports: Path) -> None:
-    """The operator at the control: each compensation program a confirmation writes into the
-    reports folder is loaded and run on the simulated SINUMERIK once it is idle."""
-    done: set[Path] = set(reports.glob("compensation_*.mpf"))
+def unconfirmed(journal: Path, machine: str, program: Path) -> str:
+    """Why the operator must not run ``program`` ("" when it may): it runs only a program a
+    confirmation wrote — the journal's write that names it is the machine's current state
+    (a compensation still applied, or the last rollback). A proposal is never a program, and
+    any other file in the folder (an old proposal's, one copied there) is left alone."""
+    from daemon.compensation import journal as cj
+    from daemon.store.journal import Store
+
+    store = Store(journal)
+    try:
+        written = cj.written(store, machine)
+    finally:
+        store.close()
+    mine = [r for r in written if program.name in r.reason]
+    if not mine:
+        return "no confirmed compensation in the journal wrote it"
+    row = mine[-1]
+    if row.is_rollback:
+        return "" if row is written[-1] else "a later write superseded this rollback"
+    return "" if row.state == "applied" else f"compensation #{row.id} is {row.state}"
+
+
+async def operator_pass(ctrl, reports: Path, journal: Path, machine: str,
+                        seen: set[tuple[str, int]]) -> list[str]:
+    """One look of the operator at the reports folder: each new program a confirmation wrote
+    (compensation or rollback) is loaded and run on the simulated SINUMERIK once it is idle;
+    anything else is named and left alone. What was done, one line each."""
+    out = []
+    for path in sorted(reports.glob("*.mpf")):
+        key = (path.name, path.stat().st_mtime_ns)
+        if key in seen:
+            continue
+        if ctrl.request or ctrl.state in ("running", "hold"):
+            break  # a run is on the control: the operator waits for it to end
+        seen.add(key)
+        why = unconfirmed(journal, machine, path)
+        if why:
+            out.append(f"operator: not running {path.name}: {why}")
+            continue
+        await ctrl.load_program(path.read_text(encoding="utf-8"), DIALECT)
+        await ctrl.start()
+        state = await ctrl.wait_done(60)
+        out.append(f"operator: ran {path.name} on the control ({state}); start the next "
+                   "check to verify it")
+    return out
+
+
+async def load_compensations(ctrl, reports: Path, journal: Path, machine: str) -> None:
+    """The operator at the control (``operator_pass`` every second); the programs already in
+    the folder when the demo starts are not run again."""
+    seen = {(p.name, p.stat().st_mtime_ns) for p in reports.glob("*.mpf")}
     while True:
         await asyncio.sleep(1.0)
-        for path in sorted(set(reports.glob("compensation_*.mpf")) - done):
-            if ctrl.request or ctrl.state in ("running", "hold"):
-                break  # a run is on the control: the operator waits for it to end
-            done.add(path)
-            await ctrl.load_program(path.read_text(encoding="utf-8"), DIALECT)
-            await ctrl.start()
-            state = await ctrl.wait_done(60)
-            print(f"operator: ran {path.name} on the control ({state}); start the next check "
-                  "to verify it", flush=True)
+        for line in await operator_pass(ctrl, reports, journal, machine, seen):
+            print(line, flush=True)
 
 
 async def serve(work: Path, port: int, time_scale: float) -> int:
@@ -128,9 +169,10 @@ async def serve(work: Path, port: int, time_scale: float) -> int:
         cfg.write_text(daemon_yaml(work, url, pki, sim.server_certificate, port))
         password = write_secrets(work)
         env = {**os.environ, "RUMBA_DEMO_OPCUA_PASSWORD": opcua_password}
-        with log.open("wb") as err:
+        with log.open("ab") as err:  # the daemon's log (rotated by it) and its stderr
             daemon = await asyncio.create_subprocess_exec(
                 sys.executable, "-m", "daemon.cli", "run", "--config", str(cfg),
+                "--log-file", str(log),
                 cwd=Path(__file__).resolve().parents[1], env=env,
                 stdout=asyncio.subprocess.PIPE, stderr=err,
                 start_new_session=True)  # Ctrl-C reaches us; we stop the daemon in order
@@ -156,7 +198,8 @@ async def serve(work: Path, port: int, time_scale: float) -> int:
         print(f"files:    {work} (journal, reports, daemon.log); more accounts: "
               f"rumba users --file {work / 'users'} add NAME --role operator")
         print("Ctrl-C stops the daemon and the simulated CNC", flush=True)
-        operator = asyncio.ensure_future(load_compensations(ctrl, work / "reports"))
+        operator = asyncio.ensure_future(load_compensations(
+            ctrl, work / "reports", work / "journal.sqlite", "demo-hmc"))
         await stop.wait()
         operator.cancel()
         print("\nstopping …", flush=True)

@@ -8,7 +8,7 @@ without ``start_request`` is only started from the HMI, the CAN panel or the CLI
 from __future__ import annotations
 
 import abc
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Callable
 from dataclasses import dataclass
 
 from contracts.jobs import ProgramJob, Verdict
@@ -39,6 +39,11 @@ class LinkError(Exception):
     """The link failed (connection lost, protocol violation, timeout); message says which."""
 
 
+class ChannelMissing(LinkError):
+    """A temperature channel's address does not exist on the controller (a node id or register
+    misspelt in daemon.yaml): reading it again will not help."""
+
+
 class ControllerAlarm(Exception):
     """The controller stopped the program with an alarm (e.g. probe did not trigger)."""
 
@@ -53,6 +58,18 @@ class CncLink(abc.ABC):
     capabilities: Capabilities = Capabilities()
     uses_dialect: bool = False  # the link builds G-code itself (a DNC verdict program): the
     # registry hands it the machine's DialectCodec as ``dialect=``
+    handshake: bool = False  # the program carries the result handshake (ring wait, stop flag:
+    # contracts.result_lines.HANDSHAKE_VARIABLES): the link reads the controller's variables
+    start_timeout_s: float = 0.0  # > 0: the program is started at the machine (its PLC or the
+    # operator presses NC start, the control offers no remote start): the first result may take
+    # this long, and the link says in its status that it waits for it (``on_step``)
+    on_step: Callable[[str | None], None] | None = None  # set by the session: what the run
+    # waits for at the machine now ("waiting for NC start …"), None once it runs
+
+    def say_step(self, text: str | None) -> None:
+        """Tell the session what the run waits for at the machine (None: nothing any more)."""
+        if self.on_step is not None:
+            self.on_step(text)
 
     @abc.abstractmethod
     async def connect(self) -> None:

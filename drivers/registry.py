@@ -13,12 +13,16 @@ from pydantic import BaseModel, Field, ValidationError
 
 from contracts.jobs import DialectCodec
 from drivers.base import CncLink
+from drivers.haas.schema import HaasLinkConfig
 from drivers.linuxcnc.schema import LinuxCncLinkConfig
+from drivers.lsv2.schema import Lsv2LinkConfig
 from drivers.modbus.schema import ModbusLinkConfig
 from drivers.opcua.schema import OpcUaLinkConfig
 from drivers.serial.schema import SerialLinkConfig
+from drivers.sinumerik.schema import SinumerikLinkConfig
 
-LinkConfig = Annotated[SerialLinkConfig | OpcUaLinkConfig | ModbusLinkConfig | LinuxCncLinkConfig,
+LinkConfig = Annotated[SerialLinkConfig | OpcUaLinkConfig | ModbusLinkConfig | LinuxCncLinkConfig
+                       | SinumerikLinkConfig | Lsv2LinkConfig | HaasLinkConfig,
                        Field(discriminator="transport")]
 
 
@@ -27,7 +31,13 @@ TRANSPORTS: dict[str, tuple[str, str]] = {
     "opcua": ("drivers.opcua.link", "OpcUaLink"),
     "modbus": ("drivers.modbus.link", "ModbusLink"),
     "linuxcnc": ("drivers.linuxcnc.link", "LinuxCncLink"),
+    "sinumerik": ("drivers.sinumerik.link", "SinumerikLink"),
+    "lsv2": ("drivers.lsv2.link", "Lsv2Link"),
+    "haas": ("drivers.haas.link", "HaasLink"),
 }
+HANDSHAKE = frozenset({"sinumerik", "lsv2", "haas"})
+"""Transports whose program carries the result handshake (``CncLink.handshake``: the link
+reads the controller's variables), known without importing the link."""
 
 _CONFIGS: dict[str, type[BaseModel]] = {
     get_args(m.model_fields["transport"].annotation)[0]: m

@@ -22,6 +22,15 @@ from identification.estimate import Estimate
 from identification.kinematics import Machine, TopologyError
 from identification.model import Artefact, Centres, predict
 from identification.uncertainty import expanded_k
+from identification.worth import (
+    GuardResult,
+    Guards,
+    after_um,
+    check_guards,
+    effect_um,
+    norms_um,
+    worse_after,
+)
 
 PIVOT_STEP_MM = 1e-4  # finite-difference steps of the controller values
 ORIENTATION_STEP_RAD = 1e-6
@@ -69,6 +78,23 @@ class CompensationPlan:
     distortion_before_um: tuple[float, float]  # (rms, max) link-caused, setup projected out
     distortion_compensable_um: tuple[float, float]  # (rms, max) the part the changes remove
     distortion_after_um: tuple[float, float]  # (rms, max) what is left after the changes
+    # the displacements behind those figures (mm, one row per probed centre, setup projected
+    # out): the links', and each observable change's own; the worth rule (identification.worth)
+    # takes each change's effect and the distortion a subset leaves from them. None / empty
+    # for a plan built by hand.
+    link_disp_mm: np.ndarray | None = dataclasses.field(default=None, compare=False)
+    change_disp_mm: dict[str, np.ndarray] = dataclasses.field(default_factory=dict,
+                                                              compare=False)
+
+    def effect_um(self, name: str) -> float | None:
+        """The change's own effect: the largest displacement of a probed centre (µm)."""
+        return effect_um(self.change_disp_mm.get(name))
+
+    def after_um(self, names: list[str]) -> tuple[float, float]:
+        """(RMS, max) link-caused distortion left once the changes ``names`` are written."""
+        # a plan built by hand carries only its stated figures
+        fallback = self.distortion_after_um if names else self.distortion_before_um
+        return after_um(self.link_disp_mm, self.change_disp_mm, names, fallback)
 
 
 def _check_param(machine: Machine, param: ControllerParam) -> None:
@@ -157,11 +183,6 @@ def _range_basis(s: np.ndarray) -> np.ndarray:
     norms = np.linalg.norm(s, axis=0)
     u, sv, _ = np.linalg.svd(s / np.where(norms > 0, norms, 1.0), full_matrices=False)
     return u[:, sv > RANK_TOL * sv[0]] if sv.size and sv[0] > 0 else u[:, :0]
-
-
-def _norms_um(d: np.ndarray) -> tuple[float, float]:
-    n = np.linalg.norm(d.reshape(-1, 3), axis=1) * 1e3
-    return float(np.sqrt(np.mean(n**2))), float(n.max())
 
 
 def _observable_set(pjp: np.ndarray, jp: np.ndarray, params: Sequence[ControllerParam]
@@ -260,80 +281,14 @@ def plan_compensation(machine: Machine, artefact: Artefact, est: Estimate,
         links_identified={k: float(v) for k, v in zip(links, ell, strict=True)},
         links_compensable={k: float(v) for k, v in zip(links, ell_c, strict=True)},
         links_residual={k: float(v) for k, v in zip(links, ell - ell_c, strict=True)},
-        distortion_before_um=_norms_um(link_disp),
-        distortion_compensable_um=_norms_um(held_disp),
-        distortion_after_um=_norms_um(link_disp - held_disp),
+        distortion_before_um=norms_um(link_disp),
+        distortion_compensable_um=norms_um(held_disp),
+        distortion_after_um=norms_um(link_disp - held_disp),
+        link_disp_mm=link_disp.reshape(-1, 3),
+        change_disp_mm={params[i].name: (pjp[:, i] * dp[i]).reshape(-1, 3) for i in kept},
     )
 
 
-@dataclass(frozen=True)
-class Guards:
-    """Limits of one compensation (KinematicsOpt's 0.05 mm per value)."""
-
-    max_change_mm: float = 0.05  # per pivot value
-    max_change_rad: float = 100e-6  # per orientation value
-    max_total_mm: float = 0.1  # sum of |pivot changes|
-
-
-@dataclass(frozen=True)
-class GuardResult:
-    """What to apply. When ``refused`` is not empty nothing is applied: ``accepted`` is empty
-    and ``proposed`` keeps the changes that passed the per-change rules."""
-
-    accepted: list[ParamChange]
-    skipped: list[tuple[ParamChange, str]]
-    refused: list[str]
-    proposed: list[ParamChange] = dataclasses.field(default_factory=list)
-
-    @property
-    def ok(self) -> bool:
-        return not self.refused
-
-
-def _size(ch: ParamChange, value: float) -> str:
-    return f"{value * 1e3:.1f} µm" if ch.kind == "pivot" else f"{value * 1e6:.1f} µrad"
-
-
-def worse_after(plan: CompensationPlan) -> list[str]:
-    """Issue 23: "predicted after compensation" must never exceed "before" silently. The
-    changes reproduce the projection of the link-caused displacements on what they can hold;
-    the remainder can still be larger (RMS or max) when the held part is ill-conditioned or
-    clipped, and such changes would make the machine worse: refused, with both figures."""
-    out = []
-    for i, what in enumerate(("RMS", "max")):
-        before, after = plan.distortion_before_um[i], plan.distortion_after_um[i]
-        if after > before + 1e-6:
-            out.append(f"predicted after compensation {what} {after:.1f} µm exceeds the "
-                       f"link-caused distortion {what} {before:.1f} µm before it: the "
-                       "changes would make the machine worse")
-    return out
-
-
-def check_guards(plan: CompensationPlan, guards: Guards) -> GuardResult:
-    """Skip unobservable changes and those within their own expanded uncertainty; refuse the
-    whole compensation when an accepted value or the pivot total is over its limit."""
-    proposed: list[ParamChange] = []
-    skipped: list[tuple[ParamChange, str]] = []
-    for ch in plan.changes:
-        if not ch.observable:
-            skipped.append((ch, f"not observable: {ch.note}" if ch.note else "not observable"))
-        elif abs(ch.delta) <= ch.u_expanded:
-            skipped.append((ch, f"smaller than its own expanded uncertainty "
-                                f"(|{_size(ch, ch.delta)}| <= {_size(ch, ch.u_expanded)})"))
-        else:
-            proposed.append(ch)
-    refused: list[str] = []
-    for ch in proposed:
-        limit = guards.max_change_mm if ch.kind == "pivot" else guards.max_change_rad
-        if abs(ch.delta) > limit:
-            refused.append(f"{ch.name}: change {_size(ch, ch.delta)} is over the limit "
-                           f"{_size(ch, limit)}")
-    total = sum(abs(ch.delta) for ch in proposed if ch.kind == "pivot")
-    if total > guards.max_total_mm:
-        refused.append(f"total of the pivot changes {total * 1e3:.1f} µm is over the limit "
-                       f"{guards.max_total_mm * 1e3:.1f} µm")
-    refused += worse_after(plan)
-    if refused:
-        skipped += [(ch, "refused with the whole compensation") for ch in proposed]
-        return GuardResult([], skipped, refused, proposed)
-    return GuardResult(list(proposed), skipped, [], proposed)
+__all__ = ["KINDS", "CompensationPlan", "ControllerParam", "GuardResult", "Guards",
+           "ParamChange", "apply_changes", "check_guards", "param_columns", "plan_compensation",
+           "pose_centres", "worse_after"]

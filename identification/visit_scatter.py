@@ -30,7 +30,17 @@ EIG_RCOND = 1e-12  # relative eigenvalue cut-off of XᵀV⁻¹X (unobservable fi
 LR_ALPHA = 0.01  # a component is "detected" when its boundary LR test is below this level
 MAX_SIGMA = 1e4  # µrad / µm: an upper bound for the optimiser only
 ZERO = 1e-2  # µrad / µm: a component this small is none (the optimiser's floor is 1e-3)
-FTOL = 1e-7  # relative change of −2ℓ (hundreds) at which L-BFGS-B stops: ~1e-4 absolute
+# L-BFGS-B with the analytic gradient runs to the optimum, not to a plateau: −2ℓ (hundreds)
+# to a relative change of 1e-13 and a projected gradient below 1e-8 per µrad / µm, so that the
+# components, and every u that carries them, are the same on every CPU and BLAS kernel to
+# ~1e-9 (a stop at 1e-7 of −2ℓ left them 2e-3 apart between kernels)
+FTOL = 1e-13
+GTOL = 1e-8
+MAX_ITER = 500
+# A variance floor on every observation (µm², (0.1 nm)²): a noise-free run's sphere fits carry a
+# covariance of ~0, and with every component at its bound V would be singular (its whitening
+# overflowing to NaN); far below any centre's real repeatability, it changes nothing measured.
+FLOOR_UM2 = 1e-8
 
 
 @dataclass
@@ -95,7 +105,7 @@ def covariance(b: VisitBlocks, theta: np.ndarray) -> np.ndarray:
     idx, cen = np.asarray(theta[:q], float), np.asarray(theta[q:], float)
     zs = b.z * idx[None, None, :]
     v = b.r0 + zs @ np.swapaxes(zs, 1, 2)
-    d = np.einsum("vna,a->vn", b.centre, cen**2)
+    d = np.einsum("vna,a->vn", b.centre, cen**2) + FLOOR_UM2
     v[:, np.arange(v.shape[1]), np.arange(v.shape[1])] += d
     return v
 
@@ -122,18 +132,58 @@ def restricted_nll(b: VisitBlocks, theta: np.ndarray, rank: int | None = None,
     log det(XᵀV⁻¹X) is taken in one basis of the fixed columns for every θ (``fixed_basis``):
     normalising the whitened columns instead drops 2 Σ log‖V^(-1/2) x_j‖, a term that falls
     as σ grows, and biased the components low — most the index component of B, whose few
-    angles make the B-dependent link columns look like its index columns (issue 21: σ̂_B/σ
-    0.95 on synthetic data of the shift plan, N = 200; 0.99 with the fixed basis)."""
-    t = fixed_basis(b.x, rank)
+    angles make the B-dependent link columns look like its index columns (σ̂_B/σ 0.95 on
+    synthetic data of the shift plan, N = 200; 0.99 with the fixed basis)."""
+    return _nll(b, theta, fixed_basis(b.x, rank), restricted, gradient=False)[0]
+
+
+def restricted_nll_grad(b: VisitBlocks, theta: np.ndarray, rank: int | None = None,
+                        restricted: bool = True) -> tuple[float, np.ndarray]:
+    """``restricted_nll`` and its gradient by θ (analytic, Harville 1977 eq. 4.4 / Searle,
+    Casella & McCulloch 1992 §6.6): with V_k = ∂V/∂θ_k²,
+    ∂(−2ℓ_R)/∂θ_k² = tr(V⁻¹V_k) − tr((XᵀV⁻¹X)⁻¹XᵀV⁻¹V_kV⁻¹X) − yᵀPV_kPy
+    (the ML form drops the middle term), then × 2θ_k."""
+    return _nll(b, theta, fixed_basis(b.x, rank), restricted, gradient=True)
+
+
+def _nll(b: VisitBlocks, theta: np.ndarray, t: np.ndarray, restricted: bool, gradient: bool
+         ) -> tuple[float, np.ndarray]:
+    theta = np.asarray(theta, float)
     chol = np.linalg.cholesky(covariance(b, theta))
     logdet = 2.0 * float(np.sum(np.log(np.diagonal(chol, axis1=1, axis2=2))))
-    xw = np.linalg.solve(chol, b.x @ t).reshape(-1, t.shape[1])
-    yw = np.linalg.solve(chol, b.y[..., None])[..., 0].reshape(-1)
+    xw_v = np.linalg.solve(chol, b.x @ t)  # (V, n, r) L⁻¹X̃
+    yw_v = np.linalg.solve(chol, b.y[..., None])[..., 0]  # (V, n) L⁻¹y
+    xw = xw_v.reshape(-1, t.shape[1])
+    yw = yw_v.reshape(-1)
     w, vec = np.linalg.eigh(xw.T @ xw)
     w = np.maximum(w, EIG_RCOND * max(float(w[-1]), 1e-300))
     proj = vec.T @ (xw.T @ yw)
     rss = float(yw @ yw - np.sum(proj**2 / w))
-    return logdet + (float(np.sum(np.log(w))) if restricted else 0.0) + rss
+    nll = logdet + (float(np.sum(np.log(w))) if restricted else 0.0) + rss
+    if not gradient:
+        return nll, np.zeros(0)
+    m_inv = (vec / w) @ vec.T  # (XᵀV⁻¹X)⁻¹ in the fixed basis
+    beta = m_inv @ (xw.T @ yw)
+    lt = np.swapaxes(chol, 1, 2)
+    py = np.linalg.solve(lt, (yw_v - xw_v @ beta)[..., None])[..., 0]  # (V, n) P y
+    q = b.z.shape[2]
+    grad = np.zeros(len(theta))
+    if q:
+        lz = np.linalg.solve(chol, b.z)  # (V, n, q) L⁻¹z
+        wz = np.einsum("vnr,vna->var", xw_v, lz)  # X̃ᵀV⁻¹z per visit
+        t1 = np.einsum("vna,vna->a", lz, lz)
+        t2 = np.einsum("var,rs,vas->a", wz, m_inv, wz)
+        t3 = np.einsum("vn,vna->va", py, b.z) ** 2
+        grad[:q] = t1 - (t2 if restricted else 0.0) - t3.sum(axis=0)
+    n = chol.shape[1]
+    linv = np.linalg.solve(chol, np.broadcast_to(np.eye(n), chol.shape))
+    vinv_diag = np.einsum("vin,vin->vn", linv, linv)  # diag V⁻¹
+    a = np.linalg.solve(lt, xw_v)  # (V, n, r) V⁻¹X̃
+    amd = np.einsum("vnr,rs,vns->vn", a, m_inv, a)
+    for c in range(len(theta) - q):
+        d = b.centre[:, :, c]
+        grad[q + c] = float(np.sum(d * (vinv_diag - (amd if restricted else 0.0) - py**2)))
+    return nll, grad * 2.0 * theta
 
 
 @dataclass
@@ -166,7 +216,8 @@ def estimate_components(b: VisitBlocks, names: Sequence[str], start: Sequence[fl
     fixed = dict(fixed or {})
     m = len(names)
     free = [i for i in range(m) if i not in fixed]
-    rank = fixed_basis(b.x).shape[1]
+    basis = fixed_basis(b.x)
+    rank = basis.shape[1]
 
     def full(t: np.ndarray, zero: int | None = None) -> np.ndarray:
         out = np.array([fixed.get(i, 0.0) for i in range(m)], float)
@@ -181,9 +232,13 @@ def estimate_components(b: VisitBlocks, names: Sequence[str], start: Sequence[fl
         x0 = np.maximum([start[i] for i in idx] if x0 is None else x0[idx], 1e-3)
         from scipy import optimize  # lazy: a run without visit blocks never loads it
 
-        res = optimize.minimize(lambda t: restricted_nll(b, full(t, zero), rank, restricted),
-                                x0, method="L-BFGS-B", bounds=[(0.0, MAX_SIGMA)] * len(idx),
-                                options={"maxiter": 200, "ftol": FTOL})
+        def f(t: np.ndarray) -> tuple[float, np.ndarray]:
+            v, g = _nll(b, full(t, zero), basis, restricted, gradient=True)
+            return v, g[idx]
+
+        res = optimize.minimize(f, x0, jac=True, method="L-BFGS-B",
+                                bounds=[(0.0, MAX_SIGMA)] * len(idx),
+                                options={"maxiter": MAX_ITER, "ftol": FTOL, "gtol": GTOL})
         return res.x, float(res.fun)
 
     # The likelihood is not convex in σ: a local optimum far out (one component taking up a

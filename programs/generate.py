@@ -45,14 +45,18 @@ class GeneratedProgram:
 
 def generate(machine: Machine, machine_file: MachineFile, artefact: Artefact, plan: Plan,
              dialect: str, targets: Targets | None = None,
-             temperature_vars: tuple[str, ...] = ()) -> GeneratedProgram:
+             temperature_vars: tuple[str, ...] = (), handshake: bool = False
+             ) -> GeneratedProgram:
     """Build, check (``programs.safety.SafetyError`` when unsafe), render and time a program;
     ``programs.geometry.ProgramError`` when the plan cannot become one. The cycle time is
     computed once: the program's header prints the same estimate the result carries.
-    ``temperature_vars``: macro variables to print (temperature channels over DNC, issue 22)."""
+    ``temperature_vars``: macro variables to print (temperature channels over DNC, issue 22);
+    ``handshake``: the ring wait and stop check of a link reading the controller's variables
+    (``contracts.result_lines.HANDSHAKE_VARIABLES``)."""
     d = get_dialect(dialect)
     prog = build_program(machine, machine_file, artefact, plan, targets, two_speed=d.two_speed)
     prog.temperature_vars = tuple(temperature_vars)
+    prog.handshake = handshake
     report = check_program(prog)
     ct = estimate(prog, d.linear_rapid)
     text = d.render(prog, ct)

@@ -129,6 +129,10 @@ class Program:
     # macro variables the program prints at its start, at each pose and at its end (issue 22:
     # temperature channels over DNC, ``RTEMP`` lines); checked by the dialect before printing
     temperature_vars: tuple[str, ...] = ()
+    # a link reads the results from the controller's variables (contracts.result_lines
+    # HANDSHAKE_VARIABLES): before each probing move the program waits while the ring is full
+    # and ends at the link's stop request
+    handshake: bool = False
 
     @property
     def axis_letters(self) -> tuple[str, str, str, str, str]:

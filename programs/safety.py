@@ -31,7 +31,20 @@ INDEX_MARGIN_MM = 0.05  # covers the sampling error of the index sweep
 
 
 class SafetyError(ValueError):
-    """The program is unsafe; the message names block, pose, ball and reason in one line."""
+    """The program is unsafe; the message names block, pose, ball and reason in one line.
+    ``pose``: the plan's pose index of the offending move, None when the plan as a whole is
+    at fault (so a planner can drop that pose and try again)."""
+
+    def __init__(self, message: str, pose: int | None = None) -> None:
+        super().__init__(message)
+        self.pose = pose
+
+
+def _unsafe(prog: Program, i: int, reason: str) -> SafetyError:
+    """The error for move ``i``: where it is (``_where``), why, and its pose index."""
+    p = prog.moves[i].pose
+    return SafetyError(f"{_where(prog, i)}: {reason}",
+                       p if 0 <= p < len(prog.plan.poses) else None)
 
 
 @dataclass(frozen=True)
@@ -93,24 +106,24 @@ def check_program(prog: Program) -> SafetyReport:
         if mv.kind == "probe" and max(mv.feed_mm_min, mv.locate_feed_mm_min) > \
                 dyn.max_probe_feed_mm_min:
             f = max(mv.feed_mm_min, mv.locate_feed_mm_min)
-            raise SafetyError(f"{_where(prog, i)}: probing feed {f:g} mm/min exceeds "
-                              f"dynamics.max_probe_feed_mm_min {dyn.max_probe_feed_mm_min:g}")
+            raise _unsafe(prog, i, f"probing feed {f:g} mm/min exceeds "
+                                   f"dynamics.max_probe_feed_mm_min {dyn.max_probe_feed_mm_min:g}")
         if mv.locate_feed_mm_min > 0 and not 0 < mv.backoff_mm < prog.standoff_mm:
-            raise SafetyError(f"{_where(prog, i)}: two-speed touch backs off {mv.backoff_mm:g} "
-                              f"mm: expected more than 0 and less than the standoff "
-                              f"{prog.standoff_mm:g} mm")
+            raise _unsafe(prog, i, f"two-speed touch backs off {mv.backoff_mm:g} "
+                                   f"mm: expected more than 0 and less than the standoff "
+                                   f"{prog.standoff_mm:g} mm")
         if mv.kind in ("feed", "retract") and mv.feed_mm_min > dyn.max_feed_mm_min:
-            raise SafetyError(f"{_where(prog, i)}: feed {mv.feed_mm_min:g} mm/min exceeds "
-                              f"dynamics.max_feed_mm_min {dyn.max_feed_mm_min:g}")
+            raise _unsafe(prog, i, f"feed {mv.feed_mm_min:g} mm/min exceeds "
+                                   f"dynamics.max_feed_mm_min {dyn.max_feed_mm_min:g}")
         if mv.kind in ("feed", "probe") and mv.feed_mm_min <= 0:
-            raise SafetyError(f"{_where(prog, i)}: feed must be positive")
+            raise _unsafe(prog, i, "feed must be positive")
         for j, a in enumerate(letters):
             v = mv.target[j]
             lo, hi = m.axes[a].travel
             if not math.isnan(v) and not lo - TOL_MM <= v <= hi + TOL_MM:
                 unit = "mm" if j < 3 else "deg"
-                raise SafetyError(f"{_where(prog, i)}: {a}{v:.4f} is outside the {a} travel "
-                                  f"[{lo:g}, {hi:g}] {unit}")
+                raise _unsafe(prog, i, f"{a}{v:.4f} is outside the {a} travel "
+                                       f"[{lo:g}, {hi:g}] {unit}")
     if plan.stem_radius_mm >= plan.stylus_radius_mm:
         raise SafetyError(f"stylus stem diameter {2 * plan.stem_radius_mm:g} mm is not below the "
                           f"stylus ball diameter {plan.stylus_diameter_mm:g} mm")
@@ -130,7 +143,7 @@ def check_program(prog: Program) -> SafetyReport:
             continue
         if any(not abs(cur[k] - prev[k]) <= 1e-12 for k in (3, 4)):
             if any(abs(cur[k] - prev[k]) > 1e-12 for k in range(3)):
-                raise SafetyError(f"{_where(prog, i)}: rotary and linear axes in one block")
+                raise _unsafe(prog, i, "rotary and linear axes in one block")
             index_moves.append((i, np.array(prev, float), np.array(cur, float)))
         elif not any(math.isnan(prev[k]) for k in range(3)):
             segs_a.append(_backed_off(prev, cur, mv.backoff_mm) if mv.backoff_mm > 0 else prev)
@@ -181,7 +194,7 @@ def _check_segments(prog: Program, qa: np.ndarray, qb: np.ndarray, owner: np.nda
     standoff = prog.standoff_mm
 
     def fail(j: int, reason: str) -> None:
-        raise SafetyError(f"{_where(prog, int(owner[j]))}: {reason}")
+        raise _unsafe(prog, int(owner[j]), reason)
 
     # own-ball line checks for probing and retract moves (vectorised)
     line = np.nonzero((own >= 0) & ~dog)[0]
@@ -295,8 +308,8 @@ def _check_index(prog: Program, index_moves: list) -> None:
             j = int(np.argmin(gap))
             if gap[j] < INDEX_MARGIN_MM:
                 r1, r2 = prog.rotary
-                raise SafetyError(
-                    f"{_where(prog, i)}: rotary index passes {r1}{b_s[j]:.1f} {r2}{c_s[j]:.1f} "
+                raise _unsafe(
+                    prog, i, f"rotary index passes {r1}{b_s[j]:.1f} {r2}{c_s[j]:.1f} "
                     f"with the stylus {gap[j]:.3f} mm below the top of {name} (retract first)")
 
 

@@ -84,9 +84,15 @@ class VirtualController(MachineSide):
         self._warm_s = 0.0  # machine time of the programs before this one (thermal clock)
         self._dialect_now = dialect
         self.variables: dict[str, float | str] = _Variables(self._variable_written)
+        # told of every variable write, the program's and a front-end's (name, value), in
+        # order: a front-end publishing the controller's variables (R parameters over OPC UA,
+        # macro variables over the Haas data port) and the ring pacing listen here
+        self.variable_listeners: list = []
+        self._blocks_run = 0
         self.files: dict[str, str] = {}  # the control's file store (F-PRINT format files …)
         self.messages: list[str] = []
         self.printed: list[str] = []  # output lines of the current/last program
+        self.print_files: dict[str, list[str]] = {}  # FN 16 output files by name (TNC)
         self.touches: list[TouchRecord] = []
         self.front_faults: set[str] = set()  # active transport faults for the front-ends
         self.request = False
@@ -213,6 +219,8 @@ class VirtualController(MachineSide):
 
     def _variable_written(self, name: str, value: float | str) -> None:
         """A program wrote a variable: the verdict variable is the verdict arriving (DNC)."""
+        for listener in list(self.variable_listeners):
+            listener(name, value)
         if name != VERDICT_VARIABLE.get(self._dialect_now) or isinstance(value, str):
             return
         code = round(float(value))
@@ -343,8 +351,9 @@ class VirtualController(MachineSide):
                 raise asyncio.CancelledError
         if not self._resume.is_set():
             await self._resume.wait()
-        if self.time_scale <= 0 and index % 64 == 0:
-            await asyncio.sleep(0)  # let abort / front-ends in
+        self._blocks_run += 1
+        if self.time_scale <= 0 and self._blocks_run % 64 == 0:
+            await asyncio.sleep(0)  # let abort / front-ends in (a polling loop too)
         self._events.hold()
 
     async def _program_stop(self) -> None:

@@ -26,6 +26,7 @@ class MachineSide:
     machine_time_s: float
     _warm_s: float  # the thermal clock at the program's start (VirtualController.thermal_time_s)
     printed: list[str]
+    print_files: dict[str, list[str]]
     messages: list[str]
     touches: list[TouchRecord]
     _pos: dict[str, float]
@@ -61,11 +62,16 @@ class MachineSide:
             raise Alarm("negative dwell")
         self._pending_s += seconds
 
-    def output(self, text: str) -> None:
+    def output(self, text: str, target: str | None = None) -> None:
+        """A printed line (DPRNT, WRITE, FN 16, LOG) on the DNC line; ``target``: the file it
+        also goes to (FN 16's output file, kept by name in ``print_files``)."""
         if self._drop_lines > 0:
             self._drop_lines -= 1
             return
         self.printed.append(text)
+        if target is not None:
+            name = target.split("\\")[-1].split("/")[-1].upper()
+            self.print_files.setdefault(name, []).append(text)
         self._emit(PrintLine(text))
 
     def message(self, text: str) -> None:

@@ -7,6 +7,8 @@ units the effect model declares (``identification.effects``); the loader convert
 ``components``; config/errors/README.md), as the gap diagnosis reports it. A linear axis'
 ``cyclic_error`` (a pitch error) and ``local_bump`` are effects too, outside the diagnosis'
 library (``identification.axis_local_effects``; positions in controller mm).
+``motion_errors``: the 18 motion errors of the linear axes as Legendre series over an interval
+of each axis, or drawn at random (``simulators.motion_truth``).
 """
 
 from __future__ import annotations
@@ -15,7 +17,7 @@ import re
 from pathlib import Path
 from typing import Annotated, Any
 
-from pydantic import Field, field_validator
+from pydantic import ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from contracts.yaml_files import ConfigError, StrictModel, read_yaml, validate_file
 
@@ -114,6 +116,121 @@ class ThermalFile(StrictModel):
         return v
 
 
+Range = Annotated[list[float], Field(min_length=2, max_length=2)]
+
+
+def _ordered(v: list[float] | None, what: str, strict: bool) -> list[float] | None:
+    if v is not None and (v[0] > v[1] or (strict and v[0] == v[1])):
+        raise ValueError(f"{what}: expected [low, high] with low {'<' if strict else '<='} "
+                         f"high, got {v}")
+    return v
+
+
+class MotionFunctionFile(StrictModel):
+    """One motion error: Legendre coefficients of P0, P1, … over the axis' interval, µm for a
+    translation (EXX, EYX …), µrad for a rotation (EAX …)."""
+
+    legendre: list[Annotated[float, Field(ge=-1e5, le=1e5)]] = Field(min_length=1,
+                                                                     max_length=16)
+
+
+class MotionAxisFile(StrictModel):
+    """The motion errors of one linear axis: ``range_mm`` (controller mm, default its travel)
+    is the interval u ∈ [−1, 1] spans, then one entry per error of this axis (EXX … ECX for X;
+    checked by ``MotionErrorsFile``, which knows the letter)."""
+
+    model_config = ConfigDict(extra="allow", frozen=True, allow_inf_nan=False)
+    range_mm: Range | None = None
+
+    @field_validator("range_mm")
+    @classmethod
+    def _range(cls, v: list[float] | None) -> list[float] | None:
+        return _ordered(v, "range_mm", strict=True)
+
+    def functions(self) -> dict[str, MotionFunctionFile]:
+        """The errors given (validated by ``MotionErrorsFile``)."""
+        return {k: MotionFunctionFile.model_validate(v)
+                for k, v in (self.model_extra or {}).items()}
+
+
+class RandomSmoothFile(StrictModel):
+    """A random smooth machine: every motion error of ``axes`` drawn from ``seed``, its max |e|
+    over the interval uniform in ``translation_um`` / ``rotation_urad`` (a number or [low,
+    high]), Legendre degrees 1..``order`` with a spectrum falling as 1/k
+    (``identification.linmap.basis.random_smooth``)."""
+
+    seed: int = Field(0, ge=0, lt=2**63)
+    translation_um: Annotated[float, Field(ge=0, le=1000)] | Range = 10.0
+    rotation_urad: Annotated[float, Field(ge=0, le=5000)] | Range = 20.0
+    order: int = Field(4, ge=1, le=12)
+    axes: list[str] = ["X", "Y", "Z"]
+    # the interval of each axis the amplitude holds over (controller mm; default its travel)
+    range_mm: dict[str, Range] = {}
+
+    @field_validator("translation_um", "rotation_urad")
+    @classmethod
+    def _amp(cls, v: float | list[float]) -> float | list[float]:
+        if isinstance(v, list):
+            if not all(0 <= x <= 5000 for x in v):
+                raise ValueError(f"amplitudes must be within 0..5000, got {v}")
+            _ordered(v, "amplitude", strict=False)
+        return v
+
+    @field_validator("axes")
+    @classmethod
+    def _axes(cls, v: list[str]) -> list[str]:
+        bad = [a for a in v if a not in ("X", "Y", "Z")]
+        if bad or len(set(v)) != len(v):
+            raise ValueError(f"expected distinct letters among X, Y, Z, got {v}")
+        return v
+
+    @field_validator("range_mm")
+    @classmethod
+    def _ranges(cls, v: dict[str, list[float]]) -> dict[str, list[float]]:
+        for k, r in v.items():
+            if k not in ("X", "Y", "Z"):
+                raise ValueError(f"{k!r}: expected a linear axis letter X, Y or Z")
+            _ordered(r, k, strict=True)
+        return v
+
+    def amplitude(self, rotation: bool) -> tuple[float, float]:
+        v = self.rotation_urad if rotation else self.translation_um
+        return (float(v[0]), float(v[1])) if isinstance(v, list) else (float(v), float(v))
+
+
+class MotionErrorsFile(StrictModel):
+    """The 18 motion errors of the linear axes (ISO 230-1), applied just after each axis'
+    motion in the truth's chain (``kinematics.ChainState.motion_errors``): per axis X, Y, Z
+    Legendre series, plus an optional random smooth draw (the two add up)."""
+
+    X: MotionAxisFile | None = None
+    Y: MotionAxisFile | None = None
+    Z: MotionAxisFile | None = None
+    random_smooth: RandomSmoothFile | None = None
+
+    @model_validator(mode="after")
+    def _names(self) -> MotionErrorsFile:
+        for letter in "XYZ":
+            ax = getattr(self, letter)
+            if ax is None:
+                continue
+            allowed = [f"E{c}{letter}" for c in "XYZABC"]
+            for key, value in (ax.model_extra or {}).items():
+                if key not in allowed:
+                    raise ValueError(f"{letter}.{key}: unknown key; axis {letter} has "
+                                     f"range_mm and the motion errors {', '.join(allowed)}")
+                try:
+                    MotionFunctionFile.model_validate(value)
+                except ValidationError as e:
+                    first = e.errors()[0]
+                    loc = ".".join(str(x) for x in first["loc"])
+                    msg = ("unknown key (expected legendre)" if first["type"] == "extra_forbidden"
+                           else first["msg"])
+                    raise ValueError(f"{letter}.{key}{'.' + loc if loc else ''}: "
+                                     f"{msg}") from None
+        return self
+
+
 class ErrorsFile(StrictModel):
     machine: str | None = None  # name of the machine file these errors belong to (checked)
     seed: int = Field(0, ge=0, lt=2**63)  # default random seed (``--seed`` overrides)
@@ -126,6 +243,8 @@ class ErrorsFile(StrictModel):
     ball_steps: list[BallStepFile] = []  # balls knocked during the run
     effects: list[EffectFile] = []
     thermal: ThermalFile | None = None  # warm-up during the run (simulators/thermal.py)
+    # the 18 motion errors of the linear axes (simulators/motion_truth.py)
+    motion_errors: MotionErrorsFile | None = None
 
     @field_validator("links")
     @classmethod

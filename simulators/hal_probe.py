@@ -76,8 +76,11 @@ def write_spec(truth: Any, path: Path | str, absent: tuple[str, ...] = ()) -> di
     if unknown:
         raise ValueError(f"absent balls {unknown} not in artefact {ids}")
     if truth.has_motion_errors:
+        # The servo thread tests contact with ONE affine map per indexation (module
+        # docstring); position-dependent motion errors bend it by µm across the balls.
         raise ValueError("the HAL probe carries link and setup errors only, not motion errors "
-                         "(effects): remove 'effects' from the errors file")
+                         "(effects, motion_errors): remove them from the errors file, or run "
+                         "the map on the virtual controller (rumba sim)")
     spec = {
         "machine": {
             "name": m.name, "topology": m.topology, "tool_tip_mm": list(m.tool_tip_mm),

@@ -3,7 +3,9 @@
 The chain is ``identification.kinematics`` (one model shared with the estimator); effects come from
 ``identification.effects`` (shared with the gap diagnosis, issue 6) and act through their three
 hooks: motion errors in the chain, ball-centre offsets (sag, creep) and latched-position offsets
-(thermal drift, pre-travel by direction). Everything is deterministic given the seed.
+(thermal drift, pre-travel by direction); the motion errors of the linear axes given as
+functions (``motion_errors``, simulators/motion_truth.py) join the effects' in the chain.
+Everything is deterministic given the seed.
 """
 
 from __future__ import annotations
@@ -21,6 +23,7 @@ from identification.kinematics import ChainState, Machine, frames, to_model
 from identification.model import Artefact
 from simulators import visit_errors
 from simulators.errors_schema import ErrorsFile, errors_from_dict, link_to_model, load_errors
+from simulators.motion_truth import MotionFunction, chain_functions, motion_functions
 from simulators.thermal import ThermalState
 
 
@@ -50,11 +53,14 @@ class TruthModel:
     obstacle_radii_mm: np.ndarray  # (m,)
     effects: list[ActiveEffect] = field(default_factory=list)
     thermal: ThermalState | None = None  # warm-up during the run (issue 22)
+    # the linear axes' motion errors by ISO name (errors file ``motion_errors``)
+    motion: dict[str, MotionFunction] = field(default_factory=dict)
     state: ChainState = field(init=False)
     _affine: dict = field(default_factory=dict, init=False, repr=False)
 
     def __post_init__(self) -> None:
-        motion = combine_motion_errors(*(ae.effect.motion_errors(ae.params)
+        motion = combine_motion_errors(chain_functions(self.machine, self.motion),
+                                       *(ae.effect.motion_errors(ae.params)
                                          for ae in self.effects))
         self.state = ChainState(links=dict(self.links),
                                 tip_offset_mm=np.asarray(self.tip_setup_mm, float),
@@ -113,6 +119,7 @@ class TruthModel:
             obstacle_radii_mm=np.array([o.radius_mm for o in obs], float),
             effects=effects,
             thermal=ThermalState.from_file(errors.thermal) if errors.thermal else None,
+            motion=motion_functions(machine, errors.motion_errors, where),
         )
 
     # ------------------------------------------------------------------------- evaluation

@@ -11,6 +11,33 @@ for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
 import pytest  # noqa: E402
 
 
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """RUMBA_TEST_SHUFFLE=SEED: the modules in a shuffled order, and the tests within each
+    module, so that a test relying on another's leftovers fails (make test-portable, CI). By
+    module, so that a module's fixtures are still built once."""
+    seed = os.environ.get("RUMBA_TEST_SHUFFLE", "")
+    if not seed:
+        return
+    import random
+
+    rng = random.Random(seed)
+    by_module: dict[str, list[pytest.Item]] = {}
+    for item in items:
+        by_module.setdefault(item.nodeid.split("::", 1)[0], []).append(item)
+    order = list(by_module)
+    rng.shuffle(order)
+    items[:] = []
+    for name in order:
+        group = by_module[name]
+        rng.shuffle(group)
+        items.extend(group)
+
+
+def pytest_report_header(config: pytest.Config) -> list[str]:
+    keys = ("RUMBA_TEST_SHUFFLE", "OPENBLAS_CORETYPE", "OPENBLAS_NUM_THREADS")
+    return [f"{k}={os.environ[k]}" for k in keys if os.environ.get(k)]
+
+
 @pytest.hookimpl(hookwrapper=True)
 def pytest_runtest_makereport(item: pytest.Item, call: pytest.CallInfo):  # type: ignore[no-untyped-def]
     outcome = yield

@@ -34,7 +34,7 @@ def make_truth() -> TruthModel:
 
 async def start_rig(transport: str, ctrl: VirtualController) -> Rig:
     """``ctrl`` behind the front-end of ``transport`` (serial-pty, serial-socket, opcua,
-    modbus), started on a free loopback port."""
+    modbus, sinumerik, lsv2, haas), started on a free loopback port."""
     if transport.startswith("serial"):
         from simulators.frontends.serial import SerialFrontend, SerialSettings
 
@@ -46,6 +46,42 @@ async def start_rig(transport: str, ctrl: VirtualController) -> Rig:
         link = {"transport": "serial", "url": url, "baudrate": BAUD, "framing": "7E1",
                 "request_machine": ctrl.machine_id, "tx_chunk_bytes": 64}
         return Rig(transport, ctrl, link, fe.close, {"frontend": fe})
+    if transport == "sinumerik":
+        from simulators.frontends.sinumerik import SinumerikFrontend
+
+        ctrl.dialect = "siemens"
+        fe = SinumerikFrontend(ctrl, security="none")  # security: tests/test_sinumerik_*.py
+        url = await fe.start()
+        return Rig(transport, ctrl, {"transport": "sinumerik", "url": url, "security": "none",
+                                     "nc_start_timeout_s": 60, "stop_timeout_s": 8}, fe.stop,
+                   {"frontend": fe})
+    if transport == "lsv2":
+        from simulators.frontends.lsv2 import Lsv2Frontend
+
+        ctrl.dialect = "heidenhain"
+        fe = Lsv2Frontend(ctrl)  # the operator starts the transferred RUMBA.H at once
+        port = await fe.start()
+        return Rig(transport, ctrl, {"transport": "lsv2", "host": "127.0.0.1", "port": port,
+                                     "poll_interval_s": 0.05, "nc_start_timeout_s": 60,
+                                     "stop_timeout_s": 8}, fe.stop, {"frontend": fe})
+    if transport == "haas":
+        import shutil
+        import tempfile
+        from pathlib import Path
+
+        from simulators.frontends.haas import HaasFrontend
+
+        ctrl.dialect = "haas"
+        share = Path(tempfile.mkdtemp(prefix="rumba-haas-share-"))
+        fe = HaasFrontend(ctrl, share)  # the start-of-shift routine runs O09100 on ready
+        port = await fe.start()
+
+        async def close() -> None:
+            await fe.stop()
+            shutil.rmtree(share, ignore_errors=True)
+        return Rig(transport, ctrl, {"transport": "haas", "host": "127.0.0.1", "port": port,
+                                     "program_dir": str(share), "poll_interval_s": 0.02,
+                                     "nc_start_timeout_s": 60}, close, {"frontend": fe})
     if transport == "opcua":
         from simulators.frontends.opcua import OpcUaFrontend
 

@@ -45,8 +45,9 @@ def rumba_process(*argv: str, **kw: Any) -> subprocess.Popen:
 
 
 def write_config(tmp: Path, link: dict[str, Any], *, plan: dict | None = None,
-                 hmi_port: int | None = None) -> Path:
-    """daemon.yaml for machine ``mill1`` (thesis machine, Fanuc) on ``link``."""
+                 hmi_port: int | None = None, dialect: str = "fanuc") -> Path:
+    """daemon.yaml for machine ``mill1`` (thesis machine, Fanuc unless ``dialect``) on
+    ``link``."""
     plan_path = tmp / "plan.yaml"
     plan_path.write_text(yaml.safe_dump(plan or SHORT_PLAN), encoding="utf-8")
     hmi: dict[str, Any] = {"enabled": False}
@@ -58,7 +59,7 @@ def write_config(tmp: Path, link: dict[str, Any], *, plan: dict | None = None,
         "machines": [{
             "name": "mill1", "machine": str(CONFIG / "machines/thesis_wcbxfzyt.yaml"),
             "artefact": str(CONFIG / "artefacts/thesis_4ball.yaml"), "plan": str(plan_path),
-            "dialect": "fanuc", "link": link, "touch_timeout_s": 30,
+            "dialect": dialect, "link": link, "touch_timeout_s": 30,
             "tolerances": {"default_rotation_urad": {"warn": 400, "fail": 800},
                            "default_translation_um": {"warn": 1500, "fail": 3000},
                            "volumetric_max_um": {"warn": 2000, "fail": 4000}},

@@ -111,12 +111,27 @@ def test_bad_log_and_rank_deficient_log(log: Path, tmp_path: Path, capsys) -> No
                  "--artefact", ARTEFACT]) == 2
 
 
+def _cells(path: Path) -> list[list[str]]:
+    """The log's rows split into cells (x_mm, y_mm, z_mm are columns 12-14)."""
+    lines = path.read_text(encoding="utf-8").splitlines()
+    assert lines[1].split(",")[12:15] == ["x_mm", "y_mm", "z_mm"]
+    return [ln.split(",") for ln in lines[2:]]
+
+
 def test_shipped_example_log_is_reproducible_and_analysed(tmp_path: Path) -> None:
     from tests.regen_example_log import OUT
     from tests.regen_example_log import main as regen
 
     regen(tmp_path / "again.csv")
-    assert (tmp_path / "again.csv").read_text() == OUT.read_text()
+    # the same rows; the latched positions to 1e-9 mm (the generator's chain runs through BLAS,
+    # whose kernels differ in the last bits: 3e-14 mm seen on Prescott against AVX-512), every
+    # other column exactly
+    head = [p.read_text(encoding="utf-8").splitlines()[:2] for p in (tmp_path / "again.csv", OUT)]
+    assert head[0] == head[1]
+    again, shipped = _cells(tmp_path / "again.csv"), _cells(OUT)
+    assert [r[:12] + r[15:] for r in again] == [r[:12] + r[15:] for r in shipped]
+    np.testing.assert_allclose([[float(x) for x in r[12:15]] for r in again],
+                               [[float(x) for x in r[12:15]] for r in shipped], rtol=0, atol=1e-9)
     r = run_analysis(OUT, MACHINE, ARTEFACT, validate_poses=PLAN.indices("validate"))
     assert r.links["EX0C"].value == pytest.approx(-106, abs=2)
     assert r.validation is not None and r.validation.explained_fraction > 0.9
@@ -152,7 +167,8 @@ X, Y, Z = (HEADER.index(c) for c in ("x_mm", "y_mm", "z_mm"))
 @pytest.mark.parametrize(("value", "match"), [
     ("1e15", "line 9: column y_mm: 1e15 outside [-100000, 100000]"),
     ("1e308", "line 9: column y_mm: 1e308 outside [-100000, 100000]"),
-    ("1_0.5", "line 9: column y_mm: expected a finite number, got '1_0.5' (ASCII decimal)"),
+    ("1_0.5", "line 9: column y_mm: expected a finite number, got '1_0.5' (ASCII decimal as "
+              "JSON writes it: -12.5, 0.25, 1e-05; no '+', '.5', '5.' or leading zero)"),
 ])
 def test_absurd_coordinates_are_one_line_naming_the_cell(log, tmp_path, capsys, value,
                                                           match) -> None:

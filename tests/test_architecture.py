@@ -18,9 +18,9 @@ LAYERS = {"identification": 0, "contracts": 1, "programs": 2, "drivers": 2, "sim
           "daemon": 3, "demos": 4, "benchmarks": 4}
 OURS = tuple(LAYERS)
 # bottom → top; rooms of one rank never import each other ("daemon": its __init__)
-ROOMS = {"daemon": 0, "safepath": 0, "hosts": 0, "machines": 1, "analysis": 2, "store": 3,
-         "compensation": 4, "reports": 5, "mqtt": 5, "notify": 5, "run": 6, "hmi": 7, "opcua": 7,
-         "fleet": 8, "config": 9, "service": 10, "cli": 11}
+ROOMS = {"daemon": 0, "safepath": 0, "hosts": 0, "authlimit": 0, "machines": 1, "analysis": 2,
+         "store": 3, "compensation": 4, "reports": 5, "mqtt": 5, "notify": 5, "run": 6, "hmi": 7,
+         "opcua": 7, "fleet": 8, "config": 9, "service": 10, "cli": 11}
 
 
 def _module(path: Path) -> str:

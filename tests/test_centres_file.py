@@ -106,9 +106,10 @@ def test_seq_gap_is_a_warning_and_ceilings(monkeypatch) -> None:
 
 
 def test_header_constant_is_the_documented_contract() -> None:
-    # README "Data contract: ball centres" documents exactly this line; a change is a new version
+    # the manual's "Centres file" documents exactly this line; a change is a new version
     assert MAGIC == "# rumba-centres v1"
     assert ",".join(HEADER) == ("run_id,seq,t_s,repeat,pose,b_cmd_deg,c_cmd_deg,b_deg,c_deg,"
                                 "ball,x_mm,y_mm,z_mm,u_um")
-    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text(encoding="utf-8")
-    assert ",".join(HEADER) in readme and MAGIC in readme
+    page = Path(__file__).resolve().parents[1] / "docs/reference/centres-file.md"
+    assert ",".join(HEADER) in page.read_text(encoding="utf-8") and MAGIC in page.read_text(
+        encoding="utf-8")

@@ -21,14 +21,20 @@ from tests.daemon_helpers import CONFIG, ROOT, TOLERANCES
 EXAMPLE = CONFIG / "examples/daemon_sim.yaml"
 
 
+FIRST_CHECK = ROOT / "docs/tutorials/first-check.md"  # the manual's first tutorial
+
+
 def readme_block(containing: str) -> list[str]:
-    """The commands of the README's shell block that contains ``containing`` (continuations
-    joined)."""
-    for block in re.findall(r"```sh\n(.*?)```", (ROOT / "README.md").read_text(), re.S):
-        if containing in block:
-            return [" ".join(c.split()) for c in block.replace("\\\n", " ").splitlines()
-                    if c.strip()]
-    raise AssertionError(f"no README block with {containing!r}")
+    """The commands of the first tutorial's shell blocks that contain ``containing``
+    (continuations joined)."""
+    found = []
+    for block in re.findall(r"```sh\n(.*?)```", FIRST_CHECK.read_text(), re.S):
+        if any(c in block for c in containing.split("|")):
+            found += [" ".join(c.split()) for c in block.replace("\\\n", " ").splitlines()
+                      if c.strip()]
+    if not found:
+        raise AssertionError(f"no block of {FIRST_CHECK.name} with {containing!r}")
+    return found
 
 
 def test_shipped_example_config_is_valid_as_is(capsys):
@@ -38,9 +44,9 @@ def test_shipped_example_config_is_valid_as_is(capsys):
 
 @pytest.mark.slow
 async def test_readme_verify_example_runs(tmp_path):
-    """The README's two commands, run from the repository as a new user would; only the port
-    is a free one instead of 4841 (the shipped config's, checked to match the README)."""
-    sim_cmd, verify_cmd = readme_block("rumba verify --config config/examples/")
+    """The first tutorial's two commands, run from the repository as a new user would; only
+    the port is a free one instead of 4841 (the shipped config's, checked to match the page)."""
+    sim_cmd, verify_cmd = readme_block("rumba sim --machine|rumba verify --config config/examples/")
     assert sim_cmd.startswith(".venv/bin/rumba sim ") and "--port 4841" in sim_cmd
     assert verify_cmd == (".venv/bin/rumba verify --config config/examples/daemon_sim.yaml "
                           "--machine sim-hmc")

@@ -82,7 +82,11 @@ def test_migration_is_portable():
     assert "BIGINT GENERATED ALWAYS AS IDENTITY PRIMARY KEY" in pg and "REAL" not in pg
 
 
-def test_propose_prints_values_and_writes_the_reviewed_program(tmp_path, capsys):
+def test_a_proposal_is_a_review_document_never_a_program(tmp_path, capsys):
+    """Without --confirm nothing a control could load exists: no program in reports_dir, a
+    review document (JSON) listing what a confirmation would write, address by address as the
+    program will write it, and the journal row 'proposed' saying so; the confirmation writes
+    the program, whose lines are that listing (the fingerprint the review printed)."""
     cfg = _world(tmp_path, capsys)
     code, out, _ = run_cli(["compensate", "--config", cfg, "synth"], capsys)
     assert code == 0, out
@@ -94,14 +98,39 @@ def test_propose_prints_values_and_writes_the_reviewed_program(tmp_path, capsys)
     # issue 23: named and defined figures; the link-caused distortion, never "compensable"
     assert "link-caused distortion max" in out and "predicted after compensation max" in out
     assert "compensable" not in out and "EX0C" in out
-    program = Path(out.strip().splitlines()[-1].split("program: ")[1])
-    assert program.parent == tmp_path / "reports" and program.suffix == ".hal"
-    assert "setp xyzbc-trt-kins.x-offset 12.5" in program.read_text()
+    reports = tmp_path / "reports"
+    programs = [p.name for p in reports.iterdir() if p.suffix in (".hal", ".nc", ".mpf", ".txt")]
+    assert programs == [], programs  # nothing a control could load
+    review = Path(out.strip().splitlines()[-1].split("review: ")[1])
+    assert review.parent == reports and review.name == "proposal-lcnc-synth.json"
+    doc = json.loads(review.read_text())
+    assert doc["state"] == "proposed" and "not a program" in doc["document"]
+    assert "No program exists" in doc["nothing_written"]
+    (w,) = doc["writes"]
+    assert w["address"] == "xyzbc-trt-kins.x-offset" and w["was"] == "12.500000"
+    assert abs(float(w["written"]) - 12.54) < 0.002
+    # the terminal lists it as written too, and names the listing to confirm
+    assert f"xyzbc-trt-kins.x-offset = {w['written']:>14}  (was 12.500000; mm" in out, out
+    fp = doc["listing_fingerprint"]
+    assert f"--listing {fp}" in out
     rows = _journal(cfg)
     assert [r.state for r in rows] == ["proposed"]
+    assert "no program exists until a person confirms" in rows[0].reason
     (v,) = rows[0].values
-    assert v.name == "x-offset" and v.old == 12.5 and abs(v.new - 12.54) < 0.002
+    assert v.name == "x-offset" and v.old == 12.5 and v.new == float(w["written"])
     assert v.u_expanded > 0 and abs(v.delta) > v.u_expanded
+    # a confirmation naming another listing is refused, nothing written
+    code, out, _ = run_cli(["compensate", "--config", cfg, "--confirm", "synth", "--by", "alice",
+                            "--listing", "0123456789abcdef"], capsys)
+    assert code == 2 and "not the ones reviewed" in out and fp in out, out
+    assert not list(reports.glob("compensation-*"))
+    code, out, _ = run_cli(["compensate", "--config", cfg, "--confirm", "synth", "--by", "alice",
+                            "--listing", fp], capsys)
+    assert code == 0, out
+    program = Path(out.strip().splitlines()[-1].split("program: ")[1])
+    assert program.name == "compensation-lcnc-synth.hal"
+    assert f"setp xyzbc-trt-kins.x-offset {w['written']}\n" in program.read_text()
+    assert [r.state for r in _journal(cfg)] == ["proposed", "refused", "applied"]
 
 
 def test_confirm_needs_an_operator(tmp_path, capsys):
@@ -141,7 +170,8 @@ def test_confirm_then_second_run_identifies_zero_then_rollback(tmp_path, capsys)
     # rollback: the applied row becomes rolled_back, a new row restores the old value
     code, out, _ = run_cli(["compensate", "--config", cfg, "--rollback", "--machine", "lcnc",
                             "--by", "bob"], capsys)
-    assert code == 0 and "rolled back (journal #2)" in out and "-> 12.5 mm" in out
+    assert code == 0 and "rolled back (journal #2)" in out
+    assert "xyzbc-trt-kins.x-offset =      12.500000  (was 12.5" in out, out  # as written
     program = Path(out.strip().splitlines()[-1].split("program: ")[1])
     assert program.name == "rollback-lcnc-synth.hal"
     assert "setp xyzbc-trt-kins.x-offset 12.500000" in program.read_text()
@@ -343,3 +373,4 @@ def test_siemens_program_journals_the_closing_vector_and_rolls_back(tmp_path, ca
     for v in row.values:  # every address, the closing ones too, gets its old value back
         assert f"{v.address}={v.old:.6f}".replace("-0.000000", "0.000000") in \
             back.replace(" ", ""), (v, back)
+

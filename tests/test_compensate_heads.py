@@ -7,6 +7,7 @@ kins modules cannot take a compensation: their one pin, the pivot length, is not
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import numpy as np
@@ -194,7 +195,13 @@ def test_rumba_compensate_proposes_the_head_carrier_values(tmp_path: Path, capsy
     for hidden in ("b-x", "b-z", "c-y"):
         assert any(ln.strip().startswith(hidden) and "skipped" in ln for ln in out.splitlines()), \
             (hidden, out)
+    # listed as the program will write them (the proposal writes no program)
+    assert re.search(r"\$TC_CARR15\[1\] = +-260\.04", out), out
+    assert re.search(r"\$TC_CARR18\[1\] = +260\.04", out)  # l4 = −l3 keeps the chain closed
+    code, out, err = run_cli(["compensate", "--config", str(cfg), "synth", "--confirm", "--by",
+                              "eve"], capsys)
+    assert code == 0, out + err
     program = Path(out.strip().splitlines()[-1].split("program: ")[1])
     text = program.read_text()
     assert program.suffix == ".mpf" and "$TC_CARR15[1]=-260.04" in text, text
-    assert "$TC_CARR18[1]=260.04" in text  # l4 = −l3 keeps the chain closed
+    assert "$TC_CARR18[1]=260.04" in text

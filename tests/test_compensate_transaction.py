@@ -222,12 +222,29 @@ def test_cumulative_guard_against_the_last_verified_baseline(tmp_path, capsys):
     # the next run still sees EX0C −140 µm (the first change did not hold): a second
     # +140 µm would walk x-offset 280 µm from the machine file's value
     _import(cfg, tmp_path, "again", {**LINKS, "EX0C": -280}, capsys)
+    # this machine's limits pass it; a PASS verification proposes nothing (the worth rule's
+    # rule 5), saying the compensation did not hold
+    code, out, _ = run_cli(["compensate", "--config", cfg, "again"], capsys)
+    assert code == 0 and "verifies compensation #1 (from run synth) and PASSed" in out, out
+    assert "x-offset would move again beyond U (the compensation did not hold" in out
+    assert "proposed (journal" not in out and not (tmp_path / "reports" /
+                                                  "proposal-lcnc-again.json").exists()
+    # had it FAILed (tighter limits), the cumulative guard refuses the walk
+    _set_verdict(cfg, "again", "FAIL")
     code, out, _ = run_cli(["compensate", "--config", cfg, "--confirm", "again", *by], capsys)
     assert code == 2, out
     assert re.search(r"x-offset: \+2[78]\d\.\d µm since the last verified baseline", out), out
     assert "over the cumulative limit 150.0 µm" in out
     assert "the machine file's values" in out
-    assert [r.state for r in _journal(cfg)] == ["applied", "refused"]
+    assert [r.state for r in _journal(cfg)] == ["applied", "proposed", "refused"]
+
+
+def _set_verdict(cfg: str, run_id: str, status: str) -> None:
+    store = Store(load_daemon_config(cfg).store_path)
+    try:
+        store.save_verdict(run_id, status, [f"judged {status} here"], [], status)
+    finally:
+        store.close()
 
 
 def test_a_verified_compensation_moves_the_baseline(tmp_path, capsys):

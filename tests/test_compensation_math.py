@@ -258,10 +258,11 @@ def test_thesis_machine_pivot_on_c() -> None:
 
 
 def _plan(*changes: ParamChange):
+    """A plan built by hand: the changes and its stated distortions (µm), no displacements
+    (the worth rule's per-change effect is then not known; its gain is the stated one)."""
     from identification.compensation import CompensationPlan
 
-    z = (0.0, 0.0)
-    return CompensationPlan(list(changes), {}, {}, {}, z, z, z)
+    return CompensationPlan(list(changes), {}, {}, {}, (20.0, 55.0), (19.0, 50.0), (3.0, 9.0))
 
 
 def test_guard_skips_small_and_unobservable_changes() -> None:

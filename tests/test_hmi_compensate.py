@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import re
 from collections.abc import AsyncIterator
 from pathlib import Path
 
@@ -117,6 +118,18 @@ async def test_proposal_of_the_last_finished_run(tmp_path):
         assert 0 < cx["u"] < 5 and cx["unit"] == "mm"
         tilt = values["c-tilt-b"]  # EB0C +26 µrad
         assert tilt["delta_unit"] == "µrad" and abs(tilt["delta"] - 26) < 3, tilt
+        # what a confirmation writes, every address as the program writes it: the tilt as the
+        # C axis vector's x component (−z axis: −θ, unit-less), the closing vector of c-x too
+        writes = {w["address"]: w for w in p["writes"]}
+        t = writes["$TC_CARR10[1]"]
+        assert t["unit"] == "1" and abs(float(t["written"]) + tilt["delta"] * 1e-6) < 1e-8, t
+        assert float(writes["$TC_CARR15[1]"]["written"]) == pytest.approx(cx["new"])
+        assert float(writes["$TC_CARR18[1]"]["written"]) == pytest.approx(-cx["new"])
+        assert t["text"].startswith(f"$TC_CARR10[1] = {t['written']}  (was 0.000000000")
+        assert p["state"] == "proposed" and "no program exists" in p["state_text"]
+        assert len(p["listing_fingerprint"]) == 16 and p["program_name"].endswith(".mpf")
+        assert not (tmp_path / "reports").exists() or not list(
+            (tmp_path / "reports").glob("compensation*"))  # looking writes no program
         assert values["b-x"]["status"] == "skipped" and values["b-x"]["new"] is None
         assert values["b-x"]["reason"].startswith("not observable")
         links = {ln["name"]: ln for ln in p["links"]}
@@ -151,8 +164,9 @@ async def test_refused_over_the_guard_is_shown_and_journaled(tmp_path):
         assert any("over the limit 50.0 µm" in r for r in p["refusals"]), p["refusals"]
         assert {v["name"]: v["status"] for v in p["values"]}["c-x"] == "refused"
         r = await http.post(svc.hmi_url + "api/compensation/confirm", headers=bearer(),
-                            json={"machine": "mill1", "run_id": run_id})
+                            json={"machine": "mill1", "run_id": run_id, "listing": "-"})
         assert r.status == 409 and "over the limit 50.0 µm" in (await r.json())["error"]
+        assert p["writes"] == [] and p["listing_fingerprint"] is None
         (row,) = journal(svc)
         assert row.state == "refused" and row.confirmed_by == "hmi:token@127.0.0.1"
         assert not list((tmp_path / "reports").glob("compensation*"))
@@ -164,13 +178,15 @@ async def test_confirm_needs_auth_and_a_fresh_page(tmp_path):
         first = await run_once(svc)
         second = await run_once(svc)
         url = svc.hmi_url + "api/compensation/confirm"
-        body = {"machine": "mill1", "run_id": second}
+        shown = (await get_state(http, svc))["proposal"]["listing_fingerprint"]
+        body = {"machine": "mill1", "run_id": second, "listing": shown}
         assert (await http.post(url, json=body)).status == 401
         csrf, _ = await signed_in(http, svc.hmi_url)
         assert (await http.post(url, json=body)).status == 403  # cookie without CSRF token
         h = {"X-CSRF-Token": csrf}
         # the page still shows the first run: refused, the second one is newer
-        r = await http.post(url, json={"machine": "mill1", "run_id": first}, headers=h)
+        r = await http.post(url, json={"machine": "mill1", "run_id": first, "listing": shown},
+                            headers=h)
         err = (await r.json())["error"]
         assert r.status == 409 and f"run {first} is not the last finished run" in err, err
         assert f"now: {second}" in err
@@ -187,10 +203,17 @@ async def test_confirm_needs_auth_and_a_fresh_page(tmp_path):
         for data, status, why in (
                 (b"not json", 400, "send a JSON object"), (b"[1]", 400, "send a JSON object"),
                 (b'{"machine": "mill1"}', 400, "run_id must be a string"),
-                (b'{"machine": "nope", "run_id": "x"}', 422, "no machine 'nope'"),
-                (b'{"machine": "mill1", "run_id": "../etc"}', 422, "is not a run id")):
+                (b'{"machine": "mill1", "run_id": "x"}', 400,
+                 "listing must be the proposal's listing_fingerprint"),
+                (b'{"machine": "nope", "run_id": "x", "listing": "x"}', 422, "no machine 'nope'"),
+                (b'{"machine": "mill1", "run_id": "../etc", "listing": "x"}', 422,
+                 "is not a run id")):
             r = await http.post(url, data=data, headers={**h, "Content-Type": "application/json"})
             assert r.status == status and why in await r.text(), (data, r.status)
+        # a page showing other values than those a confirmation would write: refused, reload
+        r = await http.post(url, json={**body, "listing": "0123456789abcdef"}, headers=h)
+        err = (await r.json())["error"]
+        assert r.status == 409 and "not the ones this page showed" in err and shown in err, err
         assert journal(svc) == [] and not list((tmp_path / "reports").glob("compensation*"))
         # the aborted run is not finished: the second is still the one to confirm
         r = await http.post(url, json=body, headers=h)
@@ -207,7 +230,8 @@ async def test_confirm_journals_the_session_writes_the_program_and_rolls_back(tm
         proposal = (await get_state(http, svc))["proposal"]
         # a name in the request is not who confirms: the session is
         r = await http.post(svc.hmi_url + "api/compensation/confirm", headers=h,
-                            json={"machine": "mill1", "run_id": run_id, "by": "mallory"})
+                            json={"machine": "mill1", "run_id": run_id, "by": "mallory",
+                                  "listing": proposal["listing_fingerprint"]})
         assert r.status == 200, await r.text()
         out = await r.json()
         assert out["state"] == "applied" and out["by"] == me
@@ -217,6 +241,10 @@ async def test_confirm_journals_the_session_writes_the_program_and_rolls_back(tm
         cx = next(v for v in proposal["values"] if v["name"] == "c-x")
         assert "$TC_CARR15[1]" in text and f"{cx['new']:.6f}" in text, text
         assert "operator loads/enters" in out["note"] and program.name in out["note"]
+        # the program writes exactly the listing the page showed, address by address
+        lines = [ln.split(" ;")[0] for ln in text.splitlines() if ln.startswith("$TC_CARR")]
+        assert lines == [f"{w['address']}={w['written']}" for w in proposal["writes"]], lines
+        assert out["writes"] == proposal["writes"]
         (row,) = journal(svc)
         assert row.state == "applied" and row.confirmed_by == me and row.run_id == run_id
         assert row.id == out["journal"] and row.applied_at is not None
@@ -228,7 +256,7 @@ async def test_confirm_journals_the_session_writes_the_program_and_rolls_back(tm
         assert st["proposal"] is None and "changed after run" in st["why"]
         assert st["last_applied"]["id"] == row.id and st["journal"][0]["by"] == me
         r = await http.post(svc.hmi_url + "api/compensation/confirm", headers=h,
-                            json={"machine": "mill1", "run_id": run_id})
+                            json={"machine": "mill1", "run_id": run_id, "listing": "-"})
         assert r.status == 409 and f"journal #{row.id}" in (await r.json())["error"]
         assert len(journal(svc)) == 1
         # rollback: needs auth, then restores the old values, journaled with the session
@@ -270,9 +298,19 @@ async def test_browser_confirm_with_a_second_confirmation(tmp_path):
                                   ) == f"(run {run_id})"
             cx = await cdp.eval(sid, f"{rows}.filter(r => r.dataset.name === 'c-x')"
                                      ".map(r => [...r.cells].map(c => c.textContent))[0]")
-            assert cx[1] == "$TC_CARR15[1]" and cx[4].endswith(" µm") and cx[6] == "apply", cx
+            assert cx[1].endswith(" µm") and cx[4] == "apply", cx
+            # the addresses a confirmation writes, each value as the program writes it
+            async with aiohttp.ClientSession() as http:
+                proposal = (await get_state(http, svc))["proposal"]
+            shown = await cdp.eval(sid, f"[...{panel}.querySelectorAll('.comp-writes tbody tr')]"
+                                        ".map(r => [...r.cells].map(c => c.textContent))")
+            assert [row[:3] for row in shown] == [
+                [w["address"], w["written"], w["was"]] for w in proposal["writes"]], shown
+            assert {"$TC_CARR10[1]", "$TC_CARR15[1]", "$TC_CARR18[1]"} <= {r[0] for r in shown}
             assert "link-caused distortion max" in await cdp.eval(
                 sid, f"{panel}.querySelector('.comp-dist').textContent")
+            text = await cdp.eval(sid, f"{panel}.textContent")
+            assert not re.search(r"-0\.0+(?!\d)", text), text  # no negative zero anywhere
             over = await cdp.eval(sid, "[...document.querySelectorAll('.card')].map(c => "
                                        "[c.className, c.scrollWidth, c.clientWidth])")
             assert all(sw <= cw for _, sw, cw in over), over
@@ -281,7 +319,9 @@ async def test_browser_confirm_with_a_second_confirmation(tmp_path):
             confirm = f"{panel}.querySelector('.comp-confirm')"
             # first: the operator says no
             message = await click_and_answer(cdp, sid, confirm, accept=False)
-            assert "c-x  $TC_CARR15[1]" in message and run_id in message, message
+            assert run_id in message and proposal["listing_fingerprint"] in message, message
+            for w in proposal["writes"]:  # every address, as written, in the question
+                assert f"  {w['text']}\n" in message, (w, message)
             await cdp.wait_for(sid, f"{panel}.querySelector('.comp-result').textContent"
                                     ".startsWith('Not confirmed')")
             assert journal(svc) == []
@@ -318,37 +358,48 @@ async def click_and_answer(cdp, sid: str, button: str, accept: bool) -> str:
 
 async def test_a_run_passes_while_its_page_is_refreshed_10_times_a_second(tmp_path,
                                                                           monkeypatch):
-    """Issue 20: the compensation view is computed off the event loop from the estimate the
-    run stored when it ended (identified once, in the run's worker thread); before, each GET
-    re-identified on the loop (≈ 0.4 s) and a page refreshing it starved /api/status and the
-    run's own touch timeout."""
+    """The compensation view is computed off the event loop from the estimate the run stored
+    when it ended (identified once, in the run's worker thread); before, each GET re-identified
+    on the loop (≈ 0.4 s) and a page refreshing it starved /api/status and the run's own touch
+    timeout. Asserted as behaviour, not a clock: the run ends DONE, every request of both
+    refreshers is answered, no view is built on the event loop's thread and nothing is
+    identified again (the answer times are in benchmarks/, not here)."""
+    import threading
+
+    from daemon.hmi import compensation_api
     from tests.test_compensate_stored import _counting
 
     calls = _counting(monkeypatch)
+    view_threads: list[threading.Thread] = []
+    real_get = compensation_api.Views.get
+
+    def get(self, session):
+        view_threads.append(threading.current_thread())
+        return real_get(self, session)
+
+    monkeypatch.setattr(compensation_api.Views, "get", get)
     async with world(tmp_path) as svc, aiohttp.ClientSession() as http:
         await run_once(svc)  # a finished run: the page has a proposal to show
         session = svc.sessions["mill1"]
         run_id = session.start("hmi")
-        slowest, gets = 0.0, 0
+        gets = {"api/compensation?machine=mill1": 0, "api/status": 0}
 
         async def refresh(path: str) -> None:
-            nonlocal slowest, gets
             while session.busy:
                 t0 = asyncio.get_running_loop().time()
                 r = await http.get(svc.hmi_url + path, headers=bearer())
                 assert r.status == 200, await r.text()
                 await r.read()
+                gets[path] += 1
                 dt = asyncio.get_running_loop().time() - t0
-                gets += 1
-                if path.startswith("api/status"):
-                    slowest = max(slowest, dt)
                 await asyncio.sleep(max(0.0, 0.1 - dt))
 
+        loop_thread = threading.current_thread()
         async with asyncio.timeout(180):
-            await asyncio.gather(refresh("api/compensation?machine=mill1"),
-                                 refresh("api/status"), session.wait())
+            await asyncio.gather(*(refresh(p) for p in gets), session.wait())
         assert svc.store.run(run_id).state == "DONE", svc.store.run(run_id)
-        assert gets > 20 and slowest < 1.0, (gets, slowest)
+        assert all(n >= 2 for n in gets.values()), gets  # both refreshed during the run
+        assert view_threads and loop_thread not in view_threads, view_threads
         st = await get_state(http, svc)  # the view follows the run that just ended
         assert st["run"]["id"] == run_id and not st["busy"]
         # every GET served from the stored views; each view is the run's own estimate

@@ -140,6 +140,20 @@ async def test_roles_journal_and_sessions(tmp_path, capsys, monkeypatch):
             assert 'id="user"' in page and 'id="password"' in page and 'id="token"' not in page
             # with accounts the form takes no token: people sign in as themselves
             r = await anon.post(url + "login", data={"token": TOKEN}, allow_redirects=False)
+            assert r.status == 401 and "it is for scripts" in await r.text()
+            # the token typed into the password (or name) field: said what it is for, with
+            # the header to send it in, never echoed, and a cookie is not given
+            for field in ("password", "user"):
+                form = {"user": "olga", "password": "x", field: TOKEN}
+                r = await anon.post(url + "login", data=form, allow_redirects=False)
+                text = await r.text()
+                assert r.status == 401 and "Set-Cookie" not in r.headers
+                assert "the daemon&#x27;s token: it is for scripts" in text or \
+                    "the daemon's token: it is for scripts" in text, text
+                assert "Authorization: Bearer &lt;token&gt;" in text and TOKEN not in text
+                assert "Wrong name or password" not in text
+            r = await anon.post(url + "login", data={"user": "olga", "password": TOKEN[:-1]},
+                                allow_redirects=False)
             assert r.status == 401 and "Wrong name or password" in await r.text()
             assert (await sign_in(anon, url, "olga", "wrong-password"))[0] == 401
             assert (await sign_in(anon, url, "nobody", PASSWORDS["olga"]))[0] == 401

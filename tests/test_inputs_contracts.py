@@ -272,7 +272,7 @@ def test_a_minus_sign_on_a_counter_is_refused(tmp_path: Path, col: str, cell: st
     with pytest.raises(ProbeLogError) as info:
         read_log(p, ARTEFACT)
     assert str(info.value) == (f"{p}: line 7: column {col}: expected an integer, got "
-                               f"{cell!r} (ASCII digits, no minus sign, < 1e9)")
+                               f"{cell!r} (ASCII digits, no sign, no leading zero, < 1e9)")
 
 
 def test_a_minus_zero_in_a_centres_file_is_refused() -> None:

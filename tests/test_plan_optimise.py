@@ -6,11 +6,16 @@ plan runs on the simulator; --max-time and bad target files end as clear message
 from __future__ import annotations
 
 import io
+import os
+import platform
+import subprocess
+import sys
 from contextlib import redirect_stderr, redirect_stdout
 from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 
 from contracts.setup_files import PoseFile, load_artefact, load_machine, load_plan
 from daemon.analysis.touch_centres import rows_to_centres
@@ -98,8 +103,8 @@ def test_the_optimised_plan_identifies_every_link_on_the_simulator(run):
 
 def test_max_time_names_the_missed_links(tmp_path):
     path = tmp_path / "capped.yaml"
-    code, _, err = _rumba([*ARGS, "--target", str(TARGETS), "-o", str(path),
-                             "--max-time", "75"])
+    code, out, err = _rumba([*ARGS, "--target", str(TARGETS), "-o", str(path),
+                               "--max-time", "75"])
     assert code == 1
     line = err.strip().splitlines()[-1]
     assert line.startswith("rumba plan: --max-time 75 s: targets missed: ")
@@ -110,6 +115,50 @@ def test_max_time_names_the_missed_links(tmp_path):
     art = load_artefact(ARTEFACT)
     g = generate(machine, mf, art, load_plan(path), "fanuc")  # the best plan within the cap
     assert g.estimated_s <= 75
+    # the first plan within the cap (B-105 C-90 after B15 C-210) passes each visit's own check
+    # but its rapid into that pose dips into the table keep-out: the whole program refuses it,
+    # the pose is excluded and the search runs again, saying so (it used to end in exit 2)
+    excluded = [ln for ln in out.splitlines()
+                if ln.startswith("excluded after the whole program refused it: B-105 C270: ")]
+    assert len(excluded) == 1 and "table keep-out" in excluded[0], out
+
+
+def _cpu_flags() -> set[str]:
+    try:
+        text = Path("/proc/cpuinfo").read_text(encoding="utf-8")
+    except OSError:
+        return set()
+    return next((set(ln.split(":", 1)[1].split()) for ln in text.splitlines()
+                 if ln.startswith("flags")), set())
+
+
+@pytest.mark.skipif(platform.machine() != "x86_64",
+                    reason="OPENBLAS_CORETYPE names x86-64 kernels (Prescott, Sandybridge)")
+def test_the_plan_is_the_same_on_every_blas_kernel_and_thread_count(tmp_path):
+    """`rumba plan` (machine file stating 4 µrad B/C repeatability) in fresh processes whose
+    OpenBLAS runs another CPU's kernels (SSE3-only Prescott, AVX Sandybridge, AVX2 Haswell where
+    the CPU has AVX2, the machine's own) and thread counts writes the same plan, byte for byte
+    but its date line. Before the optimiser settled near-ties, the Haswell kernels chose other
+    poses than the AVX-512 ones from the same files."""
+    data = yaml.safe_load(MACHINE.read_text(encoding="utf-8"))
+    data["rotary_repeatability_urad"] = {"B": 4.0, "C": 4.0}
+    machine = tmp_path / "machine.yaml"
+    machine.write_text(yaml.safe_dump(data), encoding="utf-8")
+    envs = [{}, {"OPENBLAS_CORETYPE": "Prescott", "OPENBLAS_NUM_THREADS": "1"},
+            {"OPENBLAS_CORETYPE": "Sandybridge", "OPENBLAS_NUM_THREADS": "2"}]
+    if "avx2" in _cpu_flags():
+        envs.append({"OPENBLAS_CORETYPE": "Haswell", "OPENBLAS_NUM_THREADS": "1"})
+    texts = []
+    for i, env in enumerate(envs):
+        out = tmp_path / f"p{i}.yaml"
+        r = subprocess.run([sys.executable, "-m", "daemon.cli", "plan", "--machine", str(machine),
+                            "--artefact", str(ARTEFACT), "--target", str(TARGETS),
+                            "-o", str(out)], cwd=ROOT, env={**os.environ, **env},
+                           capture_output=True, text=True, timeout=600)
+        assert r.returncode == 0, r.stderr
+        texts.append([ln for ln in out.read_text(encoding="utf-8").splitlines()
+                      if not ln.startswith("# rumba plan ")])
+    assert all(t == texts[0] for t in texts[1:]), [t[-12:] for t in texts]
 
 
 def test_max_time_below_any_plan_is_an_error_naming_the_links(tmp_path):

@@ -152,11 +152,29 @@ def test_numbers_are_ascii_decimal_and_within_ceilings(setup, tmp_path, col, val
         read_log(_corrupt(tmp_path, rows, 7, col, value), a)
 
 
-def test_plain_ascii_forms_are_accepted(setup, tmp_path) -> None:
+def test_numbers_as_json_writes_them_are_accepted(setup, tmp_path) -> None:
     _, a, _, rows = setup
-    for col, value in [("x_mm", "+1.5e+2"), ("y_mm", ".5"), ("z_mm", " -3. "), ("seq", "+5")]:
+    for col, value in [("x_mm", "1.5e+2"), ("y_mm", "0.5"), ("z_mm", " -3.25 "),
+                       ("x_mm", "-0"), ("y_mm", "1E-05"), ("seq", "5"), ("x_mm", "150")]:
         got = read_log(_corrupt(tmp_path, rows, 7, col, value), a)
         assert getattr(got[4], col) == float(value)
+
+
+@pytest.mark.parametrize(("col", "value"), [
+    ("x_mm", "+111.17"), ("y_mm", ".5"), ("z_mm", "-3."), ("x_mm", "007.5"), ("y_mm", "1.e3"),
+    ("x_mm", "1 5"), ("seq", "+5"), ("seq", "05"), ("pose", "1e2")])
+def test_numbers_outside_the_contracts_syntax_name_file_line_and_column(
+        setup, tmp_path, col, value) -> None:
+    # Python's float() reads '+111.17', '.5', '-3.' and '007.5': the contract does not
+    _, a, _, rows = setup
+    p = _corrupt(tmp_path, rows, 7, col, value)
+    with pytest.raises(ProbeLogError) as info:
+        read_log(p, a)
+    kind = "a finite number" if col.endswith("_mm") else "an integer"
+    assert str(info.value).startswith(f"{p}: line 7: column {col}: expected {kind}, got "), \
+        info.value
+    assert ("no '+', '.5', '5.' or leading zero" if col.endswith("_mm")
+            else "no sign, no leading zero") in str(info.value)
 
 
 def test_duplicated_seq_names_both_lines(setup, tmp_path) -> None:

@@ -129,7 +129,7 @@ def test_shipped_errors_and_faults_files_load():
         assert FaultPlan.load(p).faults
 
 
-@pytest.mark.parametrize("transport", ["modbus", "opcua", "serial"])
+@pytest.mark.parametrize("transport", ["modbus", "opcua", "serial", "sinumerik", "lsv2"])
 def test_sim_serve_on_a_port_in_use_is_one_line_exit_2(transport, capsys):
     import socket
 

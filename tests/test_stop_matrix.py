@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import logging
 import threading
 
 import pytest
@@ -32,7 +33,8 @@ from simulators.controller import VirtualController
 from tests.rig_helpers import make_truth, start_rig
 from tests.stop_helpers import REPORT_JOB, Hold, held_session, until_reached, write_config
 
-TRANSPORTS = ("opcua", "modbus", "serial-pty")
+TRANSPORTS = ("opcua", "modbus", "serial-pty", "sinumerik", "lsv2", "haas")
+DIALECT = {"sinumerik": "siemens", "lsv2": "heidenhain", "haas": "haas"}  # their own only
 PHASES = ("PREPARE", "CAPTURE", "IDENTIFY", "WRITE-BACK")
 OPERATOR = ("hmi", "CAN panel")  # session.abort(source): a person
 DAEMON = "the daemon stopping"  # session.interrupt(cause), as Service.stop (SIGTERM on rumba run)
@@ -44,6 +46,33 @@ SHORT = {"CAN panel": "CAN", DAEMON: "daemon-stop", "link loss": "link-loss", SI
          REPORT_JOB: "report-job"}
 PARAMS = [pytest.param(t, p, c, id=f"{t}-{SHORT.get(p, p)}-{SHORT.get(c, c)}")
           for t, p, c in ROWS]
+
+
+class _Tracebacks(logging.Handler):
+    """Every log record that carries a traceback (the loop's exception handler logs one for a
+    failed callback)."""
+
+    def __init__(self) -> None:
+        super().__init__(logging.DEBUG)
+        self.records: list[logging.LogRecord] = []
+
+    def emit(self, record: logging.LogRecord) -> None:
+        if record.exc_info or "Traceback" in record.getMessage():
+            self.records.append(record)
+
+
+@pytest.fixture(autouse=True)
+def no_traceback_logged():
+    """The stops leave the log free of tracebacks: none logged by the daemon's code, its
+    libraries or the event loop, in the row or after it."""
+    handler = _Tracebacks()
+    root = logging.getLogger()
+    root.addHandler(handler)
+    try:
+        yield
+    finally:
+        root.removeHandler(handler)
+    assert not handler.records, [f"{r.name}: {r.getMessage()[:300]}" for r in handler.records]
 
 
 @pytest_asyncio.fixture(scope="module", loop_scope="module")
@@ -69,7 +98,8 @@ def _link(rig, trigger: str) -> dict:
 
 
 async def _open(rig, tmp_path, monkeypatch, hold: Hold, trigger: str = ""):
-    cfg = load_daemon_config(write_config(tmp_path, _link(rig, trigger)))
+    cfg = load_daemon_config(write_config(tmp_path, _link(rig, trigger),
+                                          dialect=DIALECT.get(rig.transport, "fanuc")))
     setup = cfg.machines["mill1"]
     store = Store(cfg.store_path)
     link = make_link(setup)
@@ -105,6 +135,8 @@ async def _dnc_program_ended(rig, verdict_sent: bool) -> None:
 def _diagnose(rig) -> str:
     """Where the simulated control stands (a run that never started names it)."""
     fe = rig.extra.get("frontend")
+    if fe is not None and hasattr(fe, "diagnose"):
+        return f"control {rig.ctrl.state}, resets {rig.ctrl.resets}; {fe.diagnose()}"
     tape = "" if fe is None else (
         f"; tape: in program {fe._in_program}, blocks {fe._tape_blocks}, discard "
         f"{fe._discard}, xoff {fe._xoff}, buffer {bytes(fe._buf[:60])!r}, alarms {fe.alarms}")

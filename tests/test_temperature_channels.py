@@ -35,8 +35,13 @@ WARMUP = {"axes": {"Z": {"amplitude_um": 6.0, "tau_s": 300.0, "rise_c": 8.0},
 # the controller's own sensor of Z, per transport, where the simulator exposes it
 SPINDLE = {"opcua": {"address": thermal.OPCUA_PATH.format(axis="Z")},
            "modbus": {"address": f"holding:{thermal.MODBUS_ADDRESS['Z']}",
-                      "scale": thermal.MODBUS_SCALE_C}}
-UNREADABLE = {"opcua": "/Channel/Temperatures/none", "modbus": "input:4000"}
+                      "scale": thermal.MODBUS_SCALE_C},
+           # the R parameter the PLC copies the sensor into, read as the control's R node
+           "sinumerik": {"address": "/Channel/Parameter/R[u1,"
+                                    f"{thermal.SIEMENS_VARIABLE['Z'][1:]}]"}}
+UNREADABLE = {"opcua": "/Channel/Temperatures/none", "modbus": "input:4000",
+              "sinumerik": "/Channel/Parameter/R[u1,999]"}
+DIALECT = {"sinumerik": "siemens"}
 
 
 def warm_truth() -> TruthModel:
@@ -52,7 +57,8 @@ def machine_entry(link: dict[str, Any], channels: list[dict[str, Any]],
                   temp_limits: dict[str, Any]) -> dict[str, Any]:
     return {"name": "mill1", "machine": str(CONFIG / "machines/thesis_wcbxfzyt.yaml"),
             "artefact": str(CONFIG / "artefacts/thesis_4ball.yaml"),
-            "plan": str(CONFIG / f"plans/{PLAN}.yaml"), "dialect": "fanuc", "link": link,
+            "plan": str(CONFIG / f"plans/{PLAN}.yaml"),
+            "dialect": DIALECT.get(link["transport"], "fanuc"), "link": link,
             "touch_timeout_s": 30, "temperatures": channels,
             "tolerances": {"default_rotation_urad": {"warn": 40, "fail": 80},
                            "default_translation_um": {"warn": 150, "fail": 300},
@@ -90,7 +96,7 @@ def sensor(axis: str, t_s: float) -> float:
 
 
 @pytest.mark.asyncio
-@pytest.mark.parametrize("cnc", ["opcua", "modbus"], indirect=True)
+@pytest.mark.parametrize("cnc", ["opcua", "modbus", "sinumerik"], indirect=True)
 async def test_channels_read_at_start_every_pose_and_end_agree_with_the_warmup(cnc, tmp_path):
     rig, tx, port = cnc
     channels = [

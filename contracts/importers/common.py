@@ -2,12 +2,17 @@
 
 from __future__ import annotations
 
+import re
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 
 from contracts.centres_file import MAX_CENTRE_ROWS, CentresFileError
-from contracts.probing_log import CONTROL_RE, FLOAT_RE, RANGES, byte_lines, decoded
+from contracts.probing_log import CONTROL_RE, RANGES, byte_lines, decoded
 
+VENDOR_FLOAT_RE = re.compile(
+    r"[ \t]*[+-]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]{1,3})?[ \t]*")
+"""A number in an instrument's own file: ASCII decimal as instruments print it (a '+' sign,
+'.5' and '5.' included), unlike rumba's own files (contracts.probing_log.FLOAT_RE)."""
 MAX_IMPORT_LINES = 10 * MAX_CENTRE_ROWS
 """Ceiling on the non-blank lines of an instrument file (500 000), counted before anything is
 parsed: a KinOpt record is 8 lines in the documentation and a DMIS sphere a statement or a
@@ -62,7 +67,7 @@ def continued(bodies: Iterable[tuple[int, str]], name: str, mark: str, what: str
 
 def number(cell: str, where: str, what: str, column: str = "x_mm") -> float:
     """A plain ASCII decimal within the centres file's range for ``column``."""
-    if not FLOAT_RE.fullmatch(cell):
+    if not VENDOR_FLOAT_RE.fullmatch(cell):
         raise CentresImportError(f"{where}: {what}: expected a number, got {cell.strip()[:40]!r} "
                            "(ASCII decimal)")
     v = float(cell)

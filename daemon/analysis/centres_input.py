@@ -183,13 +183,17 @@ def centre_rows(rows: Sequence[LogRow], data: CentreData, artefact: Artefact) ->
 
 
 def export_log_centres(log: Path | str, artefact: Artefact, stylus_radius_mm: float,
-                       fixed_radius: bool, out: Path | str) -> int:
+                       fixed_radius: bool, out: Path | str, data: CentreData | None = None
+                       ) -> int:
     """`rumba analyze --log L --write-centres OUT`: the log's centres as a centres CSV (the
-    same sphere fits as the analysis); returns the number of centres written."""
+    same sphere fits as the analysis: ``data``, its centres in the estimate's frame; None:
+    fitted here in controller axes); returns the number of centres written."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # the analysis reports the reader's warnings
         rows = read_log(log, artefact)
-        data = rows_to_centres(rows, artefact, stylus_radius_mm, fixed_radius, source=str(log))
+        if data is None:
+            data = rows_to_centres(rows, artefact, stylus_radius_mm, fixed_radius,
+                                   source=str(log))
     out_rows = centre_rows(rows, data, artefact)
     try:
         write_centres(out, out_rows, source=f"sphere fits of the touches of {Path(log).name}",

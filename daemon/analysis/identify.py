@@ -26,6 +26,7 @@ from daemon.analysis.result import (
     Revisit,
     Scale,
     Setup,
+    SphereFrame,
     Stability,
     Validation,
     VolumetricMax,
@@ -33,7 +34,13 @@ from daemon.analysis.result import (
     Where,
 )
 from daemon.analysis.thermal import corrected, thermal_block, with_thermal
-from daemon.analysis.touch_centres import CentreData, screen_centres, with_outliers
+from daemon.analysis.touch_centres import (
+    CentreData,
+    estimate_frame,
+    in_frame,
+    screen_centres,
+    with_outliers,
+)
 from identification.analyses import (
     clusters,
     distance_analysis,
@@ -47,6 +54,7 @@ from identification.estimate_scatter import visits_of
 from identification.kinematics import Machine
 from identification.model import Artefact, Centres
 from identification.plausibility import describe, implausible
+from identification.touch_frame import FrameEstimate
 
 _THESIS = {  # thesis Table B.2 / Fig B.2 names of the WCBXFZYT link errors
     "EB0Z": "βZ squareness ZX", "EA0Y": "αY squareness YZ", "EC0Y": "γY squareness YX",
@@ -115,9 +123,12 @@ def analyse_centres(machine: Machine, artefact: Artefact, data: CentreData, *,
     returns the estimate and, for centres in an instrument frame, the map to controller X Y Z
     the analyses then run in. Visits are screened for gross faults first (``screen_centres``).
     ``keep``: receives the estimate itself under "estimate" (the run's compensation view is
-    planned from this very estimate, so the panel's link values are the report's, issue 23).
+    planned from this very estimate, so the panel's link values are the report's, issue 23)
+    and under "touch_data" every visit's centre fitted in its frame (what the store and
+    ``--write-centres`` keep, ``identification.touch_frame``).
     ``rotary_repeatability_urad``: the machine file's stated rotary repeatability (µrad 1σ by
     axis letter), the Type B input of the links' index scatter (``estimate_scatter``)."""
+    every = data
     data, screened = screen_centres(machine, artefact, data)
     c = data.centres
     poses = sorted(int(x) for x in np.unique(c.pose))
@@ -134,10 +145,22 @@ def analyse_centres(machine: Machine, artefact: Artefact, data: CentreData, *,
         k = int(np.flatnonzero(bad)[0])
         raise AnalysisError(f"{where}centre of ball {artefact.ids[c.ball[k]]} pose "
                             f"{int(c.pose[k])} is not a finite number")
-    est_c = c.subset(~held)
     drift = None  # a TCP drift fitted with the links where the timing separates it (issue 22)
+    frame = None
     try:
         with np.errstate(all="ignore"):
+            if estimator is None:
+                # the touches fitted in the frame the estimate corrects (METHOD.md §7): on axes
+                # out of square a sphere fitted in controller axes is off by a pose-dependent
+                # bias (identification/touch_frame.py); every visit refitted, the faulty ones
+                # too (their health), and handed on for the store and --write-centres
+                frame = estimate_frame(machine, artefact, data, ~held, links,
+                                       repeatability_um, fixed_radius)
+                every = in_frame(machine, artefact, every, frame, fixed_radius)
+                data = replace(in_frame(machine, artefact, data, frame, fixed_radius, False),
+                               health=every.health)
+                c = data.centres
+            est_c = c.subset(~held)
             if estimator is None:
                 drift = estimate_drift_aware(
                     machine, artefact, est_c, links, sigma_um=repeatability_um,
@@ -156,6 +179,7 @@ def analyse_centres(machine: Machine, artefact: Artefact, data: CentreData, *,
                             "numbers (centres far outside the machine's range?)")
     if keep is not None:
         keep["estimate"] = est
+        keep["touch_data"] = every
     findings = implausible(machine, artefact, est, touch_noise_um(data))
     if findings:  # 90° "link errors" are not a machine's: refuse, never report or compensate
         raise ImplausibleFitError(f"{where}{describe(machine, artefact, findings)}")
@@ -167,7 +191,8 @@ def analyse_centres(machine: Machine, artefact: Artefact, data: CentreData, *,
         est_c = data.centres.subset(~held)
     try:
         with np.errstate(all="ignore"):
-            result = _analyses(machine, artefact, data, est, est_c, held, fixed_radius)
+            result = _analyses(machine, artefact, data, est, est_c, held, fixed_radius,
+                               frame)
             if drift is not None:
                 result = with_thermal(result, thermal_block(drift))
             return with_outliers(result, screened)
@@ -176,7 +201,8 @@ def analyse_centres(machine: Machine, artefact: Artefact, data: CentreData, *,
 
 
 def _analyses(machine: Machine, artefact: Artefact, data: CentreData, est: Any, est_c: Any,
-              held: np.ndarray, fixed_radius: bool) -> Analysis:
+              held: np.ndarray, fixed_radius: bool, frame: FrameEstimate | None = None
+              ) -> Analysis:
     """Volumetric, clusters, distances, stability, validation → the typed result, built once
     with the JSON's rounding (``_vec``, ``round``) and NaN/inf → None (``_fin``)."""
     c = data.centres
@@ -242,7 +268,10 @@ def _analyses(machine: Machine, artefact: Artefact, data: CentreData, est: Any, 
             sigma_dof=_fin(est.sigma_dof),  # None (JSON) when given: infinite
             fixed_radius=fixed_radius,
             index_scatter=index_scatter(est.visit_scatter, est.stated_used,
-                                        len(np.unique(visits_of(est_c))))),
+                                        len(np.unique(visits_of(est_c)))),
+            sphere_frame=None if frame is None else SphereFrame(
+                passes=frame.passes, max_shift_um=_fin(round(frame.shift_um, 4)),
+                note=frame.note)),
         volumetric=tuple(
             VolumetricPoint(pose=pose[k], repeat=repeat[k], b_deg=_fin(b_deg[k]),
                             c_deg=_fin(c_deg[k]), ball=ball[k],

@@ -72,8 +72,11 @@ def prepare(setup: MachineSetup, run_id: str,
         printed = tuple(ch.address for ch in setup.temperatures  # issue 22: DNC prints them
                         if ch.source == "controller"
                         and getattr(setup.link, "transport", "") == "serial")
+        from drivers.registry import HANDSHAKE  # the link reads the controller's variables
+
         g = generate(setup.machine, setup.machine_file, setup.artefact, setup.plan,
-                     setup.dialect, targets, printed)
+                     setup.dialect, targets, printed,
+                     handshake=getattr(setup.link, "transport", "") in HANDSHAKE)
         for name in g.aux_files:  # they become files on the controller (and next to `gcode -o`)
             plain_name(name, f"{setup.dialect} auxiliary file")
     except SafetyError as e:
@@ -159,6 +162,7 @@ def analyse(setup: MachineSetup, hits: Sequence[ProbeHit], run_id: str = "run",
                    touches=len(rows), reference_run=reference[0] if reference else None,
                    warnings=(*data.warnings, *(str(w.message) for w in caught
                                                if str(w.message) not in data.warnings)))
+    cd = keep.get("touch_data", cd)  # the centres as the estimate used them (its frame)
     centres, ids = cd.centres, setup.artefact.ids
     health = {(h.pose, h.ball, h.repeat): h for h in cd.health}
     # The store keeps one centre per pose and ball: the first repeat's, or the re-probe that

@@ -71,6 +71,17 @@ class IndexScatter(_Json):
 
 
 @dataclass(frozen=True)
+class SphereFrame(_Json):
+    """The ball centres fitted in the frame the estimate corrects (identification/
+    touch_frame.py): passes of estimate and refit, the largest centre change from the fit in
+    controller axes (µm), a note when the fits stayed in controller axes or did not settle."""
+
+    passes: int = 0
+    max_shift_um: float | None = None
+    note: str = ""
+
+
+@dataclass(frozen=True)
 class Estimation(_Json):
     status: str = ""
     iterations: int = 0
@@ -80,6 +91,8 @@ class Estimation(_Json):
     sigma_dof: float | None = None  # None when σ is given: infinite degrees of freedom
     fixed_radius: bool = False
     index_scatter: tuple[IndexScatter, ...] | None = field(default=None, metadata=_OMIT)
+    # centres from touches only (none from an instrument's centres)
+    sphere_frame: SphereFrame | None = field(default=None, metadata=_OMIT)
 
 
 @dataclass(frozen=True)

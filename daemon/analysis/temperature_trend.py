@@ -73,7 +73,8 @@ def fleet_points(rows: Sequence[Mapping[str, Any]], link: str) -> tuple[list[Tem
             continue  # another version's row costs its point, never the view
         unit = "µrad" if est.get("unit") == "urad" else "µm"
         out.append(TempPoint(str(row["run_id"]), temp, float(value),
-                             float(std) if isinstance(std, (int, float)) else None))
+                             float(std) if isinstance(std, (int, float)) and math.isfinite(std)
+                             else None))
     return out, unit
 
 

@@ -1,5 +1,6 @@
-"""Probing-log touches → one sphere centre per (run, repeat, pose, ball), with fit health, and
-the outlier test that decides which of those visits an estimate uses."""
+"""Probing-log touches → one sphere centre per (run, repeat, pose, ball), with fit health, the
+outlier test that decides which of those visits an estimate uses, and the refit of the centres in
+the frame the estimate corrects (``identification.touch_frame``)."""
 
 from __future__ import annotations
 
@@ -30,6 +31,7 @@ from identification.outliers import (
     resolve,
 )
 from identification.spherefit import SphereFitError, centre_sensitivity, fit_spheres
+from identification.touch_frame import FrameEstimate, frame_estimate, refit
 
 
 @dataclass(frozen=True)
@@ -139,6 +141,45 @@ def rows_to_centres(rows: Sequence[LogRow], artefact: Artefact, stylus_radius_mm
                       fit.centre_mm, touch_t.mean(axis=1), touch_t,
                       centre_sensitivity(pts, fit.centre_mm, fixed_radius))
     return CentreData(centres, uniq[:, 0].copy(), health, msgs, pts, r_nom)
+
+
+def estimate_frame(machine: Machine, artefact: Artefact, data: CentreData,
+                   estimation: np.ndarray, links: Sequence[str] | None = None,
+                   sigma_um: Sequence[float] | None = None, fixed_radius: bool = False
+                   ) -> FrameEstimate | None:
+    """The frame the touches of ``data`` are fitted in (``identification.touch_frame``,
+    estimated on the visits of the mask ``estimation``); None for centres without touches."""
+    if data.points_mm is None or data.radius_nominal_mm is None:
+        return None
+    return frame_estimate(machine, artefact, data.centres, data.points_mm,
+                          data.radius_nominal_mm, estimation, links, sigma_um=sigma_um,
+                          fixed_radius=fixed_radius)
+
+
+def in_frame(machine: Machine, artefact: Artefact, data: CentreData,
+             frame: FrameEstimate | None, fixed_radius: bool = False,
+             health: bool = True) -> CentreData:
+    """``data`` with every visit fitted again in ``frame`` (``estimate_frame``): centres, their
+    touch sensitivities and, with ``health``, the health of those visits (radius and form of
+    the true ball; matched by the log's repeat, pose and ball, so not for visits the outlier
+    screen renumbered); unchanged without touches or when the frame stayed the controller's."""
+    if (frame is None or frame.layout is None or data.points_mm is None
+            or data.radius_nominal_mm is None or not len(data.centres)):
+        return data
+    c, ff = refit(machine, frame.layout, frame.p, data.centres, data.points_mm,
+                  data.radius_nominal_mm, fixed_radius)
+    if not health:
+        return replace(data, centres=c)
+    ids = artefact.ids
+    new = {(int(r), int(p), ids[int(b)]): k
+           for k, (r, p, b) in enumerate(zip(data.repeat, c.pose, c.ball, strict=True))}
+    health = []
+    for h in data.health:
+        k = new.get((h.repeat, h.pose, h.ball))
+        health.append(h if k is None else replace(
+            h, radius_dev_um=float(ff.fit.radius_dev_um[k]),
+            form_rms_um=float(ff.fit.form_rms_um[k])))
+    return replace(data, centres=c, health=health)
 
 
 OUTLIER_METHOD = ("per ball visit, against the run's own median and MAD × 1.4826: D from the "

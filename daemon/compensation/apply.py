@@ -5,14 +5,23 @@ HAL file patched with a backup, getp read-back), journal rows, rollback."""
 from __future__ import annotations
 
 import contextlib
-import dataclasses
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from contracts.controller_kinematics import ControllerKinematics
 from daemon.compensation import journal as cj
+from daemon.compensation.listing import (
+    before_row,
+    current_spec,
+    expected_values,
+    fingerprint,
+    listing_lines,
+    program_of,
+    with_closing,
+)
 from daemon.compensation.names import UNATTENDED, BadName, validate_by
 from daemon.compensation.propose import (
     CompensationRefused,
@@ -20,7 +29,6 @@ from daemon.compensation.propose import (
     Proposal,
     changed_since,
     check_hal_agrees,
-    expected_values,
     is_local_linuxcnc,
     spec_of,
 )
@@ -29,7 +37,14 @@ from daemon.safepath import contained_path
 from daemon.store import machine_lock
 from daemon.store.journal import FINAL_STATES, Store
 from daemon.store.machine_lock import Lease, MachineBusy
-from identification.compensation import ParamChange
+from programs.compensation import CompensationOutput
+
+HAL_WRITE_BUDGET_S = 10.0
+"""The live write to a LinuxCNC on this PC as a whole (every setp, the HAL file, the
+read-back): each halcmd takes well under a second; past this the write fails and the old
+values are put back (``halkins.budget``)."""
+HAL_RESTORE_BUDGET_S = 10.0
+"""Putting the old values back after a failed write: a budget of its own."""
 
 
 class ApplyError(Exception):
@@ -43,66 +58,16 @@ class Written:
     path: Path | None  # the program/page in the reports directory
     text: str
     note: str  # what happened on the controller (or what the operator must do)
+    program: CompensationOutput | None = None  # what was written, with its listing
 
 
-CLOSING = " closing"
-"""Journal name suffix of a value the writer changes besides the parameter's own address
-(Siemens: the offset vector that keeps the chain closed)."""
-
-
-def spec_at(spec: ControllerKinematics, values: dict[str, float],
-            closing: dict[str, float] | None = None) -> ControllerKinematics:
-    """The section with the given values (by parameter name) and closing values (by address)
-    in place of the file's."""
-    closing = closing or {}
-    return dataclasses.replace(spec, params=tuple(
-        dataclasses.replace(p, value=values.get(p.name, p.value),
-                            closing_value=closing.get(p.closing or "", p.closing_value))
-        for p in spec.params))
-
-
-def current_spec(spec: ControllerKinematics, store: Store, machine: str) -> ControllerKinematics:
-    """The section with every value as the controller holds it now (journal, else file)."""
-    now = expected_values(spec, store, machine)
-    closing = {}
-    for row in cj.written(store, machine):
-        for v in row.values:
-            if v.name.endswith(CLOSING):
-                closing[v.address] = v.new
-    return spec_at(spec, {name: v for name, (_, v) in now.items()}, closing)
-
-
-def math_changes(spec: ControllerKinematics, values: list[cj.ValueChange]) -> list[ParamChange]:
-    """The parameters' changes (closing entries are the writer's consequence, not changes)."""
-    return [ParamChange(v.name, spec.param(v.name).kind, v.delta, v.u_expanded, True)
-            for v in values if not v.name.endswith(CLOSING)]
-
-
-def with_closing(values: list[cj.ValueChange], written: list) -> list[cj.ValueChange]:
-    """``values`` plus what the writer changes at other addresses (journaled too)."""
-    own = {v.address for v in values}
-    return [*values, *(cj.ValueChange(w.name + CLOSING, w.address, w.unit, w.old, w.new,
-                                      w.new - w.old) for w in written if w.address not in own)]
-
-
-def write_program(spec_base: ControllerKinematics, values: list[cj.ValueChange],
-                  reports_dir: Path, run_id: str, machine: str, rollback: bool = False
-                  ) -> tuple[Path, str, list]:
-    """The family's reviewed program/page (programs.compensation.<family>) for these changes
-    from the values of ``spec_base`` (``rollback``: from new back to them), written into
-    ``reports_dir`` under the writer's file name (kept inside the directory); with the
-    writer's values (programs.compensation.common.Value)."""
-    from programs.compensation import CompensationError, render
-
-    try:
-        out = render(spec_base, math_changes(spec_base, values), run_id=run_id,
-                     machine=machine, rollback=rollback)
-    except CompensationError as e:
-        raise CompensationRefused(f"{spec_base.family} program not written: {e}") from None
+def write_program(out: CompensationOutput, reports_dir: Path) -> Path:
+    """The family's reviewed program/page (``listing.program_of``), written into
+    ``reports_dir`` under the writer's file name (kept inside the directory)."""
     reports_dir.mkdir(parents=True, exist_ok=True)
     path = contained_path(reports_dir, out.filename)
     path.write_text(out.text, encoding="utf-8")
-    return path, out.text, list(out.values)
+    return path
 
 
 def hal_write(values: list, hal_file: Path | None = None) -> str:
@@ -130,17 +95,19 @@ def hal_write(values: list, hal_file: Path | None = None) -> str:
         raise ApplyError(f"LinuxCNC write refused, nothing set: {e}") from None
     replaced = False
     try:
-        for pin, v in new.items():
-            halkins.setp(pin, v)
-        backup = halkins.replace_file(hal_file, patched, expect=original)
-        replaced = True
-        back = halkins.read_pins(list(new))
+        with halkins.budget(HAL_WRITE_BUDGET_S):
+            for pin, v in new.items():
+                halkins.setp(pin, v)
+            backup = halkins.replace_file(hal_file, patched, expect=original)
+            replaced = True
+            back = halkins.read_pins(list(new))
         bad = [f"{p} {back[p]!r} != {v!r}" for p, v in new.items()
                if not halkins.agrees(back[p], v)]
         if bad:
             raise halkins.HalError(f"read-back differs: {'; '.join(bad)}")
     except (halkins.HalError, OSError) as e:
-        _restore(old)
+        with halkins.budget(HAL_RESTORE_BUDGET_S, fresh=True):
+            _restore(old)
         where = _restore_file(hal_file, original, patched) if replaced else \
             f"HAL file {hal_file} unchanged"
         raise ApplyError(f"LinuxCNC write failed, old values set again, {where}: {e}") from None
@@ -180,21 +147,40 @@ def _check_hal(setup: MachineSetup, spec: ControllerKinematics, store: Store) ->
     return True
 
 
-def _write(setup: MachineSetup, reports_dir: Path, spec_base: ControllerKinematics,
-           values: list[cj.ValueChange], run_id: str, by: str, rollback: bool, local: bool
-           ) -> tuple[Path, str, str, list]:
-    """Program/page for the record, then the controller itself where rumba can reach it."""
+def _write(family: str, reports_dir: Path, out: CompensationOutput, by: str, local: bool,
+           link: Any = None) -> tuple[Path, str]:
+    """Program/page for the record, then the controller itself where rumba can reach it
+    (``link``: the machine's link section; a SINUMERIK's file system takes the program)."""
     try:
-        path, text, written = write_program(spec_base, values, reports_dir, run_id,
-                                            setup.name, rollback)
-    except CompensationRefused as e:  # the row is reserved: journal it as a failed write
-        raise ApplyError(str(e)) from None
+        path = write_program(out, reports_dir)
+    except OSError as e:  # the row is reserved: journal it as a failed write
+        raise ApplyError(f"{out.filename} not written: {e}") from None
     if local:
-        note = hal_write(written)
+        note = hal_write(out.values)
+    elif getattr(link, "transport", "") == "sinumerik":
+        note = _send_to_sinumerik(link, out.text, path, by)
     else:
-        note = (f"{spec_base.family}: the operator loads/enters {path.name} on the control "
+        note = (f"{family}: the operator loads/enters {path.name} on the control "
                 f"(confirmed by {by})")
-    return path, text, note, written
+    # what the controller gets, address by address, kept with the journal row
+    return path, note + "; writes " + ", ".join(f"{r.address}={r.written}"
+                                                 for r in out.listing)
+
+
+def _send_to_sinumerik(link: Any, text: str, path: Path, by: str) -> str:
+    """The reviewed program into the control's "Part Programs" over its OPC UA file system
+    (not selected, not started: a person does that at the machine); when the control cannot
+    be reached the operator loads the file from the reports directory, as without the link."""
+    from drivers.base import LinkError
+    from drivers.sinumerik.transfer import COMPENSATION_PROGRAM, send_part_program_blocking
+
+    try:
+        name = send_part_program_blocking(link, COMPENSATION_PROGRAM, text)
+    except (LinkError, OSError) as e:
+        return (f"siemens: {path.name} NOT sent to the control ({e}): the operator loads it "
+                f"there (confirmed by {by})")
+    return (f"siemens: sent to the control's Part Programs as {name} (a copy of {path.name}): "
+            f"the operator selects it and presses NC start (confirmed by {by})")
 
 
 def _no_run(store: Store, machine: str) -> None:
@@ -234,13 +220,17 @@ def _name(by: str) -> str:
 
 
 def confirm(setup: MachineSetup, store: Store, reports_dir: Path, p: Proposal, by: str, *,
-            again: bool = False, lease: Lease | None = None) -> Written:
+            again: bool = False, lease: Lease | None = None, seen: str | None = None
+            ) -> Written:
     """Apply an accepted proposal (operator confirmation ``by``) as one transaction on the
     machine: under its lock (``lease``: one the caller holds, the unattended path's run),
-    refused while a run of the machine is not over, re-checked against the journal, reserved
-    in the journal as decision n of the run (a second confirm of one run is refused there;
-    after a rollback only ``again`` makes a new decision), then written and journaled with
-    old and new values. An ApplyError is journaled as refused (old values restored)."""
+    refused while a run of the machine is not over, re-checked against the journal, the
+    program made again from the values the controller holds and refused unless its listing
+    is the proposal's (and, given ``seen``, the one the person confirmed: its
+    ``listing.fingerprint``), reserved in the journal as decision n of the run (a second
+    confirm of one run is refused there; after a rollback only ``again`` makes a new
+    decision), then written and journaled with old and new values. An ApplyError is journaled
+    as refused (old values restored)."""
     by = _name(by)
     if p.refusals:
         raise CompensationRefused("; ".join(p.refusals))
@@ -274,6 +264,17 @@ def confirm(setup: MachineSetup, store: Store, reports_dir: Path, p: Proposal, b
         if moved:  # another writer got in between the proposal and this confirm
             raise CompensationRefused(f"the controller's values changed since this proposal "
                                       f"({', '.join(moved)}): propose again")
+        out = program_of(current_spec(p.spec, store, setup.name), p.values, p.run_id,
+                         setup.name)
+        if p.program is None or out.listing != p.program.listing:
+            raise CompensationRefused("the program made now differs from the proposal's "
+                                      "listing: propose again")
+        now_seen = fingerprint(family, p.run_id, out.listing)
+        if seen is not None and seen != now_seen:
+            raise CompensationRefused(
+                f"the values to write are not the ones reviewed (listing {seen}, now "
+                f"{now_seen}): reload the proposal and review it again:\n"
+                + "\n".join(listing_lines(out.listing)))
         local = _check_hal(setup, p.spec, store)
         decision = max((d.decision or 0 for d in prior), default=0) + 1
         try:
@@ -282,15 +283,13 @@ def confirm(setup: MachineSetup, store: Store, reports_dir: Path, p: Proposal, b
         except cj.DecisionTaken as e:
             raise CompensationRefused(str(e)) from None
         try:
-            spec_now = current_spec(p.spec, store, setup.name)
-            path, text, note, written = _write(setup, reports_dir, spec_now, p.values,
-                                               p.run_id, by, False, local)
+            path, note = _write(family, reports_dir, out, by, local, setup.link)
         except ApplyError as e:
             cj.finish_apply(store, row, "refused", p.values, str(e), None)
             raise ApplyError(f"{e} (journal #{row})") from None
-        cj.finish_apply(store, row, "applied", with_closing(p.values, written), note,
+        cj.finish_apply(store, row, "applied", with_closing(p.values, out.values), note,
                         time.time())
-    return Written(row, "applied", path, text, note)
+    return Written(row, "applied", path, out.text, note, out)
 
 
 def rollback(setup: MachineSetup, store: Store, reports_dir: Path, by: str, *,
@@ -309,13 +308,12 @@ def rollback(setup: MachineSetup, store: Store, reports_dir: Path, by: str, *,
                                       "back")
         values = [v.reversed() for v in last.values]
         reason = f"{cj.ROLLBACK_PREFIX}{last.id}"
-        before = spec_at(spec, {v.name: v.old for v in last.values},
-                         {v.address: v.old for v in last.values if v.name.endswith(CLOSING)})
+        before = before_row(spec, last)
         local = _check_hal(setup, before, store)
         try:
-            path, text, note, _ = _write(setup, reports_dir, before, list(last.values),
-                                         last.run_id, by, True, local)
-        except ApplyError as e:
+            out = program_of(before, last.values, last.run_id, setup.name, rollback=True)
+            path, note = _write(spec.family, reports_dir, out, by, local, setup.link)
+        except (ApplyError, CompensationRefused) as e:
             row = cj.record(store, setup.name, last.run_id, spec.family, "refused", values,
                             confirmed_by=by, reason=f"{reason}: {e}")
             raise ApplyError(f"{e} (journal #{row})") from None
@@ -324,4 +322,4 @@ def rollback(setup: MachineSetup, store: Store, reports_dir: Path, by: str, *,
             row = cj.record(store, setup.name, last.run_id, spec.family, "rolled_back",
                             values, confirmed_by=by, reason=f"{reason}; {note}",
                             applied_at=time.time())
-    return Written(row, "rolled_back", path, text, note)
+    return Written(row, "rolled_back", path, out.text, note, out)

@@ -164,7 +164,29 @@ def plan_to_json(plan: CompensationPlan) -> str:
         "links_identified": plan.links_identified, "links_compensable": plan.links_compensable,
         "links_residual": plan.links_residual,
         "distortion_um": [list(plan.distortion_before_um), list(plan.distortion_compensable_um),
-                          list(plan.distortion_after_um)]})
+                          list(plan.distortion_after_um)],
+        # the displacements behind the figures (the worth rule's effects and subsets)
+        "displacements": _displacements(plan)})
+
+
+def _displacements(plan: CompensationPlan) -> dict[str, Any] | None:
+    """The plan's displacements, each probed centre's row once: the plan's centres repeat
+    every pose once per ball row (a 14-pose run: 224 rows, 56 distinct), so the distinct rows
+    and the index that rebuilds the rest (exact) are stored — a quarter of the size."""
+    if plan.link_disp_mm is None:
+        return None
+    names = list(plan.change_disp_mm)
+    stacked = np.hstack([plan.link_disp_mm, *(plan.change_disp_mm[n] for n in names)])
+    rows, index = np.unique(stacked, axis=0, return_inverse=True)
+    return {"names": names, "rows": _arr(rows), "index": [int(i) for i in np.ravel(index)]}
+
+
+def _from_displacements(d: dict[str, Any]) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    full = _unarr(d["rows"])[np.asarray(d["index"], int)]
+    names = [str(n) for n in d["names"]]
+    if full.ndim != 2 or full.shape[1] != 3 * (len(names) + 1):
+        raise ValueError(f"displacements of shape {full.shape} for {len(names)} changes")
+    return full[:, :3], {n: full[:, 3 * (i + 1):3 * (i + 2)] for i, n in enumerate(names)}
 
 
 def plan_from_json(text: str) -> CompensationPlan:
@@ -178,7 +200,9 @@ def plan_from_json(text: str) -> CompensationPlan:
         links = [{str(k): float(v) for k, v in d[f"links_{w}"].items()}
                  for w in ("identified", "compensable", "residual")]
         dist = [(float(a), float(b)) for a, b in d["distortion_um"]]
-        return CompensationPlan(changes, *links, *dist)
+        if d.get("displacements") is None:  # stored before the plan carried them
+            raise ValueError("no displacements (stored before the worth rule)")
+        return CompensationPlan(changes, *links, *dist, *_from_displacements(d["displacements"]))
     except (TypeError, KeyError, AttributeError) as e:
         raise ValueError(f"not a stored plan: {e!r}") from None
 
@@ -189,17 +213,24 @@ def save(store: Store, run_id: str, key: str, est: Estimate, plan: CompensationP
                      (run_id, key, to_json(est), plan_to_json(plan), time.time()))
 
 
-def load(store: Store, run_id: str, key: str) -> tuple[Estimate, CompensationPlan] | None:
+def load(store: Store, run_id: str, key: str
+         ) -> tuple[Estimate, CompensationPlan | None] | None:
     """The stored view of ``run_id`` for ``key``; None when there is none, it is for another
-    key, or it cannot be read (it is then computed again)."""
+    key, or it cannot be read (it is then computed again); the plan None when only it cannot
+    be read (stored before the plan carried its displacements: planned again from the stored
+    estimate, which stays the run's own)."""
     row = store.db.execute("SELECT model_key, estimate, plan FROM link_estimates WHERE"
                            " run_id=?", (run_id,)).fetchone()
     if row is None or row[0] != key:
         return None
     try:
-        return from_json(row[1]), plan_from_json(row[2])
+        est = from_json(row[1])
     except ValueError:
         return None
+    try:
+        return est, plan_from_json(row[2])
+    except ValueError:
+        return est, None
 
 
 def stored_or_computed(setup: MachineSetup, store: Store, run_id: str, machine: Machine,
@@ -210,12 +241,18 @@ def stored_or_computed(setup: MachineSetup, store: Store, run_id: str, machine: 
     longer than its busy timeout, only loses the storing)."""
     key = model_key(setup, machine, params, coverage_k)
     got = load(store, run_id, key)
-    if got is None:
-        c = estimation_centres(setup, run_centres(setup, store, run_id))
-        got = compute(setup, c, run_id, machine, params, coverage_k)
-        with contextlib.suppress(sqlite3.Error):  # computed again next time; same view
-            save(store, run_id, key, *got)
-    return got
+    if got is not None and got[1] is not None:
+        return got[0], got[1]
+    c = estimation_centres(setup, run_centres(setup, store, run_id))
+    if got is not None:  # the run's own estimate, planned again
+        est = got[0]
+        plan = plan_compensation(machine, setup.artefact, est, params, c.b_deg, c.c_deg,
+                                 coverage_k=coverage_k)
+    else:
+        est, plan = compute(setup, c, run_id, machine, params, coverage_k)
+    with contextlib.suppress(sqlite3.Error):  # computed again next time; same view
+        save(store, run_id, key, est, plan)
+    return est, plan
 
 
 def at_run_end(setup: MachineSetup, store: Store, run_id: str, centre_rows: Sequence[tuple],

@@ -15,6 +15,7 @@ from a request.
 from __future__ import annotations
 
 import contextlib
+import logging
 import re
 import time
 from collections.abc import Awaitable, Callable, Iterable, Sequence
@@ -37,6 +38,7 @@ from daemon.store.journal import StoreError
 from daemon.store.pg import PgStore
 from daemon.store.url import redact
 
+log = logging.getLogger("rumba.fleet")
 READER_KEY = web.AppKey("fleet_reader", object)
 STALE_KEY = web.AppKey("stale_after_h", float)
 ROOTS_KEY = web.AppKey("report_roots", tuple)
@@ -50,19 +52,30 @@ class StoreReader:
     def __init__(self, dsn: str) -> None:
         self.dsn = dsn
         self.store: PgStore | None = None
+        self.down_since: float | None = None  # the store's outage, said once when it begins
 
     async def call(self, fn: Callable[[PgStore], Awaitable[Any]], empty: Any = None) -> Any:
         try:
             if self.store is None or self.store.conn.closed:
                 self.store = await PgStore.connect(self.dsn, app="rumba-fleet", migrate=False)
-            return await fn(self.store)
+            result = await fn(self.store)
         except psycopg.errors.UndefinedTable:
-            return empty  # no daemon has created the schema yet
+            result = empty  # the store answers; no daemon has created the schema yet
         except (psycopg.OperationalError, StoreError) as e:
             await self.close()
+            why = " ".join(str(e).split())
+            if self.down_since is None:
+                self.down_since = time.monotonic()
+                log.error("fleet store %s unreachable: %s; the page answers 503 until it is "
+                          "back", redact(self.dsn), why)
             raise web.HTTPServiceUnavailable(
-                text=f"fleet store {redact(self.dsn)} unreachable: {' '.join(str(e).split())}",
+                text=f"fleet store {redact(self.dsn)} unreachable: {why}",
                 headers={"Retry-After": "10"}) from None
+        if self.down_since is not None:
+            log.warning("fleet store %s reachable again after %.0f s", redact(self.dsn),
+                        time.monotonic() - self.down_since)
+            self.down_since = None
+        return result
 
     async def close(self) -> None:
         if self.store is not None:

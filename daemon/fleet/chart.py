@@ -16,7 +16,10 @@ def _e(x: str) -> str:
 
 
 def ticks(lo: float, hi: float, n: int = 4) -> list[float]:
-    """About ``n`` steps of 1, 2, 2.5 or 5 × 10^k inside [lo, hi]."""
+    """About ``n`` steps of 1, 2, 2.5 or 5 × 10^k inside [lo, hi] (none if either is not a
+    finite number)."""
+    if not (math.isfinite(lo) and math.isfinite(hi)):
+        return []
     step = (hi - lo) / n
     mag = 10 ** math.floor(math.log10(step)) if step > 0 else 1.0
     step = next(m * mag for m in (1, 2, 2.5, 5, 10) if m * mag >= step)

@@ -181,6 +181,13 @@ def require(request: web.Request, role: str, what: str) -> Identity:
     return ident
 
 
+TOKEN_IN_FORM = ('<p class="error">That is the daemon\'s token: it is for scripts, which send '
+                 'it in the header <code>Authorization: Bearer &lt;token&gt;</code>. People '
+                 'sign in here with their own name and password (<code>rumba users</code> '
+                 'makes accounts).</p>')
+"""The answer to the token typed into the name and password form."""
+
+
 def _login_html(request: web.Request, error: str) -> str:
     """The login form naming the page it signs in to (escaped); ``error`` is our own markup.
     One pass over login.html's placeholders, so a value is never itself substituted."""
@@ -213,6 +220,12 @@ async def login(request: web.Request) -> web.Response:
         user = await asyncio.to_thread(auth.accounts.check, form.get("user", "")[:64],
                                        form.get("password", "")[:1024])
         ok, wrong = user is not None, "Wrong name or password."
+        if not ok and any(auth.token_ok(form.get(k, "")[:1024])
+                          for k in ("password", "user", "token")):
+            # The daemon's token typed into the form: right, but for another door. Not
+            # counted as a failure (it is no guess), and not echoed.
+            return web.Response(status=401, content_type="text/html", text=_login_html(
+                request, TOKEN_IN_FORM))
     else:
         ok, wrong = auth.token_ok(form.get("token", "")), "Wrong token."
     if not ok:

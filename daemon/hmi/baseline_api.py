@@ -1,11 +1,16 @@
 """The drift baseline on the operator page: show it, and let a person set or confirm one."""
 
-# Issue 23 item 2. ``GET /api/machines/NAME/baseline``: the baseline, a proposal waiting and
-# the last decisions. ``POST`` ``{"run_id": …, "by": "Anna Berg", "note": …}`` (``run_id``
-# left out: confirm the proposed one) journals the decision with the person's name and how
-# they were signed in. Only an engineer or admin decides (item 5's roles); signed in with an
-# account, the account's name is the person (a typed "by" is ignored); with the shared token
-# (the token login or a script's bearer) the person types their name and the note says so.
+# ``GET /api/machines/NAME/baseline[?run_id=R]``: the baseline, a proposal waiting, the last
+# decisions, and (with run_id) why R should not become the baseline
+# (``compensation.baseline_check``: it FAILed, predates a compensation, or was identified
+# against a model the controller no longer runs) — the page disables its button with that
+# reason instead of asking and then refusing. ``POST`` ``{"run_id": …, "by": "Anna Berg",
+# "note": …, "override": "reason"}`` (``run_id`` left out: confirm the proposed one)
+# journals the decision with the person's name and how they were signed in; a run with
+# objections is refused (409, the objections) unless ``override`` gives the reason, which is
+# journaled with them. Only an engineer or admin decides; signed in with an account, the
+# account's name is the person (a typed "by" is ignored); with the shared token (the token
+# login or a script's bearer) the person types their name and the note says so.
 
 from __future__ import annotations
 
@@ -15,8 +20,14 @@ from typing import Any
 
 from aiohttp import web
 
+from daemon.compensation.baseline_check import (
+    BaselineRefused,
+    check_override,
+    objections,
+    set_baseline,
+)
 from daemon.compensation.names import BadName, validate_by
-from daemon.hmi.access import require
+from daemon.hmi.access import page_asset, require
 from daemon.hmi.compensation_api import who
 from daemon.store import baselines
 from daemon.store.journal import RunIdError, Store, StoreError
@@ -35,7 +46,15 @@ def add_routes(app: web.Application, sessions_key: web.AppKey, store_key: web.Ap
 
     async def get(request: web.Request) -> web.Response:
         name = machine(request)
-        return web.json_response(view(request.app[store_key], name))
+        out = view(request.app[store_key], name)
+        run_id = request.query.get("run_id")
+        if run_id is not None:
+            try:
+                out["objections"] = objections(request.app[store_key], name, run_id)
+            except (StoreError, RunIdError) as e:
+                return web.json_response({"error": str(e)}, status=404)
+            out["run_id"] = run_id
+        return web.json_response(out)
 
     async def post(request: web.Request) -> web.Response:
         name = machine(request)
@@ -58,6 +77,12 @@ def add_routes(app: web.Application, sessions_key: web.AppKey, store_key: web.Ap
         if not isinstance(note, str) or len(note) > 300:
             return web.json_response({"error": "note: text of at most 300 characters"},
                                      status=422)
+        override = body.get("override")
+        if override is not None:
+            try:
+                override = check_override(override, "override")
+            except BadName as e:
+                return web.json_response({"error": str(e)}, status=422)
         async with lock:
             run_id = body.get("run_id")
             if run_id is None:
@@ -69,22 +94,39 @@ def add_routes(app: web.Application, sessions_key: web.AppKey, store_key: web.Ap
             if not isinstance(run_id, str):
                 return web.json_response({"error": "run_id: a run id"}, status=422)
             try:
-                baselines.confirm(store, name, run_id, person, (note + " " if note else "")
-                                  + f"[{ident.role} via {ident.via}, {who(request)}]")
+                set_baseline(store, name, run_id, person, (note + " " if note else "")
+                             + f"[{ident.role} via {ident.via}, {who(request)}]", override)
+            except BaselineRefused as e:
+                return web.json_response({"error": str(e), "objections": e.objections},
+                                         status=409)
             except (StoreError, RunIdError) as e:
                 return web.json_response({"error": str(e)}, status=409)
         return web.json_response(view(store, name))
 
+    app.router.add_get("/baseline.js", script)
     app.router.add_get("/api/machines/{machine}/baseline", get)
     app.router.add_post("/api/machines/{machine}/baseline", post)
 
 
+async def script(request: web.Request) -> web.Response:
+    """The baseline button's script (behind the page's sign-in, like the page itself)."""
+    return web.Response(text=page_asset("baseline.js"), content_type="application/javascript",
+                        headers={"Cache-Control": "no-cache"})
+
+
 def view(store: Store, machine: str) -> dict[str, Any]:
     cur, wait = baselines.current(store, machine), baselines.pending(store, machine)
+    questionable: list[str] = []
+    if cur is not None:  # set before these objections existed, or overridden: said so
+        try:
+            questionable = objections(store, machine, cur.run_id)
+        except StoreError:
+            questionable = []
     out: Mapping[str, Any] = {
         "machine": machine, "baseline": cur.as_dict() if cur else None,
         "proposed": wait.as_dict() if wait else None,
         "text": f"drift judged against {cur.describe()}" if cur else
         "drift not checked: no baseline",
-        "history": [b.as_dict() for b in baselines.history(store, machine, 10)]}
+        "history": [b.as_dict() for b in baselines.history(store, machine, 10)],
+        "questionable": questionable}
     return dict(out)

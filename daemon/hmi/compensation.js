@@ -4,10 +4,13 @@
 window.rumbaComp = (() => {
   const csrfToken = document.querySelector('meta[name="csrf-token"]').content;
   const panels = {};  // machine → {el, data, busy}
-  const fmt = (v, d = 2) => (v === null || v === undefined) ? "—" :
-    `${v >= 0 ? "+" : ""}${v.toFixed(d)}`;
-  const unitText = u => u === "urad" ? "µrad" : u;
-  const num = v => (v === null || v === undefined) ? "—" : String(Number(v.toPrecision(9)));
+  // signed, with a zero never negative ("-0.00" is "0.00")
+  const fmt = (v, d = 2) => {
+    if (v === null || v === undefined) return "—";
+    const s = v.toFixed(d);
+    return Number(s) === 0 ? (0).toFixed(d) : `${v > 0 ? "+" : ""}${s}`;
+  };
+  const unitNames = {mm: "mm", deg: "deg", "1": "axis-vector component, no unit"};
 
   async function postJson(url, body) {
     let r, text;
@@ -34,6 +37,7 @@ window.rumbaComp = (() => {
     const p = panels[name];
     if (!p) return;
     const d = p.data;
+    // disabled with the reason stated beside it (.comp-why: "Nothing to confirm: …")
     p.el.querySelector(".comp-confirm").disabled =
       p.busy || !d || !d.proposal || !d.proposal.applicable;
     p.el.querySelector(".comp-rollback").disabled = p.busy || !d || !d.last_applied;
@@ -56,17 +60,32 @@ window.rumbaComp = (() => {
     body.hidden = !d.proposal;
     if (d.proposal) {
       const p = d.proposal, k = p.coverage_k;
-      const vl = ["Value", "Address", "Old", "New", "Δ", `U (k=${k})`, "Status"];
+      el.querySelector(".comp-state").textContent = `State: ${p.state_text}.`;
+      // each controller value's change in µm / µrad of what it holds; the addresses and what
+      // is written there are the table below (a tilt is not written in µrad)
+      const vl = ["Value", "Δ", `U (k=${k})`, "Effect", "Status"];
       el.querySelector(".comp-values thead tr").replaceChildren(...vl.map(h => {
         const th = document.createElement("th"); th.textContent = h; return th; }));
       el.querySelector(".comp-values tbody").replaceChildren(...p.values.map(v => {
         const tr = document.createElement("tr");
         tr.dataset.name = v.name;
         tr.className = "st-" + v.status;
-        cells(tr, [v.name, v.address, `${num(v.old)} ${unitText(v.unit)}`,
-                   v.new === null ? "—" : `${num(v.new)} ${unitText(v.unit)}`,
-                   `${fmt(v.delta)} ${v.delta_unit}`, `${v.u.toFixed(2)} ${v.delta_unit}`,
+        cells(tr, [v.name, v.delta_text, v.u_text,
+                   v.effect_um === null ? "—" : `${v.effect_um.toFixed(1)} µm`,
                    v.status === "apply" ? "apply" : `${v.status}: ${v.reason}`], vl);
+        return tr;
+      }));
+      // what a confirmation writes: every address, the value exactly as the program holds it
+      const writes = p.writes || [];
+      el.querySelector(".comp-writes-head").textContent = writes.length ?
+        `A confirmation writes ${p.program_name}, these ${writes.length} addresses ` +
+        "(the controller's own unit and sign):" : "";
+      el.querySelector(".comp-writes").hidden = !writes.length;
+      const wl = ["Address", "Written", "Was", "Unit", "Value"];
+      el.querySelector(".comp-writes tbody").replaceChildren(...writes.map(w => {
+        const tr = document.createElement("tr");
+        tr.dataset.address = w.address;
+        cells(tr, [w.address, w.written, w.was, unitNames[w.unit] || w.unit, w.name], wl);
         return tr;
       }));
       const ll = ["Link", "Run estimate", "Held by the changes", "Residual"];
@@ -118,21 +137,27 @@ window.rumbaComp = (() => {
   async function doConfirm(name) {
     const d = panels[name].data;
     if (!d || !d.proposal || !d.run) return;
-    const values = d.proposal.values.filter(v => v.status === "apply").map(v =>
-      `  ${v.name}  ${v.address}: ${num(v.old)} → ${num(v.new)} ${unitText(v.unit)}` +
-      ` (Δ ${fmt(v.delta)} ${v.delta_unit})`);
-    const ask = `Write these values into the kinematic model of ${name} ` +
-      `(${d.proposal.family}), from run ${d.run.id}?\n\n${values.join("\n")}\n\n` +
-      "Your session is recorded in the compensation journal as the one who confirmed.";
+    // every address the program writes, the value as written (the controller's unit and
+    // sign), then what each change is in µm / µrad: what the person confirms
+    const writes = (d.proposal.writes || []).map(w => `  ${w.text}`);
+    const changes = d.proposal.values.filter(v => v.status === "apply").map(v =>
+      `  ${v.name}: Δ ${v.delta_text} (U ${v.u_text})`);
+    const ask = `Write ${d.proposal.program_name} for ${name} (${d.proposal.family}), ` +
+      `from run ${d.run.id}? It writes these ${writes.length} addresses:\n\n` +
+      `${writes.join("\n")}\n\nThe changes they hold:\n${changes.join("\n")}\n\n` +
+      `Listing ${d.proposal.listing_fingerprint}. Your session is recorded in the ` +
+      "compensation journal as the one who confirmed.";
     if (!confirm(ask)) { result(name, "Not confirmed: nothing written.", false); return; }
-    let r = await postJson("/api/compensation/confirm", {machine: name, run_id: d.run.id});
+    const listing = d.proposal.listing_fingerprint;
+    let r = await postJson("/api/compensation/confirm",
+                           {machine: name, run_id: d.run.id, listing});
     if (!r.ok && r.body && r.body.again) {
       // this run was applied and rolled back: applying it again is a new decision, asked anew
       if (!confirm(`${r.body.error}\n\nApply run ${d.run.id} again, as a new decision?`)) {
         result(name, "Not confirmed again: nothing written.", false); load(name); return;
       }
       r = await postJson("/api/compensation/confirm",
-                         {machine: name, run_id: d.run.id, again: true});
+                         {machine: name, run_id: d.run.id, listing, again: true});
     }
     if (r.ok) {
       result(name, `Applied (journal #${r.body.journal}, by ${r.body.by}): ${r.body.note}` +
@@ -144,8 +169,7 @@ window.rumbaComp = (() => {
   async function doRollback(name) {
     const last = panels[name].data && panels[name].data.last_applied;
     if (!last) return;
-    const values = last.values.map(v => `  ${v.name}  ${v.address}: ${num(v.new)} → ` +
-                                        `${num(v.old)} ${unitText(v.unit)}`);
+    const values = (last.undo || []).map(w => `  ${w.text}`);
     if (!confirm(`Roll back compensation #${last.id} on ${name}, restoring:\n\n` +
                  `${values.join("\n")}`)) return;
     const r = await postJson("/api/compensation/rollback", {machine: name});

@@ -4,7 +4,9 @@ confirmation by the signed-in operator, and the rollback (``daemon.compensation.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import copy
+import dataclasses
 import json
 import logging
 import threading
@@ -15,9 +17,9 @@ from typing import Any
 from aiohttp import web
 
 from contracts.yaml_files import ConfigError
-from daemon.analysis.figures import figures_json
 from daemon.compensation import journal as cj
 from daemon.compensation.apply import ApplyError, Written, confirm, rollback
+from daemon.compensation.listing import listing_json, row_listing
 from daemon.compensation.propose import (
     CompensationRefused,
     ControllerModelError,
@@ -25,10 +27,10 @@ from daemon.compensation.propose import (
     changed_since,
     propose,
     spec_of,
-    unit_of,
 )
 from daemon.hmi.access import page_asset
 from daemon.hmi.people import audit, require_journaled, who
+from daemon.reports.proposal import proposal_dict, why_nothing
 from daemon.run.session import Session
 from daemon.store.journal import RunRow, Store, StoreError, validate_run_id
 
@@ -36,14 +38,6 @@ FINISHED = ("DONE", "IMPORTED")  # a run that ended with an identification (not 
 SCAN_RUNS = 50  # the last finished run is looked for among this many of the machine's runs
 LOCK_KEY = web.AppKey("compensation_lock", asyncio.Lock)
 log = logging.getLogger("rumba.hmi")
-
-
-def _um(kind_or_link: str, model_value: float) -> tuple[float, str]:
-    """A model value (mm or rad) in µm or µrad: by the kind of a controller value (pivot /
-    orientation) or the ISO name of a link (EA0B: rotation)."""
-    rot = kind_or_link == "orientation" or (kind_or_link[:1] == "E" and kind_or_link[1:2]
-                                            in ("A", "B", "C"))
-    return (model_value * 1e6, "µrad") if rot else (model_value * 1e3, "µm")
 
 
 def last_finished(store: Store, machine: str) -> RunRow | None:
@@ -57,44 +51,6 @@ def _row_dict(r: cj.CompensationRow) -> dict[str, Any]:
             "rollback": r.is_rollback, "values": [v.as_dict() for v in r.values]}
 
 
-def proposal_dict(p: Proposal) -> dict[str, Any]:
-    """The proposal for the page: values (Δ and U in µm / µrad), links, distortion (µm)."""
-    accepted = {v.name: v for v in p.values}
-    passed = {ch.name for ch in p.guard.proposed} | set(accepted)
-    values = []
-    for ch in p.plan.changes:
-        sp = p.spec.param(ch.name)
-        v = accepted.get(ch.name)
-        delta, unit = _um(ch.kind, ch.delta)
-        u = _um(ch.kind, ch.u_expanded)[0]
-        if v is not None:
-            status, why = "apply", ""
-        elif p.refusals and ch.name in passed:
-            status, why = "refused", "the proposal is refused (see the reasons)"
-        else:
-            status, why = "skipped", p.skipped.get(ch.name, "not applied")
-        values.append({"name": ch.name, "address": sp.address, "kind": ch.kind,
-                       "old": v.old if v else p.current.get(ch.name),
-                       "new": v.new if v else None, "unit": v.unit if v else unit_of(ch.kind)[0],
-                       "delta": delta, "u": u, "delta_unit": unit, "status": status,
-                       "reason": why})
-    links = []
-    for name, ident in p.plan.links_identified.items():
-        value, unit = _um(name, ident)  # rounded as the analysis JSON: the report's figure
-        links.append({"name": name, "unit": unit, "identified": round(value, 4),
-                      "compensable": _um(name, p.plan.links_compensable[name])[0],
-                      "residual": _um(name, p.plan.links_residual[name])[0]})
-    pl = p.plan
-    # issue 23: defined figures; "compensable" (could exceed "before") is no longer shown
-    dist = {k: {"rms": float(v[0]), "max": float(v[1])} for k, v in (
-        ("before", pl.distortion_before_um), ("after", pl.distortion_after_um))}
-    return {"family": p.spec.family, "coverage_k": p.coverage_k, "values": values,
-            "links": links, "distortion_um": dist,
-            "figures": figures_json(p.figures()), "links_from": p.links_from,
-            "links_text": p.links_text(), "refusals": list(p.refusals),
-            "applicable": bool(p.values) and not p.refusals}
-
-
 def _why_not(session: Session, store: Store) -> tuple[dict[str, Any], Proposal | None]:
     """The machine's state of compensation and the proposal for its last finished run (None
     with ``why`` saying why there is nothing to propose)."""
@@ -103,6 +59,12 @@ def _why_not(session: Session, store: Store) -> tuple[dict[str, Any], Proposal |
                            "proposal": None, "why": None}
     last = cj.last_applied(store, setup.name)
     out["last_applied"] = _row_dict(last) if last else None
+    if last is not None:  # what a rollback writes, address by address, as written
+        with contextlib.suppress(ConfigError):
+            spec = spec_of(setup)
+            if spec is not None:
+                now = dataclasses.replace(last, values=tuple(v.reversed() for v in last.values))
+                out["last_applied"]["undo"] = listing_json(row_listing(spec, now))
     out["journal"] = [_row_dict(r) for r in cj.rows(store, setup.name)[-5:]][::-1]
     try:
         if spec_of(setup) is None:
@@ -130,10 +92,7 @@ def _why_not(session: Session, store: Store) -> tuple[dict[str, Any], Proposal |
         out["why"] = f"refused: {e}"
         return out, None
     out["proposal"] = proposal_dict(p)
-    if p.refusals:
-        out["why"] = "refused: " + "; ".join(p.refusals)
-    elif not p.values:
-        out["why"] = "nothing to change: every value is skipped"
+    out["why"] = why_nothing(p) or None
     return out, p
 
 
@@ -142,19 +101,25 @@ def _error(status: int, text: str, **extra: Any) -> web.Response:
 
 
 async def _body(request: web.Request, *fields: str) -> dict[str, Any]:
-    """The JSON object of the request with these string fields, else 400."""
+    """The JSON object of the request with these string fields ("name?": optional), else
+    400."""
     try:
         body = json.loads(await request.text())
     except (ValueError, UnicodeDecodeError):
         raise web.HTTPBadRequest(text="send a JSON object") from None
     if not isinstance(body, dict):
         raise web.HTTPBadRequest(text="send a JSON object")
+    optional = {f[:-1] for f in fields if f.endswith("?")}
+    fields = tuple(f.rstrip("?") for f in fields)
     for f in fields:
+        if f in optional and f not in body:
+            continue
         if not isinstance(body.get(f), str) or not 0 < len(body[f]) <= 64:
             raise web.HTTPBadRequest(text=f"{f} must be a string of 1 to 64 characters")
     if "again" in body and not isinstance(body["again"], bool):
         raise web.HTTPBadRequest(text="again must be true or false")
-    return {f: body[f] for f in fields} | ({"again": body["again"]} if "again" in body else {})
+    return {f: body[f] for f in fields if f in body} | (
+        {"again": body["again"]} if "again" in body else {})
 
 
 async def script(request: web.Request) -> web.Response:
@@ -225,8 +190,9 @@ VIEWS_KEY = web.AppKey("compensation_views", Views)
 
 
 def add_routes(app: web.Application, sessions_key: web.AppKey, store_key: web.AppKey) -> None:
-    """GET /api/compensation?machine=, POST /api/compensation/confirm {machine, run_id[,
-    again]} and /api/compensation/rollback {machine} on ``app`` (behind its access layer)."""
+    """GET /api/compensation?machine=, POST /api/compensation/confirm {machine, run_id,
+    listing[, again]} (``listing``: the proposal's listing_fingerprint the person reviewed)
+    and /api/compensation/rollback {machine} on ``app`` (behind its access layer)."""
     app[LOCK_KEY] = asyncio.Lock()
     views_key = VIEWS_KEY
 
@@ -276,10 +242,14 @@ def add_routes(app: web.Application, sessions_key: web.AppKey, store_key: web.Ap
         return web.json_response(out)
 
     async def post_confirm(request: web.Request) -> web.Response:
-        body = await _body(request, "machine", "run_id")
+        body = await _body(request, "machine", "run_id", "listing?")
         session, store = session_of(request, body["machine"], 422), request.app[store_key]
         require_journaled(request, store, session.setup.name, "engineer", "confirm",
                           "confirming a compensation", body["run_id"])
+        if not isinstance(body.get("listing"), str):  # what the person reviewed and confirms
+            raise web.HTTPBadRequest(text="listing must be the proposal's listing_fingerprint "
+                                          "(GET /api/compensation): what the person reviewed "
+                                          "and confirms")
         return audit(request, store, session.setup.name, "confirm",
                      await confirm_body(request, body), body["run_id"])
 
@@ -302,6 +272,11 @@ def add_routes(app: web.Application, sessions_key: web.AppKey, store_key: web.Ap
                 return _error(409, f"run {body['run_id']} is not the last finished run of "
                                    f"{session.setup.name} (now: {run['id'] if run else 'none'})"
                                    ": reload the proposal", state=state)
+            shown = (state.get("proposal") or {}).get("listing_fingerprint")
+            if shown is not None and body["listing"] != shown:
+                return _error(409, "the values to write are not the ones this page showed "
+                                   f"(listing {body['listing']}, now {shown}): reload the "
+                                   "proposal and review it again", state=state)
             if p is None or p.refusals or not p.values:
                 if p is not None and p.refusals:  # journaled, as `rumba compensate --confirm`
                     row = await asyncio.to_thread(_write_in_thread, journal, lambda st: cj.record(
@@ -312,7 +287,8 @@ def add_routes(app: web.Application, sessions_key: web.AppKey, store_key: web.Ap
 
             def write(st: Store) -> Any:
                 try:
-                    return confirm(session.setup, st, session.reports_dir, p, by, again=again)
+                    return confirm(session.setup, st, session.reports_dir, p, by, again=again,
+                                   seen=body["listing"])
                 except CompensationRefused as e:
                     row = cj.record(st, session.setup.name, p.run_id, p.spec.family,
                                     "refused", p.values, confirmed_by=by, reason=str(e))
@@ -326,7 +302,9 @@ def add_routes(app: web.Application, sessions_key: web.AppKey, store_key: web.Ap
                 return _error(409, f"refused (journal #{w[0]}): {w[1]}", again=w[2])
         return web.json_response({"state": w.state, "journal": w.row_id, "by": by,
                                   "path": str(w.path) if w.path else None, "note": w.note,
-                                  "values": [v.as_dict() for v in p.values]})
+                                  "values": [v.as_dict() for v in p.values],
+                                  "writes": listing_json(w.program.listing if w.program
+                                                         else [])})
 
     async def post_rollback(request: web.Request) -> web.Response:
         body = await _body(request, "machine")
@@ -351,7 +329,9 @@ def add_routes(app: web.Application, sessions_key: web.AppKey, store_key: web.Ap
             except ApplyError as e:  # journaled by rollback()
                 return _error(502, str(e))
         return web.json_response({"state": w.state, "journal": w.row_id, "by": by,
-                                  "path": str(w.path) if w.path else None, "note": w.note})
+                                  "path": str(w.path) if w.path else None, "note": w.note,
+                                  "writes": listing_json(w.program.listing if w.program
+                                                         else [])})
 
     app.router.add_get("/compensation.js", script)
     app.router.add_get("/api/compensation", get_proposal)

@@ -83,36 +83,8 @@ async function post(url, body) {
   }
 }
 
-// issue 23: an engineer accepts the run just judged as the machine's drift baseline; the
-// daemon journals who and when (an account's own name; with the shared token, a typed one)
-function baselineButton(el, st, v) {
-  let btn = el.querySelector(".set-baseline");
-  if (!btn) {
-    btn = document.createElement("button");
-    btn.className = "btn set-baseline";
-    btn.textContent = "Accept this run as the drift baseline";
-    el.querySelector(".baseline").after(btn);
-    btn.addEventListener("click", async () => {
-      const me = window.rumbaMe || {}, name = el.dataset.machine, run = btn.dataset.run;
-      if (!confirm(`Make run ${run} the drift baseline of ${name}? Later runs' drift is ` +
-                   "judged against it.")) return;
-      const body = {run_id: run};
-      if (me.via !== "password") {
-        body.by = prompt("Your name (journaled with the baseline):") || "";
-        if (!body.by) return;
-      }
-      const r = await post(`/api/machines/${encodeURIComponent(name)}/baseline`, body);
-      el.querySelector(".message").textContent = r.ok ? `Baseline now: ${r.body.baseline.text}.`
-        : (r.body.error || "refused");
-      if (r.ok) { btn.hidden = true; btn.dataset.done = run; }
-    });
-  }
-  const me = window.rumbaMe;
-  const mine = st.verdict && v.status !== "ERROR" && st.run_id;
-  btn.dataset.run = mine || "";
-  btn.hidden = !(mine && me && me.may_compensate && btn.dataset.done !== mine &&
-                 !(v.baseline && v.baseline.run_id === mine));
-}
+// the drift baseline's button (baseline.js): its state known before a click
+function baselineButton(el, st, v) { window.rumbaBaseline.button(el, st, v); }
 
 function card(name) {
   if (cards[name]) return cards[name];
@@ -521,7 +493,7 @@ function preflight(name, go) {
 // Who is signed in (issue 23): the header names the person and role; the compensation
 // buttons say when the role may not use them (the daemon refuses anyway).
 window.rumbaMe = null;
-fetch("/api/me", {credentials: "same-origin"}).then(r => r.json()).then(me => {
+window.rumbaMeReady = fetch("/api/me", {credentials: "same-origin"}).then(r => r.json()).then(me => {
   window.rumbaMe = me;
   document.body.dataset.role = me.role;
   document.getElementById("who").textContent = `${me.name} · ${me.role}`;

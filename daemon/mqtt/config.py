@@ -11,7 +11,7 @@ from pathlib import Path
 
 from pydantic import Field, field_validator, model_validator
 
-from contracts.yaml_files import ConfigError, StrictModel
+from contracts.yaml_files import ConfigError, HostName, StrictModel
 from daemon.hosts import is_loopback
 
 _TOPIC_LEVEL = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,63}")
@@ -38,7 +38,7 @@ class MqttTlsFile(StrictModel):
 
 
 class MqttFile(StrictModel):
-    host: str
+    host: HostName
     port: int | None = Field(None, ge=1, le=65535)  # default 1883, or 8883 with tls
     site: str
     root: str = "rumba"  # first topic level

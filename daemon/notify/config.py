@@ -13,7 +13,7 @@ from typing import Literal
 
 from pydantic import Field, field_validator, model_validator
 
-from contracts.yaml_files import ConfigError, StrictModel
+from contracts.yaml_files import ConfigError, HostName, StrictModel
 
 _HHMM = re.compile(r"([01][0-9]|2[0-3]):([0-5][0-9])")
 _ADDR = re.compile(r"[^@\s<>,;\"\r\n]{1,64}@[A-Za-z0-9.-]{1,253}")
@@ -42,7 +42,7 @@ class WebhookFile(StrictModel):
 
 
 class EmailFile(StrictModel):
-    host: str
+    host: HostName
     port: int = Field(25, ge=1, le=65535)
     starttls: bool = False
     ca: str | None = None  # CA bundle of the server's certificate (default: the system's)

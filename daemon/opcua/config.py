@@ -11,7 +11,7 @@ from pathlib import Path
 from pydantic import Field, field_validator, model_validator
 
 from contracts.setup_types import Record
-from contracts.yaml_files import ConfigError, StrictModel
+from contracts.yaml_files import ConfigError, HostName, StrictModel
 from daemon.hosts import is_loopback
 from daemon.machines.setup import resolve_path
 
@@ -33,7 +33,7 @@ class IdentificationFile(StrictModel):
 
 
 class OpcUaServerFile(StrictModel):
-    host: str = "127.0.0.1"
+    host: HostName = "127.0.0.1"
     port: int = Field(4850, ge=0, le=65535)  # 0 = any free port (tests)
     allow_remote: bool = False  # must be true to bind anything but loopback
     cert_dir: str = "opcua-server"  # the server's certificate and key (made at first start)

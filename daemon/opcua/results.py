@@ -10,6 +10,7 @@ without a verdict → Undefined."""
 
 from __future__ import annotations
 
+import asyncio
 import datetime as dt
 import math
 from dataclasses import dataclass
@@ -19,6 +20,7 @@ from asyncua import ua
 
 from daemon.analysis.judge import volumetric_max_um
 from daemon.analysis.result import Analysis
+from daemon.opcua.filters import FilterError, compile_filter  # noqa: F401 (filtered_ids raises it)
 from daemon.opcua.source import ResultSource
 from daemon.store.journal import RunRow
 
@@ -30,6 +32,8 @@ EU = {"um": ("4H", "µm", "micrometre"), "urad": ("B97", "µrad", "microradian")
 ERR_UNKNOWN_ID = -1  # application-specific (negative) error codes of the methods
 ERR_NO_RESULT = -2
 ERR_FILTER = -3
+MAX_RUNS = 100_000
+"""Runs of one machine a filter looks through, newest first (years of daily checks)."""
 
 
 def evaluation(verdict: str | None, checks: list[dict[str, Any]] | None) -> int:
@@ -121,56 +125,6 @@ async def result(source: ResultSource, run: RunRow, machine_uri: str, ns: int) -
 
 
 # ------------------------------------------------------------------ GetResultIdListFiltered
-FIELDS = {"ResultId", "ResultState", "ResultEvaluation", "CreationTime", "PartId", "JobId"}
-_OPS = {ua.FilterOperator.Equals: lambda a, b: a == b,
-        ua.FilterOperator.GreaterThan: lambda a, b: a > b,
-        ua.FilterOperator.LessThan: lambda a, b: a < b,
-        ua.FilterOperator.GreaterThanOrEqual: lambda a, b: a >= b,
-        ua.FilterOperator.LessThanOrEqual: lambda a, b: a <= b}
-
-
-class FilterError(ValueError):
-    """A ContentFilter outside the supported subset (the method answers ERR_FILTER)."""
-
-
-def _operand(op: Any, row: dict[str, Any], elements: list[Any]) -> Any:
-    if isinstance(op, ua.LiteralOperand):
-        v = op.Value.Value
-        return int(v) if isinstance(v, (ua.ResultEvaluationEnum,)) else v
-    if isinstance(op, ua.SimpleAttributeOperand):
-        name = op.BrowsePath[-1].Name if op.BrowsePath else ""
-        if name not in FIELDS:
-            raise FilterError(f"operand {name!r}: one of {sorted(FIELDS)}")
-        return row[name]
-    if isinstance(op, ua.ElementOperand):
-        return _element(elements, op.Index, row)
-    raise FilterError(f"operand {type(op).__name__} not supported")
-
-
-def _element(elements: list[Any], i: int, row: dict[str, Any]) -> bool:
-    if not 0 <= i < len(elements):
-        raise FilterError(f"element {i} out of range")
-    el = elements[i]
-    ops = [_operand(o, row, elements) for o in el.FilterOperands]
-    if el.FilterOperator == ua.FilterOperator.And:
-        return all(ops)
-    if el.FilterOperator == ua.FilterOperator.Or:
-        return any(ops)
-    if el.FilterOperator == ua.FilterOperator.Not:
-        return not ops[0]
-    fn = _OPS.get(el.FilterOperator)
-    if fn is None or len(ops) != 2:
-        raise FilterError(f"operator {el.FilterOperator!r} not supported")
-    a, b = ops
-    if isinstance(a, dt.datetime) and isinstance(b, dt.datetime):
-        a, b = a.replace(tzinfo=a.tzinfo or dt.UTC), b.replace(
-            tzinfo=b.tzinfo or dt.UTC)
-    try:
-        return bool(fn(a, b))
-    except TypeError:
-        raise FilterError(f"cannot compare {a!r} with {b!r}") from None
-
-
 def row_of(run: RunRow, checks: list[dict[str, Any]] | None) -> dict[str, Any]:
     return {"ResultId": run.id, "ResultState": STATE.get(run.state, 2),
             "ResultEvaluation": evaluation(run.verdict, checks),
@@ -181,16 +135,31 @@ def row_of(run: RunRow, checks: list[dict[str, Any]] | None) -> dict[str, Any]:
 async def filtered_ids(source: ResultSource, machine: str, flt: Any,
                        max_results: int) -> list[str]:
     """Result ids of ``machine`` (newest first) matching ``flt`` (an empty ContentFilter
-    matches all); at most ``max_results`` (0: no limit)."""
-    elements = list(flt.Elements or []) if flt is not None else []
-    out = []
-    for run in await source.runs(machine, 1_000_000):
-        if not elements:
-            out.append(run.id)
-        else:
-            v = await source.verdict(run.id) if run.verdict else None
-            if _element(elements, 0, row_of(run, v["checks"] if v else None)):
-                out.append(run.id)
-        if max_results and len(out) >= max_results:
-            break
-    return out
+    matches all); at most ``max_results`` (0: no limit). The filter is checked whole first
+    (``FilterError``); the runs are read on the loop (the journal's verdicts only when the
+    filter reads ResultEvaluation), the filter is evaluated on a worker thread."""
+    compiled = compile_filter(flt)
+    runs = await source.runs(machine, MAX_RUNS)
+    if not compiled.elements:
+        ids = [r.id for r in runs]
+        return ids[:max_results] if max_results else ids
+    rows = []
+    for k, run in enumerate(runs):
+        checks = None
+        if "ResultEvaluation" in compiled.fields and run.verdict:
+            v = await source.verdict(run.id)
+            checks = v["checks"] if v else None
+        rows.append(row_of(run, checks))
+        if k % 200 == 199:
+            await asyncio.sleep(0)  # a journal read does not yield by itself
+
+    def match() -> list[str]:
+        out = []
+        for row in rows:
+            if compiled.matches(row):
+                out.append(row["ResultId"])
+                if max_results and len(out) >= max_results:
+                    break
+        return out
+
+    return await asyncio.to_thread(match)

@@ -22,10 +22,12 @@ from asyncua.crypto.truststore import TrustStore
 from asyncua.crypto.validator import CertificateValidator, CertificateValidatorOptions
 
 from contracts.opcua_certs import ensure_certificate
-from contracts.opcua_security import PasswordUsers, SecureServer
+from contracts.opcua_security import SecureServer
 from daemon.opcua import nodesets, results
+from daemon.opcua.auth import LimitedPasswordUsers
 from daemon.opcua.config import IdentificationFile, OpcUaServerConfig
 from daemon.opcua.filetransfer import ResultTransfer
+from daemon.opcua.methods import Arg, method
 from daemon.opcua.source import JournalSource, ResultSource
 from daemon.store.journal import Store
 
@@ -38,6 +40,7 @@ ITEM_STATES = {"NotAvailable": 5005, "Executing": 5006, "NotExecuting": 5007}
 RESULT_MANAGEMENT, RESULT_READY_EVENT = 1004, 1002
 IDLE_STATES = ("IDLE", "ABORTED", "INTERRUPTED", "FAILED")
 NO_TIME = dt.datetime(1601, 1, 1, tzinfo=dt.UTC)  # OPC 10000-6 §5.2.2.5: encodes as 0, "no time"
+TIMEOUT = Arg("Timeout", "number")  # ms; the answers here never wait for a result
 
 
 class OpcUaServerError(Exception):
@@ -83,7 +86,7 @@ class ResultServer:
     async def start(self) -> str:
         cfg = self.cfg
         port = cfg.port or _free(cfg.host)
-        server = SecureServer(user_manager=PasswordUsers(cfg.users))
+        server = SecureServer(user_manager=LimitedPasswordUsers(cfg.users))
         await server.init()
         self.endpoint = f"opc.tcp://{cfg.host}:{port}/rumba/results/"
         server.set_endpoint(self.endpoint)
@@ -196,11 +199,11 @@ class ResultServer:
                                   instantiate_optional=True))[0]
         m.management = rm
         self.by_management[rm.nodeid] = m
-        for method, fn in (("GetLatestResult", self._latest), ("GetResultById", self._by_id),
+        for opname, fn in (("GetLatestResult", self._latest), ("GetResultById", self._by_id),
                            ("GetResultIdListFiltered", self._filtered),
                            ("ReleaseResultHandle", self._release),
                            ("AcknowledgeResults", self._acknowledge)):
-            server.link_method(await rm.get_child([f"{res}:{method}"]), fn)
+            server.link_method(await rm.get_child([f"{res}:{opname}"]), fn)
         m.transfer = ResultTransfer(server, self.source, await rm.get_child(
             [f"{res}:ResultTransfer"]), idx)
         await m.transfer.bind()
@@ -271,25 +274,29 @@ class ResultServer:
                 ua.Variant(data, ua.VariantType.ExtensionObject),
                 ua.Variant(error, ua.VariantType.Int32)]
 
-    async def _latest(self, parent: ua.NodeId, timeout: ua.Variant) -> list[ua.Variant]:
+    @method("GetLatestResult", TIMEOUT)
+    async def _latest(self, parent: ua.NodeId, timeout: float) -> list[ua.Variant]:
         m = self._of(parent)
         run = next((r for r in await self.source.runs(m.name, 50) if r.final), None)
         return await self._answer(m, run, 0 if run else results.ERR_NO_RESULT)
 
-    async def _by_id(self, parent: ua.NodeId, rid: ua.Variant,
-                     timeout: ua.Variant) -> list[ua.Variant]:
+    @method("GetResultById", Arg("ResultId", "string"), TIMEOUT)
+    async def _by_id(self, parent: ua.NodeId, rid: str, timeout: float) -> list[ua.Variant]:
         m = self._of(parent)
-        run = await self.source.run(str(rid.Value))
+        run = await self.source.run(rid)
         if run is None or run.machine != m.name:
             return await self._answer(m, None, results.ERR_UNKNOWN_ID)
         return await self._answer(m, run)
 
-    async def _filtered(self, parent: ua.NodeId, flt: ua.Variant, ordered: ua.Variant,
-                        max_results: ua.Variant, timeout: ua.Variant) -> list[ua.Variant]:
+    @method("GetResultIdListFiltered", Arg("Filter", "filter"), Arg("OrderedBy", "any"),
+            Arg("MaxResults", "count"), TIMEOUT)
+    async def _filtered(self, parent: ua.NodeId, flt: Any, ordered: Any, max_results: int,
+                        timeout: float) -> list[ua.Variant]:
         m = self._of(parent)
         try:
-            ids = await results.filtered_ids(self.source, m.name, flt.Value,
-                                             int(max_results.Value or 0))
+            ids = await results.filtered_ids(self.source, m.name,
+                                             flt if flt is not None else ua.ContentFilter(),
+                                             max_results)
             err = 0
         except results.FilterError as e:
             log.info("%s: GetResultIdListFiltered: %s", m.name, e)
@@ -297,14 +304,16 @@ class ResultServer:
         return [ua.Variant(0, ua.VariantType.UInt32), ua.Variant(ids, ua.VariantType.String),
                 ua.Variant(err, ua.VariantType.Int32)]
 
-    async def _release(self, parent: ua.NodeId, handle: ua.Variant) -> list[ua.Variant]:
+    @method("ReleaseResultHandle", Arg("ResultHandle", "count"))
+    async def _release(self, parent: ua.NodeId, handle: int) -> list[ua.Variant]:
         self._of(parent)
         return [ua.Variant(0, ua.VariantType.Int32)]
 
-    async def _acknowledge(self, parent: ua.NodeId, ids: ua.Variant) -> list[ua.Variant]:
+    @method("AcknowledgeResults", Arg("ResultIds", "strings"))
+    async def _acknowledge(self, parent: ua.NodeId, ids: list[str]) -> list[ua.Variant]:
         self._of(parent)  # results stay in the journal whatever a client acknowledges
-        n = len(ids.Value or [])
-        return [ua.Variant([0] * n, ua.VariantType.Int32), ua.Variant(0, ua.VariantType.Int32)]
+        return [ua.Variant([0] * len(ids), ua.VariantType.Int32),
+                ua.Variant(0, ua.VariantType.Int32)]
 
     # ------------------------------------------------------------------------- live state
     def listener(self, machine: str) -> Any:

@@ -55,10 +55,13 @@ def page3(p: Any, analysis: Analysis, doc: dict[str, Any], audit: Any,
     comp = doc.get("compensation")
     if comp:
         _head(p, "Compensation verified by this run")
+        # the addresses as the program wrote them (the controller's unit and sign)
+        written = ", ".join(f"{w['address']} = {w['written']} (was {w['was']})"
+                            for w in comp.get("writes") or ()) or ", ".join(
+            f"{v['name']} ({v['address']}) {v['old']:.6f} → {v['new']:.6f} {v['unit']}"
+            for v in comp["values"])
         p.wrapped(f"Journal #{comp['journal_row']}: written after run {comp['source_run']}, "
-                  f"confirmed by {comp['confirmed_by']}; values: " + ", ".join(
-                      f"{v['name']} ({v['address']}) {v['old']:.6f} → {v['new']:.6f} {v['unit']}"
-                      for v in comp["values"]), width=130)
+                  f"confirmed by {comp['confirmed_by']}; wrote: {written}", width=130)
     if getattr(audit, "decision_rule", None):
         _head(p, "Decision rule")
         p.wrapped(audit.decision_rule, width=130)

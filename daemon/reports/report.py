@@ -38,6 +38,7 @@ from daemon.reports.plots import (
 from daemon.reports.temperatures import table_rows as temperature_rows
 from daemon.safepath import contained_path
 from daemon.store.journal import RunRow, TrendPoint, validate_run_id
+from programs.compensation.common import UNIT_TEXT
 
 _TEMPLATE = jinja2.Environment(autoescape=True).from_string("""<!doctype html>
 <html lang="en"><head><meta charset="utf-8"><title>rumba run {{ run.id }}</title>
@@ -88,10 +89,15 @@ reference: run {{ analysis.reference_run }}{% endif %}</small></p>
 <p><small>Not observable: {{ analysis.unobservable|join(', ') or 'nothing' }}.</small></p>
 {% if comp %}<h2>Compensation verified by this run</h2><p>Journal #{{ comp.row_id }}: written
 after run {{ comp.source_run }}, confirmed by {{ comp.confirmed_by }} on {{ comp_time }}.</p>
+{% if comp.writes %}<table class="writes"><tr><th class="l">address</th><th>written</th>
+<th>was</th><th class="l">unit</th><th class="l">controller value</th></tr>
+{% for w in comp.writes %}<tr><td class="l">{{ w.address }}</td><td>{{ w.written }}</td>
+<td>{{ w.was }}</td><td class="l">{{ unit_text.get(w.unit, w.unit) }}</td>
+<td class="l">{{ w.name }}</td></tr>{% endfor %}</table>{% else %}
 <table><tr><th class="l">controller value</th><th class="l">address</th><th>old</th><th>new</th>
 <th class="l">unit</th></tr>{% for v in comp.values %}<tr><td class="l">{{ v.name }}</td>
 <td class="l">{{ v.address }}</td><td>{{ '%.6f' % v.old }}</td><td>{{ '%.6f' % v.new }}</td>
-<td class="l">{{ v.unit }}</td></tr>{% endfor %}</table>
+<td class="l">{{ v.unit }}</td></tr>{% endfor %}</table>{% endif %}
 <table><tr><th class="l">ISO 230-1</th><th>before</th><th>u</th><th>after</th><th>u</th>
 <th class="l">unit</th></tr>{% for l in comp.links %}<tr><td class="l">{{ l.name }}</td>
 <td>{{ '%+.2f' % l.before }}</td><td>{{ '%.2f' % l.u_before }}</td>
@@ -241,6 +247,7 @@ def _render(run: RunRow, analysis: Analysis, judgement: Judgement | None,
         audit_links=audit.link_names, link_definition=LINK_DEFINITION,
         prepared_by=prepared_by(run, audit), generated_date=time.strftime("%Y-%m-%d"),
         comp_time=local_time(compensation.applied_at) if compensation else "",
+        unit_text=UNIT_TEXT,
         stability_span=duration_text(stab.span_min * 60)
         if stab is not None and stab.span_min is not None else "",
         health_rad=max((abs(h.radius_dev_um or 0.0) for h in health), default=0.0),

@@ -62,10 +62,14 @@ class RunCapture(RunEnding):
         self._probing(prepared.job.touches.get(1))
         handed = time.monotonic()  # a link that does not start the clock: its program's start
         agen = self.link.run(replace(prepared.job, clock=self.clock))
+        # a program started at the machine (NC start by its PLC or the operator): the first
+        # result may take as long as the link waits for that start
+        first_s = max(self.setup.touch_timeout_s, getattr(self.link, "start_timeout_s", 0.0))
         try:
             while True:
                 try:
-                    hit = await asyncio.wait_for(anext(agen), self.setup.touch_timeout_s)
+                    hit = await asyncio.wait_for(
+                        anext(agen), first_s if not hits else self.setup.touch_timeout_s)
                 except StopAsyncIteration:
                     break
                 except TimeoutError:

@@ -73,7 +73,7 @@ class RunEnding(RunStatus):
             await asyncio.wait_for(self.link.abort(), ABORT_TIMEOUT_S)
         except Exception as e:
             raise LinkError(f"the program of the last run could not be stopped on the "
-                            f"controller: {e or type(e).__name__}") from None
+                            f"controller: {str(e) or type(e).__name__}") from None
         self._controller_dirty = False
 
     async def _stop_controller(self) -> str | None:

@@ -64,7 +64,7 @@ async def _write(session: Session, run_id: str, verdict: dict, analysis: pipelin
         # matplotlib's import is slow: in the worker too, never on the event loop
         report = await asyncio.to_thread(_report_module)
         run, trend = store.run(run_id), store.trend(setup.name)  # the journal: loop thread
-        verified = verification_of(store, run, analysis.data)  # issue 13: before/after
+        verified = verification_of(store, run, analysis.data, setup)  # before/after
         paths = await asyncio.to_thread(report.write_report, session.reports_dir, run,
                                         analysis.data, judgement, analysis.centre_rows, trend,
                                         setup.tolerances, report.audit_of(setup, baseline),

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import inspect
 import logging
 import time
 from collections.abc import Callable
@@ -83,9 +84,19 @@ class Session(RunCapture):
         self.lease: Lease | None = None  # the machine lock of the current run (run/lease.py)
         self._controller_dirty = False  # a stop could not reach the controller
         self.baseline: baselines.Baseline | None = None  # the current run's drift baseline
+        self.following: str | None = None  # the last run's follow-up under way (_follow_up)
+        self.closing = False  # shutdown under way: no run starts
+        self._follow_task: asyncio.Task | None = None
         self.temps = TemperatureRecorder(setup.name, setup.temperatures, link, store,
                                          str(getattr(setup.link, "transport", "")))
         self.clock = RunClock()  # the current run's touch and temperature times
+        link.on_step = self._machine_step  # what the run waits for at the machine (NC start)
+
+    def _machine_step(self, text: str | None) -> None:
+        """The link says what the run waits for at the machine ("waiting for NC start …",
+        None once the program runs): the status's step while the run is busy."""
+        if self.busy:
+            self.step = text
 
     async def reconnect(self) -> None:
         """Close the link and connect it again with backoff; the status shows it up again."""
@@ -105,6 +116,11 @@ class Session(RunCapture):
             raise Refused(f"{self.setup.name}: run {self.run_id} in progress "
                           f"(state {self.state}, started by {self.trigger}); "
                           f"{trigger} request refused")
+        if self.closing:
+            raise Refused(f"{self.setup.name}: the daemon is stopping; {trigger} request "
+                          "refused")
+        if self.following is not None and trigger != "rerun":  # its lease is the run's
+            raise Refused(f"{self.setup.name}: {self.following}; {trigger} request refused")
         # a compensation being written refuses the run; the run holds the machine to its end
         lease = self.lease = run_lease.take(self.lease, self.store.path, self.setup.name, trigger)
         self.run_id = new_run_id()
@@ -140,9 +156,19 @@ class Session(RunCapture):
         finish for ``report_wait_s`` (default ``REPORT_STOP_WAIT_S``) and else cancelled,
         journaled failed with the reason (``report_job.settle``): nothing is left running or
         'writing' when the journal closes."""
-        await self.interrupt(cause)
-        await report_job.settle(self._report_task, REPORT_STOP_WAIT_S if report_wait_s is None
-                                else report_wait_s)
+        self.closing = True  # while it stops: a follow-up starts no verification run
+        try:
+            await self.interrupt(cause)
+            # a follow-up being written (the unattended compensation: bounded by its budget)
+            # ends its transaction while the report finishes
+            follow = self._follow_task if self.following is not None else None
+            await asyncio.gather(
+                asyncio.wait({follow}) if follow is not None and not follow.done() else
+                asyncio.sleep(0),
+                report_job.settle(self._report_task, REPORT_STOP_WAIT_S if report_wait_s is None
+                                  else report_wait_s))
+        finally:
+            self.closing = False
 
     async def _cancel(self, state: State, reason: str) -> bool:
         if not self.busy or self._task is None:
@@ -193,11 +219,6 @@ class Session(RunCapture):
             # issue 23: the report is rendered after the run's end is published, in a worker
             self._report_task = report_job.start(self, run_id, analysis, judgement)
             self._enter(State.IDLE, "")
-            if self.after_run is not None:
-                try:
-                    self.after_run(self, run_id)
-                except Exception:  # the run is done and reported; a follow-up must not undo it
-                    log.exception("after run %s", run_id)
         except asyncio.CancelledError:
             # An abort (HMI, CAN, CLI signal) or the service stopping: the phase is the state
             # the run was in. The cleanup runs to its end whatever cancels us meanwhile.
@@ -229,6 +250,27 @@ class Session(RunCapture):
             log.exception("run %s crashed", run_id)
             await self._end(run_id, State.FAILED, f"internal error {self.during()}: "
                             f"{type(e).__name__}: {e}", stop=True)
+        else:  # outside the run's handlers: a cancel here ends no DONE run as ABORTED
+            await self._follow_up(run_id)
+
+    async def _follow_up(self, run_id: str) -> None:
+        """The run's follow-up (``after_run``: the unattended compensation, awaited when it is
+        a coroutine), still in the run's task and under its machine lock; meanwhile a start is
+        refused (``following``) and a stop waits for it (``shutdown``)."""
+        if self.after_run is None:
+            return
+        self._follow_task = asyncio.current_task()
+        self.following = f"run {run_id}'s follow-up (unattended compensation) is under way"
+        try:
+            out = self.after_run(self, run_id)
+            if inspect.isawaitable(out):
+                await out
+        except asyncio.CancelledError:
+            raise
+        except Exception:  # the run is done and reported; a follow-up must not undo it
+            log.exception("after run %s", run_id)
+        finally:
+            self.following = None
 
     async def _prepare_program(self, run_id: str, reference: tuple[str, Analysis] | None
                                ) -> pipeline.Prepared:

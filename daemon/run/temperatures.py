@@ -13,7 +13,7 @@ from typing import Any
 from contracts.temperatures import TemperatureChannel, TemperatureReading, summarise
 from daemon.store.journal import Store
 from daemon.store.temperatures import journal_temperature, temperatures
-from drivers.base import CncLink
+from drivers.base import ChannelMissing, CncLink
 from drivers.modbus.transmitter import Transmitter
 
 log = logging.getLogger("rumba.temperatures")
@@ -72,6 +72,7 @@ class TemperatureRecorder:
         self._rounds: list[int] = [0]  # the programs run (printed channels' accounting)
         self._poses: list[tuple[int, int]] = []  # (round, plan pose) probed, in order
         self._down: dict[str, str] = {}  # channel → why it is unreachable for this run
+        self._missing: dict[str, str] = {}  # channel → its address is not on the controller
         # every read started and not yet journaled (start, pose and end reads): the one owner,
         # which ``end`` waits on and ``stop`` accounts from — a read leaves it once journaled
         self._reads: dict[asyncio.Task[None], _Read] = {}
@@ -135,6 +136,13 @@ class TemperatureRecorder:
             value = await self._answer(ch, rec)
         except asyncio.CancelledError:
             raise
+        except ChannelMissing as e:
+            # a misspelt address: said once, not read again in this run (not at each pose)
+            self._missing[ch.name] = why = str(e)
+            log.warning("%s %s: temperature %s: %s; not read again in this run (check the "
+                        "channel's address in daemon.yaml)", self.machine, rec.run_id,
+                        ch.name, why)
+            self._put(rec, None, why)
         except Exception as e:
             why = (f"no answer in {READ_TIMEOUT_S:g} s" if isinstance(e, TimeoutError)
                    else str(e) or type(e).__name__)
@@ -177,8 +185,14 @@ class TemperatureRecorder:
 
     async def sample(self, run_id: str, at: str, pose: int | None, t_s: float) -> None:
         """Read every polled channel now (an unreachable one too: the start and the end try
-        every channel) and journal each value or why it failed."""
-        await self._settle([self._spawn(run_id, ch, at, pose, t_s) for ch in self._polled()])
+        every channel, but one whose address is not on the controller) and journal each value
+        or why it failed."""
+        for ch in self._polled():
+            if ch.name in self._missing:
+                self._journal(run_id, TemperatureReading(ch.name, at, pose, t_s, None,
+                                                         f"not read: {self._missing[ch.name]}"))
+        await self._settle([self._spawn(run_id, ch, at, pose, t_s) for ch in self._polled()
+                            if ch.name not in self._missing])
 
     @staticmethod
     async def _settle(tasks: list[asyncio.Task[None]]) -> None:
@@ -201,7 +215,9 @@ class TemperatureRecorder:
         now with the reason (unreachable since …, or the last read still in flight)."""
         rnd = self._round
         for ch in self._polled():
-            if ch.name in self._down:
+            if ch.name in self._missing:
+                why = f"not read: {self._missing[ch.name]}"
+            elif ch.name in self._down:
                 why = (f"not read: unreachable since {self._down[ch.name]}; tried again at "
                        "the end of the run")
             elif self._busy(ch.name):
@@ -303,6 +319,7 @@ class TemperatureRecorder:
         self._round, self._program_poses, self._rounds = 0, None, [0]
         self._poses = []
         self._down.clear()
+        self._missing.clear()
         await self.sample(run_id, "start", None, t_s)
 
     async def end(self, run_id: str, t_s: float) -> None:

@@ -104,7 +104,7 @@ class Service:
                     await asyncio.wait_for(link.connect(), _connect_timeout(setup) + 5.0)
                 except (LinkError, OSError, TimeoutError) as e:
                     raise ServiceError(f"machine {name}: controller unreachable: "
-                                       f"{e or type(e).__name__}") from None
+                                       f"{str(e) or type(e).__name__}") from None
                 if any(self.store.run(r).machine == name for r in self.interrupted):
                     await self._stop_leftover(name, link)
                 # runs are identified against the model the controller holds (issue 13)

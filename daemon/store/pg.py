@@ -21,6 +21,7 @@ from psycopg import conninfo
 from daemon.store import pg_temperatures
 from daemon.store.journal import StoreError
 from daemon.store.schema import MIGRATIONS, SCHEMA_VERSION, for_postgres
+from daemon.store.stored_json import analysis_part
 from daemon.store.url import redact
 
 _MIGRATION_LOCK = 0x72756D6261  # "rumba": pg_advisory_xact_lock key for migrations
@@ -214,12 +215,12 @@ class PgStore:
         """Runs with an analysis since ``since`` (Unix s), oldest first: the identified links
         (value, std, unit) and the verdict. Only the links object leaves the server."""
         rows = await self._all(
-            "SELECT r.id, r.started_at, r.verdict, (e.analysis::jsonb)->'links'"
+            "SELECT r.id, r.started_at, r.verdict, e.analysis"
             " FROM runs r JOIN estimates e ON e.run_id = r.id"
             " WHERE r.machine=%s AND r.started_at >= %s ORDER BY r.started_at",
             (machine, since))
         return [{"run_id": r[0], "started_at": r[1], "verdict": r[2] or "ERROR",
-                 "links": r[3] or {}} for r in rows]
+                 "links": analysis_part(r[3], "links") or {}} for r in rows]
 
     async def runs(self, machine: str, limit: int) -> list[dict[str, Any]]:
         """A machine's last ``limit`` runs, newest first, with whether a report exists, the
@@ -228,12 +229,8 @@ class PgStore:
         rows = await self._all(
             "SELECT r.id, r.trigger, r.state, r.verdict, r.summary, r.started_at, r.ended_at,"
             " EXISTS (SELECT 1 FROM reports p WHERE p.run_id = r.id),"
-            " (SELECT (e.analysis::jsonb)->'temperatures' FROM estimates e"
-            " WHERE e.run_id = r.id),"
-            # issue 22: the rotary axes' indexing repeatability and the warnings naming it
-            " (SELECT jsonb_build_object('index_scatter', (e.analysis::jsonb)->'estimation'"
-            "->'index_scatter', 'warnings', (e.analysis::jsonb)->'warnings') FROM estimates e"
-            " WHERE e.run_id = r.id),"
+            # the analysis' temperatures, index scatter and warnings: read below
+            " (SELECT e.analysis FROM estimates e WHERE e.run_id = r.id),"
             # issue 23: the drift checks name the baseline run; the reason a report failure
             " (SELECT v.checks FROM verdicts v WHERE v.run_id = r.id),"
             " (SELECT v.reasons FROM verdicts v WHERE v.run_id = r.id), r.reason,"
@@ -241,9 +238,19 @@ class PgStore:
             " j.state, j.reason FROM runs r LEFT JOIN report_jobs j ON j.run_id = r.id"
             " WHERE r.machine=%s ORDER BY r.started_at DESC LIMIT %s", (machine, limit))
         keys = ("id", "trigger", "state", "verdict", "summary", "started_at", "ended_at",
-                "has_report", "temperatures", "index_scatter", "checks", "reasons", "reason",
-                "report_state", "report_error")
-        return [dict(zip(keys, r, strict=True)) for r in rows]
+                "has_report", "analysis", "checks", "reasons", "reason", "report_state",
+                "report_error")
+        out = []
+        for r in rows:
+            d = dict(zip(keys, r, strict=True))
+            text = d.pop("analysis")
+            d["temperatures"] = analysis_part(text, "temperatures")
+            # the rotary axes' indexing repeatability and the warnings naming it
+            d["index_scatter"] = None if text is None else {
+                "index_scatter": analysis_part(text, "estimation", "index_scatter"),
+                "warnings": analysis_part(text, "warnings")}
+            out.append(d)
+        return out
 
     async def report_job(self, run_id: str) -> tuple[str, str] | None:
         """(state, reason) of the run's report job (migration 10); None: it had none."""

@@ -7,6 +7,8 @@ from __future__ import annotations
 
 from typing import Any
 
+from daemon.store.stored_json import analysis_part
+
 TEMP_COLS = ("run_id", "seq", "channel", "at", "pose", "t_s", "value_c", "error", "received_at",
              "reprobe_round")
 
@@ -36,7 +38,7 @@ async def readings(conn: Any, machine: str, since: float, channel: str
     ``contracts.temperatures.run_ends`` picks them (the plan program's first start read; the
     last program's end, NULL when it was not read)."""
     cur = await conn.execute(
-        "SELECT r.id, r.started_at, r.verdict, (e.analysis::jsonb)->'links',"
+        "SELECT r.id, r.started_at, r.verdict, e.analysis,"
         " array_agg(t.value_c ORDER BY t.seq) FILTER (WHERE t.at = 'pose'"
         "   AND t.value_c IS NOT NULL),"
         " (array_agg(t.value_c ORDER BY t.seq) FILTER (WHERE t.at = 'start'"
@@ -51,4 +53,9 @@ async def readings(conn: Any, machine: str, since: float, channel: str
         (channel, machine, since))
     keys = ("run_id", "started_at", "verdict", "links", "pose_c", "start_c", "end_c",
             "readings", "read")
-    return [dict(zip(keys, r, strict=True)) for r in await cur.fetchall()]
+    out = []
+    for r in await cur.fetchall():
+        d = dict(zip(keys, r, strict=True))
+        d["links"] = analysis_part(d["links"], "links")  # NaN-tolerant (not jsonb)
+        out.append(d)
+    return out

@@ -8,6 +8,7 @@ running configuration's HAL file found and replaced atomically (with a timestamp
 from __future__ import annotations
 
 import contextlib
+import contextvars
 import errno
 import hashlib
 import os
@@ -17,6 +18,7 @@ import shlex
 import stat
 import subprocess
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 from contracts.input_files import read_bounded
@@ -48,8 +50,38 @@ def _pin(name: str) -> str:
     return name
 
 
+_DEADLINE: contextvars.ContextVar[tuple[float, float] | None] = contextvars.ContextVar(
+    "halkins_deadline", default=None)
+
+
+@contextlib.contextmanager
+def budget(seconds: float, *, fresh: bool = False) -> Iterator[None]:
+    """Every ``halcmd`` within the block ends by ``seconds`` from now (its own timeout cut to
+    what is left, none started once it is spent): a write to the controller is bounded as a
+    whole, not only call by call. Within an outer budget the earlier end holds, unless
+    ``fresh`` (putting the old values back must not be cut by the spent budget of the write
+    that failed). Per thread / task (a context variable)."""
+    end = time.monotonic() + seconds
+    outer = _DEADLINE.get()
+    if outer is not None and not fresh and outer[0] < end:
+        end, seconds = outer
+    token = _DEADLINE.set((end, seconds))
+    try:
+        yield
+    finally:
+        _DEADLINE.reset(token)
+
+
 def halcmd(*args: str, timeout_s: float = 20.0) -> str:
-    """Run ``halcmd`` with this process's environment; its stdout, stripped."""
+    """Run ``halcmd`` with this process's environment; its stdout, stripped. Within a
+    ``budget`` the timeout is what is left of it."""
+    limit = _DEADLINE.get()
+    if limit is not None:
+        left = limit[0] - time.monotonic()
+        if left <= 0:
+            raise HalError(f"halcmd {' '.join(args)}: not started, the write's {limit[1]:g} s "
+                           "budget is spent")
+        timeout_s = min(timeout_s, left)
     try:
         out = subprocess.run([HALCMD, *args], capture_output=True, text=True,
                              timeout=timeout_s, check=False, env=dict(os.environ))

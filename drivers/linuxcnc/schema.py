@@ -6,7 +6,7 @@ from typing import Annotated, Literal
 
 from pydantic import Field, model_validator
 
-from contracts.yaml_files import StrictModel
+from contracts.yaml_files import HostName, StrictModel
 
 
 class LinuxCncLinkConfig(StrictModel):
@@ -22,7 +22,7 @@ class LinuxCncLinkConfig(StrictModel):
     # local auto: folder of the per-run program file (default: the system temp folder); the
     # LinuxCNC user must be able to read it
     program_dir: str | None = Field(None, pattern=r"^/[^\x00-\x1f]{0,200}$")
-    host: str = "127.0.0.1"
+    host: HostName = "127.0.0.1"
     port: int = Field(5007, ge=1, le=65535)  # linuxcncrsh --port
     hello_password: str = Field("EMC", pattern=r"^[A-Za-z0-9_.-]{1,64}$")
     enable_password: str = Field("EMCTOO", pattern=r"^[A-Za-z0-9_.-]{1,64}$")

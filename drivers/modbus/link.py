@@ -164,7 +164,7 @@ class ModbusLink(CncLink):
         except ConnectionRefusedError as e:
             return Refused(str(e))
         except (OSError, TimeoutError) as e:
-            return LinkError(f"no connection: {e or type(e).__name__}")
+            return LinkError(f"no connection: {str(e) or type(e).__name__}")
         writer.close()
         with contextlib.suppress(Exception):
             await writer.wait_closed()

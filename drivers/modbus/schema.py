@@ -6,14 +6,16 @@ from typing import Literal
 
 from pydantic import Field
 
-from contracts.yaml_files import StrictModel
+from contracts.yaml_files import HostName, StrictModel
 
 
 class ModbusLinkConfig(StrictModel):
-    """Modbus TCP client for the rumba register map (contracts/modbus_map.py)."""
+    """Modbus TCP client for the rumba register map (contracts/modbus_map.py): the gateway
+    profile, a map a PLC or an edge box implements (no control ships it)."""
 
     transport: Literal["modbus"]
-    host: str = "127.0.0.1"
+    profile: Literal["gateway"] = "gateway"  # the only one: said in the config, not assumed
+    host: HostName = "127.0.0.1"
     port: int = Field(502, ge=1, le=65535)
     device_id: int = Field(1, ge=0, le=255)
     base_address: int = Field(0, ge=0, le=60000)  # shifts the whole map (PLC data area offset)

@@ -1,6 +1,8 @@
 """OPC UA link (asyncua client): program transfer + start by method call, subscriptions to the
 start request, the touch counter and the controller state, result ring reads, verdict write-back
 with the request/busy/done handshake, certificate + user authentication, reconnect with backoff.
+Every request is awaited through ``drivers.cancel.keep_cancel``: an abort's cancellation that
+lands with a response is never lost.
 
 Address space: contracts/opcua_space.py (table in drivers/README.md). No touch is lost when
 notifications coalesce or the connection drops: on every wake-up the counter is read and every
@@ -23,22 +25,28 @@ from asyncua.crypto.security_policies import SecurityPolicyBasic256Sha256
 
 from contracts.jobs import ProgramJob, Verdict
 from contracts.messages import ProbeHit
-from contracts.opcua_space import BY_ROLE, RESULT_ROLES, RING_SLOTS, STATES, node_id
+from contracts.opcua_space import BY_ROLE, RESULT_ROLES, RING_SLOTS, node_id
 from contracts.temperatures import TemperatureChannel
 from drivers.base import (
     Capabilities,
+    ChannelMissing,
     CncLink,
     ControllerAborted,
     ControllerAlarm,
     LinkError,
     StartRequest,
 )
+from drivers.cancel import keep_cancel
 from drivers.hits import HitFactory, MalformedResult
+from drivers.opcua.reasons import MISSING_NODE, quiet_connection_loss, why
+from drivers.opcua.ring import _number, check_counter, ring_hit
 from drivers.opcua.schema import OpcUaLinkConfig
 from drivers.retry import Refused, wait_event, with_backoff
 
 logging.getLogger("asyncua").setLevel(logging.ERROR)
 log = logging.getLogger("rumba.opcua")
+quiet_connection_loss()
+
 SUBSCRIBED = ("request", "touch_counter", "state")
 NODE_ROLES = tuple(BY_ROLE)
 """Roles whose node id may be overridden in the link config (``nodes: {role: id}``)."""
@@ -62,65 +70,6 @@ class _Notify:
 
 def _double(value: float) -> ua.DataValue:
     return ua.DataValue(ua.Variant(float(value), ua.VariantType.Double))
-
-
-def _number(value: Any, role: str, where: str, integer: bool) -> float:
-    """``value`` as a finite number (an integer when ``integer``), else ``MalformedResult``."""
-    ok = isinstance(value, int | float) and not isinstance(value, bool)
-    if ok:
-        try:
-            ok = math.isfinite(value) and (not integer or float(value).is_integer())
-        except OverflowError:  # an int too large for a float
-            ok = False
-    if not ok:
-        kind = "an integer" if integer else "a finite number"
-        raise MalformedResult(f"malformed result ({where}): {BY_ROLE[role].path} = "
-                              f"{value!r}, expected {kind}")
-    return value
-
-
-def check_counter(counter: Any, state: Any, last: int, high: int | None) -> int:
-    """The touch counter and state as read during a run; ``MalformedResult`` when the counter
-    is not a whole number between the last one read and ``high`` (the counter after the
-    program's last touch; None: unknown), or the state is not one of the address space's
-    states (either would stall the run silently or crash it)."""
-    where = "status"
-    if state not in STATES:
-        raise MalformedResult(f"malformed result ({where}): {BY_ROLE['state'].path} = "
-                              f"{state!r}, expected one of {', '.join(STATES)}")
-    n = int(_number(counter, "touch_counter", where, integer=True))
-    if n < last or (high is not None and n > high):
-        raise MalformedResult(f"malformed result ({where}): {BY_ROLE['touch_counter'].path} = "
-                              f"{counter!r}, expected {last}..{'' if high is None else high} "
-                              "(from the last one read to the program's last touch)")
-    return n
-
-
-def ring_hit(hits: HitFactory, rows: list[Any], n: int) -> ProbeHit:
-    """Decode and validate result ``n`` from the ring arrays (``RESULT_ROLES`` order): arrays of
-    ``RING_SLOTS`` elements, a whole seq (the next in program order), finite plausible
-    positions, a trigger flag 0 or 1; ``MalformedResult`` otherwise."""
-    slot = (n - 1) % RING_SLOTS
-    where = f"ring slot {slot}, touch counter {n}"
-    if len(rows) != len(RESULT_ROLES):
-        raise MalformedResult(f"malformed result ({where}): {len(rows)} result arrays, "
-                              f"expected {len(RESULT_ROLES)}")
-    values = []
-    for role, row in zip(RESULT_ROLES, rows, strict=True):
-        if not isinstance(row, list | tuple) or len(row) != RING_SLOTS:
-            size = len(row) if isinstance(row, list | tuple) else type(row).__name__
-            raise MalformedResult(f"malformed result ({where}): {BY_ROLE[role].path} holds "
-                                  f"{size}, expected an array of {RING_SLOTS}")
-        integer = role in ("result_seq", "result_triggered")
-        values.append(_number(row[slot], role, where, integer))
-    seq, x, y, z, b, c, trig = values
-    if trig not in (0, 1):
-        raise MalformedResult(f"malformed result ({where}): {BY_ROLE['result_triggered'].path}"
-                              f" = {trig!r}, expected 0 or 1")
-    axes = {"X": float(x), "Y": float(y), "Z": float(z), "b": float(b), "c": float(c)}
-    raw = (f"slot={slot} counter={n} seq={seq} X={x!r} Y={y!r} Z={z!r} b={b!r} c={c!r} "
-           f"trig={trig}")
-    return hits.make(int(seq), axes, bool(trig), raw, where=where)
 
 
 class OpcUaLink(CncLink):
@@ -210,10 +159,10 @@ class OpcUaLink(CncLink):
         if self._client is None:
             raise LinkError(f"opcua {self.cfg.url}: not connected")
         try:
-            return await self._client.read_values([self._n[r] for r in roles])
+            return await keep_cancel(self._client.read_values([self._n[r] for r in roles]))
         except (TimeoutError, ua.UaError, OSError, ConnectionError) as e:
             raise LinkError(f"opcua {self.cfg.url}: read {', '.join(roles)}: "
-                            f"{e or type(e).__name__}") from None
+                            f"{why(e, self.cfg.request_timeout_s)}") from None
 
     async def _read_during_run(self, roles: tuple[str, ...]) -> list[Any]:
         """A read that rides out a connection drop: asyncua reconnects in the background and
@@ -234,10 +183,20 @@ class OpcUaLink(CncLink):
         nid = (channel.address if channel.address.startswith("ns=")
                else f"ns={getattr(self, '_ns', 0)};s={channel.address}")
         try:
-            value = await self._client.get_node(nid).read_value()
-        except (TimeoutError, ua.UaError, OSError, ConnectionError, ValueError) as e:
+            value = await keep_cancel(self._client.get_node(nid).read_value())
+        except ua.UaStatusCodeError as e:
+            if e.code in MISSING_NODE:
+                raise ChannelMissing(f"opcua {self.cfg.url}: temperature {channel.name} "
+                                     f"({nid}): no such node on the controller "
+                                     f"({ua.StatusCode(e.code).name})") from None
             raise LinkError(f"opcua {self.cfg.url}: temperature {channel.name} ({nid}): "
-                            f"{e or type(e).__name__}") from None
+                            f"{why(e, self.cfg.request_timeout_s)}") from None
+        except ValueError:  # not a node id at all
+            raise ChannelMissing(f"opcua {self.cfg.url}: temperature {channel.name}: "
+                                 f"{nid!r} is not a node id") from None
+        except (TimeoutError, ua.UaError, OSError, ConnectionError) as e:
+            raise LinkError(f"opcua {self.cfg.url}: temperature {channel.name} ({nid}): "
+                            f"{why(e, self.cfg.request_timeout_s)}") from None
         if (not isinstance(value, int | float) or isinstance(value, bool)
                 or not math.isfinite(value)):
             raise LinkError(f"opcua {self.cfg.url}: temperature {channel.name} ({nid}) = "
@@ -246,17 +205,17 @@ class OpcUaLink(CncLink):
 
     async def _write(self, role: str, value: float) -> None:
         try:
-            await self._n[role].write_value(_double(value))
+            await keep_cancel(self._n[role].write_value(_double(value)))
         except (TimeoutError, ua.UaError, OSError, ConnectionError) as e:
             raise LinkError(f"opcua {self.cfg.url}: write {role}: "
-                            f"{e or type(e).__name__}") from None
+                            f"{why(e, self.cfg.request_timeout_s)}") from None
 
     async def _call(self, role: str, *args: ua.Variant) -> None:
         try:
-            await self._n["methods"].call_method(self._n[role], *args)
+            await keep_cancel(self._n["methods"].call_method(self._n[role], *args))
         except (TimeoutError, ua.UaError, OSError, ConnectionError) as e:
             raise LinkError(f"opcua {self.cfg.url}: {BY_ROLE[role].path} refused: "
-                            f"{e or type(e).__name__}") from None
+                            f"{why(e, self.cfg.request_timeout_s)}") from None
 
     async def _sleep_for_change(self, timeout_s: float) -> None:
         self._wake.clear()

@@ -32,9 +32,11 @@ class OpcUaUserConfig(StrictModel):
 
 
 class OpcUaLinkConfig(StrictModel):
-    """OPC UA client; node ids default to the rumba address space (drivers/README.md)."""
+    """OPC UA client for the rumba address space (drivers/README.md): the gateway profile, a
+    space a PLC or an edge box implements (a SINUMERIK's own server: ``transport: sinumerik``)."""
 
     transport: Literal["opcua"]
+    profile: Literal["gateway"] = "gateway"  # the only one: said in the config, not assumed
     url: str = Field(pattern=r"^opc\.tcp://")
     security: Literal["Basic256Sha256_SignAndEncrypt", "Basic256Sha256_Sign", "none"] = (
         "Basic256Sha256_SignAndEncrypt")

@@ -12,23 +12,21 @@ XOFF (0x13) until XON (0x11). Settings are documented in drivers/README.md.
 from __future__ import annotations
 
 import asyncio
-import concurrent.futures
 import contextlib
 import logging
 import os
 import termios
-import threading
 import time
 from collections.abc import AsyncIterator, Callable
 
 import serial
-import serial_asyncio_fast
 
 from contracts.jobs import DialectCodec, ProgramJob, Verdict
 from contracts.messages import ProbeHit
 from drivers.base import Capabilities, CncLink, ControllerAlarm, LinkError, StartRequest
 from drivers.hits import HitFactory
 from drivers.retry import wait_event
+from drivers.serial.leftover import drain_leftover
 from drivers.serial.lines import (  # noqa: F401 (re-exported: the link's public names)
     MAX_LINE_BYTES,
     REQUEST_HOLDOFF_S,
@@ -40,6 +38,7 @@ from drivers.serial.lines import (  # noqa: F401 (re-exported: the link's public
     parse_request,
 )
 from drivers.serial.schema import SerialLinkConfig
+from drivers.serial.transport import ThreadTransport, create_serial_connection
 
 log = logging.getLogger("rumba.serial")
 
@@ -82,37 +81,6 @@ def frame_program(text: str, eol: str, seven_bit: bool) -> bytes:
     return (sep.join(lines) + sep).encode("latin-1")
 
 
-class _ThreadTransport:
-    """For ports without a file descriptor (``rfc2217://``): a reader thread, executor writes."""
-
-    def __init__(self, ser: serial.SerialBase, proto: _DncProtocol,
-                 loop: asyncio.AbstractEventLoop) -> None:
-        self.ser, self.proto, self.loop = ser, proto, loop
-        self._stop = threading.Event()
-        self._writer = concurrent.futures.ThreadPoolExecutor(1, "rumba-serial-tx")
-        self._thread = threading.Thread(target=self._read, daemon=True, name="rumba-serial-rx")
-        self._thread.start()
-
-    def _read(self) -> None:
-        try:
-            while not self._stop.is_set():
-                data = self.ser.read(max(1, self.ser.in_waiting))
-                if data:
-                    self.loop.call_soon_threadsafe(self.proto.data_received, data)
-        except Exception as e:  # the port went away: report it on the loop
-            if not self._stop.is_set():
-                self.loop.call_soon_threadsafe(self.proto.connection_lost, e)
-
-    def write(self, data: bytes) -> None:
-        self._writer.submit(self.ser.write, data)  # one writer thread: order is kept
-
-    def close(self) -> None:
-        self._stop.set()
-        self._writer.shutdown(wait=False, cancel_futures=True)
-        with contextlib.suppress(Exception):
-            self.ser.close()
-
-
 class SerialDncLink(PrintedTemperatures, CncLink):
     """DNC drip-feed over RS-232 (or a serial server reached by ``socket://`` / ``rfc2217://``)."""
 
@@ -127,10 +95,12 @@ class SerialDncLink(PrintedTemperatures, CncLink):
         self.dialect = dialect  # for the verdict program; the last job's codec otherwise
         self._tape_open = False  # a stream was cut short: the control is inside a program
         self._stale = False  # an aborted program's last results may still arrive
+        self._fed = b""  # the last tape as far as it was fed (a stopped one: up to its cut)
+        self._drain: asyncio.Task | None = None  # a stopped program's output being read
         self._cut = asyncio.Event()  # stop the stream at the end of the current block
         self._tx_lock = asyncio.Lock()
         self._proto: _DncProtocol | None = None
-        self._transport: asyncio.BaseTransport | _ThreadTransport | None = None
+        self._transport: asyncio.BaseTransport | ThreadTransport | None = None
         self._sender: asyncio.Task | None = None
         self.bytes_sent = 0
         self.stream_s = 0.0  # wall time of the last stream (throughput = bytes_sent / stream_s)
@@ -159,14 +129,14 @@ class SerialDncLink(PrintedTemperatures, CncLink):
                 ser = await asyncio.wait_for(loop.run_in_executor(
                     None, lambda: serial.serial_for_url(self.cfg.url, timeout=0.1, **kw)),
                     self.cfg.connect_timeout_s)
-                self._transport = _ThreadTransport(ser, proto, loop)
+                self._transport = ThreadTransport(ser, proto, loop)
             else:
                 self._transport, _ = await asyncio.wait_for(
-                    serial_asyncio_fast.create_serial_connection(loop, lambda: proto,
-                                                                 self.cfg.url, **kw),
+                    create_serial_connection(loop, lambda: proto, self.cfg.url, **kw),
                     self.cfg.connect_timeout_s)
         except (TimeoutError, serial.SerialException, OSError, ValueError, termios.error) as e:
-            raise LinkError(f"serial {self.cfg.url}: cannot open: {e or 'timeout'}") from None
+            raise LinkError(f"serial {self.cfg.url}: cannot open: "
+                            f"{str(e) or 'timeout'}") from None
         self._proto = proto
 
     async def wait_start_request(self) -> StartRequest:
@@ -225,6 +195,7 @@ class SerialDncLink(PrintedTemperatures, CncLink):
         write is what fits in the budget at that moment."""
         assert self._proto is not None and self._transport is not None
         proto, transport = self._proto, self._transport
+        self._fed = b""
         cps, budget = self.chars_per_s, self.cfg.tx_chunk_bytes
         t0 = line_t = time.monotonic()
         i, cut = 0, False
@@ -252,6 +223,7 @@ class SerialDncLink(PrintedTemperatures, CncLink):
             if room >= 1:
                 piece = payload[i:i + min(room, MAX_WRITE_BYTES)]
                 transport.write(piece)  # type: ignore[union-attr]
+                self._fed = payload[:i + len(piece)]
                 # The clock read after the write: the line starts on these bytes no earlier.
                 line_t = max(line_t, time.monotonic()) + len(piece) / cps
                 i += len(piece)
@@ -294,6 +266,10 @@ class SerialDncLink(PrintedTemperatures, CncLink):
         proto, hits = self._proto, HitFactory(job)
         if job.codec is not None:
             self.dialect = job.codec
+        if self._drain is not None:  # the stopped program's last lines first (bounded)
+            self._stale = not await self._drain
+            self._drain = None
+            proto.temperatures.clear()  # its RTEMP lines are not this run's readings
         while not proto.lines.empty():  # stale output from before this run
             item = proto.lines.get_nowait()
             if isinstance(item, BaseException):
@@ -350,12 +326,23 @@ class SerialDncLink(PrintedTemperatures, CncLink):
                     alarmed = True
                     raise ControllerAlarm(f"probe did not trigger at touch seq {hit.seq}")
         finally:
-            proto.running = False
             self._run_ended()
             await self._end_tape(sender)
             if alarmed:
                 # A control in alarm has dropped the rest of the tape itself.
                 self._tape_open = False
+            last = (0 if alarmed or self._tape_open or codec is None
+                    else getattr(codec, "last_printed_seq", lambda _: 0)(
+                        self._fed.decode("latin-1")))
+            if last > max(got, default=0):
+                # Stopped early, the control runs on through what it holds: its lines are
+                # read (running) until the last of them came, before the next tape goes.
+                self._drain = asyncio.ensure_future(drain_leftover(
+                    proto.lines, parse, max(got, default=0), last,
+                    self.cfg.result_timeout_s))
+                self._drain.add_done_callback(lambda _t: setattr(proto, "running", False))
+            else:
+                proto.running = False
 
     async def write_verdict(self, verdict: Verdict) -> None:
         """Drip-feed the dialect's verdict program (programs/dialects ``verdict_program``):
@@ -392,6 +379,9 @@ class SerialDncLink(PrintedTemperatures, CncLink):
         await self._end_tape(self._sender)
 
     async def close(self) -> None:
+        if self._drain is not None:
+            self._drain.cancel()
+            self._drain = None
         await self.abort()
         if self._transport is not None:
             self._transport.close()

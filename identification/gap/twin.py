@@ -19,15 +19,9 @@ import numpy as np
 from identification.effects import Effect, EffectContext
 from identification.gap.data import Groups, TouchData
 from identification.identifiability import identifiable_links
-from identification.kinematics import (
-    ChainState,
-    Machine,
-    MotionErrorFn,
-    rotary_columns,
-    tip_minus_ball,
-    to_model,
-)
-from identification.model import Artefact, Centres, Layout, chain_links, predict
+from identification.kinematics import Machine, MotionErrorFn
+from identification.model import Artefact, Centres, Layout, predict
+from identification.touch_frame import axis_maps
 
 _GN_ITER = 12
 _STEP_TOL_MM = 1e-10
@@ -47,24 +41,10 @@ class Twin:
     def axis_map(self, centres: Centres, q_mm: np.ndarray, p: np.ndarray | None = None,
                  motion: dict[str, MotionErrorFn] | None = None) -> np.ndarray:
         """(G, 3, 3) d(tip − ball)/d(controller X Y Z) at ``q_mm``: how the chain maps a
-        controller displacement to a relative displacement of stylus and ball. Affine in the
-        linear joints without motion errors, so a 1 mm step is exact."""
-        links, _, tip, scale = self.layout.unpack(self.p if p is None else p)
-        state = ChainState(chain_links(self.machine, links), tip, scale, motion or {})
-        rot = to_model(self.machine, rotary_columns(self.machine, centres.b_deg, centres.c_deg))
-        ball = np.zeros((len(centres), 3))
-
-        def g(q: np.ndarray) -> np.ndarray:
-            qm = to_model(self.machine, {k: q[:, i] for i, k in enumerate("XYZ")}, scale)
-            return tip_minus_ball(self.machine, {**qm, **rot}, ball, state)
-
-        g0 = g(q_mm)
-        out = np.empty((len(centres), 3, 3))
-        for k in range(3):
-            dq = q_mm.copy()
-            dq[:, k] += 1.0
-            out[:, :, k] = g(dq) - g0
-        return out
+        controller displacement to a relative displacement of stylus and ball
+        (``identification.touch_frame.axis_maps``, the map the analysis fits spheres in)."""
+        return axis_maps(self.machine, self.layout, self.p if p is None else p, centres, q_mm,
+                         motion)
 
     def predicted_um(self, centres: Centres, groups: Groups) -> np.ndarray:
         q, _ = predict(self.machine, self.artefact, self.layout, self.p, centres)

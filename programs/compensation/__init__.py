@@ -10,6 +10,7 @@ from programs.compensation import fanuc, haas, heidenhain, linuxcnc, siemens
 from programs.compensation.common import (
     CompensationError,
     CompensationOutput,
+    Listed,
     Value,
     fixed,
     fmt_value,
@@ -34,5 +35,5 @@ def render(spec: ControllerKinematics, changes: Sequence[ParamChange], *, run_id
                                 rollback=rollback)
 
 
-__all__ = ["WRITERS", "CompensationError", "CompensationOutput", "Value", "fixed", "fmt_value",
-           "patch_hal_file", "render"]
+__all__ = ["WRITERS", "CompensationError", "CompensationOutput", "Listed", "Value", "fixed",
+           "fmt_value", "patch_hal_file", "render"]

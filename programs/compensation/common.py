@@ -45,6 +45,33 @@ class Value(NamedTuple):
     unit: str
 
 
+class Listed(NamedTuple):
+    """One address as the program writes it (or the operator enters it): the strings the
+    program holds, so the listing a person confirms and the program cannot disagree."""
+
+    address: str
+    written: str  # the new value, exactly as in the program / on the page
+    was: str  # the value the control holds before, in the same form
+    unit: str  # the control's unit: "mm", "deg", or "1" (a unit-less axis-vector component)
+    name: str  # the parameter(s) whose change it is ("b-x+c-x" when two meet on one address)
+
+    def text(self) -> str:
+        """``$TC_CARR10[1] = -0.000026670  (was 0.000000000; axis-vector component; c-tilt-b)``"""
+        unit = UNIT_TEXT.get(self.unit, self.unit)
+        return f"{self.address} = {self.written}  (was {self.was}; {unit}; {self.name})"
+
+
+UNIT_TEXT = {"mm": "mm", "deg": "deg", "1": "axis-vector component, no unit"}
+"""How a listing names each control unit."""
+
+
+def listing(vals: Sequence[Value]) -> list[Listed]:
+    """Every address written, its new and old value as text: the one function whose strings
+    both every writer's lines and the listing a person confirms are made of."""
+    return [Listed(v.address, fmt_value(v.new, v.unit), fmt_value(v.old, v.unit), v.unit,
+                   v.name) for v in vals]
+
+
 @dataclass(frozen=True)
 class CompensationOutput:
     """What a writer gives: the text to apply or enter, its file name, the values it writes."""
@@ -52,6 +79,11 @@ class CompensationOutput:
     text: str
     filename: str
     values: list[Value]
+
+    @property
+    def listing(self) -> list[Listed]:
+        """Every address the text writes, with the value as written (``listing``)."""
+        return listing(self.values)
 
 
 Orientation = Callable[[ControllerParamSpec, float], list[tuple[str, float, str]]]
@@ -154,9 +186,9 @@ def values(spec: ControllerKinematics, changes: Sequence[ParamChange], *,
     return out
 
 
-def describe(v: Value) -> str:
+def describe(r: Listed) -> str:
     """``x-offset: old 12.500000 new 12.606000 mm`` (the comment of every writer)."""
-    return f"{v.name}: old {fmt_value(v.old, v.unit)} new {fmt_value(v.new, v.unit)} {v.unit}"
+    return f"{r.name}: old {r.was} new {r.written} {r.unit}"
 
 
 def title(run_id: str, machine: str, rollback: bool) -> str:
@@ -165,9 +197,9 @@ def title(run_id: str, machine: str, rollback: bool) -> str:
     return f"RUMBA {what} RUN {run_id} MACHINE {machine}"
 
 
-__all__ = ["MAX_VALUE", "RUN_ID", "CompensationError", "CompensationOutput", "Orientation",
-           "Value", "check_header", "comment", "degrees", "describe", "filename", "fixed",
-           "fmt_value", "title", "values"]
+__all__ = ["MAX_VALUE", "RUN_ID", "UNIT_TEXT", "CompensationError", "CompensationOutput",
+           "Listed", "Orientation", "Value", "check_header", "comment", "degrees", "describe",
+           "filename", "fixed", "fmt_value", "listing", "title", "values"]
 
 
 def operator_page(vals: Sequence[Value], *, run_id: str, machine: str, rollback: bool,
@@ -178,9 +210,8 @@ def operator_page(vals: Sequence[Value], *, run_id: str, machine: str, rollback:
     unit_head = "  unit" if with_unit else ""
     lines = [comment(title(run_id, machine, rollback)), *instructions, "",
              f"{address_label:>8}  {'name':<24} {'old':>16} {'new':>16}{unit_head}"]
-    for v in vals:
-        unit = f"  {v.unit}" if with_unit else ""
-        lines.append(f"{v.address:>8}  {v.name:<24} {fmt_value(v.old, v.unit):>16} "
-                     f"{fmt_value(v.new, v.unit):>16}{unit}")
+    for r in listing(vals):
+        unit = f"  {r.unit}" if with_unit else ""
+        lines.append(f"{r.address:>8}  {r.name:<24} {r.was:>16} {r.written:>16}{unit}")
     return CompensationOutput("\n".join(lines) + "\n", filename(run_id, machine, "txt", rollback),
                               list(vals))

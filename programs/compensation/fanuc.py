@@ -21,7 +21,7 @@ from programs.compensation.common import (
     degrees,
     describe,
     filename,
-    fmt_value,
+    listing,
     title,
     values,
 )
@@ -38,14 +38,13 @@ def render(spec: ControllerKinematics, changes: Sequence[ParamChange], *, run_id
     vals = values(spec, changes, orientation=degrees, rollback=rollback)
     lines = ["%", f"O{PROGRAM_NUMBER} ({comment(title(run_id, machine, rollback))})".upper(),
              "(REVIEW BEFORE RUNNING: WRITES KINEMATIC PARAMETERS, NEEDS PWE=1)"]
-    for v in vals:
-        where = f"VAR {v.address[1:]}" if v.address.startswith("#") else f"PARAM {v.address}"
-        lines.append(f"({comment(f'{where} {describe(v)}').upper()})")
-        value = fmt_value(v.new, v.unit)
-        if v.address.startswith("#"):
-            lines.append(f"{v.address}={value}")
+    for r in listing(vals):  # the strings the person confirmed
+        where = f"VAR {r.address[1:]}" if r.address.startswith("#") else f"PARAM {r.address}"
+        lines.append(f"({comment(f'{where} {describe(r)}').upper()})")
+        if r.address.startswith("#"):
+            lines.append(f"{r.address}={r.written}")
         else:
-            lines += ["G10 L52", f"N{v.address} R{value}", "G11"]
+            lines += ["G10 L52", f"N{r.address} R{r.written}", "G11"]
     lines += ["M30", "%"]
     return CompensationOutput("\n".join(lines) + "\n", filename(run_id, machine, "nc", rollback),
                               vals)

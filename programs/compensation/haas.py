@@ -16,7 +16,7 @@ from programs.compensation.common import (
     CompensationOutput,
     comment,
     filename,
-    fmt_value,
+    listing,
     operator_page,
     title,
     values,
@@ -44,9 +44,8 @@ def program(spec: ControllerKinematics, changes: Sequence[ParamChange], *, run_i
     vals = values(spec, changes, rollback=rollback)
     lines = ["%", f"{PROGRAM_NUMBER} ({comment(title(run_id, machine, rollback)).upper()})",
              "(ENTER THESE SETTINGS BY HAND, VALUES IN MM)"]
-    for v in vals:
-        text = (f"SETTING {v.address} {v.name} OLD {fmt_value(v.old, v.unit)} "
-                f"NEW {fmt_value(v.new, v.unit)}")
+    for r in listing(vals):
+        text = f"SETTING {r.address} {r.name} OLD {r.was} NEW {r.written}"
         lines.append(f"({comment(text).upper()})")
     lines += ["M30", "%"]
     return CompensationOutput("\n".join(lines) + "\n", filename(run_id, machine, "nc", rollback),

@@ -22,6 +22,7 @@ from programs.compensation.common import (
     describe,
     filename,
     fmt_value,
+    listing,
     title,
     values,
 )
@@ -41,9 +42,9 @@ def render(spec: ControllerKinematics, changes: Sequence[ParamChange], *, run_id
     vals = values(spec, changes, orientation=degrees, rollback=rollback)
     lines = [f"# {comment(title(run_id, machine, rollback))}",
              "# apply live: halcmd -f this file; keep after a restart: patch the HAL file"]
-    for v in vals:
-        lines.append(f"# {comment(describe(v))}")
-        lines.append(f"setp {v.address} {fmt_value(v.new, v.unit)}")
+    for r in listing(vals):  # the strings the person confirmed
+        lines.append(f"# {comment(describe(r))}")
+        lines.append(f"setp {r.address} {r.written}")
     return CompensationOutput("\n".join(lines) + "\n", filename(run_id, machine, "hal", rollback),
                               vals)
 

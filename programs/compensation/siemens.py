@@ -22,7 +22,7 @@ from programs.compensation.common import (
     CompensationOutput,
     comment,
     filename,
-    fmt_value,
+    listing,
     title,
     values,
 )
@@ -42,9 +42,8 @@ def render(spec: ControllerKinematics, changes: Sequence[ParamChange], *, run_id
     vals = values(spec, changes, orientation=vector_component, rollback=rollback)
     lines = [f"; {comment(title(run_id, machine, rollback))}",
              "; REVIEW BEFORE RUNNING: WRITES TOOL CARRIER DATA, RESELECT THE CARRIER AFTER"]
-    for v in vals:
-        lines.append(f"{v.address}={fmt_value(v.new, v.unit)} "
-                     f"; {comment(f'{v.name} old {fmt_value(v.old, v.unit)}')}")
+    for r in listing(vals):  # the strings the person confirmed
+        lines.append(f"{r.address}={r.written} ; {comment(f'{r.name} old {r.was}')}")
     lines.append("M30")
     # a Siemens program name is letters, digits and '_'
     stem = re.sub(r"[^A-Za-z0-9_]", "_", filename(run_id, machine, "mpf", rollback)[:-4])

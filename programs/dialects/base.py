@@ -13,7 +13,14 @@ import numpy as np
 
 from contracts.jobs import VERDICT_CODES
 from contracts.messages import ProbeHit
-from contracts.result_lines import RESULT_FIELDS, RING_SLOTS, SLOT_FIELDS, parse_result_line
+from contracts.result_lines import (
+    HANDSHAKE_VARIABLES,
+    RESULT_FIELDS,
+    RING_SLOTS,
+    SLOT_FIELDS,
+    STOP_PROGRAMS,
+    parse_result_line,
+)
 from contracts.setup_files import SAFE_NAME
 from contracts.temperatures import MACRO_VARIABLE
 from programs.cycletime import CycleTime, estimate
@@ -22,6 +29,7 @@ from programs.model import Program, Touch
 
 TEMPLATES = Path(__file__).resolve().parents[2] / "gcode_templates"
 MISS_TOL_MM = 0.001  # a latch this close to the commanded end point counts as "not triggered"
+_BLOCK_NUMBER = re.compile(r"\AN?[0-9]+\s+")  # "N120 " (ISO), "49 " (Heidenhain)
 _SAFE_TEXT = re.compile(r"\A[A-Za-z0-9 _.,:=+\-]*\Z")  # fullmatch: "$" lets a final "\n" by
 _VERDICTS = tuple(VERDICT_CODES.values())  # the codes a verdict program may write (not 0)
 
@@ -121,6 +129,11 @@ class Dialect:
     # linear moves at the max feed — a non-linear rapid would leave the checked line.
     linear_rapid = False
     linear_rapid_on = ""
+    # The line whose execution prints a touch's result line (after the counter = seq line of
+    # that touch); ``result_armed`` (siemens: the RLINE assignment) must precede it when the
+    # print line itself does not say it is a result: ``last_printed_seq``.
+    result_print: re.Pattern[str] = re.compile(r"(?!)")
+    result_armed: re.Pattern[str] | None = None
 
     def __init__(self) -> None:
         self._template = _env().get_template(f"{self.name}/program.j2")
@@ -141,6 +154,22 @@ class Dialect:
     def parse_result(self, line: str) -> ProbeHit | None:
         """Decode one result line; None for other output; ValueError for a broken RUMBA line."""
         return parse_result_line(line)
+
+    def last_printed_seq(self, text: str) -> int:
+        """The seq of the last touch whose result line ``text`` (a part of this dialect's
+        program: the bytes a DNC link fed before it stopped) prints, 0 if none: the most a
+        control that received it can still print (serial DNC after an abort)."""
+        counter = re.compile(rf"{re.escape(self.counter)}\s*=\s*\+?([0-9]+)\.?")
+        seq, last, armed = 0, 0, self.result_armed is None
+        for raw in text.splitlines():
+            line = _BLOCK_NUMBER.sub("", raw.strip())
+            if m := counter.fullmatch(line):
+                seq = int(m.group(1))
+            if self.result_armed is not None and line.startswith(("RLINE=", "RLINE =")):
+                armed = bool(self.result_armed.match(line))
+            if armed and self.result_print.match(line):
+                last = seq
+        return last
 
     def bind(self, program: Program) -> BoundDialect:
         """A parser that knows the program: rotary letters, commanded values, identity check."""
@@ -283,7 +312,22 @@ class Dialect:
                     mv.linear_rapid for mv in program.moves) else "",
                 "blocks": self.blocks(program), "counter": Code(self.counter),
                 "temperatures": self.temperature_prints(program),
-                "miss_tol": fmt(MISS_TOL_MM), "r1": program.rotary[0], "r2": program.rotary[1]}
+                "miss_tol": fmt(MISS_TOL_MM), "r1": program.rotary[0], "r2": program.rotary[1],
+                "handshake": self.handshake(program)}
+
+    def handshake(self, program: Program) -> dict | None:
+        """The ring wait and stop check (``Program.handshake``): the variables the link writes,
+        or None; a dialect without them refuses (its links read no variables)."""
+        if not program.handshake:
+            return None
+        stop = STOP_PROGRAMS.get(self.label)
+        if stop is not None:  # the link writes files, not variables: a called stop program
+            return {"stop_program": Code(stop[0]), "stop": Code(stop[1])}
+        pair = HANDSHAKE_VARIABLES.get(self.label)
+        if pair is None:
+            raise ProgramError(f"the {self.label} dialect has no result handshake: its links "
+                               "read the results another way")
+        return {"ack": Code(pair[0]), "stop": Code(pair[1]), "slots": RING_SLOTS}
 
     def render(self, program: Program, cycle_time: CycleTime | None = None) -> str:
         """The program text (LF line ends; transports convert); ``cycle_time``: the program's
@@ -305,6 +349,9 @@ class BoundDialect:
         self.rotary = program.rotary
         self.table = program.touch_table()
         self.name = dialect.name
+
+    def last_printed_seq(self, text: str) -> int:
+        return self.dialect.last_printed_seq(text)
 
     def parse_result(self, line: str) -> ProbeHit | None:
         """Decode one result line and complete it from the program; ValueError when broken or

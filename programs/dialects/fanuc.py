@@ -15,6 +15,7 @@ class Fanuc(Dialect):
     """Fanuc 0i/30i macro B (also Haas): G31, #5061-#5065, DPRNT, #3000 alarm."""
 
     name, extension, counter, slot_prefix, slot_base = "fanuc", "nc", "#599", "#", 600
+    result_print = re.compile(r"DPRNT\[RUMBA\*")
     tcpm_off, tcpm_note = "G49", "G43.4 G43.5 TCPM MUST BE OFF - G49 BELOW"
     result_channel = "DPRNT on the DNC serial port (POPEN/PCLOS)"
     verdict_variable = VERDICT_VARIABLES["fanuc"]
@@ -47,8 +48,12 @@ class Fanuc(Dialect):
         return ["1.", "#5061", "#5062", "#5063", *rot]
 
     program_number = 9100
+    stop_block = 99998  # the handshake's end at a stop request: above every move number
 
     def context(self, program: Program, cycle_time: CycleTime) -> dict:
         ctx = super().context(program, cycle_time)
         ctx["info"] = [x.upper() for x in ctx["info"]]
-        return {**ctx, "program_number": self.program_number}
+        if ctx["handshake"] and any(b.n >= self.stop_block for b in ctx["blocks"]):
+            raise ProgramError(f"program of {len(ctx['blocks'])} moves: its block numbers "
+                               f"reach N{self.stop_block}, the handshake's stop block")
+        return {**ctx, "program_number": self.program_number, "stop_block": self.stop_block}

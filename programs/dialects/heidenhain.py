@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Sequence
 
 from contracts.result_lines import SLOT_FIELDS, VERDICT_VARIABLES
@@ -15,6 +16,7 @@ class Heidenhain(Dialect):
     """Heidenhain TNC conversational: TCH PROBE 0/1/4, Q115-Q119, FN 16 F-PRINT, FN 14 ERROR."""
 
     name, extension, counter, slot_prefix, slot_base = "heidenhain", "h", "Q1599", "Q", 1600
+    result_print = re.compile(r"FN 16: F-PRINT RUMBA_")
     tcpm_off, tcpm_note = "M129", "M128 FUNCTION TCPM MUST BE OFF - M129 BELOW"
     linear_rapid = True  # L ... FMAX: a straight line at rapid traverse
     result_channel = "FN 16 F-PRINT to RUMBA_RES.TXT next to the program"

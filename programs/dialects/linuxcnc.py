@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 
 from contracts.result_lines import VERDICT_VARIABLES
@@ -15,6 +17,7 @@ class LinuxCNC(Dialect):
     miss check guarded by #<_task>."""
 
     name, extension, counter, slot_prefix, slot_base = "linuxcnc", "ngc", "#3999", "#", 4000
+    result_print = re.compile(r"\(LOG,RUMBA ")
     tcpm_off, tcpm_note = "G49", "TCP KINEMATICS MUST BE OFF - IDENTITY JOINT MODE, G49 BELOW"
     linear_rapid = True  # G0 is a coordinated straight line: every axis arrives together
     log_file = "rumba_results.log"

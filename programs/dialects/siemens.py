@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import re
+
 from contracts.result_lines import VERDICT_VARIABLES
 from programs.dialects.base import Dialect
 from programs.model import Program
@@ -11,6 +13,8 @@ class Siemens(Dialect):
     """Sinumerik 840D: MEAS=1 G1, $AA_MW / $AC_MEA, R parameters, WRITE, SETAL."""
 
     name, extension, counter, slot_prefix, slot_base = "siemens", "mpf", "R99", "R", 100
+    result_print = re.compile(r'WRITE\(RERR,"RUMBA_RES",RLINE\)')
+    result_armed = re.compile(r'RLINE="RUMBA ')
     tcpm_off, tcpm_note = "TRAFOOF", "TRAORI MUST BE OFF - TRAFOOF BELOW"
     # RTLION: G0 interpolates linearly, all path axes arrive together (SINUMERIK programming
     # manual 12/2019 §2.9; RTLIOF, or MD20730 G0_LINEAR_MODE = 0, would make it non-linear)

@@ -19,20 +19,12 @@ from typing import Any
 
 from asyncua import Server, ua
 from asyncua.common.methods import uamethod
-from asyncua.crypto.truststore import TrustStore
-from asyncua.crypto.validator import CertificateValidator, CertificateValidatorOptions
 
-from contracts.opcua_certs import ensure_certificate
-from contracts.opcua_security import PasswordUsers, SecureServer
 from contracts.opcua_space import BY_ROLE, NAMESPACE_URI, RESULT_ROLES, RING_SLOTS, STATES
 from simulators import thermal
 from simulators.frontends import cancel_tasks
+from simulators.frontends.opcua_server import check_security, free_port, secure_server
 
-POLICIES = {
-    "Basic256Sha256_SignAndEncrypt": ua.SecurityPolicyType.Basic256Sha256_SignAndEncrypt,
-    "Basic256Sha256_Sign": ua.SecurityPolicyType.Basic256Sha256_Sign,
-    "none": ua.SecurityPolicyType.NoSecurity,
-}
 VTYPE = {"Double": ua.VariantType.Double, "Int32": ua.VariantType.Int32,
          "String": ua.VariantType.String}
 HANDSHAKE = ("request", "busy", "done", "verdict")
@@ -48,12 +40,7 @@ class OpcUaFrontend:
                  cert_dir: Path | None = None, users: dict[str, str] | None = None,
                  trusted_client_certs: list[Path] | None = None,
                  application_uri: str = "urn:rumba-cnc:simulator") -> None:
-        if security not in POLICIES:
-            raise ValueError(f"security {security!r}: expected one of {sorted(POLICIES)}")
-        if security != "none" and cert_dir is None:
-            raise ValueError(f"security {security} needs a certificate folder (cert_dir)")
-        if security != "none" and not users:
-            raise ValueError(f"security {security} needs users (user/password authentication)")
+        check_security(security, cert_dir, users)
         self.ctrl = controller
         self.security = security
         self.cert_dir = cert_dir
@@ -81,38 +68,16 @@ class OpcUaFrontend:
     async def prepare(self, host: str = "127.0.0.1", port: int = 0) -> None:
         """Everything but listening (the slow part: asyncua loads its standard nodes)."""
         if port == 0:
-            port = _free_port(host)
-        cls = Server if self.security == "none" else SecureServer
-        server = cls(user_manager=PasswordUsers(self.users or None))
-        await server.init()
-        server.set_endpoint(f"opc.tcp://{host}:{port}/rumba/")
-        server.set_server_name("rumba-cnc simulated controller")
-        await server.set_application_uri(self.application_uri)
-        server.set_security_policy([POLICIES[self.security]])
-        tokens: list[type] = [ua.UserNameIdentityToken] if self.users else [
-            ua.AnonymousIdentityToken]
-        server.set_identity_tokens(tokens)
-        if self.security != "none":
-            assert self.cert_dir is not None
-            cert, key = self.cert_dir / "server_cert.der", self.cert_dir / "server_key.pem"
-            await ensure_certificate(cert, key, self.application_uri, server=True)
-            await server.load_certificate(str(cert))
-            await server.load_private_key(str(key))
-            self.server_certificate = cert
-            if self.trusted is not None:
-                store = TrustStore(list(self.trusted), [])
-                await store.load()
-                validator = CertificateValidator(
-                    CertificateValidatorOptions.TRUSTED_VALIDATION
-                    | CertificateValidatorOptions.PEER_CLIENT, store)
-            else:
-                validator = CertificateValidator(CertificateValidatorOptions.EXT_VALIDATION
-                                                 | CertificateValidatorOptions.PEER_CLIENT)
-            server.set_certificate_validator(validator)
+            port = free_port(host)
+        endpoint = f"opc.tcp://{host}:{port}/rumba/"
+        server, self.server_certificate = await secure_server(
+            security=self.security, cert_dir=self.cert_dir, users=self.users,
+            trusted=self.trusted, application_uri=self.application_uri,
+            name="rumba-cnc simulated controller", endpoint=endpoint)
         ns = await server.register_namespace(NAMESPACE_URI)
         await self._build(server, ns)
         self._server = server
-        self.endpoint = f"opc.tcp://{host}:{port}/rumba/"
+        self.endpoint = endpoint
 
     async def listen(self) -> str:
         assert self._server is not None, "prepare() first"
@@ -311,12 +276,3 @@ class OpcUaFrontend:
                         ua.DataValue(ua.Variant(value, ua.VariantType.Double)))
                     self._mirror[f"temp_{axis}"] = value
             await asyncio.sleep(0.02)
-
-
-def _free_port(host: str) -> int:
-    """A free port for the endpoint URL (the URL must name the port clients will use)."""
-    import socket
-
-    with socket.socket() as s:
-        s.bind((host, 0))
-        return s.getsockname()[1]

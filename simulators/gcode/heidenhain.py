@@ -1,6 +1,7 @@
 """Heidenhain TNC conversational dialect: numbered lines, Q parameters, L moves, touch-probe
 cycles 0 (REF. PLANE), 1 (POLAR DATUM PLANE) and 4 (MEASURING IN 3-D), FN 9-12 jumps, FN 14
-errors, FN 16 F-PRINT, FN 18 SYSREAD ID360 (last touch point).
+errors, FN 16 F-PRINT (to the DNC line and to its target file), FN 18 SYSREAD ID360 (last touch
+point), CALL PGM of a straight-line program (a stop or verdict program rumba writes).
 
 Touch-probe cycles behave as the TNC manuals describe them: the point given in ``0.1`` / ``1.2``
 is the PRE-POSITION, approached at the probe table's FMAX; the probe then moves along the
@@ -24,6 +25,7 @@ _FN_JUMP = re.compile(r"^FN\s*(9|10|11|12)\s*:\s*IF\s+(.+?)\s+(EQU|NE|GT|LT)\s+(
 _LBL = re.compile(r"^LBL\s+(\w+)$", re.IGNORECASE)
 _WORD = re.compile(rf"\s*([A-Z])\s*([-+]?(?:\d+\.?\d*|\.\d+)|[-+]?{_Q})", re.IGNORECASE)
 _FPRINT = re.compile(r"^FN\s*16\s*:\s*F-PRINT\s+(\S+)\s*/\s*(\S+)$", re.IGNORECASE)
+_CALL_PGM = re.compile(r"^CALL\s+PGM\s+(\S+)$", re.IGNORECASE)
 _FMT_LINE = re.compile(r'^\s*"((?:[^"\\]|\\.)*)"\s*(?:,(.*?))?\s*;?\s*$')
 _FMT_SPEC = re.compile(r"%(-?\d*(?:\.\d+)?)(LF|F|D|I|S)", re.IGNORECASE)
 _CMP = {"EQU": lambda a, b: a == b, "NE": lambda a, b: a != b,
@@ -85,7 +87,11 @@ class HeidenhainInterpreter(Interpreter):
         m = _FPRINT.match(code)
         if m:
             for line in self.fprint(m.group(1)):
-                self.io.output(line)
+                self.io.output(line, target=m.group(2))
+            return NEXT
+        m = _CALL_PGM.match(code)
+        if m:
+            self.call_pgm(m.group(1))
             return NEXT
         if up.startswith("TCH PROBE"):
             return self.touch_probe(code)
@@ -258,6 +264,23 @@ class HeidenhainInterpreter(Interpreter):
         if nr == 1 and idx <= 3:
             v += self.stylus_radius_mm * d[idx - 1]
         return v
+
+    def call_pgm(self, path: str) -> None:
+        """CALL PGM: the called program runs now (read from the control's files when it is
+        called, as a file written meanwhile takes effect); simulated for straight-line programs
+        (Q assignments, comments): a verdict or stop program."""
+        name = path.split("\\")[-1].split("/")[-1].upper()
+        text = next((t for n, t in self.files.items() if n.upper() == name), None)
+        if text is None:
+            raise Alarm(f"CALL PGM {path}: program not found on the control")
+        for block in text.replace("\r\n", "\n").split("\n"):
+            code = self._code(block)
+            if not code or code.upper().startswith(("BEGIN PGM", "END PGM")):
+                continue
+            m = _ASSIGN.match(code)
+            if not m:
+                raise Alarm(f"CALL PGM {name}: {code!r} is not simulated in a called program")
+            self.variables[m.group(1).upper()] = self.num(m.group(2))
 
     def fprint(self, fmt_file: str) -> list[str]:
         name = fmt_file.split("\\")[-1].split("/")[-1]

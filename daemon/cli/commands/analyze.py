@@ -80,8 +80,10 @@ def run_analysis(log: Path | str, machine_path: Path | str, artefact_path: Path 
                  validate_poses: Sequence[int] = (), links: str = "all",
                  fixed_radius: bool = False,
                  stylus_diameter_mm: float = DEFAULT_STYLUS_DIAMETER_MM,
-                 repeatability_um: Sequence[float] | None = None) -> Analysis:
-    """Read ``log`` and analyse it (``daemon.analysis.identify.analyse_centres``)."""
+                 repeatability_um: Sequence[float] | None = None,
+                 keep: dict[str, Any] | None = None) -> Analysis:
+    """Read ``log`` and analyse it (``daemon.analysis.identify.analyse_centres``; ``keep``
+    receives what that keeps: the estimate, the centres in its frame)."""
     machine, mfile = load_machine(machine_path)
     artefact = load_artefact(artefact_path)
     chosen = parse_links(links, machine.location_error_names())
@@ -97,7 +99,8 @@ def run_analysis(log: Path | str, machine_path: Path | str, artefact_path: Path 
         out = analyse_centres(machine, artefact, data, validate_poses=validate_poses,
                               links=chosen, repeatability_um=repeatability_um,
                               fixed_radius=fixed_radius, source=str(log),
-                              rotary_repeatability_urad=mfile.rotary_repeatability_urad)
+                              rotary_repeatability_urad=mfile.rotary_repeatability_urad,
+                              keep=keep)
     except ImplausibleFitError as e:
         raise _user_error(f"{e}{_taken_on(machine_path, artefact, data.centres)}") from None
     except (ProbeLogError, AnalysisError) as e:
@@ -186,6 +189,11 @@ def render(r: Analysis, console: Console) -> None:
                   f"{max(abs(x.radius_dev_um) for x in h):.2f} µm")  # type: ignore[arg-type]
         t.add_row("max form residual RMS",
                   f"{max(x.form_rms_um for x in h):.2f} µm")  # type: ignore[type-var]
+    sf = e.sphere_frame
+    if sf is not None:
+        t.add_row("sphere fits in the estimate's frame",
+                  sf.note or f"centres moved ≤ {sf.max_shift_um:.3f} µm ({sf.passes} pass"
+                  f"{'' if sf.passes == 1 else 'es'})")
     console.print(t)
     if r.measured_by:
         console.print(f"Centres measured by: {r.measured_by}")
@@ -237,12 +245,14 @@ def render(r: Analysis, console: Console) -> None:
 
 def cmd_analyze(args: argparse.Namespace) -> int:
     """`rumba analyze` (``daemon.cli.parsers.analyze``): analyse, print, write the files."""
+    keep: dict[str, Any] = {}
     if args.centres:
         result = _centres(args)
     else:
         result = run_analysis(args.log, args.machine, args.artefact,
                               parse_poses(args.validate_poses), args.links, args.fixed_radius,
-                              args.stylus_diameter, parse_repeatability(args.repeatability_um))
+                              args.stylus_diameter, parse_repeatability(args.repeatability_um),
+                              keep)
     if isinstance(result, Analysis):
         render(result, Console())
     else:
@@ -256,7 +266,7 @@ def cmd_analyze(args: argparse.Namespace) -> int:
 
         n = centres_input.export_log_centres(args.log, load_artefact(args.artefact),
                                              args.stylus_diameter / 2, args.fixed_radius,
-                                             args.write_centres)
+                                             args.write_centres, keep.get("touch_data"))
         print(f"wrote {n} centres to {args.write_centres}")
     if args.json:
         try:

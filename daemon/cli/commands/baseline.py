@@ -1,10 +1,18 @@
-"""`rumba baseline show|set MACHINE [RUN] --config daemon.yaml [--by NAME]`: drift baseline."""
+"""`rumba baseline show|set MACHINE [RUN] --config daemon.yaml [--by NAME] [--override
+REASON]`: drift baseline; a run that FAILed, predates a compensation or was identified against
+a model the controller no longer runs is refused unless a person overrides it with a reason."""
 
 from __future__ import annotations
 
 import argparse
 
 from daemon.cli.main import UserError
+from daemon.compensation.baseline_check import (
+    BaselineRefused,
+    check_override,
+    objections,
+    set_baseline,
+)
 from daemon.compensation.names import BadName, validate_by
 from daemon.config import load_daemon_config
 from daemon.store import baselines
@@ -39,12 +47,20 @@ def _show(store: Store, machine: str) -> int:
     if wait is not None:
         print(f"  proposed: {wait.describe()}: {wait.note}; confirm with rumba baseline set "
               f"{machine} {wait.run_id} --by NAME")
+    if cur is not None:  # a baseline set before these objections existed, or overridden
+        try:
+            found = objections(store, machine, cur.run_id)
+        except StoreError:
+            found = []
+        for why in found:
+            print(f"  warning: this baseline is questionable: {why}")
     return 0
 
 
 def _set(store: Store, args: argparse.Namespace) -> int:
     try:
         by = validate_by(args.by, "--by", allow_unattended=False)
+        override = None if args.override is None else check_override(args.override)
     except BadName as e:
         raise UserError(str(e)) from None
     run_id = args.run
@@ -54,8 +70,14 @@ def _set(store: Store, args: argparse.Namespace) -> int:
             raise UserError(f"{args.machine}: no proposed baseline to confirm; name the run")
         run_id = wait.run_id
     try:
-        b = baselines.confirm(store, args.machine, run_id, by, args.note)
+        b = set_baseline(store, args.machine, run_id, by, args.note, override)
+    except BaselineRefused as e:
+        print(f"refused: {e} (rumba baseline set {args.machine} {run_id} --by NAME "
+              "--override REASON)")
+        return 2
     except (StoreError, RunIdError) as e:
         raise UserError(str(e)) from None
     print(f"{args.machine}: baseline {b.describe()}")
+    if override is not None and b.note.startswith("[OVERRIDE"):
+        print(f"  overridden, journaled: {b.note}")
     return 0

@@ -1,6 +1,7 @@
 """``rumba compensate RUN --config daemon.yaml``: the controller-model changes that hold the
-run's identified link errors, guarded; ``--confirm --by NAME`` applies them, ``--rollback``
-restores the values before the last applied compensation. Exit 0 done, 2 refused."""
+run's identified link errors, guarded, and what a confirmation would write (a review document,
+never a program); ``--confirm --by NAME`` writes and applies them, ``--rollback`` restores the
+values before the last applied compensation. Exit 0 done, 2 refused."""
 
 from __future__ import annotations
 
@@ -10,14 +11,8 @@ import asyncio
 from contracts.yaml_files import ConfigError
 from daemon.cli.main import UserError
 from daemon.compensation import journal as cj
-from daemon.compensation.apply import (
-    ApplyError,
-    confirm,
-    current_spec,
-    rollback,
-    with_closing,
-    write_program,
-)
+from daemon.compensation.apply import ApplyError, confirm, rollback
+from daemon.compensation.listing import fingerprint, listing_lines, with_closing
 from daemon.compensation.names import BadName, validate_by
 from daemon.compensation.propose import (
     CompensationRefused,
@@ -31,17 +26,20 @@ from daemon.compensation.propose import (
 from daemon.config import DaemonConfig, load_daemon_config
 from daemon.machines.setup import MachineSetup
 from daemon.reports.compensation import verification_of
+from daemon.reports.proposal import review_document, why_nothing, write_review
 from daemon.store.journal import Store, StoreError
+from identification.worth import plain
 
 
-def _fmt(kind: str, model_value: float) -> str:
-    return f"{model_value * 1e3:+.2f} µm" if kind == "pivot" else f"{model_value * 1e6:+.2f} µrad"
+def _fmt(kind: str, model_value: float, sign: bool = True) -> str:
+    f, unit = (1e3, "µm") if kind == "pivot" else (1e6, "µrad")
+    return f"{plain(model_value * f, 2, sign)} {unit}"
 
 
 def _link(name: str, v: float) -> str:
     # rounded to 4 decimals first, as the analysis JSON and the report round a link
-    return f"{round(v * 1e6, 4):+.2f} µrad" if name[1] in "ABC" else \
-        f"{round(v * 1e3, 4):+.2f} µm"
+    f, unit = (1e6, "µrad") if name[1] in "ABC" else (1e3, "µm")
+    return f"{plain(round(v * f, 4), 2, sign=True)} {unit}"
 
 
 def render(p: Proposal) -> list[str]:
@@ -64,7 +62,7 @@ def render(p: Proposal) -> list[str]:
         else:
             status = f"skipped ({p.skipped.get(ch.name, 'not applied')})"
         lines.append(f"  {ch.name:<14} {sp.address:<30} {old:>12.6g} {new:>12} "
-                     f"{_fmt(ch.kind, ch.delta):>14} {_fmt(ch.kind, ch.u_expanded)[1:]:>12}  "
+                     f"{_fmt(ch.kind, ch.delta):>14} {_fmt(ch.kind, ch.u_expanded, False):>12}  "
                      f"{status}  [{unit}]")
     lines.append("  links        run estimate  held by changes       residual")
     for k in plan.links_identified:
@@ -75,6 +73,12 @@ def render(p: Proposal) -> list[str]:
     # issue 23: the figures as the report and the HMI name and define them
     for f in p.figures():
         lines.append(f"  {f.text()} — {f.definition}")
+    if p.program is not None:
+        lines.append(f"what a confirmation writes ({p.program.filename}), every address as "
+                     "the program writes it, in the controller's unit and sign:")
+        lines += listing_lines(p.program.listing, "    ")
+    elif not p.refusals:
+        lines.append(why_nothing(p))
     return lines
 
 
@@ -157,9 +161,8 @@ def _compensate(args: argparse.Namespace, cfg: DaemonConfig, store: Store) -> in
         except ApplyError as e:  # journaled by rollback()
             print(f"error: {e}")
             return 2
-        row = cj.get(store, w.row_id)
-        for v in row.values if row else ():
-            print(f"  {v.name:<14} {v.address:<30} {v.old:>12.6g} -> {v.new:.6g} {v.unit}")
+        if w.program is not None:  # as the program writes them, every address
+            print("\n".join(listing_lines(w.program.listing)))
         print(f"rolled back (journal #{w.row_id}): {w.note}")
         print(f"program: {w.path}")
         return 0
@@ -169,6 +172,8 @@ def _compensate(args: argparse.Namespace, cfg: DaemonConfig, store: Store) -> in
         raise UserError("--confirm needs --by NAME (who confirms, recorded in the journal)")
     if args.verify and not args.confirm:
         raise UserError("--verify follows a write: give it with --confirm")
+    if getattr(args, "listing", None) is not None and not args.confirm:
+        raise UserError("--listing names what a confirmation writes: give it with --confirm")
     try:
         store.run(args.run)
     except StoreError as e:
@@ -182,14 +187,16 @@ def _compensate(args: argparse.Namespace, cfg: DaemonConfig, store: Store) -> in
     print("\n".join(render(p)))
     if p.refusals:
         return _refuse(store, setup, args.run, "; ".join(p.refusals), p.values, args.by or "")
-    if not p.values:
-        row = cj.record(store, setup.name, args.run, p.spec.family, "proposed", [],
-                        reason="nothing to change: every value skipped")
-        print(f"nothing to change (journal #{row})")
+    if not p.values or p.program is None:
+        why = why_nothing(p)
+        row = cj.record(store, setup.name, args.run, p.spec.family, "proposed", [], reason=why)
+        print(f"{why} (journal #{row})")
         return 0
+    seen = fingerprint(p.spec.family, p.run_id, p.program.listing)
     if args.confirm:
         try:
-            w = confirm(setup, store, cfg.reports_dir, p, args.by, again=again)
+            w = confirm(setup, store, cfg.reports_dir, p, args.by, again=again,
+                        seen=getattr(args, "listing", None))
         except CompensationRefused as e:
             return _refuse(store, setup, args.run, str(e), p.values, args.by)
         except ApplyError as e:
@@ -200,17 +207,21 @@ def _compensate(args: argparse.Namespace, cfg: DaemonConfig, store: Store) -> in
         if args.verify:
             return _verify_after(cfg, setup, store, p)
         return 0
+    # a proposal is a review document, never a program: nothing a control could load exists
+    # until a person confirms (then the program is made again and must list the same)
+    command = (f"rumba compensate --config {cfg.path} --confirm {args.run} --by NAME "
+               f"--listing {seen}")
     try:
-        path, text, written = write_program(current_spec(p.spec, store, setup.name),
-                                            p.values, cfg.reports_dir, args.run, setup.name)
-    except CompensationRefused as e:
-        return _refuse(store, setup, args.run, str(e), p.values, args.by or "")
+        path = write_review(cfg.reports_dir, review_document(p, setup.name, command))
+    except OSError as e:
+        raise UserError(f"review document not written into {cfg.reports_dir}: {e}") from None
     row = cj.record(store, setup.name, args.run, p.spec.family, "proposed",
-                    with_closing(p.values, written), reason=f"written to {path}")
-    print(f"--- {path.name} ---\n{text.rstrip()}\n---")
-    print(f"proposed (journal #{row}); review {path}, then: rumba compensate --config "
-          f"{cfg.path} --confirm {args.run} --by NAME")
-    print(f"program: {path}")
+                    with_closing(p.values, p.program.values),
+                    reason=f"review document {path.name}; no program exists until a person "
+                           f"confirms (listing {seen})")
+    print(f"proposed (journal #{row}): nothing written to the controller and no program made; "
+          f"review {path}, then: {command}")
+    print(f"review: {path}")
     return 0
 
 

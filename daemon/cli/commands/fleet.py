@@ -25,10 +25,14 @@ def _listen(value: str) -> tuple[str, int]:
 
 
 def cmd_fleet(args: argparse.Namespace) -> int:
+    import logging
+
     from daemon.fleet.app import create_fleet_app
     from daemon.hmi.auth import SECRET_FILE, SecretError, load_or_create_secret
     from daemon.hmi.tls import server_context
+    from daemon.service.logs import setup_terminal_logging
 
+    setup_terminal_logging(logging.INFO)  # the store's outages and returns, one line each
     url = parse_store_url(args.store, "--store")
     if url.kind != "postgresql":
         raise UserError("--store: the fleet page reads the PostgreSQL fleet store "
@@ -80,6 +84,7 @@ async def _start_opcua(cfg: Any, dsn: str, poll_s: float) -> tuple[Any, Any]:
     from contracts.yaml_files import ConfigError
     from daemon.opcua.server import OpcUaServerError, ResultServer
     from daemon.opcua.source import FleetSource
+    from daemon.service.heap import freeze_startup_heap
     from daemon.store.journal import StoreError
     from daemon.store.pg import PgStore
 
@@ -96,8 +101,23 @@ async def _start_opcua(cfg: Any, dsn: str, poll_s: float) -> tuple[Any, Any]:
         await pg.close()
         raise UserError(f"--opcua: {e}") from None
     server.follow(poll_s)
+    freeze_startup_heap()
     print(f"rumba fleet: OPC UA results {url}", flush=True)
     return server, pg
+
+
+async def _store_reachable(dsn: str) -> None:
+    """The fleet store answers before the page is served: a page that could only answer 503
+    is not started (while it serves, an outage is said on the terminal and the page answers
+    503 until the store is back)."""
+    from daemon.store.journal import StoreError
+    from daemon.store.pg import PgStore
+
+    try:
+        store = await PgStore.connect(dsn, app="rumba-fleet", migrate=False)
+    except StoreError as e:
+        raise UserError(f"--store: {e} (is PostgreSQL running and reachable?)") from None
+    await store.close()
 
 
 async def _serve(app: web.Application, host: str, port: int, ctx: object,
@@ -106,6 +126,7 @@ async def _serve(app: web.Application, host: str, port: int, ctx: object,
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGINT, signal.SIGTERM):
         loop.add_signal_handler(sig, stop.set)
+    await _store_reachable(dsn)
     runner = web.AppRunner(app, access_log=None, handle_signals=False)
     await runner.setup()
     site = web.TCPSite(runner, host, port, ssl_context=ctx)  # type: ignore[arg-type]

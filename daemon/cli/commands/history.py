@@ -135,7 +135,7 @@ def _import(cfg: DaemonConfig, store: Store, args: argparse.Namespace) -> int:
     try:  # after the commit: rendering takes seconds, the daemon must not wait on the journal
         html, json_path = report.write_report(
             cfg.reports_dir, run, a.data, j, a.centre_rows, trend, setup.tolerances,
-            report.audit_of(setup), verification_of(store, run, a.data))
+            report.audit_of(setup), verification_of(store, run, a.data, setup))
         report_jobs.written(store, run_id, html, json_path)
     except OSError as e:
         report_jobs.failed(store, run_id, f"{type(e).__name__}: {e.strerror or e}")

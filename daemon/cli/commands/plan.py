@@ -27,6 +27,8 @@ from programs.optimise import Chosen
 from programs.plan_drift import DriftPlan
 from programs.safety import SafetyError
 
+REFUSED_RETRIES = 5  # searches in one `rumba plan` when the whole program refuses a pose
+
 
 @dataclass
 class Outcome:
@@ -105,18 +107,35 @@ def make_plan(machine_path: Path, artefact_path: Path, target_path: Path, dialec
                       tf.candidates, d.two_speed and feeds.fast_probe_mm_min is not None,
                       tf.validate_poses, max_time_s, index)
     t0 = time.perf_counter()
+
+    def search(problem: Problem) -> tuple[Problem, Chosen, Plan, GeneratedProgram]:
+        """The optimiser's plan as a checked program. Each visit was checked alone; the moves
+        into a pose depend on the pose before it, so a pose the whole program refuses is
+        excluded and the search runs again (a handful of times at most)."""
+        last = ""
+        for _ in range(REFUSED_RETRIES):
+            chosen = optimise(problem)
+            plan = to_plan(chosen, probing, tf.name)
+            try:
+                return problem, chosen, plan, generate(machine, mf, artefact, plan, dialect)
+            except SafetyError as e:
+                if e.pose is None:
+                    raise _error(f"the optimised plan is refused: {e}") from None
+                last = str(e)
+                problem = replace(problem, refused=(*problem.refused,
+                                                    (chosen.candidates[e.pose], last)))
+            except ProgramError as e:
+                raise _error(f"the optimised plan is refused: {e}") from None
+        raise _error(f"the optimised plan is refused {REFUSED_RETRIES} times, last: {last}")
+
     try:
-        chosen = optimise(problem)
-        plan = to_plan(chosen, probing, tf.name)
-        new = program(plan, "the optimised plan is refused")
+        problem, chosen, plan, new = search(problem)
         for _ in range(3):  # the search's time model is approximate: honour the cap exactly
             if max_time_s is None or new.estimated_s <= max_time_s:
                 break
             problem = replace(problem, max_time_s=problem.max_time_s * max_time_s
                               / new.estimated_s)  # type: ignore[operator]
-            chosen = optimise(problem)
-            plan = to_plan(chosen, probing, tf.name)
-            new = program(plan, "the optimised plan is refused")
+            problem, chosen, plan, new = search(problem)
     except ValueError as e:
         cap = f" (--max-time {max_time_s:g} s)" if max_time_s is not None else ""
         raise _error(f"{target_path}: {e}{cap}; targets missed: {', '.join(targets)}") \
@@ -257,6 +276,8 @@ def _print(r: Outcome, dialect: object, sigma: object) -> None:
     print(f"optimiser {r.optimiser_s:.1f} s: {c.builds} one-pose programs built and checked, "
           f"{len(c.excluded)} candidate poses refused by the safety check"
           + ("; stopped at its time budget" if c.stopped else ""))
+    for why in c.refused:
+        print(f"excluded after the whole program refused it: {why}")
 
 
 def _harmonic_warnings(plan: Plan, machine: Machine) -> None:

@@ -6,11 +6,12 @@ import argparse
 import asyncio
 import logging
 import signal
-import sys
 
 from daemon.cli.main import UserError
 from daemon.config import load_daemon_config
 from daemon.service import sdnotify
+from daemon.service.heap import freeze_startup_heap
+from daemon.service.logs import setup_logging
 from daemon.service.service import Service, ServiceError
 from daemon.store.journal import StoreError
 
@@ -25,6 +26,7 @@ async def serve(service: Service) -> None:
         await service.start()
     except (ServiceError, StoreError) as e:
         raise UserError(str(e)) from None
+    freeze_startup_heap()
     names = ", ".join(f"{n} ({s.setup.link.transport}, {s.setup.dialect})"
                       for n, s in service.sessions.items())
     print(f"rumba: serving {names}", flush=True)
@@ -46,13 +48,17 @@ async def serve(service: Service) -> None:
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO, stream=sys.stderr,
-                        format="%(asctime)s %(levelname)s %(name)s: %(message)s")
-    for noisy in ("asyncua", "pymodbus", "aiohttp.access"):
-        logging.getLogger(noisy).setLevel(logging.WARNING)
+    max_mb = getattr(args, "log_max_mb", 10)
+    if not 1 <= max_mb <= 10_000:
+        raise UserError(f"--log-max-mb {max_mb}: expected 1 to 10000 (MiB per log file)")
+    repeats = setup_logging(logging.DEBUG if args.verbose else logging.INFO,
+                            getattr(args, "log_file", None), max_bytes=max_mb * 1024 * 1024)
     cfg = load_daemon_config(args.config)
     if args.check:
         print(f"{args.config}: OK ({len(cfg.machines)} machines: {', '.join(cfg.machines)})")
         return 0
-    asyncio.run(serve(Service(cfg)))
+    try:
+        asyncio.run(serve(Service(cfg)))
+    finally:
+        repeats.flush()
     return 0

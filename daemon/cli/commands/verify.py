@@ -10,8 +10,8 @@ import argparse
 import asyncio
 import contextlib
 import logging
+import os
 import signal
-import sys
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -24,6 +24,7 @@ from daemon.cli.main import UserError
 from daemon.compensation.propose import journal_analyse
 from daemon.config import load_daemon_config
 from daemon.run.session import Session
+from daemon.service.logs import setup_terminal_logging
 from daemon.service.service import LinkFactory, ServiceError, make_link
 from daemon.store.journal import Store, StoreError
 from drivers.base import LinkError
@@ -207,7 +208,7 @@ async def verify_via_daemon(cfg_path: str, machine: str, *, strict: bool = False
 
 
 def cmd_verify(args: argparse.Namespace) -> int:
-    logging.basicConfig(level=logging.WARNING, stream=sys.stderr)
+    setup_terminal_logging(logging.WARNING, tracebacks=bool(os.environ.get("RUMBA_DEBUG")))
     operator = getattr(args, "operator", None)
     if operator is not None:  # the journal's and the report's rules for a person's name
         from daemon.compensation.names import BadName, validate_by

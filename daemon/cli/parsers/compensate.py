@@ -5,9 +5,11 @@ from __future__ import annotations
 import argparse
 
 DESCRIPTION = ("``rumba compensate RUN --config daemon.yaml``: the controller-model changes that "
-               "hold the run's identified link errors, guarded; ``--confirm --by NAME`` applies "
-               "them, ``--rollback`` restores the values before the last applied compensation. "
-               "Exit 0 done, 2 refused.")
+               "hold the run's identified link errors, guarded and worth writing, listed "
+               "address by address as the program would write them; a review document "
+               "(proposal-<machine>-<run>.json), never a program. ``--confirm --by NAME`` "
+               "writes the program and applies it, ``--rollback`` restores the values before "
+               "the last applied compensation. Exit 0 done, 2 refused.")
 
 
 def _run(args: argparse.Namespace) -> int:
@@ -33,6 +35,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--again", action="store_true",
                    help="with --confirm: apply a run whose compensation was rolled back, as a "
                         "new decision (refused without it)")
+    p.add_argument("--listing", metavar="FINGERPRINT",
+                   help="with --confirm: the listing fingerprint of the proposal reviewed (its "
+                        "review document and output print it); refused if what would be "
+                        "written now differs")
     p.add_argument("--verify", action="store_true",
                    help="with --confirm: when the values went live (LinuxCNC on this PC), run "
                         "the verification at once and print each link before and after")

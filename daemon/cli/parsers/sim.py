@@ -30,7 +30,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--faults", type=Path, help="faults YAML (simulators/faults.py)")
     p.add_argument("--run", type=Path, metavar="PROGRAM", help="execute this program offline")
     p.add_argument("--dialect", choices=DIALECT_NAMES,
-                   help="dialect of --run PROGRAM")
+                   help="dialect of --run PROGRAM; with --serve, the control's own (its DNC "
+                        "tapes and the console's `run FILE`)")
     p.add_argument("--log", type=Path, metavar="OUT.csv", help="probing log to write (--run)")
     p.add_argument("--run-id", help="run_id column of the log (default: program file stem)")
     if importlib.util.find_spec("simulators.serve") is not None:  # --serve and its options

@@ -1,0 +1,1 @@
+"""Haas NGC over its Ethernet data port (Machine Data Collection: ?Q600 / ?E macro variables)."""

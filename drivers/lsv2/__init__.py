@@ -1,0 +1,1 @@
+"""HEIDENHAIN TNC over LSV2 (TNCremo's protocol) with pylsv2: files, program state, results."""

@@ -1,0 +1,1 @@
+"""SINUMERIK OPC UA profile: the control's own OPC UA server (file system, Select, R parameters)."""
