@@ -116,7 +116,7 @@ def run_one(row: str, plan: str, s: int, machine, artefact, plans) -> dict:
     data = simulate(machine, artefact, poses, truth, STYLUS_R, NOISE_UM, seed=seed + 1)
     hdata = None if hold is None else simulate(machine, artefact, hold, truth, STYLUS_R,
                                                NOISE_UM, seed=seed + 2)
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     rep = diagnose(machine, artefact, data, STYLUS_R, holdout=hdata)
     v, st = rep["verdict"], rep.get("structure") or {}
     parts = rep["noise"].get("parts") or {}
@@ -136,13 +136,24 @@ def run_one(row: str, plan: str, s: int, machine, artefact, plans) -> dict:
             "structure_axis": st.get("axis"), "shape": (st.get("located") or {}),
             "floor_parts": {k: parts.get(k) for k in ("trigger_um", "index_um",
                                                        "ball_visit_um")},
-            "seconds": round(time.perf_counter() - t0, 2)}
+            "seconds": round(time.perf_counter() - t0, 2),
+            "cpu_s": round(time.process_time() - c0, 2)}
+
+
+def _split(rs: list[dict]) -> str:
+    """Median trigger noise, rigid index scatter and centre scatter per ball visit of the
+    floors (µm, RMS per observation), and the largest centre scatter per ball visit credited."""
+    fp = {k: [r["floor_parts"][k] or 0.0 for r in rs] for k in ("trigger_um", "index_um",
+                                                                 "ball_visit_um")}
+    med = "/".join(f"{np.median(v):.2f}" for v in fp.values())
+    return f"{med} ({max(fp['ball_visit_um']):.2f})"
 
 
 def summary(runs: list[dict]) -> str:
     lines = [f"{'row':16s} {'plan':12s} {'N':>4s} {'not none':>8s} {'caught':>7s} "
              f"{'located':>8s} {'both':>6s} {'right axis':>10s} {'not unexpl.':>11s} "
-             f"{'no struct.':>10s}  verdicts"]
+             f"{'no struct.':>10s} {'floor µm: trigger/index/ball-visit (median; max b-v)':>52s}"
+             "  verdicts"]
     keys = sorted({(r["row"], r["plan"]) for r in runs},
                   key=lambda k: (ROWS.index(k[0]), PLANS.index(k[1])))
     for row, plan in keys:
@@ -160,7 +171,8 @@ def summary(runs: list[dict]) -> str:
             f"{pct(lambda r: r['caught'] and r['located']):>6s} "
             f"{pct(lambda r: r['caught'] and (r['located'] or r.get('named_axis'))):>10s} "
             f"{pct(lambda r: r['verdict'] != 'unexplained'):>11s} "
-            f"{pct(lambda r: not r['structure_p'] or r['structure_p'] >= 0.01):>10s}  "
+            f"{pct(lambda r: not r['structure_p'] or r['structure_p'] >= 0.01):>10s} "
+            f"{_split(rs):>52s}  "
             + ", ".join(f"{k} {c}" for k, c in verdicts.most_common()))
         if not row.startswith("null"):
             for ax in "XYZ":
@@ -171,6 +183,24 @@ def summary(runs: list[dict]) -> str:
     return "\n".join(lines)
 
 
+def _record(runs: list[dict]) -> Path:
+    """The table as the manual's result file, with where, when and at what cost it ran."""
+    from benchmarks.record import RESULTS, _commit, _cpu
+
+    doc = " ".join(__doc__.strip().split("\n\n")[0].split())
+    cpu = sum(r.get("cpu_s", r["seconds"]) for r in runs)
+    text = (f"### `bench_structure`\n\n{doc}\n\n"
+            f"Run up to {time.strftime('%Y-%m-%d %H:%M', time.gmtime())} UTC, commit "
+            f"`{_commit()}`, {_cpu()}, one process, single-threaded BLAS, nice 10 on a shared "
+            f"2-core machine; {len(runs)} diagnoses, {cpu / 60:.0f} CPU-min. N per row in the "
+            "table.\n\n"
+            f"```text\n{summary(runs)}\n```\n")
+    RESULTS.mkdir(exist_ok=True)
+    out = RESULTS / "bench_structure.md"
+    out.write_text(text, encoding="utf-8")
+    return out
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=50)
@@ -179,11 +209,15 @@ def main() -> int:
     ap.add_argument("--plans", default=",".join(PLANS))
     ap.add_argument("--raw", action="store_true", help="one JSON line per run (RUN …)")
     ap.add_argument("--summary", help="print the table of a file of RUN lines and exit")
+    ap.add_argument("--record", action="store_true",
+                    help="with --summary: write it to benchmarks/results/bench_structure.md")
     args = ap.parse_args()
     if args.summary:
         runs = [json.loads(line[4:]) for line in Path(args.summary).read_text().splitlines()
                 if line.startswith("RUN ")]
         print(summary(runs))
+        if args.record:
+            print(f"wrote {_record(runs).relative_to(ROOT)}")
         return 0
     machine, _ = load_machine(ROOT / "config/machines/thesis_wcbxfzyt.yaml")
     artefact = load_artefact(ROOT / "config/artefacts/thesis_4ball.yaml")

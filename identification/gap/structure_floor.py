@@ -4,20 +4,24 @@ The decision rule between "scatter" and "structure" (README, gap diagnosis):
 
 1. The twin's residuals — every group, training and held-out — are tested first for structure
    along X, Y and Z (``structure.test_structure``), against the run's visit model.
-2. Structure found: it is located (axis, where, size, scale) and reported; the centre scatter
-   per ball visit, which cannot tell a pattern along an axis from random scatter, is *not*
-   credited, and the rigid index components are estimated again with the located shape held
-   fixed (``structure_shape.Shape.columns``) so that they take up only what moves a visit
-   rigidly. The floor is then the trigger noise plus the rigid index scatter, never more.
-3. No structure: the residual is not a function of any axis' position; the centre scatter per
-   ball visit is credited as the REML estimate gives it (the probe's centre repeatability,
-   thesis §3.4).
+2. Structure found — in the twin's residuals, or with the effects the components are
+   estimated with held fixed: it is located (axis, where, size, scale) and reported; the centre
+   scatter per ball visit, which cannot tell a pattern along an axis from random scatter, is
+   *not* credited, and the rigid index components are estimated again with the located shape
+   held fixed (``structure_shape.Shape.columns``; with the effects alone where they remove it)
+   so that they take up only what moves a visit rigidly. The floor is then the trigger noise
+   plus the rigid index scatter, never more — also for a library effect the diagnosis selects:
+   it is named only when its held-out gap comes down to that floor (``after_selection``).
+3. No structure in the twin's residuals: they are not a function of any axis' position; the
+   centre scatter per ball visit is credited as the REML estimate gives it (the probe's centre
+   repeatability, thesis §3.4).
 
-Effects the components are estimated with (those the diagnosis selected, ``scatter.rescatter``)
-are held fixed in the test that decides on the floor: once a library effect explains the
-structure the centre scatter may be credited again. The twin-alone test is kept as what the run
-shows before any attribution; the verdict may name a library effect only when the structure is
-gone with it and the held-out gap it leaves is at the floor (``after_selection``).
+Once the twin's residuals show structure, no later pass credits the centre scatter again: a
+library effect that removes only part of a pitch error or a bump leaves the rest to a
+component that would take it up as random scatter, and the floor would rise to meet the gap
+it leaves (a bump read as a straightness "shrinking" the gap to a floor 1.7× the trigger
+noise). The floor's parts (``floor_parts``) say in µm how much is trigger noise and how much
+visit scatter.
 """
 
 from __future__ import annotations
@@ -74,19 +78,23 @@ def credit(problem: Problem, groups: Groups, vs: VisitScatter | None, base: np.n
            stated_urad: Mapping[str, float] | None, twin: Structure | None = None
            ) -> tuple[VisitScatter | None, StructureFinding]:
     """Test the structure (the twin's ``base`` columns alone — ``twin`` when already done,
-    then with the effects the components were estimated with) and, where it is found,
-    estimate the components again without the centre scatter and with the located shape
-    fixed; the problem's whitening follows (``scatter.apply``)."""
+    then with the effects the components were estimated with) and, where either finds it,
+    estimate the components again without the centre scatter (and with the located shape
+    fixed where the effects leave it); the problem's whitening follows (``scatter.apply``)."""
     twin = twin or test_structure(problem, groups, vs, base)
     floor = twin if not with_cols else test_structure(
         problem, groups, vs, np.concatenate([base, *with_cols], axis=2), with_labels)
     found = StructureFinding(twin, floor)
-    if vs is None or floor is None or not floor.found:
+    if vs is None or not any(s is not None and s.found for s in (twin, floor)):
         return vs, found
     extra = list(vs.extra)
-    shape_cols = [sh.columns(groups.centres.xyz_mm[:, AXES.index(a)], groups.channels)
-                  for a, sh in floor.shapes().items()]
-    why = f"structure along {floor.axis} (p = {floor.p_value:.2g})"
+    # The located shape stands for the structure while the rigid components are estimated;
+    # where the effects fitted with them already remove it, they stand for it themselves
+    shape_cols = [] if floor is None or not floor.found else [
+        sh.columns(groups.centres.xyz_mm[:, AXES.index(a)], groups.channels)
+        for a, sh in floor.shapes().items()]
+    seen = floor if floor is not None and floor.found else twin
+    why = f"structure along {seen.axis} (p = {seen.p_value:.2g})"
     held = estimate_scatter(problem, groups, vs.z, vs.axes, extra + shape_cols, stated_urad,
                             withheld=why)
     held.extra, held.labels = extra, vs.labels
