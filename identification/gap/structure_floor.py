@@ -19,7 +19,7 @@ The decision rule between "scatter" and "structure" (README, gap diagnosis):
 Once the twin's residuals show structure, no later pass credits the centre scatter again: a
 library effect that removes only part of a pitch error or a bump leaves the rest to a
 component that would take it up as random scatter, and the floor would rise to meet the gap
-it leaves (a bump read as a straightness "shrinking" the gap to a floor 1.7× the trigger
+it leaves (a bump read as a straightness of X, its floor 1.5× the trigger
 noise). The floor's parts (``floor_parts``) say in µm how much is trigger noise and how much
 visit scatter.
 """
