@@ -49,6 +49,7 @@ from identification.gap.structure_floor import (
     after_selection,
     credit,
     floor_parts,
+    seen_structure,
     unexplained_message,
 )
 from identification.gap.twin import effect_columns, fit_twin, touch_context
@@ -141,14 +142,16 @@ def diagnose_groups(machine: Machine, artefact: Artefact, data: TouchData, group
         rep, _ = _analyse(machine, artefact, data, floored, is_ho, opt)
         rep["noise"]["source"] += (f"; re-estimated without the selected effects (first pass "
                                    f"{groups.sigma_touch_um:.3f} µm){note}")
+    seen = seen_structure(rep.get("structure"))  # later passes keep the first one's rule
     return step_verdict(rescatter(rep, lambda w, g: _analyse(machine, artefact, data, floored,
-                                                             is_ho, opt, w, g)[0],
+                                                             is_ho, opt, w, g, seen)[0],
                                   machine, artefact.ids, opt.gravity_dir))
 
 
 def _analyse(machine: Machine, artefact: Artefact, data: TouchData, groups: Groups,
              is_ho: np.ndarray, opt: Options, scatter_with: Sequence[Effect] = (),
-             lr_gate: frozenset[str] = frozenset()) -> tuple[dict, tuple[float, int] | None]:
+             lr_gate: frozenset[str] = frozenset(), seen: str = ""
+             ) -> tuple[dict, tuple[float, int] | None]:
     whiten = whiteners(groups)
     train = ~is_ho
     twin = fit_twin(machine, artefact, groups.centres.subset(train), whiten[train, :3, :3])
@@ -174,7 +177,7 @@ def _analyse(machine: Machine, artefact: Artefact, data: TouchData, groups: Grou
     # function of the axis position is not visit scatter (gap/structure_floor.py)
     vs, struct = credit(problem, groups, vs, base, vs.extra if vs else [],
                         sorted(vs.labels) if vs else [], opt.rotary_repeatability_urad,
-                        twin_structure)
+                        twin_structure, seen)
     if vs is not None:  # the floor's dof now include the estimated components'
         groups = replace(groups, sigma_dof=max(int(vs.dof), 1))
     noise_floor = vs.floor_um if vs is not None else noise_floor_um(groups)

@@ -75,17 +75,20 @@ class StructureFinding:
 
 def credit(problem: Problem, groups: Groups, vs: VisitScatter | None, base: np.ndarray,
            with_cols: Sequence[np.ndarray], with_labels: Sequence[str],
-           stated_urad: Mapping[str, float] | None, twin: Structure | None = None
-           ) -> tuple[VisitScatter | None, StructureFinding]:
+           stated_urad: Mapping[str, float] | None, twin: Structure | None = None,
+           seen: str = "") -> tuple[VisitScatter | None, StructureFinding]:
     """Test the structure (the twin's ``base`` columns alone — ``twin`` when already done,
     then with the effects the components were estimated with) and, where either finds it,
     estimate the components again without the centre scatter (and with the located shape
-    fixed where the effects leave it); the problem's whitening follows (``scatter.apply``)."""
+    fixed where the effects leave it); the problem's whitening follows (``scatter.apply``).
+    ``seen``: the structure an earlier pass found (``seen_structure``) — the centre scatter
+    stays withheld even where this pass' components, estimated with the selected effects,
+    move the twin's p-value across α."""
     twin = twin or test_structure(problem, groups, vs, base)
     floor = twin if not with_cols else test_structure(
         problem, groups, vs, np.concatenate([base, *with_cols], axis=2), with_labels)
     found = StructureFinding(twin, floor)
-    if vs is None or not any(s is not None and s.found for s in (twin, floor)):
+    if vs is None or not (seen or any(s is not None and s.found for s in (twin, floor))):
         return vs, found
     extra = list(vs.extra)
     # The located shape stands for the structure while the rigid components are estimated;
@@ -93,13 +96,21 @@ def credit(problem: Problem, groups: Groups, vs: VisitScatter | None, base: np.n
     shape_cols = [] if floor is None or not floor.found else [
         sh.columns(groups.centres.xyz_mm[:, AXES.index(a)], groups.channels)
         for a, sh in floor.shapes().items()]
-    seen = floor if floor is not None and floor.found else twin
-    why = f"structure along {seen.axis} (p = {seen.p_value:.2g})"
+    last = floor if floor is not None and floor.found else twin
+    why = (f"structure along {last.axis} (p = {last.p_value:.2g})"
+           if last is not None and last.found else seen)
     held = estimate_scatter(problem, groups, vs.z, vs.axes, extra + shape_cols, stated_urad,
                             withheld=why)
     held.extra, held.labels = extra, vs.labels
     apply(problem, held)
     return held, found
+
+
+def seen_structure(structure: dict | None) -> str:
+    """The withholding reason a first pass' structure finding hands to the later passes."""
+    if not structure or not structure.get("found"):
+        return ""
+    return f"structure along {structure['axis']} (p = {structure['p_value']:.2g}, first pass)"
 
 
 def after_selection(found: StructureFinding, problem: Problem, groups: Groups,
