@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 
-from identification import axis_effects, offset_effects
+from identification import axis_effects, axis_local_effects, offset_effects
 from identification.effect_types import Effect, EffectContext, combine_motion_errors
 from identification.kinematics import Machine
 from identification.offset_effects import (
@@ -19,9 +19,9 @@ from identification.offset_effects import (
     workpiece_rotation,
 )
 
-__all__ = ["FAMILIES", "Effect", "EffectContext", "combine_motion_errors", "default_gravity",
-           "default_rod_direction", "library", "make_effect", "model_name", "sub_models",
-           "unit_vector", "workpiece_rotation"]
+__all__ = ["FAMILIES", "OUTSIDE_FAMILIES", "Effect", "EffectContext", "combine_motion_errors",
+           "default_gravity", "default_rod_direction", "library", "make_effect", "model_name",
+           "sub_models", "unit_vector", "workpiece_rotation"]
 
 _FACTORIES: dict[str, Callable[..., Effect]] = {
     "thermal_drift": offset_effects.thermal_drift,
@@ -36,6 +36,13 @@ _FACTORIES: dict[str, Callable[..., Effect]] = {
 }
 FAMILIES = tuple(_FACTORIES)
 """Every family name, in the order of the registry (and of reports)."""
+# Effects the simulator and the gap self-check can inject but the diagnosis never offers as a
+# candidate: it must find them as located structure along the axis (gap/structure.py).
+_OUTSIDE: dict[str, Callable[..., Effect]] = {
+    "cyclic_error": axis_local_effects.cyclic_error,
+    "local_bump": axis_local_effects.local_bump,
+}
+OUTSIDE_FAMILIES = tuple(_OUTSIDE)
 # Harmonic orders of the fixed-frame rotary error motion in the library, on a rotary table as on
 # a tilting axis (axis_effects: order 0 is a link error; of order 1 only the co-rotating radial
 # and tilt part — the eccentricity — is absorbed, its axial and counter-rotating parts are real).
@@ -55,11 +62,16 @@ def make_effect(family: str, axis: str | None, machine: Machine, **options) -> E
     in the axis' fixed frame, orders >= 1;
     gravity_sag(gravity_dir=None, rod_dir=None); probe_pretravel(n_directions=5);
     artefact_instability(ball_index=None, n_balls=None) — axis = the ball id or None.
+    Outside the library (``OUTSIDE_FAMILIES``): cyclic_error(period_mm, component=None);
+    local_bump(centre_mm, width_mm, component=None) — component E<X|Y|Z><axis>, default the
+    axis' positioning error.
     """
-    if family not in _FACTORIES:
-        raise ValueError(f"unknown effect family {family!r}; expected one of {FAMILIES}")
+    factory = _FACTORIES.get(family) or _OUTSIDE.get(family)
+    if factory is None:
+        raise ValueError(f"unknown effect family {family!r}; expected one of "
+                         f"{(*FAMILIES, *OUTSIDE_FAMILIES)}")
     try:
-        return _FACTORIES[family](machine, axis, **options)
+        return factory(machine, axis, **options)
     except TypeError as e:  # unknown option: say which family and which options exist
         raise ValueError(f"{family}: {e}") from None
 

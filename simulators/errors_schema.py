@@ -4,9 +4,11 @@ Units in the file: link rotations (EA0B, EB0Z …) in µrad, link translations (
 setup errors in µm, noise in µm, positions of obstacles in mm. Effect parameters are given in the
 units the effect model declares (``identification.effects``); the loader converts to mm / rad.
 ``rotary_error_motion`` is in the axis' fixed frame, ISO 230-7 (options ``orders``,
-``components``; config/errors/README.md), as the gap diagnosis reports it. ``motion_errors``: the
-18 motion errors of the linear axes as Legendre series over an interval of each axis, or drawn
-at random (``simulators.motion_truth``).
+``components``; config/errors/README.md), as the gap diagnosis reports it. A linear axis'
+``cyclic_error`` (a pitch error) and ``local_bump`` are effects too, outside the diagnosis'
+library (``identification.axis_local_effects``; positions in controller mm).
+``motion_errors``: the 18 motion errors of the linear axes as Legendre series over an interval
+of each axis, or drawn at random (``simulators.motion_truth``).
 """
 
 from __future__ import annotations

@@ -216,3 +216,36 @@ def test_gravity_dir_option_is_checked(thesis):
     sag = make_effect("gravity_sag", None, thesis, gravity_dir=[0, 0, -5])
     ctx = _ctx(1)  # rods along +z: parallel to this gravity, no sag
     np.testing.assert_allclose(sag.ball_offset_mm(np.array([2.0]), ctx), 0.0, atol=1e-15)
+
+
+def test_cyclic_error_and_local_bump_of_a_linear_axis(thesis):
+    from identification.effects import OUTSIDE_FAMILIES
+
+    # outside the diagnosis' library: the simulator and the self-check inject them
+    assert set(OUTSIDE_FAMILIES) == {"cyclic_error", "local_bump"}
+    assert not set(OUTSIDE_FAMILIES) & set(FAMILIES)
+    assert not {e.family for e in library(thesis, ["B1"])} & set(OUTSIDE_FAMILIES)
+    cyc = make_effect("cyclic_error", "X", thesis, period_mm=40.0)
+    assert cyc.param_names == ("EXX_cos", "EXX_sin") and cyc.units == ("um", "um")
+    f = cyc.motion_errors(np.array([3.0, 4.0]))["X"]
+    # X has sign −1 (model = −controller): phase 0 at controller X = 0, along the axis
+    x_ctrl = np.array([0.0, 10.0, 40.0, -30.0])
+    e = f(-x_ctrl)
+    want = 3.0 * np.cos(2 * np.pi * x_ctrl / 40) + 4.0 * np.sin(2 * np.pi * x_ctrl / 40)
+    np.testing.assert_allclose(e[:, 0], want * 1e-3, atol=1e-15)
+    assert not np.any(e[:, 1:])
+    bump = make_effect("local_bump", "Y", thesis, centre_mm=50.0, width_mm=40.0,
+                       component="EZY")
+    assert bump.param_names == ("EZY_height",)
+    e = bump.motion_errors(np.array([6.0]))["Y"](np.array([50.0, 60.0, 70.0, 75.0, -50.0]))
+    np.testing.assert_allclose(e[:, 2], np.array([6.0, 3.0, 0.0, 0.0, 0.0]) * 1e-3,
+                               atol=1e-15)  # raised cosine: half height at a quarter width
+    assert not np.any(e[:, [0, 1, 3, 4, 5]])
+    for opts, match in (({}, "period_mm is required"), ({"period_mm": -5}, "positive"),
+                        ({"period_mm": 40, "component": "EXY"}, "component")):
+        with pytest.raises(ValueError, match=match):
+            make_effect("cyclic_error", "X", thesis, **opts)
+    with pytest.raises(ValueError, match="centre_mm and width_mm are required"):
+        make_effect("local_bump", "Z", thesis, width_mm=30)
+    with pytest.raises(ValueError, match="local_bump: axis"):
+        make_effect("local_bump", "C", thesis, centre_mm=0, width_mm=30)

@@ -109,8 +109,9 @@ def test_selfcheck_gains_the_scatter_conditions(setup):
 
     machine, artefact, poses = setup
     added = set(selfcheck.SCENARIOS) - set(selfcheck.BASE_SCENARIOS)
+    structure = {"cyclic_error", "local_bump"}  # outside the library: test_gap_structure.py
     assert added == {f"{f}+scatter" for f in (*FAMILIES, *selfcheck.VARIANTS, "null")} | {
-        "ball_step", "pole_chip+scatter"}
+        "ball_step", "pole_chip+scatter"} | structure | {f"{s}+scatter" for s in structure}
     assert selfcheck.expected_family("pole_chip+scatter") is None  # a control: named visit
     assert split_scatter("gravity_sag+scatter") == ("gravity_sag", True)
     assert selfcheck.expected_family("radial2_fixed+scatter") == "rotary_error_motion"

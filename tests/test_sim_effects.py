@@ -215,3 +215,54 @@ async def test_same_touches_as_the_gap_self_check_simulation(family, axis, param
         d_ours, d_theirs = p - ob[key], theirs[key] - theirs_base[key]
         assert np.max(np.abs(d_ours - d_theirs)) < 1e-6, key
     assert max(np.max(np.abs(p - ob[k])) for k, p in oe.items()) > 5e-4
+
+
+LOCAL_CASES = [
+    ("cyclic_error", "X", {"EXX_cos": 3.0, "EXX_sin": -4.0}, {"period_mm": 25.0}),
+    ("local_bump", "Y", {"EZY_height": 8.0},
+     {"centre_mm": 60.0, "width_mm": 50.0, "component": "EZY"}),
+]
+
+
+@pytest.mark.parametrize("family,axis,params,options", LOCAL_CASES,
+                         ids=[c[0] for c in LOCAL_CASES])
+async def test_cyclic_error_and_local_bump_from_the_errors_file(family, axis, params, options):
+    """A linear axis' cyclic (pitch) error and local bump, given in the errors file's
+    ``effects``: every touch lands on the exact contact of the true chain, and the change
+    they make is the one the gap self-check's simulation makes (its truth for them)."""
+    from identification.gap.simlog import Truth, simulate
+
+    base = await run(TABLE_B2)
+    vc = await run(with_effect(family, axis, params, **options))
+    for t in vc.touches[::5]:
+        got = np.array([t.latched[a] for a in "XYZ"])
+        assert np.max(np.abs(got - exact_contact(vc, t))) < 1e-6
+    t = vc.truth
+    eff = make_effect(family, axis, t.machine, **options)
+
+    def gap_sim(effects: list) -> dict:
+        sim = simulate(t.machine, t.artefact, POSES, Truth(
+            links=dict(t.links), ball_setup_mm=t.ball_setup_mm, tip_setup_mm=t.tip_setup_mm,
+            effects=effects), 3.0, 0.0, 0)
+        return {(sim.b_deg[k], sim.c_deg[k], int(sim.ball[k]), int(sim.touch[k])):
+                sim.xyz_mm[k] for k in range(len(sim))}
+
+    theirs_base = gap_sim([])
+    theirs = gap_sim([(eff, np.array([params[n] for n in eff.param_names]))])
+    moved = 0.0
+    for b, v in zip(base.touches, vc.touches, strict=True):
+        key = (v.latched["B"], v.latched["C"], v.ball, v.touch)
+        d_ours = np.array([v.latched[a] - b.latched[a] for a in "XYZ"])
+        assert np.max(np.abs(d_ours - (theirs[key] - theirs_base[key]))) < 1e-6, key
+        moved = max(moved, float(np.max(np.abs(d_ours))))
+    assert moved > 2e-3  # µm-size: the effect reaches the touches
+
+
+def test_errors_file_names_a_bad_option_of_a_linear_axis_error():
+    from contracts.yaml_files import ConfigError
+
+    with pytest.raises(ConfigError, match=r"effects\[0\] \(cyclic_error/X\).*period_mm"):
+        truth_with(with_effect("cyclic_error", "X", {"EXX_cos": 1.0, "EXX_sin": 0.0}))
+    with pytest.raises(ConfigError, match=r"effects\[0\] \(local_bump/Z\).*component"):
+        truth_with(with_effect("local_bump", "Z", {"EXZ_height": 1.0}, centre_mm=0.0,
+                               width_mm=30.0, component="EXY"))

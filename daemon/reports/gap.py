@@ -13,6 +13,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from identification.gap.locate import shown_locations
+from identification.gap.structure_shape import bump
 
 _TEMPLATE = jinja2.Environment(autoescape=True).from_string("""<!doctype html>
 <html lang="en"><head><meta charset="utf-8"><title>{{ title }}</title>
@@ -34,7 +35,34 @@ th{background:#f3f3f3}td.n{text-align:right;font-variant-numeric:tabular-nums}
 <p>Noise: {{ r.noise.source }}{% if touches %}; trigger repeatability
 {{ "%.3f"|format(r.noise.sigma_touch_um) }} µm{% endif %}.
 {% if r.dropped_groups %}{{ r.dropped_groups }} incomplete ball-pose(s) left out.{% endif %}</p>
+{% set fp = r.noise.parts %}{% if fp %}<h2>What the floor is made of</h2>
+<table><tr><th>part</th><th>µm (RMS per observation)</th><th>share of the floor²</th></tr>
+{% for key, name in [("trigger_um", "trigger noise of the touches"),
+                     ("index_um", "visit scatter: rigid index error of the rotary axes"),
+                     ("ball_visit_um", "visit scatter: centre scatter per ball visit")] %}
+<tr><td>{{ name }}</td><td class="n">{{ "%.3f"|format(fp[key]) }}</td>
+<td class="n">{{ "%.0f"|format(100 * fp[key] ** 2 / [r.noise_floor_um ** 2, 1e-30]|max) }} %</td>
+</tr>{% endfor %}</table>
+<p>{{ fp.message }}.</p>{% endif %}
 {% if r.scatter %}<p>Per-visit scatter: {{ r.scatter.message }}.</p>{% endif %}
+{% set st = r.structure %}{% if st %}<h2>Structure along the linear axes</h2>
+<p{% if st.found %} class="sig"{% endif %}>{{ st.message }}.</p>
+<table><tr><th>axis</th><th>adjusted p</th><th>largest z</th></tr>
+{% for a, x in st.axes.items() %}<tr><td>{{ a }}</td><td class="n">{{ x.p_value }}</td>
+<td class="n">{{ x.z }}</td></tr>{% endfor %}</table>
+{% if st.located %}<p>Located along {{ st.located.axis }}: {{ st.located.shape }} shape,
+{% if st.located.shape == "cyclic" %}period {{ st.located.period_mm }} mm{% else %}centred at
+{{ st.located.centre_mm }} mm over {{ st.located.width_mm }} mm{% endif %},
+{{ st.located.size_um }} µm in {% if st.located.channel == "form" %}the sphere form
+residual{% else %}centre {{ st.located.channel }}{% endif %} (the ball centres reach
+{{ st.located.span_mm[0] }}…{{ st.located.span_mm[1] }} mm).
+{% if st.explained_by_selected %}The selected effects remove it.{% endif %}</p>{% endif %}
+{% if along %}<img alt="residuals along the axis" src="data:image/png;base64,{{ along }}">
+{% endif %}
+<p>Test: {{ st.test }}; {{ st.draws }} Monte Carlo draws under the run's visit model,
+family-wise α = {{ st.alpha }} over the axes, channels, lags and shapes. Decision rule: structure
+found, the centre scatter per ball visit is not credited to the floor (trigger noise and rigid
+index scatter only); none, it is.</p>{% endif %}
 {% if r.ball_step %}<p><b>Ball moved:</b> {{ r.ball_step.message }}.</p>{% endif %}
 {% for a in r.absorbed %}<p>Absorbed: {{ a.effect }} — {{ a.what }}
 ({{ "%.2f"|format(a.value_um) }} ± {{ "%.2f"|format(a.std_um) }} µm).</p>{% endfor %}
@@ -92,7 +120,8 @@ diagnosis below is that of the other visits.</p>{% endif %}
 <td class="n">{{ c.p_value }}</td><td class="n">{{ c.delta_bic }}</td>
 <td class="n">{{ c.visible_dof }}/{{ c.n_params }}</td>
 <td>{% for k, p in c.params.items() %}{{ k }} = {{ "%.3g"|format(p.value) }}
-± {{ "%.2g"|format(p.std) }} {{ p.unit }}<br>{% endfor %}</td>
+{%- if p.std is not none %} ± {{ "%.2g"|format(p.std) }}{% endif %} {{ p.unit }}<br>
+{%- endfor %}</td>
 <td>{{ c.indistinguishable_from|join(", ") }}</td></tr>{% endfor %}</table>
 {% if r.invisible %}<h3>Not visible on this probing pattern</h3><ul>
 {% for i in r.invisible %}<li>{{ i.effect }}{% if i.axis %} {{ i.axis }}{% endif %}:
@@ -157,9 +186,38 @@ def _before_after(rep: dict) -> str:
     return _png(fig)
 
 
+def _along_plot(rep: dict) -> str | None:
+    """Held-out centre residuals against the position along the located axis."""
+    loc = (rep.get("structure") or {}).get("located")
+    s = rep["residuals"]
+    if not loc or "xyz_mm" not in s:
+        return None
+    q = np.asarray(s["xyz_mm"], float)[:, "XYZ".index(loc["axis"])]
+    e = np.asarray(s["before_um"], float)
+    fig, ax = plt.subplots(figsize=(7.0, 3.0))
+    for k, (name, color) in enumerate(zip("xyz", ("#c0392b", "#27ae60", "#2980b9"),
+                                          strict=True)):
+        ax.plot(q, e[:, k], "o", ms=3, color=color, label=f"centre {name}")
+    ax.axhline(0.0, color="k", lw=0.5)
+    coef = (loc.get("coefficients_um") or {}).get(loc["channel"])
+    if coef is not None and loc["channel"] != "form":
+        grid = np.linspace(*loc["span_mm"], 600)
+        w = 2 * np.pi * grid / loc.get("period_mm", 1.0)
+        y = (coef[0] * np.cos(w) + coef[1] * np.sin(w)) if loc["shape"] == "cyclic" else \
+            coef[0] * bump(grid, loc["centre_mm"], loc["width_mm"])
+        k = "xyz".index(loc["channel"])
+        ax.plot(grid, y, "-", color=("#c0392b", "#27ae60", "#2980b9")[k], lw=1.2,
+                label=f"located {loc['shape']} shape, centre {loc['channel']}")
+    ax.set_xlabel(f"{loc['axis']} of the ball centre (mm)")
+    ax.set_ylabel("held-out residual of the twin (µm)")
+    ax.legend(fontsize=7)
+    return _png(fig)
+
+
 def render(rep: dict, title: str = "Gap diagnosis") -> str:
     """The whole report as one self-contained HTML page (plots embedded as PNG)."""
     shown, more, below = shown_locations(rep["location"], rep["breakdowns"])
     return _TEMPLATE.render(title=title, r=rep, v=rep["verdict"], where=_where_plots(rep),
                             shown=shown, more=more, below=below,
-                            ranked=_ranked_plot(rep), before_after=_before_after(rep))
+                            ranked=_ranked_plot(rep), before_after=_before_after(rep),
+                            along=_along_plot(rep))

@@ -23,6 +23,15 @@ from identification.tails import f_sf
 ALPHA = 1e-3  # family-wise level for the candidate tests
 ALIKE = 0.9  # |cos| between visible contributions above which two candidates are confounded
 MIN_GAIN = 0.02  # a selected effect must cut the held-out whitened mean square by ≥ 2 %
+# A plausible size per parameter unit (machine-tool practice): used only to decide whether an
+# effect of realistic size would be seen at all on this probing pattern.
+TYPICAL = {"um": 10.0, "urad": 10.0, "um/h": 10.0, "um/m": 10.0, "urad/m": 100.0,
+           "urad/rad": 10.0, "um/m^2": 100.0, "um/m^3": 1000.0, "urad/m^2": 1000.0, "h": 1.0}
+
+
+def typical_size(eff: Effect) -> np.ndarray:
+    """A plausible size of each of ``eff``'s parameters (``TYPICAL`` by unit, else 1)."""
+    return np.array([TYPICAL.get(u, 1.0) for u in eff.units])
 
 
 @dataclass

@@ -144,6 +144,11 @@ def group_touches(data: TouchData, artefact: Artefact, stylus_radius_mm: float) 
                   sigma, dof, cov, int((~complete).sum()))
 
 
+def visit_ids(groups: Groups) -> np.ndarray:
+    """One id per indexation (visit): (repeat, pose)."""
+    return groups.repeat.astype(np.int64) * 1_000_000 + groups.centres.pose
+
+
 REJECT_Z = 3.5  # Hampel's x84 rule: beyond 3.5 σ (5.2 MADs) of the median a value is gross
 
 

@@ -24,27 +24,35 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from identification.effects import FAMILIES, Effect, EffectContext, library, model_name, sub_models
+from identification.effects import FAMILIES, Effect, library, model_name, sub_models
 from identification.gap.attribute import (
     ALPHA,
     Candidate,
     contributions,
-    effect_params,
     explained,
     forward_select,
     gap_p_value,
     score,
+    typical_size,
 )
 from identification.gap.centres_input import exact_floor
 from identification.gap.data import Groups, TouchData, group_touches, repeat_floor_um
 from identification.gap.floor import noise_floor_um, repeat_floor, whiteners
-from identification.gap.linear import FullFit, Problem, columns, fit, held_out, projected
+from identification.gap.known import add_known, known_report
+from identification.gap.linear import Problem, columns, fit, held_out, projected
 from identification.gap.locate import breakdowns
 from identification.gap.outlier_visits import exclude_outliers
 from identification.gap.scatter import confounded, link_report, model_visits, rescatter
 from identification.gap.split import folds, time_check
 from identification.gap.step_ball import step_report, step_verdict
-from identification.gap.twin import Twin, effect_columns, fit_twin, touch_context
+from identification.gap.structure_floor import (
+    after_selection,
+    credit,
+    floor_parts,
+    seen_structure,
+    unexplained_message,
+)
+from identification.gap.twin import effect_columns, fit_twin, touch_context
 from identification.gap.visit_faults import pattern_explained, settle
 from identification.gap.warmup import candidates as warmup_candidates
 from identification.gap.warmup import model_of, tau_param
@@ -52,18 +60,9 @@ from identification.kinematics import Machine
 from identification.model import Artefact, predict
 
 DEFAULT_FOLDS = 0  # 0: the split's default (leave-one-pose-out, or split.TIME_BLOCKS blocks)
-# A plausible size per parameter unit (machine-tool practice): used only to decide whether an
-# effect of realistic size would be seen at all on this probing pattern.
-TYPICAL = {"um": 10.0, "urad": 10.0, "um/h": 10.0, "um/m": 10.0, "urad/m": 100.0,
-           "urad/rad": 10.0, "um/m^2": 100.0, "um/m^3": 1000.0, "urad/m^2": 1000.0, "h": 1.0}
 ABSORBED_SIGMAS = 5.0  # a mean radius deviation beyond this many standard errors is evidence
 MIN_POSES = 4  # a twin with links needs several indexations; leave-one-out needs one more
 SIGMA_REFINE = 0.9  # redo the diagnosis when the floor drops by more than 10 % without effects
-
-
-def typical_size(eff: Effect) -> np.ndarray:
-    """A plausible size of each of ``eff``'s parameters (``TYPICAL`` by unit, else 1)."""
-    return np.array([TYPICAL.get(u, 1.0) for u in eff.units])
 
 
 @dataclass
@@ -113,7 +112,8 @@ def diagnose(machine: Machine, artefact: Artefact, touches: TouchData, stylus_ra
                                hold_rows[groups.touch_index[:, 0]], opt, note), faulty
 
     return settle(run, lambda rep, k: pattern_explained(  # a chip, or a pattern across visits?
-        machine, artefact, all_data, all_groups, stylus_radius_mm, rep, k, opt.gravity_dir))
+        machine, artefact, all_data, all_groups, stylus_radius_mm, rep, k, opt.gravity_dir),
+        lambda k: all_groups.centres.xyz_mm[k])
 
 
 def diagnose_groups(machine: Machine, artefact: Artefact, data: TouchData, groups: Groups,
@@ -142,56 +142,16 @@ def diagnose_groups(machine: Machine, artefact: Artefact, data: TouchData, group
         rep, _ = _analyse(machine, artefact, data, floored, is_ho, opt)
         rep["noise"]["source"] += (f"; re-estimated without the selected effects (first pass "
                                    f"{groups.sigma_touch_um:.3f} µm){note}")
+    seen = seen_structure(rep.get("structure"))  # later passes keep the first one's rule
     return step_verdict(rescatter(rep, lambda w, g: _analyse(machine, artefact, data, floored,
-                                                             is_ho, opt, w, g)[0],
+                                                             is_ho, opt, w, g, seen)[0],
                                   machine, artefact.ids, opt.gravity_dir))
-
-
-def _add_known(problem: Problem, known: Sequence[tuple[Effect, np.ndarray | None]], twin: Twin,
-               groups: Groups, ctx: EffectContext, ball_jac: np.ndarray, base_pred_mm: np.ndarray
-               ) -> tuple[list[tuple[Effect, np.ndarray]], list[Candidate]]:
-    """Effects the twin already models. Given parameters: their contribution leaves the
-    observations. Parameters to fit: their visible directions (as for a candidate) join the
-    twin's columns, so every fold refits them with the setup and links on its training data
-    and the gap is what remains."""
-    fixed, fitted = [], []
-    for eff, theta in known:
-        cols = effect_columns(eff, twin, groups, ctx, ball_jac, base_pred_mm)
-        if theta is not None:
-            theta = np.asarray(theta, float)
-            problem.y_um = problem.y_um - cols @ theta
-            fixed.append((eff, theta))
-            continue
-        _, r, basis = projected(problem, problem.base, cols, typical_size(eff))
-        fitted.append(Candidate(eff, np.einsum("gom,mr->gor", cols, basis), r, basis))
-    if fitted:
-        problem.base = np.concatenate([problem.base, *[c.cols for c in fitted]], axis=2)
-        problem._base_u = None
-    return fixed, fitted
-
-
-def _known_report(fixed: list[tuple[Effect, np.ndarray]], fitted: list[Candidate],
-                  full: FullFit, n_twin: int) -> list[dict]:
-    out = [{"effect": e.family, "axis": e.axis, "fitted": False, "visible_dof": None,
-            "n_params": e.n_params,
-            "params": {n: {"value": float(v), "std": None, "unit": u} for n, v, u in
-                       zip(e.param_names, theta, e.units, strict=True)}} for e, theta in fixed]
-    at = n_twin
-    for c in fitted:
-        r = c.cols.shape[2]
-        params = effect_params(c.effect, c.basis, full.beta[at:at + r],
-                               full.cov[at:at + r, at:at + r]) if r else {}
-        at += r
-        out.append({"effect": c.effect.family, "axis": c.effect.axis, "fitted": True,
-                    "visible_dof": c.visible_dof, "n_params": c.effect.n_params,
-                    "params": params} | ({} if r else {"note": "not visible on this probing "
-                                                       "pattern: nothing to fit"}))
-    return out
 
 
 def _analyse(machine: Machine, artefact: Artefact, data: TouchData, groups: Groups,
              is_ho: np.ndarray, opt: Options, scatter_with: Sequence[Effect] = (),
-             lr_gate: frozenset[str] = frozenset()) -> tuple[dict, tuple[float, int] | None]:
+             lr_gate: frozenset[str] = frozenset(), seen: str = ""
+             ) -> tuple[dict, tuple[float, int] | None]:
     whiten = whiteners(groups)
     train = ~is_ho
     twin = fit_twin(machine, artefact, groups.centres.subset(train), whiten[train, :3, :3])
@@ -201,7 +161,7 @@ def _analyse(machine: Machine, artefact: Artefact, data: TouchData, groups: Grou
     problem = Problem(groups.obs_um() - pred, twin_cols, whiten, np.zeros(len(groups), int))
     problem.fold, split, split_mode = folds(groups, is_ho, opt.split, opt.n_folds)
     ctx = touch_context(data, twin)
-    fixed, fitted = _add_known(problem, opt.known, twin, groups, ctx, ball_jac, base_pred_mm)
+    fixed, fitted = add_known(problem, opt.known, twin, groups, ctx, ball_jac, base_pred_mm)
     base = problem.base  # the twin: setup + links (+ the known effects fitted with them)
     known = {e.label for e, _ in opt.known}
 
@@ -209,11 +169,15 @@ def _analyse(machine: Machine, artefact: Artefact, data: TouchData, groups: Grou
     lib = [(e, effect_columns(e, twin, groups, ctx, ball_jac, base_pred_mm))
            for e in [*library(machine, artefact.ids, gravity_dir=opt.gravity_dir),
                      *sub_models(machine)] if e.family in opt.families and e.label not in known]
-    vs, step, n_step = model_visits(machine, artefact, problem, groups, twin, ctx, ball_jac,
-                                    base_pred_mm, opt.visit_scatter,
-                                    opt.rotary_repeatability_urad, scatter_with,
-                                    [c for _, c in lib])
+    vs, step, n_step, twin_structure = model_visits(
+        machine, artefact, problem, groups, twin, ctx, ball_jac, base_pred_mm,
+        opt.visit_scatter, opt.rotary_repeatability_urad, scatter_with, [c for _, c in lib])
     base = problem.base  # with a moved ball's step (gap/step_ball.py)
+    # Structure along an axis is tested before the components are credited to the floor: a
+    # function of the axis position is not visit scatter (gap/structure_floor.py)
+    vs, struct = credit(problem, groups, vs, base, vs.extra if vs else [],
+                        sorted(vs.labels) if vs else [], opt.rotary_repeatability_urad,
+                        twin_structure, seen)
     if vs is not None:  # the floor's dof now include the estimated components'
         groups = replace(groups, sigma_dof=max(int(vs.dof), 1))
     noise_floor = vs.floor_um if vs is not None else noise_floor_um(groups)
@@ -254,7 +218,7 @@ def _analyse(machine: Machine, artefact: Artefact, data: TouchData, groups: Grou
     # Only a significant gap is attributed — or an effect a likelihood ratio with the scatter
     # components profiled found (gap/scatter.confounded): the held-out test is weak when the
     # floor rests on few visits (its Satterthwaite dof).
-    if p_gap < ALPHA or any(c.effect.label in lr_gate for c in visible):
+    if p_gap < ALPHA or struct.found or any(c.effect.label in lr_gate for c in visible):
         selected, final_ho, _ = forward_select(problem, visible, base_full, base_ho,
                                                opt.max_effects)
 
@@ -276,6 +240,11 @@ def _analyse(machine: Machine, artefact: Artefact, data: TouchData, groups: Grou
 
     frac = explained(base_ho, final_ho)
     tcheck = time_check(problem, groups, is_ho, selected, split_mode, frac)
+    full_cols = {e.label + str(e.param_names): cols for e, cols in lib}
+    after_selection(struct, problem, groups, vs, base,
+                    [full_cols.get(c.label + str(c.effect.param_names), c.cols)
+                     for c in selected], [c.label for c in selected],
+                    gap_p_value(final_ho, groups.sigma_dof))
     refined = None
     if selected or fitted:
         # The form residuals that set the floor also carry the fitted effects' sphere
@@ -295,7 +264,7 @@ def _analyse(machine: Machine, artefact: Artefact, data: TouchData, groups: Grou
                          "what": "part identical for every ball and direction (or a stylus "
                                  "radius error): taken up by the fitted radius",
                          "value_um": round(-mean_dev, 3), "std_um": round(se, 3)})
-    if p_gap >= ALPHA and not selected:
+    if p_gap >= ALPHA and not selected and not struct.found:
         if radius_evidence:
             effect, axis = "absorbed", None
             message = (f"held-out gap at the floor, but every ball's fitted radius is off its "
@@ -305,7 +274,8 @@ def _analyse(machine: Machine, artefact: Artefact, data: TouchData, groups: Grou
         else:
             effect, axis = "none", None
             message = "held-out gap consistent with the probing noise floor"
-    elif selected and frac >= 0.5 and (tcheck is None or tcheck["confirmed"]):
+    elif selected and frac >= 0.5 and (tcheck is None or tcheck["confirmed"]) \
+            and not struct.unexplained:
         effect, axis = selected[0].effect.family, selected[0].effect.axis
         names = ", ".join(c.label for c in selected)
         message = f"selected {names}: explains {100 * frac:.0f} % of the held-out excess"
@@ -315,7 +285,9 @@ def _analyse(machine: Machine, artefact: Artefact, data: TouchData, groups: Grou
         effect, axis = "unexplained", None
         where = ", ".join(f"{c.by} {c.key}" for c in sig_cells[:3]) or "no single breakdown"
         message = f"significant gap that no library effect explains; largest at {where}"
-        if tcheck is not None:
+        if struct.found:
+            message = unexplained_message(struct, selected, frac)
+        elif tcheck is not None:
             names = ", ".join(c.label for c in selected)
             message += (f"; {names} explains {100 * frac:.0f} % leaving poses out but only "
                         f"{100 * tcheck['explained_fraction']:.0f} % of held-out stretches "
@@ -337,11 +309,12 @@ def _analyse(machine: Machine, artefact: Artefact, data: TouchData, groups: Grou
                   round(groups.sigma_touch_um, 4), "dof": groups.sigma_dof,
                   "repeat_floor_um": round(rep_floor[0], 4) if rep_floor else None,
                   "holdout_floor_um": round(holdout_floor, 4),
-                  "radius_dev_mean_um": round(mean_dev, 4)},
+                  "radius_dev_mean_um": round(mean_dev, 4),
+                  "parts": floor_parts(vs, noise_floor)},
         "split": split,
         "split_mode": split_mode,
         "time_check": tcheck,
-        "known": _known_report(fixed, fitted, base_full, twin_cols.shape[2]),
+        "known": known_report(fixed, fitted, base_full, twin_cols.shape[2]),
         "twin": {"links": list(twin.layout.links), "unobservable": twin.dropped,
                  "n_params": twin_cols.shape[2], "n_known_params": n_base - twin_cols.shape[2],
                  "groups_train": int(train.sum()),
@@ -356,6 +329,7 @@ def _analyse(machine: Machine, artefact: Artefact, data: TouchData, groups: Grou
         "absorbed": absorbed,
         "scatter": vs.finding() | {"confounded_with": suspect} if vs is not None else None,
         "ball_step": step_report(step, problem, artefact.ids, n_step) if step else None,
+        "structure": struct.as_dict(),
         "links": link_report(problem, twin, selected, n_base),
         "dropped_groups": groups.dropped,
         "verdict": {"effect": effect, "axis": axis,
@@ -383,6 +357,6 @@ def _series(groups: Groups, before, after, ids: list[str]) -> dict:
     c, g = groups.centres, before.index
     return {"ball": [ids[int(b)] for b in c.ball[g]], "pose": c.pose[g].tolist(),
             "b_deg": c.b_deg[g].round(4).tolist(), "c_deg": c.c_deg[g].round(4).tolist(),
-            "t_s": c.t_s[g].round(2).tolist(),
+            "t_s": c.t_s[g].round(2).tolist(), "xyz_mm": c.xyz_mm[g].round(3).tolist(),
             "before_um": before.e_um.round(4).tolist(), "after_um": after.e_um.round(4).tolist(),
             "columns": ["x", "y", "z", "form"]}

@@ -15,9 +15,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from identification.effects import Effect, model_name
-from identification.gap.data import Groups
+from identification.gap.data import Groups, visit_ids
 from identification.gap.linear import Problem, live
 from identification.gap.step_ball import Step, find_step
+from identification.gap.structure import AXES, Structure, test_structure
 from identification.kinematics import Machine
 from identification.model import Artefact, Centres, Layout, predict
 from identification.tails import chi2_sf
@@ -51,6 +52,22 @@ class VisitScatter:
     z: np.ndarray  # (G, 4, q) the index columns per group
     extra: list  # columns of the effects estimated with the components as fixed effects
     labels: frozenset  # their labels
+    # Why the centre components are not credited (structure along an axis: they would take
+    # it up, gap/structure_floor.py), "" when they are estimated
+    withheld: str = ""
+    n_live: float = 0.0  # live observations the floor is an RMS over
+
+    def parts_um(self) -> dict[str, float]:
+        """The floor's parts, RMS per live observation (their squares add up to the floor's):
+        the trigger noise of the touches (the sphere fits' covariance and form residual),
+        the rigid index scatter of the rotary axes, and the centre scatter per ball visit."""
+        b, th, q = self.blocks, self.fit.sigma, len(self.axes)
+        n = max(self.n_live, 1.0)
+        index = sum(float(np.sum(b.z[:, :, i] ** 2)) * th[i] ** 2 for i in range(q))
+        centre = sum(float(np.sum(b.centre[:, :, a])) * th[q + a] ** 2 for a in range(3))
+        trigger = max(self.floor_um**2 * n - index - centre, 0.0)
+        return {"trigger_um": float(np.sqrt(trigger / n)), "index_um": float(np.sqrt(index / n)),
+                "ball_visit_um": float(np.sqrt(centre / n))}
 
     def finding(self) -> dict:
         """The report's ``scatter`` part: each component with u, its test and a sentence."""
@@ -59,23 +76,32 @@ class VisitScatter:
             v, u, p = self.fit.sigma[i], self.fit.std[i], self.fit.p_value[i]
             unit = "urad" if name.startswith("index") else "um"
             ci = self.fit.ci95[i] if self.fit.ci95 is not None else (np.nan, np.nan)
+            held = self.is_withheld(i)
             out.append({"component": name, "sigma": round(float(v), 3),
                         "std": None if not np.isfinite(u) else round(float(u), 3),
                         # the 95 % likelihood interval (σ̂ is skewed with a dozen visits)
                         "ci95": None if np.isnan(ci[0]) else [round(float(ci[0]), 3),
                                                               round(float(ci[1]), 3)],
-                        "unit": unit, "stated": bool(self.fit.fixed[i]),
+                        "unit": unit, "stated": bool(self.fit.fixed[i]) and not held,
+                        "withheld": held,
                         "p_value": None if not np.isfinite(p) else float(f"{p:.3g}"),
-                        "detected": bool(self.fit.fixed[i] or (np.isfinite(p) and p < LR_ALPHA))})
+                        "detected": bool((self.fit.fixed[i] and not held)
+                                         or (np.isfinite(p) and p < LR_ALPHA))})
         return {"components": out, "floor_um": round(self.floor_um, 4),
+                "withheld": self.withheld or None,
                 "dof": round(self.dof, 1), "visits": self.fit.n_visits, "source": self.source,
                 "message": self.message()}
+
+    def is_withheld(self, i: int) -> bool:
+        return bool(self.withheld) and i >= len(self.axes)
 
     def message(self) -> str:
         parts = []
         for i, name in enumerate(self.fit.names):
             v, u = self.fit.sigma[i], self.fit.std[i]
             stated = self.fit.fixed[i]
+            if self.is_withheld(i):
+                continue
             if not stated and not (np.isfinite(self.fit.p_value[i])
                                    and self.fit.p_value[i] < LR_ALPHA):
                 continue
@@ -88,9 +114,11 @@ class VisitScatter:
             if not stated and np.isfinite(ci[0]):
                 how += f"; 95 % {ci[0]:.3g}-{ci[1]:.3g}"
             parts.append(f"{what} ≈ {v:.3g} {unit} (1σ, {how})")
+        held = (f"; centre scatter per ball visit not credited to the floor: "
+                f"{self.withheld}") if self.withheld else ""
         if not parts:
             return ("no per-visit scatter beyond the trigger noise detected "
-                    f"({self.source})")
+                    f"({self.source}){held}")
         out = "; ".join(parts) + f" — estimated from {self.source}"
         q = len(self.axes)
         if any(not self.fit.fixed[i] and np.isfinite(self.fit.p_value[i])
@@ -102,7 +130,7 @@ class VisitScatter:
             out += (f" (an indexing repeatability from {n} indexations follows this run's own "
                     f"index errors, whose RMS alone spreads ± {100 / np.sqrt(2 * n):.0f} % "
                     "around the axis' σ: the 95 % interval is the one for σ)")
-        return out
+        return out + held
 
 
 def index_columns(machine: Machine, artefact: Artefact, layout: Layout, p: np.ndarray,
@@ -123,16 +151,13 @@ def index_columns(machine: Machine, artefact: Artefact, layout: Layout, p: np.nd
     return out, axes
 
 
-def visit_ids(groups: Groups) -> np.ndarray:
-    """One id per indexation: (repeat, pose)."""
-    return groups.repeat.astype(np.int64) * 1_000_000 + groups.centres.pose
-
-
 def estimate_scatter(problem: Problem, groups: Groups, z: np.ndarray, axes: tuple[str, ...],
                      extra: list[np.ndarray] | None = None,
-                     stated_urad: Mapping[str, float] | None = None) -> VisitScatter:
+                     stated_urad: Mapping[str, float] | None = None,
+                     withheld: str = "") -> VisitScatter:
     """REML components on the problem's residuals with the twin (and ``extra``) columns as
-    fixed effects; the per-group covariance of the sphere fits is the known part."""
+    fixed effects; the per-group covariance of the sphere fits is the known part. With
+    ``withheld`` (the reason) the centre components are held at zero, not estimated."""
     cov = np.zeros((len(groups), 4, 4))
     cov[:, :3, :3] = groups.centre_cov_um2
     cov[:, 3, 3] = groups.sigma_touch_um**2
@@ -141,6 +166,8 @@ def estimate_scatter(problem: Problem, groups: Groups, z: np.ndarray, axes: tupl
     names = tuple([f"index {a}" for a in axes] + [f"centre {a}" for a in "xyz"])
     stated = {i: float(stated_urad[a]) for i, a in enumerate(axes)
               if stated_urad and a in stated_urad}
+    if withheld:
+        stated |= {len(axes) + k: 0.0 for k in range(3)}
     start = [START_URAD] * len(axes) + [START_UM] * 3
     fit = estimate_components(blocks, names, start, stated)
     theta = fit.sigma
@@ -158,7 +185,7 @@ def estimate_scatter(problem: Problem, groups: Groups, z: np.ndarray, axes: tupl
                  ", the pattern across the balls of each visit (no repeats)")
               + (f", {len(np.unique(rep))} passes" if len(np.unique(rep)) > 1 else ""))
     return VisitScatter(fit, blocks, axes, floor, dof, source, z, list(extra or []),
-                        frozenset())
+                        frozenset(), withheld, n_live)
 
 
 def apply(problem: Problem, vs: VisitScatter) -> None:
@@ -252,21 +279,30 @@ def model_visits(machine: Machine, artefact: Artefact, problem: Problem, groups:
                  twin, ctx, ball_jac: np.ndarray, base_pred_mm: np.ndarray, enabled: bool,
                  stated_urad: Mapping[str, float] | None, with_effects: Sequence = (),
                  rivals: Sequence[np.ndarray] = ()
-                 ) -> tuple[VisitScatter | None, Step | None, int]:
+                 ) -> tuple[VisitScatter | None, Step | None, int, Structure | None]:
     """The visit-level model of the run: the scatter components (GLS whitening of
     ``problem``), then a moved ball (``step_ball``) on that whitening — joined to the twin's
     columns when found, and the components estimated again with it. ``rivals``: the library
-    effects' columns a step must beat. Returns (scatter, step, its first column in the base)."""
+    effects' columns a step must beat, and the shape of any structure along an axis the
+    twin's residuals show (a local bump moves the visits of one ball that pass over it).
+    Returns (scatter, step, its first column in the base, the twin's structure test — None
+    when a step changed the twin)."""
     args = (machine, artefact, problem, groups, twin, ctx, ball_jac, base_pred_mm, enabled,
             stated_urad, with_effects)
     vs = scatter_floor(*args)
+    found = test_structure(problem, groups, vs, problem.base)
+    rivals = list(rivals)
+    if found is not None and found.found and found.shape is not None:
+        q = groups.centres.xyz_mm[:, AXES.index(found.axis)]
+        rivals.append(found.shape.columns(q, groups.channels))
     step = find_step(problem, groups, ball_jac, rivals)
     n_step = problem.base.shape[2]
     if step is not None:
         problem.base = np.concatenate([problem.base, step.cols], axis=2)
         problem._base_u = None
         vs = scatter_floor(*args) if vs is not None else None
-    return vs, step, n_step
+        found = None
+    return vs, step, n_step, found
 
 
 def confounded(vs: VisitScatter | None, problem: Problem, groups: Groups, cands: Sequence,

@@ -10,6 +10,9 @@ and ball (→ ``absorbed`` or ``none``: it only changes the fitted radius), an e
 library — one pose displaced rigidly, as a non-repeatable indexing fault would — (→
 ``unexplained`` at that pose), and the rotary error motion the twin absorbs — order 0 and the
 co-rotating order 1 (eccentricity) of every rotary axis, ISO 230-7 fixed frame — (→ ``none``).
+Outside the library as well: a cyclic error and a local bump of each linear axis, at the sizes
+a machine has rather than scaled to the floor (``selfcheck_structure``: located structure along
+that axis, never ``none``).
 """
 
 from __future__ import annotations
@@ -22,13 +25,15 @@ import numpy as np
 
 from identification.axis_effects import ERROR_MOTION_COMPONENTS, fixed_error_motion, order1_params
 from identification.effects import FAMILIES, Effect, library, make_effect
+from identification.gap.attribute import TYPICAL
 from identification.gap.data import group_touches
-from identification.gap.diagnose import TYPICAL, Options, diagnose
+from identification.gap.diagnose import Options, diagnose
 from identification.gap.selfcheck_scatter import (
     AFTER_LIMIT_SCATTER,
     POLE,
     SCATTER_URAD,
     STEP,
+    SUFFIX,
     chip_named,
     chip_pole,
     index_rms_um,
@@ -37,6 +42,14 @@ from identification.gap.selfcheck_scatter import (
     split_scatter,
     step_named,
 )
+from identification.gap.selfcheck_structure import (
+    AXES,
+    STRUCTURE,
+    caught,
+    inject,
+    rigid_after_ratio,
+)
+from identification.gap.selfcheck_structure import located as structure_located
 from identification.gap.simlog import Truth, simulate
 from identification.gap.twin import fit_twin
 from identification.kinematics import Machine
@@ -52,6 +65,9 @@ SCENARIOS = (*FAMILIES, *VARIANTS, *CONTROLS)  # what ``run`` injects by default
 # scatter of the rotary axes, a knocked ball and a chip on the pole under the scatter.
 BASE_SCENARIOS = SCENARIOS
 SCENARIOS = (*BASE_SCENARIOS, *scatter_scenarios((*FAMILIES, *VARIANTS, "null")))
+# Outside the library (selfcheck_structure.py): a cyclic error and a local bump of each linear
+# axis, without and with the index scatter — located structure, never ``none``.
+SCENARIOS = (*SCENARIOS, *STRUCTURE, *(f"{s}{SUFFIX}" for s in STRUCTURE))
 ABSORBED_SIZE = 50.0  # µm / µrad of the absorbed error motion: 5× typical, still invisible
 AFTER_LIMIT = 1.3  # held-out RMS with the injected family added, over the noise floor
 MIN_VISIBLE = 0.3  # an injected draw must be at least this visible (RMS ratio) to the twin
@@ -69,7 +85,7 @@ class Case:
     top: str | None
     top_axis: str | None
     after_ratio: float  # top candidate held-out RMS / noise floor
-    located: bool  # outside case: the displaced pose is in the location list
+    located: bool  # outside: the displaced pose is located; structure: along its axis
     ok: bool
     family: str | None = None  # the family the scenario must be attributed to (None: control)
 
@@ -203,6 +219,8 @@ def run_case(machine: Machine, artefact: Artefact, poses: Sequence[tuple[float, 
     elif scenario == STEP:
         knocked = knock(rng, len(artefact.balls), len(poses))
         truth.ball_steps = [(knocked.ball, knocked.t_s, knocked.vector_mm)]
+    elif scenario in STRUCTURE:  # the issue's sizes, not scaled to the floor
+        truth.effects = [inject(scenario, axis, machine, artefact, poses, rng)]
     if family is not None or scenario == "outside":
         vis, _, unit_floor = visible_rms(machine, artefact, poses, base, truth, stylus_r)
         floor = np.hypot(unit_floor * noise_um, index_rms_um(machine, artefact, poses,
@@ -220,7 +238,8 @@ def run_case(machine: Machine, artefact: Artefact, poses: Sequence[tuple[float, 
     floor = rep["noise_floor_um"]
     after = (top["holdout_rms_um"] / floor) if top else float("nan")
     v = rep["verdict"]
-    located = False
+    limit = AFTER_LIMIT_SCATTER if scattered else AFTER_LIMIT
+    located = scenario in STRUCTURE and structure_located(rep, axis, limit)
     if displaced is not None:
         b, c = poses[displaced]
         key = f"b={round(b, 3):g},c={round(c, 3):g}"
@@ -229,6 +248,9 @@ def run_case(machine: Machine, artefact: Artefact, poses: Sequence[tuple[float, 
         ok = (top is not None and top["effect"] == family and top["axis"] == axis
               and v["effect"] == family
               and after <= (AFTER_LIMIT_SCATTER if scattered else AFTER_LIMIT))
+    elif scenario in STRUCTURE:
+        ok = located and caught(rep, limit)
+        after = rigid_after_ratio(rep)
     elif knocked is not None:
         ok = step_named(rep, knocked, artefact.ids)
     elif chip is not None:
@@ -264,6 +286,8 @@ def axes_of(scenario: str, machine: Machine, artefact: Artefact) -> list[str | N
     if scenario in VARIANTS:
         return [a for a in machine.rotary_axes
                 if np.ptp(machine.axes[a].travel) >= 360.0]
+    if scenario in STRUCTURE:
+        return [a for a in AXES if a in machine.linear_axes]
     return [e.axis for e in library(machine, artefact.ids) if e.family == scenario]
 
 
@@ -279,8 +303,9 @@ def run(machine: Machine, artefact: Artefact, plans: dict[str, Sequence[tuple[fl
     for plan, poses in plans.items():
         for sc in scenarios:
             fam = expected_family(sc)
-            axes = axes_of(sc, machine, artefact) if fam is not None else [None]
             bare = split_scatter(sc)[0]
+            axes = axes_of(sc, machine, artefact) if fam is not None or bare in STRUCTURE \
+                else [None]
             axes = [a for a in axes if (bare, a) not in skip
                     and (fam is None or visible(machine, artefact, poses, stylus_r, bare, a,
                                                    gravity_dir))]

@@ -82,14 +82,22 @@ def pattern_explained(machine: Machine, artefact: Artefact, data: TouchData, gro
     return [k for k in candidates if k not in still]
 
 
-def settle(run: Run, explained: Callable[[dict, list[int]], list[int]]) -> dict:
+def settle(run: Run, explained: Callable[[dict, list[int]], list[int]],
+           positions: Callable[[list[int]], np.ndarray] | None = None) -> dict:
     """The diagnosis with the outlier test settled both ways (module docstring). ``run``
     diagnoses the run with given group indices kept in (``keep``) or left out (``drop``)
-    beyond the test's own outliers; ``explained``: ``pattern_explained`` bound to the run."""
+    beyond the test's own outliers; ``explained``: ``pattern_explained`` bound to the run;
+    ``positions``: the groups' centres (controller mm), for ``along_structure``."""
     rep, parts = run()
     named = [o["index"] for o in parts["outliers"]]
     keep: frozenset[int] = frozenset()
-    if named and rep["verdict"].get("selected"):
+    # a rest left with structure along an axis: are the named visits part of it? (before
+    # asking whether a library effect that leaves the structure predicts them)
+    structured = bool((rep.get("structure") or {}).get("found")) \
+        and rep["verdict"]["effect"] == "unexplained"
+    if named and positions is not None and structured:
+        rep, parts, keep = along_structure(run, rep, parts, named, positions)
+    if named and not keep and rep["verdict"].get("selected"):
         back = explained(rep, named)
         if back:
             keep = frozenset(back)
@@ -101,6 +109,8 @@ def settle(run: Run, explained: Callable[[dict, list[int]], list[int]]) -> dict:
                 | {"explained_by": label,
                    "note": "its centre departs as the effect predicts: a pattern across "
                            "visits, not a chip on one"} for o in named]
+    if named and not keep and positions is not None and not structured:
+        rep, parts, keep = along_structure(run, rep, parts, named, positions)
     suspect = parts["outlier_test"].get("pole_suspect")
     if rep["verdict"]["effect"] == "unexplained" and suspect is not None:
         rest, rest_parts = run(keep=keep, drop=frozenset({suspect["index"]}))
@@ -109,6 +119,44 @@ def settle(run: Run, explained: Callable[[dict, list[int]], list[int]]) -> dict:
                 - {o["index"] for o in parts["outliers"]}):
             return _clean(pole_verdict(outlier_verdict(rest, rest_parts), suspect))
     return _clean(outlier_verdict(creep_note(rep), parts))
+
+
+TOUCH_REACH_MM = 16.0  # a ball's touches reach this far from its centre (Ø 25.4 + stylus)
+
+
+def along_structure(run: Run, rep: dict, parts: dict, named: list[int],
+                    positions: Callable[[list[int]], np.ndarray]
+                    ) -> tuple[dict, dict, frozenset[int]]:
+    """A local defect of a guideway deforms the probed sphere of every ball visit that
+    straddles it: the sphere stage names those visits chips, and with them left out the
+    rest may show nothing. So the run is diagnosed again with them kept in; they go back
+    into the diagnosis when it then finds structure along an axis that reaches them (a
+    local shape: most of them within one width and a ball's touch reach of its centre) and
+    either more than one visit was named — a chip is one visit — or the rest already showed
+    the structure."""
+    rest_found = bool((rep.get("structure") or {}).get("found"))
+    visits = {(o["log"], o["repeat"], o["pose"]) for o in parts["outliers"]}
+    if len(visits) < 2 and not rest_found:
+        return rep, parts, frozenset()
+    keep = frozenset(named)
+    rep_k, parts_k = run(keep=keep)
+    st = rep_k.get("structure") or {}
+    loc = st.get("located") or {}
+    if not st.get("found") or not loc:
+        return rep, parts, frozenset()
+    q = positions(named)[:, "XYZ".index(loc["axis"])]
+    # a local shape fitted with its worst-deformed visits in is narrower than the bump (their
+    # spheres bend most where it is steepest, at its flanks): one width either side
+    if loc["shape"] == "local" and np.mean(
+            np.abs(q - loc["centre_mm"]) <= loc["width_mm"] + TOUCH_REACH_MM) < 0.5:
+        return rep, parts, frozenset()
+    parts_k["explained_visits"] = [
+        {k: v for k, v in o.items() if k != "index"}
+        | {"explained_by": f"structure along {loc['axis']}",
+           "note": f"its sphere departs where the structure along {loc['axis']} lies: a "
+                   "pattern along the axis, not a chip on one visit"}
+        for o in parts["outliers"]]
+    return rep_k, parts_k, keep
 
 
 def creep_note(rep: dict) -> dict:

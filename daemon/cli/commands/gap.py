@@ -104,8 +104,15 @@ def _print_report(rep: dict) -> None:
     print(f"twin gap: train RMS {b['train_rms_um']:.3f} µm, held-out RMS "
           f"{b['holdout_rms_um']:.3f} µm, max {b['holdout_max_um']:.3f} µm "
           f"({b['gap_ratio']:.2f}× the held-out floor, p = {b['p_value']:.2g})")
+    parts = rep["noise"].get("parts")
+    if parts:
+        print(parts["message"])
     if rep.get("scatter"):
         print(f"per-visit scatter: {rep['scatter']['message']}")
+    st = rep.get("structure")
+    if st:
+        print(f"{'STRUCTURE' if st['found'] else 'structure'}: {st['message']}"
+              + ("; the selected effects remove it" if st.get("explained_by_selected") else ""))
     if rep.get("ball_step"):
         print(f"ball moved: {rep['ball_step']['message']}")
     if rep.get("links"):
