@@ -1,11 +1,12 @@
-"""Property-based fuzzing of the issue-20 surfaces: special files and row ceilings of every
+"""Property-based fuzzing of the readers' surfaces: special files and row ceilings of every
 reader, duplicate YAML keys, strict booleans, direction vectors, control characters in
 instrument files, signed counters, and analyses against a wrong machine geometry.
 
 Every example is classified: read, refused (one line naming the file), traceback (any other
-exception), hang (no answer within ``HANG_S``), wrong acceptance (accepted although the input
-is wrong) or wrong refusal (a valid input refused); each test asserts tracebacks, hangs and
-wrong acceptances (and wrong refusals) are 0, and prints its counts (``pytest -s``)."""
+exception), hang (``HANG_S`` CPU seconds without an answer, or blocked), wrong acceptance
+(accepted although the input is wrong) or wrong refusal (a valid input refused); each test
+asserts tracebacks, hangs and wrong acceptances (and wrong refusals) are 0, and prints its
+counts (``pytest -s``)."""
 
 from __future__ import annotations
 

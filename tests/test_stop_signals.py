@@ -16,6 +16,7 @@ import signal
 import subprocess
 import time
 import urllib.request
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -131,9 +132,7 @@ class Daemon:
         return self.proc.wait(WAIT_S)
 
 
-@pytest.fixture(scope="module")
-def daemon(sim_url, tmp_path_factory):
-    tmp = tmp_path_factory.mktemp("daemon")
+def _serving(sim_url: str, tmp: Path) -> Iterator[Daemon]:
     port = free_port()
     cfg = write_config(tmp, {"transport": "opcua", "url": sim_url, "security": "none"},
                        hmi_port=port)
@@ -144,6 +143,18 @@ def daemon(sim_url, tmp_path_factory):
     finally:
         if d.proc is not None and d.proc.poll() is None:
             d.stop()
+
+
+@pytest.fixture(scope="module")
+def daemon(sim_url, tmp_path_factory):
+    """One daemon serving the tests that leave it serving, in whatever order they run."""
+    yield from _serving(sim_url, tmp_path_factory.mktemp("daemon"))
+
+
+@pytest.fixture
+def own_daemon(sim_url, tmp_path):
+    """A daemon of the test's own, for a test that stops it and changes its configuration."""
+    yield from _serving(sim_url, tmp_path)
 
 
 def _verify_daemon(d: Daemon) -> subprocess.Popen:
@@ -181,29 +192,30 @@ def test_after_the_aborts_a_run_through_the_daemon_reaches_its_verdict(daemon):
     assert latest_run(daemon.db)[1] == "DONE"  # type: ignore[index]
 
 
-def test_sigterm_on_the_daemon_interrupts_its_run_and_the_restart_reruns_it(daemon):
+def test_sigterm_on_the_daemon_interrupts_its_run_and_the_restart_reruns_it(own_daemon):
     """The daemon stopping under a run (SIGTERM, as systemd stops it): the run ends
     INTERRUPTED with its phase, the controller reset; ``rumba verify --daemon`` following it
     ends with that state (exit 2, no traceback); started again with ``rerun_interrupted``, the
     daemon runs the machine again and the controller takes the new program."""
-    before = latest_run(daemon.db)
-    proc = _verify_daemon(daemon)
-    run_id = until_capturing(proc, daemon.db, not_run=before[0] if before else None)
-    assert daemon.stop() == 0, daemon.log.read_text()
+    before = latest_run(own_daemon.db)
+    proc = _verify_daemon(own_daemon)
+    run_id = until_capturing(proc, own_daemon.db, not_run=before[0] if before else None)
+    assert own_daemon.stop() == 0, own_daemon.log.read_text()
     _out, err = proc.communicate(timeout=WAIT_S)
     assert proc.returncode == 2 and "Traceback" not in err, err
-    rid, state, reason, _ = latest_run(daemon.db)  # type: ignore[misc]
+    rid, state, reason, _ = latest_run(own_daemon.db)  # type: ignore[misc]
     assert (rid, state) == (run_id, "INTERRUPTED"), reason
     assert reason.startswith("interrupted by the daemon stopping during "), reason
     assert "controller abort failed" not in reason, reason  # the reset reached the CNC
-    log = daemon.log.read_text()
+    log = own_daemon.log.read_text()
     assert "Traceback" not in log and "rumba: stopped" in log, log
-    doc = yaml.safe_load(daemon.cfg.read_text())
+    doc = yaml.safe_load(own_daemon.cfg.read_text())
     doc["machines"][0]["rerun_interrupted"] = True
-    daemon.cfg.write_text(yaml.safe_dump(doc), encoding="utf-8")
-    daemon.start()
-    rerun = until_capturing(daemon.proc, daemon.db, not_run=run_id)  # type: ignore[arg-type]
-    assert latest_run(daemon.db)[0] == rerun  # type: ignore[index]
-    assert daemon.status()["trigger"] == "rerun"
-    assert daemon.stop() == 0
-    assert latest_run(daemon.db)[1] == "INTERRUPTED"  # type: ignore[index]
+    own_daemon.cfg.write_text(yaml.safe_dump(doc), encoding="utf-8")
+    own_daemon.start()
+    rerun = until_capturing(own_daemon.proc, own_daemon.db,  # type: ignore[arg-type]
+                            not_run=run_id)
+    assert latest_run(own_daemon.db)[0] == rerun  # type: ignore[index]
+    assert own_daemon.status()["trigger"] == "rerun"
+    assert own_daemon.stop() == 0
+    assert latest_run(own_daemon.db)[1] == "INTERRUPTED"  # type: ignore[index]
