@@ -17,7 +17,7 @@ cd "$(dirname "${BASH_SOURCE[0]}")/.."
 # 2.183+ declare engines node>=22.13; the machine's Node is 20 (Debian's would be 18).
 NODE_OPCUA_VERSION=2.182.2
 # The official OPC UA companion nodesets (DI, IA, Machinery, Machinery Result …) as XML: the
-# daemon's OPC UA results server loads them (opcua_server.nodesets_dir, issue 25) and the node-opcua
+# daemon's OPC UA results server loads them (opcua_server.nodesets_dir) and the node-opcua
 # peer checks the server against them. 2.182.0 is the version node-opcua 2.182.2 depends on.
 NODE_OPCUA_NODESETS_VERSION=2.182.0
 NODE_PREFIX=${RUMBA_PEERS_DIR:-.peers}/node
@@ -30,7 +30,7 @@ declare -A APT_PKGS=(
   [postgresql]="postgresql"  # the tests start their own server (initdb + pg_ctl) in a temp dir
   [mosquitto]="mosquitto"  # the tests start their own broker on a free loopback port
   # -dev: halcompile and the kinematics headers, to build config/linuxcnc/xyzbc_head_kins.comp
-  # (the swivel-head kins module whose pins hold what probing sees, issue 24 item 5); the same
+  # (the swivel-head kins module whose pins hold what probing sees); the same
   # version as linuxcnc-uspace (both from bookworm)
   [linuxcnc]="linuxcnc-uspace linuxcnc-uspace-dev"
 )

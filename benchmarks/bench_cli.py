@@ -1,4 +1,4 @@
-"""Speed of the command line (issue 19, issue 42), by hand: help, an argument error, analyze and
+"""Speed of the command line, by hand: help, an argument error, analyze and
 gap of the 14-pose example log, gcode of 14 poses, analyze of 175 poses — CPU and wall."""
 
 # .venv/bin/python -m benchmarks.bench_cli [--runs 5] [--keep DIR]   (also in `make bench`)

@@ -1,4 +1,4 @@
-"""Time of the compensation view (issue 20): `rumba compensate RUN` and GET /api/compensation."""
+"""Time of the compensation view: `rumba compensate RUN` and GET /api/compensation."""
 
 # .venv/bin/python -m benchmarks.bench_compensation [--runs 5]   (also in `make bench`)
 #

@@ -1,6 +1,6 @@
 """Cycle time of the thesis 14-pose plan (4 balls, rapid 20 m/min, probing 300 mm/min) against
 its targets (≤ 10 min, ≤ 1.5 × the lower bound) and generation + safety-check time of the
-175-pose plan; the head families' shipped plans per dialect (issue 24: straight transits at rapid
+175-pose plan; the head families' shipped plans per dialect (straight transits at rapid
 where the rapid is a straight line). Run: ``python -m benchmarks cycletime``."""
 
 from __future__ import annotations

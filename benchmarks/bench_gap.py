@@ -1,4 +1,4 @@
-"""Benchmark of the gap diagnosis (issue 6), run by hand:
+"""Benchmark of the gap diagnosis, run by hand:
 
     .venv/bin/python benchmarks/bench_gap.py [--seeds 10] [--no-selfcheck]
 
@@ -6,9 +6,9 @@
    withheld gravity sag) against the whole library — target ≤ 30 s on 2 cores.
 2. The full-size self-check: every library family withheld at 5× the floor on the thesis
    14-pose plan and a 49-pose grid over ``--seeds`` seeds, the fixed-frame 2nd-harmonic radial
-   error motion of C alone (issue 12), null / uniform pre-travel / outside-the-library /
+   error motion of C alone, null / uniform pre-travel / outside-the-library /
    absorbed error motion controls; confusion table and the issue's targets.
-3. ``--faults detect|pole|creep`` (issue 21 items 4-5; annex-B plan, seeds ``--first`` ..
+3. ``--faults detect|pole|creep`` (annex-B plan, seeds ``--first`` ..
    ``--first + --seeds``): ``detect``, how often the outlier test names an 8/10/15 µm chip on
    the pole and on an equator touch (0.6 µm touch noise, without and with 5 µrad B/C index
    scatter) and the pole size each run states it could not have seen; ``pole``, the verdicts

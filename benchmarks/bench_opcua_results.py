@@ -1,4 +1,4 @@
-"""OPC UA results server (issue 25): 1 000 stored results listed and filtered through
+"""OPC UA results server: 1 000 stored results listed and filtered through
 GetResultIdListFiltered, and one GetResultById, timed from an asyncua client over
 Basic256Sha256 SignAndEncrypt on loopback. Target: list and filter 1 000 results in < 1 s."""
 

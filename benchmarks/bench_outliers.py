@@ -1,4 +1,4 @@
-"""Benchmark of the per-visit outlier test (issue 12), run by hand:
+"""Benchmark of the per-visit outlier test, run by hand:
 
     .venv/bin/python benchmarks/bench_outliers.py [--seeds 200] [--repair-seeds 40]
 

@@ -1,4 +1,4 @@
-"""Whether ``rumba plan``'s predicted link u hold under rotary index scatter (issue 22 follow-up).
+"""Whether ``rumba plan``'s predicted link u hold under rotary index scatter.
 
 The thesis machine (Table B.2 links, thesis touch and centre repeatability 0.66 / 0.98 / 0.44
 µm) with every indexation of B and C stopping ``index`` µrad 1σ off (the simulator's

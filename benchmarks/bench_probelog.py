@@ -1,4 +1,4 @@
-"""Time and peak memory of reading large probing logs (issue 10), run by hand or by ``make bench``:
+"""Time and peak memory of reading large probing logs, run by hand or by ``make bench``:
 
     .venv/bin/python -m benchmarks probelog
     .venv/bin/python benchmarks/bench_probelog.py [--lines 100000 1000000] [--module FILE.py]

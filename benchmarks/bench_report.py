@@ -1,4 +1,4 @@
-"""Time to write one run's report (issue 23): plots, HTML + JSON, PDF, and the whole write."""
+"""Time to write one run's report: plots, HTML + JSON, PDF, and the whole write."""
 
 # .venv/bin/python -m benchmarks.bench_report [--runs 3] [--trend 10] [--plan shift_start_14poses]
 #                                             [--profile]
@@ -9,7 +9,7 @@
 # of ``--runs`` writes in this process, after one untimed warm-up (matplotlib's font cache and
 # imports are paid once per daemon, not per run). The parts are timed on their own: the four
 # plots, the HTML page (template + JSON document, the plots given), the PDF (its two pages,
-# the plots given) and the whole ``write_report``. Target: total ≤ 2 s (issue 23 item 4).
+# the plots given) and the whole ``write_report``. Target: total ≤ 2 s.
 # ``--profile`` prints the top of a cProfile of one whole write instead.
 
 from __future__ import annotations

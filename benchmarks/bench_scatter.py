@@ -1,4 +1,4 @@
-"""Monte Carlo of the scatter-aware gap diagnosis (issue 21), run by hand; prints the table:
+"""Monte Carlo of the scatter-aware gap diagnosis, run by hand; prints the table:
 
     OMP_NUM_THREADS=1 nice .venv/bin/python benchmarks/bench_scatter.py [--seeds 50]
 

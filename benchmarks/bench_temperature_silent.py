@@ -1,4 +1,4 @@
-"""What a temperature transmitter switched off but still routable costs a run (issue 22 item 3):
+"""What a temperature transmitter switched off but still routable costs a run:
 the wall time from the CNC's start request to the verdict on the simulated OPC UA control, with
 the spindle channel alone, with a live Modbus TCP transmitter beside it, and with a transmitter
 that accepts the connection and never answers (tests/test_temperature_silent.py's socket; its

@@ -1,4 +1,4 @@
-"""Where the link u's residual understatement comes from (issue 22 item 1): estimator or data.
+"""Where the link u's residual understatement comes from: estimator or data.
 
 Two measurements, both on the thesis machine and the 14-pose shift plan, drift-free:
 

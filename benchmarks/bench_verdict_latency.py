@@ -1,11 +1,11 @@
-"""Time from a run's last hit to its verdict written back, and to its report (issue 23)."""
+"""Time from a run's last hit to its verdict written back, and to its report."""
 
 # .venv/bin/python -m benchmarks.bench_verdict_latency [--runs 3]
 #
 # The session on the thesis machine (tests' ReplayLink, no delay between hits), one run after
 # another in one process after an untimed warm-up run: last hit → IDLE (verdict journaled,
 # judged, written back, the end published) and last hit → report written (the worker's end).
-# Before issue 23 the report was rendered between JUDGE and WRITE-BACK: the verdict reached
+# Once, the report was rendered between JUDGE and WRITE-BACK: the verdict reached
 # the CNC at about the second figure.
 
 from __future__ import annotations

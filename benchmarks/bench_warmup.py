@@ -1,8 +1,8 @@
-"""Warm-up during the morning check (issue 22): Monte Carlo of the drift-aware estimate.
+"""Warm-up during the morning check: Monte Carlo of the drift-aware estimate.
 
 Simulated runs of the 14-pose shift plan and of the plan ``rumba plan`` optimises for it, on the
 thesis machine (Table B.2 links, thesis touch and centre repeatability) with the rotary axes'
-index scatter (``INDEX_URAD`` 1σ on B and C per indexation, issue 21) and a warm-up from cold
+index scatter (``INDEX_URAD`` 1σ on B and C per indexation) and a warm-up from cold
 δ(t) = A·(1 − e^(−t/τ)) (simulators/thermal.py) whose drift over the estimate's span is 0, 5, 10
 or 20 µm, τ drawn log-uniform in 10-60 min and the direction uniform on the sphere (one τ for
 the three axes: one thermal state). Every run draws its own seed, a hash of (plan, warm-up,
@@ -21,7 +21,7 @@ estimate. Prints per plan, warm-up and stated repeatability:
   (run, axis) drifts over the run within 2u of the truth, the share of (run, axis) with a true
   drift ≥ 2 µm the selected model left out;
 - u/u_plain, the reported link u over the plain estimate's (the cost of the drift search), and
-  u/u_today, over the u stated before issues 21-22 (independent centres, no t's ν/(ν−2)): the
+  u/u_today, over the u stated w/o scatter, drift (independent centres, no t's ν/(ν−2)): the
   issue's null-run criterion, ≤ 1.1 (mean over links; the summary also prints the worst link's).
 
 ``gap``: the gap diagnosis of a withheld warm-up 8 µm·(1 − e^(−t/900 s)) along Z (or X, Y) on the
@@ -133,7 +133,7 @@ def run_one(machine, mf, art, plan, text: str, name: str, over_um: float, span_s
     est_c = data.centres.subset(~np.isin(data.centres.pose, val))
     pe = estimate(machine, art, est_c, rotary_repeatability_urad=stated)
     plain = pe.links_si()
-    # today's u, before issues 21 and 22: independent centres, a posteriori σ per axis, no t's
+    # today's u, without visit scatter, drift: independent centres, a posteriori σ per axis, no t's
     # ν/(ν−2) (the visit sandwich engaged only past its test, ~7 % of scatter-free runs)
     pi = estimate(machine, art, est_c, visit_scatter=False)
     today = {k: u / float(np.sqrt(t_variance_factor(pi.sigma_dof)))

@@ -1,6 +1,6 @@
 """The machine file's ``controller_kinematics`` section: schema, per-control checks, dataclasses.
 
-What the control keeps of its kinematic model and where (issue 13): each parameter names what it
+What the control keeps of its kinematic model and where: each parameter names what it
 moves in our model (``kind: pivot``: the rotary axes whose ``point_mm[component]`` it moves;
 ``kind: orientation``: the ISO 230-1 location error it holds, e.g. ``EA0C``), the control's
 ``address`` of it and its current ``value``: mm for a pivot, µrad of the held link for an
@@ -19,7 +19,7 @@ Addresses per family:
   opposite change, Siemens: "I4 = −(I2 + I3)"); an orientation a rotary-axis vector component
   (v1 ``n`` = 7-9, v2 10-12) with ``vector``, the control's nominal vector of that axis (a table
   axis' vector is reversed on Siemens), the component being the one the tilt moves. An inclined
-  axis (issue 24: the nutating B ``[0, 0.7071, 0.7071]``) has its tilts in its own frame R0
+  axis (the nutating B ``[0, 0.7071, 0.7071]``) has its tilts in its own frame R0
   (``identification.kinematics.axis_frame``): a tilt about R0·x can move two or three components
   of the vector, the others named in ``also``; each is written as its nominal value plus the
   first-order change (``ControllerParamSpec.vector_values``).
@@ -68,7 +68,7 @@ class GuardsFile(StrictModel):
     max_change_um: float = Field(50.0, gt=0, le=1000)
     max_change_urad: float = Field(100.0, gt=0, le=10000)
     max_total_um: float = Field(100.0, gt=0, le=10000)
-    # the sum of the changes of one value since the last verified baseline (issue 20): two
+    # the sum of the changes of one value since the last verified baseline: two
     # changes each under max_change must not walk a value away; default: max_change_*
     max_cumulative_um: float | None = Field(None, gt=0, le=10000)
     max_cumulative_urad: float | None = Field(None, gt=0, le=100000)
@@ -100,7 +100,7 @@ class ControllerKinematicsFile(StrictModel):
     params: list[ParamFile] = Field(min_length=1, max_length=32)
     # LinuxCNC on this PC: must the live pins be readable before identifying and writing?
     # ``when_written`` (default): only once rumba has written to this controller (before that
-    # the machine file's values are the model); ``required``: always (issue 20)
+    # the machine file's values are the model); ``required``: always
     read_back: Literal["required", "when_written"] = "when_written"
 
 

@@ -36,7 +36,7 @@ def decoded(raw_lines: Iterable[bytes], name: str,
     """Bytes lines (bounded: ``byte_lines``) → text lines, refusing non-UTF-8; ``printable``:
     and the control characters str.strip() takes away (\\x0b, \\x0c, \\x1c-\\x1f) anywhere
     on the line: the checks after strip cells, keys and the first line, and would read such a
-    character as if it were not there (issue 20, found by tests/test_inputs_fuzz_surfaces.py;
+    character as if it were not there (found by tests/test_inputs_fuzz_surfaces.py;
     the other control characters are refused by those checks, naming the column)."""
     err = error or ProbeLogError
     for n, raw in enumerate(raw_lines, start=1):

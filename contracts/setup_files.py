@@ -87,7 +87,7 @@ class AxisFile(StrictModel):
 
 
 class ToolBody(StrictModel):
-    """A keep-out that moves with the tool (issue 24): a cylinder around the spindle axis from
+    """A keep-out that moves with the tool: a cylinder around the spindle axis from
     ``from_mm`` to ``to_mm`` above the stylus tip (probe body, spindle nose, head housing); the
     safety check keeps it clear of balls, rods, table and boxes on every move and index."""
 
@@ -137,7 +137,7 @@ class KeepOutBox(StrictModel):
 
 
 class ProbeRecordFile(StrictModel):
-    """The touch probe in the spindle, for the audit block of every report (issue 23): its
+    """The touch probe in the spindle, for the audit block of every report: its
     last qualification (the stylus' effective diameter measured on a reference sphere); the
     diameter the computation uses is the plan's ``stylus_diameter_mm``."""
 
@@ -166,12 +166,12 @@ class MachineFile(StrictModel):
     # [0, -1, 0] on a horizontal machine; None: identification.effects.default_gravity guesses.
     gravity: Direction | None = None
     serial: Record | None = None  # the machine's serial number, printed on every report (audit)
-    probe: ProbeRecordFile | None = None  # the spindle probe's qualification (report, issue 23)
-    # What the control keeps of its kinematic model and where (compensation write-back, issue 13)
+    probe: ProbeRecordFile | None = None  # the spindle probe's qualification (report)
+    # What the control keeps of its kinematic model and where (compensation write-back)
     controller_kinematics: ControllerKinematicsFile | None = None
     # Rotary positioning repeatability (µrad 1σ per indexation, by rotary axis letter), e.g.
     # from the builder's ISO 230-2 test: the gap diagnosis uses it as given for the per-visit
-    # index scatter instead of estimating it from the run (issue 21).
+    # index scatter instead of estimating it from the run.
     rotary_repeatability_urad: dict[Literal["A", "B", "C"],
                                     Annotated[float, Field(ge=0, le=1000)]] | None = None
     _n = field_validator("name")(safe_name)

@@ -3,7 +3,7 @@
 A carrier (``$TC_CARR<n>[<k>]`` of carrier ``k``) keeps the offset vectors l1 (``n`` 1-3), l2
 (4-6), l3 (15-17), l4 (18-20) and the rotary-axis vectors v1 (7-9), v2 (10-12), x y z in that
 order. A small tilt θ of a rotary axis about the unit vector t moves its axis vector v to
-v + θ·(t × v) (first order): on a principal axis one component, on an inclined one (issue 24:
+v + θ·(t × v) (first order): on a principal axis one component, on an inclined one (
 the nutating B ``[0, 0.7071, 0.7071]``, whose tilts are about R0·x, R0·z of its own frame,
 ``identification.kinematics.axis_frame``) two or three.
 """

@@ -1,4 +1,4 @@
-"""Temperature channels of a machine (issue 22 item 3): their config schema, a reading and the
+"""Temperature channels of a machine: their config schema, a reading and the
 run's summary (start, end, change, per pose) that the report, the HMI, the fleet and the judge use.
 
 A channel is read from the controller over the run's own link (an OPC UA node, a Modbus register,
@@ -220,7 +220,7 @@ def run_ends(mine: Sequence[TemperatureReading]
 def run_mean_c(pose_c: Sequence[float | None], start_c: float | None,
                end_c: float | None) -> float | None:
     """A run's temperature on one channel, the one definition the report, the CLI, the HMI and
-    the fleet page use (issue 22 item 4): the mean of the values read at the poses — the
+    the fleet page use: the mean of the values read at the poses — the
     instants the geometry was measured — else of the start and end values that were read. A
     reading that is missing (or not a finite number: a store written by hand) is left out,
     never stood in for by another one."""

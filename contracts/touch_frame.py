@@ -1,4 +1,4 @@
-"""The five touch directions in the tool frame (issue 24): the pole against the spindle, the
+"""The five touch directions in the tool frame: the pole against the spindle, the
 four equator touches the machine X-Y diagonals (``contracts.messages.TOUCH_DIRECTIONS``) carried
 by the smallest rotation from z onto the spindle direction, optionally turned about it."""
 

@@ -65,7 +65,7 @@ class TouchTable:
     def named(self, seq: int, axes: dict[str, float], triggered: bool, **fields: Any) -> ProbeHit:
         """The hit of touch ``seq`` as a transport reporting only (seq, axes) delivers it (OPC UA,
         Modbus): identity and approach direction from the program (a tilted touch's direction
-        is in the tool frame, issue 24: the log is true), the nominal direction of its touch
+        is in the tool frame: the log is true), the nominal direction of its touch
         number when the program gives none; pose -1 and no ball for a seq not in the table.
         ``fields`` (``t_s=…``, ``raw=…``) are passed to ``ProbeHit``."""
         info = self._by_seq.get(seq)
@@ -83,7 +83,7 @@ class TouchTable:
         commanded pose when both rotary values are zero, feed when zero (what the transport or
         result line reported is kept); the approach direction is the program's whenever it has
         one — no transport reports a direction, a result line only implies its touch number's
-        nominal diagonal, which a tilted touch (issue 24) is not. ``changes`` are applied as
+        nominal diagonal, which a tilted touch is not. ``changes`` are applied as
         given. Filling twice changes nothing."""
         info = self._by_seq.get(hit.seq)
         if info is not None:

@@ -86,8 +86,8 @@ class DaemonFile(StrictModel):
     can_panel: dict[str, Any] | None = None  # validated by drivers.can.panel
     mqtt: MqttFile | None = None  # live results out (daemon/mqtt/publisher.py)
     notify: NotifyFile | None = None  # webhook / e-mail notifications (daemon/notify/notifier.py)
-    opcua_server: OpcUaServerFile | None = None  # OPC UA results server (issue 25), off if absent
-    aqdef_dir: str | None = None  # an AQDEF (.dfq) file per finished run dropped here (issue 25)
+    opcua_server: OpcUaServerFile | None = None  # OPC UA results server, off if absent
+    aqdef_dir: str | None = None  # an AQDEF (.dfq) file per finished run dropped here
     machines: list[MachineEntry] = Field(min_length=1)
 
     @model_validator(mode="after")
@@ -116,8 +116,8 @@ class DaemonConfig:
     store_dsn: str | None = None  # postgresql://… : the fleet store the journal drains to
     mqtt: Any = None  # daemon.mqtt.config.MqttConfig
     notify: Any = None  # daemon.notify.config.NotifyConfig
-    opcua_server: Any = None  # daemon.opcua.config.OpcUaServerConfig (issue 25)
-    aqdef_dir: Path | None = None  # issue 25: the AQDEF drop folder
+    opcua_server: Any = None  # daemon.opcua.config.OpcUaServerConfig
+    aqdef_dir: Path | None = None  # the AQDEF drop folder
     users_file: Path | None = None  # hmi.users_file: the HMI accounts
 
 

@@ -113,7 +113,7 @@ def judge(cfg: Path, run1: str, run2: str, machine: str = MACHINE_NAME) -> Outco
         lines.append(f"{n}: before {v1:+.2f} ± {2 * u1:.2f} {unit}, after {v2:+.2f} ± "
                      f"{2 * u2:.2f} {unit} (U, k=2); |after| {'<=' if inside else '>'} "
                      f"{k:.2f}·u_c = {k * uc:.2f} {unit}")
-    # issue 23: the figures of daemon/analysis/figures.py, by their names and definitions:
+    # the figures of daemon/analysis/figures.py, by their names and definitions:
     # run 1's link-caused distortion and its predicted after compensation, against the
     # link-caused distortion the verification run measures
     f1, f2 = p1.figures(), p2.figures()

@@ -2,7 +2,7 @@
 and the daemon (`rumba run`, a separate process) on free loopback ports; the CNC raises its
 start-of-shift request, the daemon runs the thesis annex-B plan, and the verdict comes back.
 
-The story a shop lives (issue 23): the demo machine (a light collision moved its C axis line
+The story a shop lives: the demo machine (a light collision moved its C axis line
 38 µm) FAILs against limits derived from its parts' tolerance (demos/limits.py); the proposed
 compensation is within the machine file's guards, an engineer confirms it (`rumba compensate
 --confirm --by`), the reviewed $TC_CARR program is loaded into the control, and the
@@ -82,7 +82,7 @@ machines:
 
 
 async def settled_status(hmi: str, token: str, machine: str) -> dict:
-    """The machine's HMI status once its last run's report is written or failed (issue 23:
+    """The machine's HMI status once its last run's report is written or failed (
     the verdict reaches the CNC first, the report is rendered after the run's end)."""
     async with aiohttp.ClientSession(headers={"Authorization": f"Bearer {token}"}) as http:
         while True:

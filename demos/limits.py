@@ -1,4 +1,4 @@
-"""The demos' shop limits (issue 23 item 3): derived from a stated basis, each limit with its
+"""The demos' shop limits: derived from a stated basis, each limit with its
 source, as a shop writes them into daemon.yaml (README "Choosing limits"); one copy for the
 demos (make demo, make demo-hmi, make demo-fleet)."""
 

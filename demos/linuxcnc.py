@@ -103,7 +103,7 @@ async def demo(plan: Path, work: Path) -> int:
                     await asyncio.sleep(1.0)
                     async with http.get(hmi + "api/status") as r:
                         st = (await r.json())["lcnc-trt"]
-                    # issue 23: the report is written after the run's end: wait for it too
+                    # the report is written after the run's end: wait for it too
                     if not st["busy"] and (st.get("verdict") or {}).get(
                             "report_state") != "writing":
                         break

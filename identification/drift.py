@@ -1,4 +1,4 @@
-"""Slow TCP drift during a run (a warming machine) fitted with the links, chosen by BIC (issue 22).
+"""Slow TCP drift during a run (a warming machine) fitted with the links, chosen by BIC.
 
 Model (seed 002 §3.3.4, ISO 230-3): a measured centre is the chain's prediction plus a drift
 δ(t) of the controller X Y Z common to every ball, per axis linear in time or a first-order
@@ -32,7 +32,7 @@ shapes BIC weighed on those axes, no drift included (``_selection_share``): the 
 part of their uncertainty. The
 covariance is the visit sandwich of ``identification.estimate_scatter`` under the rotary axes'
 index scatter estimated on the residuals the drift leaves, the drift's columns fitted too (as
-the plain estimate's, issue 21; before, the refit dropped it: 90.6 % 2u coverage on 8 warming
+the plain estimate's; before, the refit dropped it: 90.6 % 2u coverage on 8 warming
 runs at 15 µrad, tests/test_drift_scatter.py).
 """
 
@@ -324,7 +324,7 @@ def _final(machine: Machine, artefact: Artefact, centres: Centres, base: Estimat
     cov, sig_um, sig_dof, warns = a_posteriori(rw, n_all, cov, sigma_mm * 1e3, dof0,
                                                base.sigma_given)
     # rotary index scatter moves the balls of a visit together: the sandwich of ``estimate``
-    # (issue 21) on the residuals the drift leaves, the drift's columns fitted with the links
+    # on the residuals the drift leaves, the drift's columns fitted with the links
     dist = lin.dist_j if lin.dist_j.size else None
     scatter = visit_sandwich(machine, artefact, est.layout, est.p, centres, sigma_mm, dist,
                              np.ones(lin.dist_j.shape[0]), cols,

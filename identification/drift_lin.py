@@ -1,4 +1,4 @@
-"""The drift search's linearised least squares (issue 22): the chain linearised at the plain
+"""The drift search's linearised least squares: the chain linearised at the plain
 estimate (affine in µm-size changes to < 1 nm) and the weighted solve of r ≈ J δp + D θ with
 drift columns D, shared by the model search and its refit (identification/drift.py), and the
 selection share: the spread of the links over the models BIC chose among."""

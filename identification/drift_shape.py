@@ -1,4 +1,4 @@
-"""A TCP drift's time course and its columns in the drift-aware fit (issue 22): the model (shape,
+"""A TCP drift's time course and its columns in the drift-aware fit: the model (shape,
 axes, τ), the touches a centre was fitted from, and the shape normalised over the run."""
 
 from __future__ import annotations

@@ -79,7 +79,7 @@ def make_effect(family: str, axis: str | None, machine: Machine, **options) -> E
 # Single harmonics of a rotary axis' positioning error offered beside the full model (slope +
 # orders 1-2, 5 parameters): an eccentric (order 1) or two-fold (order 2) encoder error is often
 # alone, and where a plan holds few distinct angles of the axis under indexing scatter the full
-# model cannot extrapolate to poses it did not see (issue 21: the annex-B hold-out plan's seven
+# model cannot extrapolate to poses it did not see (the annex-B hold-out plan's seven
 # estimate poses hold five C angles) while 2 parameters do.
 SINGLE_HARMONICS = (1, 2)
 

@@ -56,7 +56,7 @@ class Estimate:
     # degrees of freedom behind sigma_um (inf when given): the per-axis σ of the weighted fit
     # rests on (centres − parameters / 3) residuals each (GUM G.3: widen k with few dof)
     sigma_dof: float = math.inf
-    # per-visit scatter behind a sandwich covariance (issue 21, estimate_scatter.py): component
+    # per-visit scatter behind a sandwich covariance (estimate_scatter.py): component
     # → (σ, u(σ), p-value) in µrad / µm; None without it (visit_scatter=False, < 4 visits)
     visit_scatter: dict[str, tuple[float, float, float]] | None = None
     # the components ("index B") held at the machine file's stated repeatability, as the

@@ -1,4 +1,4 @@
-"""Link uncertainties that hold under rotary index scatter (issue 21): a sandwich on the estimate.
+"""Link uncertainties that hold under rotary index scatter: a sandwich on the estimate.
 
 The estimator weights each centre coordinate independently (σ per axis, a posteriori). With
 non-repeatable indexing every ball of a visit moves together, so the residuals of one visit
@@ -9,7 +9,7 @@ scatter per axis — are estimated by REML on the estimate's residuals, and the 
 the sandwich A⁻¹ (Σ_v X_vᵀ W V_v W X_v) A⁻¹ of the same weighted estimate (A = XᵀWX;
 calibrated distances keep their own, independent rows) under those estimates, always: a mixed
 model's covariance with its REML components, ~0 for an index scatter the run does not show.
-Before (issue 22) it was used only where an index component passed its boundary test at
+Before it was used only where an index component passed its boundary test at
 p < 0.01, a pre-test estimator: below detection the scatter was there and ignored. On the same
 40 simulated shift runs with 4 µrad B/C index scatter that gate covered the links within 2u in
 91.6 %, the sandwich always 92.5 % (the independent covariance never: 92.5 %, error/u spread
@@ -17,7 +17,7 @@ p < 0.01, a pre-test estimator: below detection the scatter was there and ignore
 link that leans most on the index columns (the same 40 runs, index scatter 0). A machine file's
 stated rotary repeatability is the Type B input of its axis' index component (``with_stated``):
 a few visits cannot pin σ, the data sheet can; its coverage against the components from the
-run alone (benchmarks/bench_warmup.py) is README's issue-22 table ("A machine warming up
+run alone (benchmarks/bench_warmup.py) is the warm-up table ("A machine warming up
 during the check"), where the figures live, kept current with each re-run.
 """
 
@@ -79,7 +79,7 @@ def visit_sandwich(machine: Machine, artefact: Artefact, layout: Layout, p: np.n
                    ) -> VisitScatterCov | None:
     """The sandwich covariance of the weighted estimate at ``p`` (weights 1/σ² per axis,
     ``sigma_mm``) under the REML components; None with fewer than 4 visits or 2 rotary axes.
-    ``extra_cols`` (K, 3, m): more fitted columns (mm per unit; a TCP drift, issue 22), whose
+    ``extra_cols`` (K, 3, m): more fitted columns (mm per unit; a TCP drift), whose
     parameters come last in the covariance; ``offset_mm`` (K, 3): their fitted effect, taken
     off the centres (a drift moves every ball of a visit together, as an index error does:
     left in the residuals it would read as index scatter). ``given``: ``sigma_mm`` is the

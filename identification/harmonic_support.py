@@ -1,4 +1,4 @@
-"""Whether a plan's estimate poses can identify a rotary axis' positioning harmonics (issue 21)."""
+"""Whether a plan's estimate poses can identify a rotary axis' positioning harmonics."""
 
 from __future__ import annotations
 

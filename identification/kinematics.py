@@ -37,7 +37,7 @@ class TopologyError(ValueError):
 @dataclass(frozen=True)
 class Axis:
     """One machine axis. ``direction`` is a unit vector in the parent frame: principal on
-    orthogonal machines, inclined on a nutating axis (issue 24: e.g. B tilted 45° about X)."""
+    orthogonal machines, inclined on a nutating axis (e.g. B tilted 45° about X)."""
 
     letter: str
     kind: str  # "linear" | "rotary"
@@ -214,7 +214,7 @@ def axis_frame(axis: Axis) -> np.ndarray | None:
     direction (the smallest such rotation, Rodrigues), or None for a principal axis.
 
     An inclined axis' location errors are defined in the frame R0 carries the parent frame to
-    (issue 24): EX0B of a B tilted 45° about X is the offset of the B line along R0·x, EA0B its
+   : EX0B of a B tilted 45° about X is the offset of the B line along R0·x, EA0B its
     tilt about R0·x, and so on — the ISO 230-1 names of a principal B in the axis' own frame.
     On a principal axis R0 is the identity and nothing changes."""
     d = np.asarray(axis.direction, float)

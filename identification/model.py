@@ -116,7 +116,7 @@ class Centres:
     t_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
     # from touches (identification/spherefit.py ``centre_sensitivity``), else empty: each
     # touch's time (K, n) and d(centre)/d(touch point) (K, n, 3, 3), so that a drift moving
-    # during a ball's touches reaches its centre as the fit carries it (issue 22)
+    # during a ball's touches reaches its centre as the fit carries it
     touch_t_s: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
     touch_sens: np.ndarray = field(default_factory=lambda: np.zeros((0, 0, 3, 3)))
 
@@ -251,7 +251,7 @@ def _location_derivatives(axis: Axis, links: Mapping[str, float]) -> dict[str, n
             d = t @ f[0] @ f[1] @ f[2]
         out[name] = d
     r0 = axis_frame(axis)
-    if r0 is not None:  # an inclined axis' errors act in its frame: L = H0·L'·H0ᵀ (issue 24)
+    if r0 is not None:  # an inclined axis' errors act in its frame: L = H0·L'·H0ᵀ
         h = np.eye(4)
         h[:3, :3] = r0
         out = {name: h @ d @ h.T for name, d in out.items()}

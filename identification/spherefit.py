@@ -129,7 +129,7 @@ def centre_sensitivity(points_mm: np.ndarray, centre_mm: np.ndarray,
                        fixed_radius: bool = False) -> np.ndarray:
     """(G, n, 3, 3) ∂(fitted centre)/∂(touch point i) of the least-squares sphere fit at its
     solution (first order; Σ_i = I, a translation of every point moves the centre by it).
-    A drift moving the ball while it is touched (a warm-up, issue 22) reaches the centre as
+    A drift moving the ball while it is touched (a warm-up) reaches the centre as
     Σ_i S_i δ(t_i): along X and Y at about the equator touches' times, along Z at the pole's —
     not at the mean touch time (on the thesis shift plan under a 20 µm warm-up that difference
     biased EB0C by −0.11 u and EX0C by +0.09 u)."""

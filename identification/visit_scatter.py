@@ -1,4 +1,4 @@
-"""Per-visit scatter (issue 21) by REML: rotary index errors and centre scatter per ball visit.
+"""Per-visit scatter by REML: rotary index errors and centre scatter per ball visit.
 
 Every indexation of B/C stops a few µrad from where it stopped last time (rotary positioning
 repeatability, clamping): all balls of one visit move together, along the visit's
@@ -159,7 +159,7 @@ def _interval(rise: Callable[[float], float], est: float) -> tuple[float, float]
     """The 95 % likelihood interval of one σ: where ``rise`` (−2ℓ above its minimum) reaches
     χ²₁(95 %) either side of ``est`` (0 when it stays below at σ = 0). With a dozen visits
     σ̂ is skewed (a scaled χ with ~ν dof): the curvature's symmetric ± 2u at a low σ̂ is too
-    short upwards; the likelihood interval is not (issue 21, bench_scatter: 2u held the true
+    short upwards; the likelihood interval is not (bench_scatter: 2u held the true
     B repeatability in ~80-88 % of the null runs)."""
     def f(v: float) -> float:
         return rise(v) - CHI2_1_95

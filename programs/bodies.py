@@ -1,5 +1,5 @@
 """Clearance of the tool bodies (probe body, spindle nose, head housing: ``tool.bodies`` of the
-machine file, issue 24) swept along the stylus tip's segments against balls, rods, table, boxes.
+machine file) swept along the stylus tip's segments against balls, rods, table, boxes.
 
 A body is a cylinder of radius R about the spindle axis from ``from_mm`` to ``to_mm`` above the
 tip. At a fixed rotary pose it translates rigidly with the tip, so over a tip segment pa → pb its

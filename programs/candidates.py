@@ -60,7 +60,7 @@ class Candidates:
         self.visits: dict[int, Visit] = {}
         self.builds = 0
         r1, r2 = machine.rotary_axes
-        # A head that tilts the spindle (issue 24): its programs index at the park value of
+        # A head that tilts the spindle: its programs index at the park value of
         # the axis most along the spindle at the rotary home (programs.tilted)
         self.park = park_value(machine) if head_tilts(machine) else None
         if self.park is not None:

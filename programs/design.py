@@ -9,7 +9,7 @@ plan is the sum of one block per visit, ``I_p = J_pᵀ W J_p`` (every ball of po
 at the nominal machine (5 µrad errors change J by ~1e-5 relative: identification/montecarlo.py).
 So a candidate grid is differentiated once and every plan is a sum of blocks.
 
-Index scatter (issue 22 follow-up): with a stated rotary repeatability (machine file
+Index scatter: with a stated rotary repeatability (machine file
 ``rotary_repeatability_urad``, µrad 1σ per indexation) every ball of a visit moves with that
 visit's index error, so the centres of one visit are correlated and the estimator reports the
 visit sandwich A⁻¹ (Σ_v J_vᵀ W V_v W J_v) A⁻¹ (``identification.estimate_scatter``), here with

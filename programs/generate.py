@@ -50,7 +50,7 @@ def generate(machine: Machine, machine_file: MachineFile, artefact: Artefact, pl
     """Build, check (``programs.safety.SafetyError`` when unsafe), render and time a program;
     ``programs.geometry.ProgramError`` when the plan cannot become one. The cycle time is
     computed once: the program's header prints the same estimate the result carries.
-    ``temperature_vars``: macro variables to print (temperature channels over DNC, issue 22);
+    ``temperature_vars``: macro variables to print (temperature channels over DNC);
     ``handshake``: the ring wait and stop check of a link reading the controller's variables
     (``contracts.result_lines.HANDSHAKE_VARIABLES``)."""
     d = get_dialect(dialect)

@@ -103,7 +103,7 @@ class Move:
     dwell_s: float = 0.0
     locate_feed_mm_min: float = 0.0
     backoff_mm: float = 0.0
-    # A feed move whose straight line was checked (tilted-probe transits, issue 24): a dialect
+    # A feed move whose straight line was checked (tilted-probe transits): a dialect
     # whose rapid is a straight line (``Dialect.linear_rapid``) renders it as a rapid
     linear_rapid: bool = False
 
@@ -123,10 +123,10 @@ class Program:
     overtravel_mm: float
     moves: list[Move] = field(default_factory=list)
     touches: list[Touch] = field(default_factory=list)
-    # the spindle tilts (a swivel or fork head, issue 24): X Y Z command the head pivot with
+    # the spindle tilts (a swivel or fork head): X Y Z command the head pivot with
     # TCPM and tool-length offset off, which every dialect states and sets (``tcpm_off``)
     tilted: bool = False
-    # macro variables the program prints at its start, at each pose and at its end (issue 22:
+    # macro variables the program prints at its start, at each pose and at its end (
     # temperature channels over DNC, ``RTEMP`` lines); checked by the dialect before printing
     temperature_vars: tuple[str, ...] = ()
     # a link reads the results from the controller's variables (contracts.result_lines

@@ -1,4 +1,4 @@
-"""What a plan's timing lets the estimator say about a warm-up (issue 22): per axis and shape,
+"""What a plan's timing lets the estimator say about a warm-up: per axis and shape,
 whether a TCP drift separates from the links (``identification.drift.separation``), the
 predicted uncertainty of the drift over the run and what estimating it costs the links.
 

@@ -252,7 +252,7 @@ def _check_segments(prog: Program, qa: np.ndarray, qb: np.ndarray, owner: np.nda
     bad = np.nonzero(slack < 0)[0]
     if bad.size:
         fail(bad[0], explain(int(bad[0])))
-    # what moves with the head (probe body, spindle nose, housing: issue 24), if declared
+    # what moves with the head (probe body, spindle nose, housing), if declared
     slack, explain = body_slack(prog, pa, pb, stem)
     bad = np.nonzero(slack < 0)[0]
     if bad.size:

@@ -1,4 +1,4 @@
-"""Tool path for a tilted probe (issue 24): poses at which the spindle is not along one controller
+"""Tool path for a tilted probe: poses at which the spindle is not along one controller
 linear axis (swivel and fork heads), through the linear axes only — no TCPM (METHOD.md §1
 geometry, in the tool frame).
 

@@ -121,7 +121,7 @@ def build_program(machine: Machine, machine_file: MachineFile, artefact: Artefac
     r1, r2 = prog.rotary
 
     frames_ = [pose_frame(machine, {r1: p.b_deg, r2: p.c_deg}, state) for p in plan.poses]
-    if any(spindle_is_tilted(machine, pf) for pf in frames_):  # a head tilts it (issue 24)
+    if any(spindle_is_tilted(machine, pf) for pf in frames_):  # a head tilts it
         fast = plan.feeds.fast_probe_mm_min if two_speed else None
         return build_tilted(prog, frames_, fast, BACKOFF_MM)
     k_ret, rate = retract_axis(frames_[0])

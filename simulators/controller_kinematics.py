@@ -1,4 +1,4 @@
-"""The simulated control's own kinematic values (issue 13): what compensation writes, never truth.
+"""The simulated control's own kinematic values: what compensation writes, never truth.
 
 A ``KinematicsStore`` holds ``{address: value}`` of the machine file's ``controller_kinematics``
 section (each parameter's address and, for a Siemens pivot, its closing vector component), in the

@@ -65,14 +65,14 @@ class ObstacleFile(StrictModel):
 
 
 class IndexingFile(StrictModel):
-    """Non-repeatable positioning of the rotary axes (issue 21): every indexation stops at the
+    """Non-repeatable positioning of the rotary axes: every indexation stops at the
     command + δ, δ ~ N(0, σ) drawn per indexation and axis (µrad 1σ by axis letter)."""
 
     repeatability_urad: dict[str, Annotated[float, Field(ge=0, le=1000)]] = {}
 
 
 class BallStepFile(StrictModel):
-    """A ball knocked during the run (issue 21): from ``t_s`` (machine time, s) on it sits
+    """A ball knocked during the run: from ``t_s`` (machine time, s) on it sits
     ``vector_um`` away (last workpiece frame)."""
 
     ball: str
@@ -99,7 +99,7 @@ class AxisWarmupFile(StrictModel):
 
 
 class ThermalFile(StrictModel):
-    """The machine's thermal state during the run (issue 22): per axis X Y Z a first-order
+    """The machine's thermal state during the run: per axis X Y Z a first-order
     warm-up from ``start_state`` (0 cold, 1 warm) when the simulated machine starts (its first
     program; later programs on the same controller find it warmer)."""
 

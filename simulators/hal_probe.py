@@ -18,7 +18,7 @@ Two halves in one file:
   ball), ``contacts`` (s32 out, rising edges of ``out``), ``gap-um`` (float out, smallest signed
   stylus-to-ball gap), ``crash`` (bit out, the stylus > 0.1 mm inside a ball in a consistent
   joint snapshot: trips LinuxCNC in any move); ``temp-x y z`` (float out, °C: the errors file's
-  thermal sensors warming from the component's start, issue 22). Parameters: ``ball-K-present``
+  thermal sensors warming from the component's start). Parameters: ``ball-K-present``
   (bit rw, K = artefact order, all 1 at start; ``halcmd setp rumba-probe.ball-1-present 0``
   removes ball 1 from the table).
 
@@ -268,7 +268,7 @@ def main(argv: list[str] | None = None) -> int:
         comp.newpin(p, hal.HAL_FLOAT, hal.HAL_OUT)
     comp["b-min"], comp["b-max"] = 1.0, INVALID  # an empty window until the first set is up
     thermal = spec.get("thermal") or {"ambient_c": 20.0, "start_state": 0.0, "axes": {}}
-    for a in "xyz":  # structure temperatures (issue 22): what a shop wires to its sensors
+    for a in "xyz":  # structure temperatures: what a shop wires to its sensors
         comp.newpin(f"temp-{a}", hal.HAL_FLOAT, hal.HAL_OUT)
     for k in range(n):
         comp.newparam(f"ball-{k}-present", hal.HAL_BIT, hal.HAL_RW)

@@ -96,7 +96,7 @@ class ProbeLatch:
         touch, direction = self._touch_number(u, b, c)
         ball = self._aimed_ball(p1, b, c)
         kinds = {f.kind for f in faults}
-        # Where the rotary axes really stopped at this indexation (issue 21: index scatter).
+        # Where the rotary axes really stopped at this indexation (index scatter).
         db, dc = visit_errors.index_error_deg(truth.errors, truth.rotary_letters, truth.seed,
                                               rotary_moves)
         contact = None if "no_trigger" in kinds else first_contact(truth, p0, p1, b + db,
@@ -133,7 +133,7 @@ class ProbeLatch:
     def _touch_number(self, u: np.ndarray, b: float, c: float
                       ) -> tuple[int, tuple[float, float, float]]:
         """Touch 1..5 from the move direction (controller X Y Z = tool relative to workpiece);
-        the pole comes against the spindle axis. Where a head tilts the spindle (issue 24) the
+        the pole comes against the spindle axis. Where a head tilts the spindle the
         touches are in the tool frame at that pose (``contracts.touch_frame``, any of the
         equator turns a tilted-probe program may use), so a visit's touches keep their numbers
         and share the visit's centre scatter as on a table-table machine."""

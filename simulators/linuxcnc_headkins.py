@@ -1,4 +1,4 @@
-"""Build and install config/linuxcnc/xyzbc_head_kins.comp, the swivel-head kins of issue 24."""
+"""Build and install config/linuxcnc/xyzbc_head_kins.comp, the swivel head's kinematics."""
 
 from __future__ import annotations
 

@@ -63,7 +63,7 @@ def touches_to_rows(vc: VirtualController, run_id: str) -> list[LogRow]:
         if t.seq in ids:
             rep, pose, ball, touch = ids[t.seq]
             # As the daemon logs it (contracts/touch_table.py): the program's direction of that
-            # touch, the one the latch recognised (a tilted touch's in the tool frame, issue 24).
+            # touch, the one the latch recognised (a tilted touch's in the tool frame).
             direction = t.direction if touch == t.touch else TOUCH_DIRECTIONS.get(touch,
                                                                                   t.direction)
         else:

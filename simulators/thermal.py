@@ -1,4 +1,4 @@
-"""The simulated machine's thermal state during a run (issue 22): a first-order warm-up per axis.
+"""The simulated machine's thermal state during a run: a first-order warm-up per axis.
 
 ISO 230-3 describes the warm-up of a machine tool as the thermal distortion of its structure
 following its heat sources with a time constant: here each controller axis X Y Z has a state
@@ -20,7 +20,7 @@ import numpy as np
 
 AXES = "XYZ"
 
-# Where the simulator's front-ends expose the sensor readings (issue 22 item 3; a daemon.yaml
+# Where the simulator's front-ends expose the sensor readings (a daemon.yaml
 # temperature channel points there): OPC UA Double nodes (°C), Modbus registers (int16, 0.01 °C
 # per count, holding and input) on the controller, a transmitter's input registers (int16,
 # 0.1 °C per count, simulators/frontends/transmitter.py), LinuxCNC HAL pins (float, °C).

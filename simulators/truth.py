@@ -1,7 +1,7 @@
 """The simulated machine's truth: nominal chain + link, setup and effect errors from an errors file.
 
 The chain is ``identification.kinematics`` (one model shared with the estimator); effects come from
-``identification.effects`` (shared with the gap diagnosis, issue 6) and act through their three
+``identification.effects`` (shared with the gap diagnosis) and act through their three
 hooks: motion errors in the chain, ball-centre offsets (sag, creep) and latched-position offsets
 (thermal drift, pre-travel by direction); the motion errors of the linear axes given as
 functions (``motion_errors``, simulators/motion_truth.py) join the effects' in the chain.
@@ -52,7 +52,7 @@ class TruthModel:
     obstacle_centres_mm: np.ndarray  # (m, 3) last workpiece frame
     obstacle_radii_mm: np.ndarray  # (m,)
     effects: list[ActiveEffect] = field(default_factory=list)
-    thermal: ThermalState | None = None  # warm-up during the run (issue 22)
+    thermal: ThermalState | None = None  # warm-up during the run
     # the linear axes' motion errors by ISO name (errors file ``motion_errors``)
     motion: dict[str, MotionFunction] = field(default_factory=dict)
     state: ChainState = field(init=False)
@@ -107,7 +107,7 @@ class TruthModel:
             if bid not in ids:
                 raise ConfigError(f"{where}: absent_balls: unknown ball {bid!r} (artefact {ids})")
             absent.add(ids.index(bid))
-        visit_errors.check(errors, machine.rotary_axes, ids, where)  # issue 21
+        visit_errors.check(errors, machine.rotary_axes, ids, where)
         obs = errors.obstacles
         effects = [_make_effect(machine, e, where, i, machine_file.gravity)
                    for i, e in enumerate(errors.effects)]
@@ -189,7 +189,7 @@ class TruthModel:
     def ball_centres_mm(self, t_s: float, b_deg: float, c_deg: float) -> np.ndarray:
         """True ball centres (n, 3) in the last workpiece frame at time t and this indexation."""
         w = self.artefact.nominal_mm + self.ball_setup_mm
-        if self.errors.ball_steps:  # knocked balls (issue 21)
+        if self.errors.ball_steps:  # knocked balls
             w = w + visit_errors.step_offsets_mm(self.errors, self.artefact.ids, t_s)
         if self.effects:
             n = len(self.artefact.balls)

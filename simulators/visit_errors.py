@@ -1,4 +1,4 @@
-"""Per-visit errors of the simulated machine (issue 21): rotary index scatter and knocked balls.
+"""Per-visit errors of the simulated machine: rotary index scatter and knocked balls.
 
 ``indexing.repeatability_urad`` (errors file): each indexation of the rotary axes stops at the
 command + δ, δ ~ N(0, σ) per axis, drawn from the truth's seed and the indexation's number so

@@ -30,7 +30,7 @@ ERRORS = ROOT / "config/errors/linuxcnc_xyzbc.yaml"
 PLAN = ROOT / "config/plans/linuxcnc_4poses.yaml"
 VARIANTS = ("remote", "local-auto")  # linuxcncrsh + MDI streaming; linuxcnc module + AUTO run
 RACE = "Queue is not empty after probing"
-# The session's HAL probe warms its temp-z pin (issue 22; temperatures only, no geometric drift:
+# The session's HAL probe warms its temp-z pin (temperatures only, no geometric drift:
 # simulators/hal_probe.sensor_c), so the remote verification run reads a temperature channel
 # on the session's LinuxCNC instead of a run of its own on a restarted one.
 THERMAL = {"ambient_c": 19.5, "start_state": 0.0, "axes": {"Z": [6.0, 600.0]}}

@@ -1,4 +1,4 @@
-"""Set-up for the OPC UA results server tests (issue 25): a journal with runs of known verdicts,
+"""Set-up for the OPC UA results server tests: a journal with runs of known verdicts,
 a client certificate in the server's trust list, a user with a password file, and the config."""
 
 from __future__ import annotations

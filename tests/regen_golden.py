@@ -50,7 +50,7 @@ def golden_files() -> dict[str, str]:
     fast = plan.model_copy(update={"feeds": plan.feeds.model_copy(
         update={"fast_probe_mm_min": 1000.0})})
     out["linuxcnc-two-speed.ngc"] = generate(machine, mf, art, fast, "linuxcnc").text
-    # issue 24: a swivel head, a fork head (tilted probe: TCPM off, Heidenhain cycle 4) and a
+    # a swivel head, a fork head (tilted probe: TCPM off, Heidenhain cycle 4) and a
     # nutating table, one ball at two poses (one tilted) in every dialect
     for family, args in head_family_setups().items():
         for name in sorted(DIALECTS):
@@ -62,7 +62,7 @@ def golden_files() -> dict[str, str]:
 
 
 def head_family_setups() -> dict[str, tuple]:
-    """(machine, machine file, artefact, plan) of the issue-24 golden programs."""
+    """(machine, machine file, artefact, plan) of the head families' golden programs."""
     art = artefact_from_dict({"name": "golden-1ball", "ball_diameter_mm": 25.4,
                               "rod_diameter_mm": 8,
                               "balls": [{"id": "B1", "position_mm": [-90, -70, 70],

@@ -1,4 +1,4 @@
-"""SPC export (issue 25): ``rumba history --export-aqdef`` read back by an independent AQDEF
+"""SPC export: ``rumba history --export-aqdef`` read back by an independent AQDEF
 reader (tests/aqdef_reader.py): part, characteristics with limits and units, one value record
 per run and characteristic; a year of daily runs; no field injection through names."""
 
@@ -61,7 +61,7 @@ def test_a_year_of_daily_runs_round_trips(tmp_path, capsys):
     i, c = by_name[VOLUMETRIC[0]]
     assert (c["K2110"], c["K2111"]) == ("0.000", "400.000")
     assert "K2110" not in by_name[VOLUMETRIC[1]][1]  # no limit configured: none written
-    # issue 23: the report's names of the two figures, not the export's own wording
+    # the report's names of the two figures, not the export's own wording
     assert c["K2002"] == "max volumetric distortion (probed poses)"
     assert by_name[VOLUMETRIC[1]][1]["K2002"] == ("max residual after the link errors "
                                                   "(probed poses)")

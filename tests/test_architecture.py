@@ -105,7 +105,7 @@ def test_an_upward_import_between_rooms_is_caught():
 
 def test_a_lazy_import_is_in_the_graph():
     # imports inside functions count: the report job imports the report only when a run gets
-    # there (issue 23: daemon/run/report_job.py, no longer the session itself)
+    # there (daemon/run/report_job.py, no longer the session itself)
     assert "daemon.reports.report" in GRAPH["daemon.run.report_job"]
 
 

@@ -1,4 +1,4 @@
-"""The drift baseline (issue 23 item 2) on a real SQLite journal: a person sets or confirms it
+"""The drift baseline on a real SQLite journal: a person sets or confirms it
 (`rumba baseline set/show`), who and when are journaled, a compensation's verification run is
 proposed and changes nothing until confirmed, the judge checks drift against it (not against
 "the last PASS run": a machine staying in WARN keeps its drift check), and bad input gets one

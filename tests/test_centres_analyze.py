@@ -80,7 +80,7 @@ def test_weighted_estimator_is_the_estimator_in_machine_axes():
     data = rows_to_centres(read_log(CFG / "examples/thesis_annexB_14poses.csv", a), a, 3.0)
     for sigma in (None, [0.66, 0.98, 0.44]):
         # the weighted estimator (per-centre σ, instrument frame) holds no per-visit scatter:
-        # it is the touch path's estimate with independent centres (issue 22: that one's
+        # it is the touch path's estimate with independent centres (that one's
         # covariance is now always the visit sandwich, not only past the index test)
         ref = estimate(m, a, data.centres, sigma_um=sigma, visit_scatter=False)
         got, frame = estimate_weighted(m, a, data.centres, sigma_um=sigma)

@@ -1,4 +1,4 @@
-"""The command line stays light (issue 19): what parser, help and analyze import; the fast table."""
+"""The command line stays light: what parser, help and analyze import; the fast table."""
 
 # behavioural checks only, no timings: those are benchmarks/bench_cli.py
 

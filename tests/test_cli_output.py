@@ -70,7 +70,7 @@ async def test_readme_verify_example_runs(tmp_path):
             cwd=ROOT, env=env, stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.PIPE)
         async with asyncio.timeout(120):
             out, err = await verify.communicate()
-        # the thesis errors (EX0C −106 µm) against the example's shop limits (issue 23: a
+        # the thesis errors (EX0C −106 µm) against the example's shop limits (a
         # 0.1 mm pivot error is not fit for 0.1 mm parts): FAIL, exit 1
         assert verify.returncode == 1, err.decode()
     finally:

@@ -1,4 +1,4 @@
-"""What a command says about its output (issue 23 item 6): ``--dialect haas`` is called haas in
+"""What a command says about its output: ``--dialect haas`` is called haas in
 the summary and in the program's header (the Fanuc template, its rotary skips by letter), and
 every file a command writes is named in its output."""
 

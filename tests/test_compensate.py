@@ -95,7 +95,7 @@ def test_a_proposal_is_a_review_document_never_a_program(tmp_path, capsys):
     delta_um = float(line.split("µm")[0].split()[-1])
     assert abs(delta_um - 40.0) < 2.0  # EX0C −40 µm is held by x-offset +40 µm
     assert "skipped (not observable" in out  # the rot-points move every ball alike
-    # issue 23: named and defined figures; the link-caused distortion, never "compensable"
+    # named and defined figures; the link-caused distortion, never "compensable"
     assert "link-caused distortion max" in out and "predicted after compensation max" in out
     assert "compensable" not in out and "EX0C" in out
     reports = tmp_path / "reports"

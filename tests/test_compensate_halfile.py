@@ -1,5 +1,5 @@
 """LinuxCNC on this PC: the live pins and the persistent HAL file change together or not at
-all (issue 20) — failed read-back, planted backup symlink, symlinked HAL file, an edit made
+all — failed read-back, planted backup symlink, symlinked HAL file, an edit made
 between read and replace; the read-back setting; an import that never reads a live machine.
 Real temp directories and symlinks, setp/getp faked (tests/test_compensate_transaction.py)."""
 

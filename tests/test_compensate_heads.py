@@ -1,4 +1,4 @@
-"""Compensation write-back for the head families (issue 24 item 4) through the simulator: the
+"""Compensation write-back for the head families through the simulator: the
 swivel head (Siemens tool carrier type M) and the fork head (type T) as shipped, and both with a
 Heidenhain kinematics table and Fanuc 19700-series parameters; the rendered write-back reaches
 the simulated control's values, a re-run identified against the controller model it now holds
@@ -69,7 +69,7 @@ def _machine_file(tmp: Path, name: str, family: str) -> Path:
     return out
 
 
-# What each head's probing sees of its control's values (README issue 24: the rank computation).
+# What each head's probing sees of its control's values (README: the rank computation).
 OBSERVABLE = {"swivelhead": {"c-x", "b-tilt-a", "b-tilt-c", "c-tilt-a", "c-tilt-b"},
               "forkhead": {"a-y", "c-tilt-a", "c-tilt-b", "a-tilt-b", "a-tilt-c"}}
 

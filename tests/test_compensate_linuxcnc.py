@@ -4,7 +4,7 @@ starts, compensated unattended (guards.unattended: true; halcmd setp live, HAL f
 read back) and verified at once by a second run against the compensated controller; a
 kinematics change outside rumba refused; ``rumba compensate --rollback`` restoring pins and HAL
 file; the rolled-back run confirmed again only as a new decision (``--again``) with ``--verify``
-(the third run). The before/after claims of issue 13 on both verifications.
+(the third run). The before/after claims on both verifications.
 
 The demos.compensate flow; run with ``pytest -m linuxcnc`` (``make test-linuxcnc``).
 """

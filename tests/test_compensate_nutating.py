@@ -1,4 +1,4 @@
-"""Compensation write-back for the nutating (inclined-axis) table (issue 24 item 4): the SINUMERIK
+"""Compensation write-back for the nutating (inclined-axis) table: the SINUMERIK
 type P carrier whose v1 is the 45° B vector (a B tilt about R0·x moves two of its components),
 a Heidenhain kinematics table and Fanuc 19700-series values, through the simulator: the rendered
 write-back reaches the control, a re-run identified against the controller model it now holds
@@ -30,7 +30,7 @@ GUARDS = {"max_change_um": 200, "max_change_urad": 100, "max_total_um": 400}
 # so its spatial angles are about R0·x, R0·z as the links), Fanuc 19700-series real parameters.
 _ROWS = {"B": 3, "C": 4}
 _FANUC = ["19700", "19701", "19703", "19705", "19741", "19742", "19743", "19744"]
-# What the probing sees of the control's values (the rank computation, README issue 24):
+# What the probing sees of the control's values (the rank computation):
 # EX0C by the C line's x; EY0C and the B line's offsets are absorbed by the setup.
 OBSERVABLE = {"c-x", "b-tilt-a", "b-tilt-c", "c-tilt-a", "c-tilt-b"}
 

@@ -1,4 +1,4 @@
-"""Compensation through the simulator, every dialect (issue 13): the rendered write-back reaches
+"""Compensation through the simulator, every dialect: the rendered write-back reaches
 the simulated control's kinematic values (never its truth), and a re-run identified against the
 controller model it now holds measures the compensable links at zero."""
 

@@ -1,4 +1,4 @@
-"""The compensation view from the run's stored estimate (issue 20): identified once, in the
+"""The compensation view from the run's stored estimate: identified once, in the
 run's worker thread, stored with its analysis (journal migration 6) and read by the unattended
 path, `rumba compensate` and the HMI (tests/test_hmi_compensate.py) instead of identifying
 again; equal to the re-identification to round-off; runs journaled before the migration (or
@@ -107,7 +107,7 @@ async def test_the_unattended_path_reads_the_estimate_the_run_stored(tmp_path, c
         assert store.run(first).state == "DONE" and store.run(second).state == "DONE"
         (row,) = [r for r in cj.rows(store, "lcnc") if r.state == "applied"]
         assert row.run_id == first and row.confirmed_by == "unattended"
-        # issue 23: never identified again at run end — the stored view is the run's own
+        # never identified again at run end — the stored view is the run's own
         # estimate (the one its report shows), planned in the run's worker thread
         assert calls == [], calls
         stored = {r[0] for r in store.db.execute("SELECT run_id FROM link_estimates")}

@@ -1,4 +1,4 @@
-"""A compensation is one guarded transaction per machine (issue 20): concurrent confirms in
+"""A compensation is one guarded transaction per machine: concurrent confirms in
 real processes, the machine lock shared by runs and confirms across processes, the journal's
 own one-applied-row rule, confirm after rollback only with --again, the cumulative guard, and
 validated names. Real SQLite files, real processes; the LinuxCNC on this PC is a fake HAL (pins

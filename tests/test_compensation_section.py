@@ -1,4 +1,4 @@
-"""The machine file's controller_kinematics section (issue 13): the shipped sections load and
+"""The machine file's controller_kinematics section: the shipped sections load and
 mirror the HAL file, every validation error is one ConfigError naming its key, names that could
 break out of a comment are refused at load."""
 
@@ -92,7 +92,7 @@ BAD = [  # (document, key the message must name, a fragment of the reason)
     (_lcnc_with([pivot("x", PIN, 1, axes=["B", "B"])]), "params.0.axes", "twice"),
     (_lcnc_with([{"name": "x", "kind": "pivot", "axes": ["B"], "component": "x",
                   "address": PIN}]), "controller_kinematics.params.0.value", "current value"),
-    # a LinuxCNC orientation is a kins pin holding the link in deg (xyzbc_head_kins, issue 24)
+    # a LinuxCNC orientation is a kins pin holding the link in deg (xyzbc_head_kins)
     (_lcnc_with([tilt("t", PIN, "EA0A")]), "controller_kinematics.params.0.component",
      "not an orientation error of this machine"),
     (_lcnc_with([pivot("x", PIN, 1), pivot("x", "a.b", 1)]), "params.1.name", "twice"),

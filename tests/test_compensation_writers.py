@@ -1,4 +1,4 @@
-"""The compensation writers (issue 13): every family's text for a fixed change set and its
+"""The compensation writers: every family's text for a fixed change set and its
 rollback, the values in the control's units, the HAL-file patch, number formatting, and
 injection attempts through run ids, machine names and addresses."""
 
@@ -162,7 +162,7 @@ def test_siemens_axis_vector_component_is_the_tilted_vector(link, vector):
 
 
 def test_linuxcnc_orientation_pin_holds_the_link_in_degrees():
-    """xyzbc_head_kins (issue 24 item 5): a tilt pin holds the link in deg; the section's value
+    """xyzbc_head_kins: a tilt pin holds the link in deg; the section's value
     is µrad; rollback writes the old value back."""
     pin = "xyzbc-head-kins.ea0c-deg"
     ck = section_of(LCNC, "linuxcnc", [tilt("t", pin, "EA0C", value=10.0)])

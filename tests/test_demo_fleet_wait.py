@@ -1,4 +1,4 @@
-"""The fleet demo waits on each daemon's own run state (issue 23 item 6), not a fixed clock:
+"""The fleet demo waits on each daemon's own run state, not a fixed clock:
 a slow run is waited for, a run that fails ends the wait at once with its reason (no
 ``TimeoutError`` traceback), a daemon that exits is named."""
 

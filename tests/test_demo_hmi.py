@@ -1,4 +1,4 @@
-"""`make demo-hmi` (issue 23 item 6): the simulated CNC, the daemon and its HMI come up, the
+"""`make demo-hmi`: the simulated CNC, the daemon and its HMI come up, the
 printed one-time login signs in (an engineer account made for this session, the URL printed),
 and Ctrl-C (SIGINT) stops everything: the daemon process is gone and the demo exits 0."""
 

@@ -1,4 +1,4 @@
-"""`make demo` tells a shop's story (issue 23 item 3): the demo machine (its C axis line moved
+"""`make demo` tells a shop's story: the demo machine (its C axis line moved
 38 µm) FAILs against limits derived from its parts' tolerance, the compensation is within the
 machine file's guards and confirmed by an engineer, the reviewed $TC_CARR program runs on the
 control, and the verification run PASSes with the pivot error gone."""

@@ -161,7 +161,7 @@ def test_the_drift_check_revisit_is_not_taken_for_repeatability(setup, tmp_path)
                  "--json", str(out)]) == 0
     rep = json.loads(out.read_text())
     assert rep["noise"]["repeat_floor_um"] is None
-    # the floor is the per-visit centre scatter the run was made with (issue 21: centre_noise_um
+    # the floor is the per-visit centre scatter the run was made with (centre_noise_um
     # 0.625 / 0.957 / 0.285 µm, RMS 0.68 µm; the fit's form residuals alone would say 0.3 µm),
     # not inflated by the drift the revisit carries (1.7 µm before that fix)
     made = float(np.sqrt(np.mean(np.square(_thesis_errors()["probe"]["centre_noise_um"]))))

@@ -1,4 +1,4 @@
-"""Drift-aware identification (issue 22, identification/drift.py): a TCP warm-up during the run
+"""Drift-aware identification (identification/drift.py): a TCP warm-up during the run
 fitted with the links where the timing separates it, chosen by BIC, the links then unbiased."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Drift-aware links under rotary index scatter (issues 21 and 22): the drift refit keeps the
+"""Drift-aware links under rotary index scatter: the drift refit keeps the
 visit-scatter sandwich of the plain estimate, on the residuals the drift leaves."""
 
 from __future__ import annotations

@@ -161,7 +161,7 @@ def _motion(q: np.ndarray) -> np.ndarray:
     ("thesis_wcbxfzyt", "thesis_4ball", "thesis_ch3_7poses"),
     ("seed001_wbzfxyct", "seed001_5ball", "seed001_11poses"),
     ("vertical_wcayfxzt", "vertical_4ball", "vertical_18poses"),
-    # issue 24: head axes, and an inclined axis whose errors act in its frame R0 (EC0B of the
+    # head axes, and an inclined axis whose errors act in its frame R0 (EC0B of the
     # nutating B is about R0·z; its column was once taken about z)
     ("swivelhead_wcfxyzbt", "vertical_4ball", "swivelhead_12poses"),
     ("forkhead_wxfyzcat", "vertical_4ball", "forkhead_11poses"),

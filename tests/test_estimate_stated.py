@@ -1,5 +1,5 @@
 """A stated rotary repeatability (machine file ``rotary_repeatability_urad``) as the Type B input
-of the daily estimate's index components (issue 22 follow-up, identification/estimate_scatter.py):
+of the daily estimate's index components (identification/estimate_scatter.py):
 used where a run's 8 visits cannot pin σ, overridden with a warning where the run shows it
 significantly worse, nothing changed without one; and it reaches the analysis from the file."""
 

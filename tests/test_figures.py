@@ -1,4 +1,4 @@
-"""Each figure's name and definition (issue 23 item 1), and the plain and controller names of
+"""Each figure's name and definition, and the plain and controller names of
 the link errors per configured controller family (item 4), from the shipped machine files."""
 
 from __future__ import annotations

@@ -162,7 +162,7 @@ async def test_unsafe_machine_names_are_404_not_500(fleet_db):
 
 def test_garbage_in_the_store_costs_a_point_never_the_page():
     """A store written by other versions or by hand: NaN and infinite numbers, limits that are
-    not numbers, links that are not a mapping (issue 20: each gave a 500)."""
+    not numbers, links that are not a mapping (each gave a 500)."""
     nan, inf = float("nan"), float("inf")
     machine = {"limits": {"links": {"EX0C": {"warn": "abc", "fail": nan}, "EB0Z": "x"},
                           "default_um": {"warn": 10, "fail": inf}, "default_urad": [1, 2]}}

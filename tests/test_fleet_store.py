@@ -186,7 +186,7 @@ async def test_import_is_all_or_nothing_and_interrupted_runs_reach_the_fleet(pg,
 
 @peer
 async def test_a_runs_link_estimate_reaches_the_fleet_with_its_analysis(pg, tmp_path):
-    """Migration 6 (issue 20): the run's estimate for its compensation view is written by the
+    """Migration 6: the run's estimate for its compensation view is written by the
     run's worker thread on a connection of its own (no capture trigger there), just before
     the analysis; it is copied with the analysis, and when written on the daemon's own
     connection later (a run journaled before the migration), by its own trigger."""
@@ -216,7 +216,7 @@ async def test_a_runs_link_estimate_reaches_the_fleet_with_its_analysis(pg, tmp_
     assert pg_rows(dsn, "SELECT run_id, html_path, json_path FROM reports") == [
         ("R1", str(tmp_path / "R1.html"), str(tmp_path / "R1.json"))]
     assert pg_rows(dsn, "SELECT analysis FROM estimates") == [('{"links": {}}',)]
-    # issue 23: the baseline decisions reach the fleet store, each once (the fleet numbers
+    # the baseline decisions reach the fleet store, each once (the fleet numbers
     # them: several daemons' local ids would collide)
     for state, by, at in (("proposed", "rumba", 10.5), ("confirmed", "Anna Berg", 11.5)):
         store.db.execute("INSERT INTO baselines (machine, run_id, state, by_person, at, note)"

@@ -109,8 +109,8 @@ def test_selfcheck_reduced_every_family(setup):
     (the full size — two plans, ten seeds or more — is benchmarks/bench_gap.py)."""
     machine, artefact, poses = setup
     summary = selfcheck.run(machine, artefact, {"14": poses}, STYLUS_R, seeds=1,
-                            scenarios=selfcheck.BASE_SCENARIOS)  # issue 21's: test_gap_scatter
-    assert len(summary.cases) == 14  # 9 families, 1 variant (issue 12), 4 controls
+                            scenarios=selfcheck.BASE_SCENARIOS)  # test_gap_scatter
+    assert len(summary.cases) == 14  # 9 families, 1 variant, 4 controls
     assert all(c.ok for c in summary.cases), summary.table()
     assert "thermal_drift" in summary.table()
 

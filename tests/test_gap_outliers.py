@@ -1,4 +1,4 @@
-"""The gap diagnosis with a faulty ball visit (issue 12): a robust floor, the visit left out and
+"""The gap diagnosis with a faulty ball visit: a robust floor, the visit left out and
 named as the verdict ``measurement_outlier``; and the report's "gap at" lines: the significant
 ones above the floor, then a count."""
 
@@ -95,7 +95,7 @@ def test_gap_cli_names_the_visit_and_counts_the_other_locations(setup, tmp_path,
     assert main(["gap", "--log", str(log), "--machine",
                  str(CONFIG / "machines/thesis_wcbxfzyt.yaml"), "--artefact",
                  str(CONFIG / "artefacts/thesis_4ball.yaml"), "--html", str(html),
-                 "--no-visit-scatter"]) == 0  # the floor of before issue 21: many cells
+                 "--no-visit-scatter"]) == 0  # the floor without visit scatter: many cells
     out = capsys.readouterr().out
     assert "measurement outlier: ball B2 pose 4 touch 4 (+1" in out  # +11.5 µm here
     assert "verdict: measurement_outlier" in out

@@ -58,7 +58,7 @@ def test_reml_tells_a_rigid_visit_shift_from_independent_scatter():
 
 
 def test_null_run_with_index_scatter_is_none_and_states_the_repeatability(setup):
-    # Before issue 21 such a run read "unexplained", p ≪ 1e-3: the floor knew only the
+    # Without the visit scatter such a run read "unexplained", p ≪ 1e-3: the floor knew only the
     # trigger noise of the touches.
     machine, artefact, poses = setup
     truth = gap_truth(artefact, seed=2, index_std_urad={"B": 10.0, "C": 10.0})
@@ -172,7 +172,7 @@ def test_machine_file_rotary_repeatability_key_is_checked():
 def test_estimate_covariance_holds_index_scatter(setup):
     # rumba analyze / every run: the links' covariance is the sandwich under the visit
     # covariance's REML components; without index scatter they are ~0 and it is the
-    # independent one within a few % (issue 22: no longer switched by the index test).
+    # independent one within a few % (no longer switched by the index test).
     from identification.estimate import estimate
     from identification.gap.data import group_touches
 

@@ -87,7 +87,7 @@ def test_simulator_indexes_with_scatter_and_knocks_a_ball(tmp_path):
 def test_example_log_verdict_is_true_of_how_it_was_made(tmp_path, capsys):
     # tests/regen_example_log.py: Table B.2 links, the thesis' centre repeatability as an
     # independent scatter per ball visit (0.62 / 0.96 / 0.29 µm on top of 0.3 µm touch
-    # noise), nothing else. Before issue 21: "unexplained — 12.51× the floor, p = 1.4e-25".
+    # noise), nothing else. Unscattered: "unexplained — 12.51× the floor, p = 1.4e-25".
     out = tmp_path / "gap.json"
     assert main(["gap", "--log", str(EXAMPLE), "--machine", str(MACHINE), "--artefact",
                  str(ARTEFACT), "--json", str(out)]) == 0

@@ -1,4 +1,4 @@
-"""The gap diagnosis names a withheld exponential warm-up (issue 22, identification/gap/warmup.py):
+"""The gap diagnosis names a withheld exponential warm-up (identification/gap/warmup.py):
 8 µm·(1 − e^(−t/900 s)) along Z → ``thermal_drift:Z``, exponential, with amplitude and τ."""
 
 from __future__ import annotations

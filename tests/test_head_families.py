@@ -31,7 +31,7 @@ ARTEFACT = CONFIG / "artefacts/vertical_4ball.yaml"
 # The simulated probing noise of the one-run tests below: deterministic, as in
 # tests/test_e2e_transports.py. 3u on 8 links fails by chance in a few % of draws (the fork
 # head's seed 3 puts EB0C at 3.5u: its C tilt and the Z squareness are 0.9 correlated at A ±30°);
-# the coverage over 20 seeds is benchmarks/bench_head_families.py's (README, issue 24).
+# the coverage over 20 seeds is benchmarks/bench_head_families.py's (README).
 NOISE_SEED = 4
 FAMILIES = {"swivelhead": "swivelhead_wcfxyzbt", "forkhead": "forkhead_wxfyzcat",
             "nutating": "nutating_wcbyfxzt"}

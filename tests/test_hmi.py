@@ -108,7 +108,7 @@ async def test_login_cookie_csrf_and_origin(service):
         assert (await http.post(url)).status == 403  # cookie alone: no CSRF token
         r = await http.post(url, headers={"X-CSRF-Token": csrf, "Origin": "http://evil.example"})
         assert r.status == 403
-        r = await http.post(url, headers={"X-CSRF-Token": csrf})  # issue 23: no pre-flight
+        r = await http.post(url, headers={"X-CSRF-Token": csrf})  # no pre-flight
         assert r.status == 400 and "pre-flight checklist not confirmed" in await r.text()
         r = await http.post(url, headers={"X-CSRF-Token": csrf},
                             json={"preflight": ["probe", "balls", "doors"]})  # one unticked
@@ -138,7 +138,7 @@ async def test_sse_progress_verdict_and_report(service):
                     seen_done.append(st["done"])
                     states.append(st["state"])
                     if st["state"] == "IDLE" and st["run_id"] == run_id:
-                        # issue 23: the run's end first, then its report (written after it)
+                        # the run's end first, then its report (written after it)
                         ends.append(st["verdict"]["report_state"])
                         if ends[-1] != "writing":
                             break
@@ -218,7 +218,7 @@ async def test_browser_start_progress_verdict_report(sim_service, tmp_path):
             run_id, "20200101T000000Z-0a0a"]
         assert await cdp.eval(sid, "window.rumbaNoReload") == 1
         await cdp.screenshot(sid, tmp_path / "hmi-done.png")
-        # issue 23: the card's link appears once the report is written (after the run's end)
+        # the card's link appears once the report is written (after the run's end)
         href = await cdp.wait_for(sid, "!document.querySelector('.machine .report').hidden && "
                                        "document.querySelector('.machine .report').href")
         assert href.endswith(".html")

@@ -1,4 +1,4 @@
-"""Compensation from the operator page (issue 13) over real HTTP on a free loopback port: runs
+"""Compensation from the operator page over real HTTP on a free loopback port: runs
 made by the simulated CNC over OPC UA (Table B.2 link errors), a real SQLite journal, the
 Siemens controller_kinematics section of the thesis machine (confirm writes the reviewed program
 into the reports directory); the proposal, auth, stale pages, the journal naming the signed-in
@@ -403,7 +403,7 @@ async def test_a_run_passes_while_its_page_is_refreshed_10_times_a_second(tmp_pa
         st = await get_state(http, svc)  # the view follows the run that just ended
         assert st["run"]["id"] == run_id and not st["busy"]
         # every GET served from the stored views; each view is the run's own estimate
-        # (issue 23: the report's links), so nothing is identified again, neither at run end
+        # (the report's links), so nothing is identified again, neither at run end
         # nor for the page
         assert calls == [], calls
         assert svc.store.db.execute("SELECT COUNT(*) FROM link_estimates").fetchone()[0] == 2

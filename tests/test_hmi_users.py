@@ -1,4 +1,4 @@
-"""HMI accounts (issue 23 item 5): a users file with scrypt hashes the admin edits with
+"""HMI accounts: a users file with scrypt hashes the admin edits with
 `rumba users`, sign-in with name and password, roles (an operator starts and aborts, only an
 engineer or admin confirms or rolls back a compensation), every start / abort / confirm /
 rollback journaled with the person, the run's "started by" the person, the pre-flight list,

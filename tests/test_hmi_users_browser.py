@@ -1,4 +1,4 @@
-"""The HMI's people (issue 23 item 5) in headless Chromium (peer), desktop and phone: the
+"""The HMI's people in headless Chromium (peer), desktop and phone: the
 sign-in form with name and password, the person and role in the header, an operator's
 compensation buttons refused (and the daemon's 403 shown), Start asking for the pre-flight list
 (refused until every item is ticked), the pose and ball being probed shown live, the trend

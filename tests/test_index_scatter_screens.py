@@ -1,4 +1,4 @@
-"""The rotary axes' indexing repeatability behind a run's link u (issue 22 follow-up) on every
+"""The rotary axes' indexing repeatability behind a run's link u on every
 screen with one text: the HTML report, its JSON and PDF (pdftotext), the HMI's verdict card
 data and its run API, the fleet page's run table (real PostgreSQL) — for a run whose stated
 value is used, one whose stated value the run overrides (with its p and the warning), and an

@@ -1,4 +1,4 @@
-"""Property-based fuzzing of the issue-20 input surfaces that come over a network: an MQTT
+"""Property-based fuzzing of the input surfaces that come over a network: an MQTT
 password without TLS, the fleet page's paths and the garbage a fleet store may hold (the
 command-line and file ones: tests/test_inputs_fuzz_surfaces.py). Classified and counted as in
 tests/test_inputs_fuzz.py (``tests.input_fuzz_helpers``); ``benchmarks/fuzz/inputs.py`` runs

@@ -1,4 +1,4 @@
-"""Property-based fuzzing of the other issue-20 input surfaces read from the command line and
+"""Property-based fuzzing of the other input surfaces read from the command line and
 files: who confirms a compensation (``--by``, HMI names), control characters in a centres file
 or a log, the plan name, ``rumba plan -o`` and ``--max-time``, ``rumba gcode`` on a spindle axis
 that is no direction (the network ones: tests/test_inputs_fuzz_network.py). Classified and

@@ -1,4 +1,4 @@
-"""Limits a shop would set (issue 23 item 3): the shipped configurations and the demos state
+"""Limits a shop would set: the shipped configurations and the demos state
 what their limits are derived from (``tolerances.basis``, a ``source`` per limit) and no longer
 call a 0.1 mm pivot error fit for production; a compensation proposes only the configured
 control's addresses ($TC_CARR values were listed for a machine configured as Fanuc)."""

@@ -1,4 +1,4 @@
-"""What a stated link uncertainty means (issue 22 item 1): u of an a-posteriori σ on ν residual
+"""What a stated link uncertainty means: u of an a-posteriori σ on ν residual
 degrees of freedom is the standard deviation of its Student t (GUM-S1 6.4.9.4), so ±2u covers
 ≥ 95 %; the judge's guard band and the compensation's expanded U use one k over that u."""
 

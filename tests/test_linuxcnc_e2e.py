@@ -2,7 +2,7 @@
 kinematics cross-check; a verification run, a missed ball, an abort and a killed LinuxCNC, each
 through linuxcncrsh (remote, MDI streaming) and through the ``linuxcnc`` module (local, AUTO run
 of a program file); local MDI streaming on one pose; temperature channels (HAL pins) read during
-the remote verification run (issue 22).
+the remote verification run.
 
 One LinuxCNC for the session (tests/conftest.py ``lcnc``; only one can run per machine:
 simulators.linuxcnc_peer serialises with a flock and always stops it, cleaning shared memory).
@@ -158,7 +158,7 @@ async def _verification_run(lcnc: Any, tmp: Path, variant: str,
 
 @pytest.fixture(scope="module")
 def remote_run(lcnc: Any, tmp_path_factory: pytest.TempPathFactory) -> Ran:
-    """The remote verification run, with two temperature channels (issue 22): the session's
+    """The remote verification run, with two temperature channels: the session's
     HAL probe's warming ``temp-z`` pin and a pin that does not exist. One run for both tests
     that check it (a 4-pose run costs ~90 s of real-time motion)."""
     fifo = (lcnc.peer.dir / "fifo.path").read_text().strip()
@@ -219,7 +219,7 @@ def test_verification_run_identifies_injected_links(lcnc, tmp_path: Path, varian
 
 
 def test_hal_pin_read_at_every_pose_follows_the_warmup(remote_run: Ran) -> None:
-    """Temperature channels through LinuxCNC (issue 22 item 3): a HAL pin read with ``halcmd
+    """Temperature channels through LinuxCNC: a HAL pin read with ``halcmd
     getp`` at the start, at every pose and at the end of the remote verification run (the
     HAL probe's ``temp-z`` pin carrying a warm-up), journaled with the hits; a pin that does
     not exist is journaled with halcmd's reason and the run goes on."""

@@ -1,4 +1,4 @@
-"""Compensation proven on LinuxCNC's own kinematics for a head family (issue 24 item 5):
+"""Compensation proven on LinuxCNC's own kinematics for a head family:
 LinuxCNC 2.9 running rumba's swivel-head kins module (config/linuxcnc/xyzbc_head_kins.comp,
 built with halcompile, installed into LinuxCNC's module folder), the HAL probe carrying the
 injected link errors. The module's forward kinematics against our chain with every pin off

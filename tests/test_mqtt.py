@@ -87,12 +87,12 @@ async def test_states_verdict_links_and_health_are_published(broker, tmp_path):
     assert col.on("state")[-1]["machinery_item_state"] == "NotExecuting"
     assert col.on("state")[2]["machinery_item_state"] == "Executing"
     await until(lambda: any(m["report"] for m in col.on("verdict")), what="report in verdict")
-    # issue 23: the verdict at the run's end says the report is being written; the retained
+    # the verdict at the run's end says the report is being written; the retained
     # verdict is sent again with the report once it is written
     assert [m["report_state"] for m in col.on("verdict")] == ["writing", "written"]
     v = col.on("verdict")[-1]
     assert v["status"] == final["verdict"]["status"] and v["run_id"] == final["run_id"]
-    # the report by file name, never the daemon PC's path (issue 20)
+    # the report by file name, never the daemon PC's path
     assert final["verdict"]["report"].startswith(str(tmp_path))
     assert v["report"] == Path(final["verdict"]["report"]).name and "/" not in v["report"]
     links = col.on("links")[-1]["links"]
@@ -102,7 +102,7 @@ async def test_states_verdict_links_and_health_are_published(broker, tmp_path):
     assert "value_urad" in links["EA0B"] and any("value_um" in d for d in links.values())
     h = col.on("health")[-1]
     assert h["residual_rms_um"] > 0 and h["mqtt_dropped_messages"] == 0 and h["x_rows"] == 0
-    # issue 23: the figures by the report's name, unit and definition, rounded as shown;
+    # the figures by the report's name, unit and definition, rounded as shown;
     # the unrounded volumetric_max_um stays for existing subscribers
     figs = {f["key"]: f for f in h["figures"]}
     vol = figs["volumetric_max_um"]

@@ -1,4 +1,4 @@
-"""One run, one story (issue 23 items 1, 2): runs made by the real daemon against the simulated
+"""One run, one story: runs made by the real daemon against the simulated
 CNC over OPC UA (thesis machine, Table B.2 errors, its Siemens section), then every surface is
 read — the HTML report, the PDF's text (pdftotext), the JSON, the HMI API, the compensation
 panel's API, `rumba history` and `rumba compensate`, and the fleet page over a real

@@ -1,4 +1,4 @@
-"""The daemon's OPC UA results server (issue 25) read by an independent client: node-opcua
+"""The daemon's OPC UA results server read by an independent client: node-opcua
 (tests/peers/opcua_results_client.js) with the official companion nodesets checks the type of
 every node, reads identification and state, calls GetLatestResult / GetResultById /
 GetResultIdListFiltered, receives the ResultReadyEvent of a run that ends and downloads its

@@ -1,4 +1,4 @@
-"""daemon.yaml's ``opcua_server`` and ``aqdef_dir`` (issue 25): off when absent, loopback unless
+"""daemon.yaml's ``opcua_server`` and ``aqdef_dir``: off when absent, loopback unless
 ``allow_remote``, every file checked at load time with one line naming the key."""
 
 from __future__ import annotations

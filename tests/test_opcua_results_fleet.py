@@ -113,7 +113,7 @@ async def test_a_run_reaching_the_store_raises_its_result_ready_event(fleet):
             store.set_state(run_id, "DONE")
 
         ended("m2-2", "FAIL", [{"status": "FAIL", "limit": "x"}])
-        await fleet["drainer"].drain()  # issue 23: the run first, its report after it
+        await fleet["drainer"].drain()  # the run first, its report after it
         html = fleet["store"].path.parent / "m2-2.html"
         html.write_text("<html></html>")
         html.with_suffix(".pdf").write_bytes(b"%PDF-1.4\n")

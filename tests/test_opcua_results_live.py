@@ -1,4 +1,4 @@
-"""Acceptance of issue 25 on a live daemon: ``daemon.yaml`` with ``opcua_server`` and
+"""The OPC UA results server on a live daemon: ``daemon.yaml`` with ``opcua_server`` and
 ``aqdef_dir`` → ``Service`` against the simulated CNC over serial (pty), OPC UA and Modbus. The
 CNC raises its start-of-shift request once node-opcua (tests/peers/opcua_results_client.js) is
 subscribed; node-opcua sees the check running (state, touches), receives the ResultReadyEvent

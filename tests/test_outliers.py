@@ -1,4 +1,4 @@
-"""Gross faults of one ball visit (issue 12): the robust per-visit test, the touch at fault and
+"""Gross faults of one ball visit: the robust per-visit test, the touch at fault and
 its size, which visit a re-probe replaces, the robust gap floor, `rumba analyze`'s warning and
 the judge (the daemon's re-probe: test_reprobe.py; the gap diagnosis: test_gap_outliers.py)."""
 

@@ -1,4 +1,4 @@
-"""``rumba plan`` on a warming machine (issue 22, programs/plan_drift.py): what the plans' timing
+"""``rumba plan`` on a warming machine (programs/plan_drift.py): what the plans' timing
 can separate of a TCP drift, its predicted u, and what a plan cannot separate."""
 
 from __future__ import annotations

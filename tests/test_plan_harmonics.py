@@ -1,5 +1,5 @@
 """The shipped hold-out plan identifies rotary positioning harmonics on its estimate poses, and
-`rumba gap` says when a plan's estimate poses cannot (issue 21)."""
+`rumba gap` says when a plan's estimate poses cannot."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""``rumba plan`` under the machine file's stated rotary repeatability (issue 22 follow-up): the
+"""``rumba plan`` under the machine file's stated rotary repeatability: the
 predicted link u are the estimator's visit sandwich under it (a visit's balls share its index
 error, so the links leaning on the index columns rise), the output says what it assumed, a small
 Monte Carlo on the simulator with that index scatter agrees, and nothing stated is the plan of

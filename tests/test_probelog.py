@@ -127,7 +127,7 @@ def test_mixed_runs_and_moving_rotary_are_errors(setup) -> None:
         rows_to_centres(moved, a, 3.0)
 
 
-# ------------------------------------------------------------------ issue 10: strict numbers,
+# ------------------------------------------------------------------ strict numbers,
 # seq, ceilings, encodings, numerical failures named by ball and pose
 
 

@@ -1,4 +1,4 @@
-"""The report off the run's critical path (issue 23 item 4): the verdict is journaled, written
+"""The report off the run's critical path: the verdict is journaled, written
 back and the run's end published before the report is rendered; the rendering's end is
 journaled and published; a failure keeps the verdict and says why; ``wait`` waits for it."""
 

@@ -203,7 +203,7 @@ def test_audit_fields_come_from_the_setup_files_and_daemon_yaml(tmp_path):
     audit = report.audit_of(load_daemon_config(path).machines["mill1"])
     assert dataclasses.astuple(audit)[:4] == ("HMC500 #2019-0417", "J. Keller (shift 1)",
                                               "DKD-K-15183 2024-117", "2024-11-05")
-    # issue 23 item 4: the probe's qualification, the balls' diameters, the decision rule
+    # the probe's qualification, the balls' diameters, the decision rule
     assert audit.probe == ("Renishaw OMP40-2 serial P-1234, stylus diameter 6 mm (plan "
                            "thesis-ch3-7poses), qualified on 2026-01-12 by A. Berg")
     assert audit.balls == "B1 ⌀25.4 mm, B2 ⌀25.4 mm, B3 ⌀25.4 mm, B4 ⌀25.4 mm"

@@ -1,4 +1,4 @@
-"""Writing a report keeps the daemon's log readable (issue 23): matplotlib's font subsetting
+"""Writing a report keeps the daemon's log readable: matplotlib's font subsetting
 (fontTools, ~200 INFO lines per PDF) says nothing at INFO, while the daemon's own INFO records
 still get through."""
 

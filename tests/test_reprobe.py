@@ -1,4 +1,4 @@
-"""A chip on a ball through the simulator and the daemon (issue 12): the simulator's ``chip``
+"""A chip on a ball through the simulator and the daemon: the simulator's ``chip``
 fault, the re-probe after the program (both visits journaled, the clean one used, the verdict
 noting the repair) and the ERROR when the fault stays or nothing may be re-probed."""
 

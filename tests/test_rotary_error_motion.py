@@ -1,4 +1,4 @@
-"""Rotary error motion in the ISO 230-7 fixed frame (issue 12): the mapping to the moving frame
+"""Rotary error motion in the ISO 230-7 fixed frame: the mapping to the moving frame
 the chain applies, what the links and setup absorb (orders 0 and the co-rotating order 1) and
 what they do not, named by the gap diagnosis — down to a simulated CNC read by `rumba gap`."""
 

@@ -1,4 +1,4 @@
-"""One clock for a whole run (issue 21/22 follow-up): a re-probe round's touches and temperature
+"""One clock for a whole run: a re-probe round's touches and temperature
 readings are stamped on the run's clock (contracts.jobs.RunClock: seconds since the run's first
 program started), not from their own program's start, which put them at the start of the run
 for the drift-aware estimate and the drift check. End to end over each real transport (a pty,

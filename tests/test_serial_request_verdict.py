@@ -159,7 +159,7 @@ async def test_other_lines_and_other_machines_never_start_a_run():
 
 
 async def test_after_an_aborted_stream_no_verdict_is_fed_into_the_old_program():
-    """Abort (issue 20): the link finishes the block it is sending and closes the tape (``%``),
+    """Abort: the link finishes the block it is sending and closes the tape (``%``),
     so the control ends the old program at that block — never a truncated block, never the
     rest of the program — and reads the verdict as a tape of its own; the next run needs no
     RESET at the control."""

@@ -1,5 +1,5 @@
 """The serial simulator's overflow alarm blames the sender only for what it wrote after our XOFF
-could reach it (issue 19).
+could reach it.
 
 The simulator runs here in its own thread and event loop, as ``rumba sim --serve serial`` runs in
 its own process. Its loop is frozen, as a loaded machine leaves a process unscheduled, while the

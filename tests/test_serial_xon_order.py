@@ -1,4 +1,4 @@
-"""The simulated control's flow control sends its state, never a stale one (issue 20): an XON
+"""The simulated control's flow control sends its state, never a stale one: an XON
 decided when the receive buffer drained is dropped when an XOFF went out before it could be
 sent (bytes held on the line, woken by that room, refilled the buffer past the high mark first).
 Sent after that XOFF it freed the sender while the control counted the sender's next bytes as

@@ -53,7 +53,7 @@ async def test_full_run_walks_every_state_journals_and_writes_back(env):
     states = record_states(s)
     run_id = s.start("hmi")
     final = await s.wait()
-    # issue 23: the verdict goes back to the CNC before the report is rendered (report_job)
+    # the verdict goes back to the CNC before the report is rendered (report_job)
     assert states == ["PREPARE", "STREAM", "CAPTURE", "IDENTIFY", "JUDGE", "WRITE-BACK",
                       "IDLE"]
     assert final["state"] == "IDLE" and final["done"] == final["total"] == len(rows)
@@ -159,7 +159,7 @@ async def test_fail_verdict_and_drift_against_the_baseline(env):
     await s.wait()
     assert store.run(first).verdict == "PASS"
     assert any(r.startswith("drift not checked: no baseline") for r in s.verdict["reasons"])
-    baselines.confirm(store, setup.name, first, "Anna Berg")  # a person accepts it (issue 23)
+    baselines.confirm(store, setup.name, first, "Anna Berg")  # a person accepts it
     # the machine drifts: EB0C +26 → +56 µrad (drift 30 > drift_fail 20, |value| > warn 40)
     drifted = dict(__import__("tests.synth", fromlist=["x"]).THESIS_LINKS_UM_URAD, EB0C=56.0)
     link.rows = thesis_rows(setup, drifted, seed=1)

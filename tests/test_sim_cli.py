@@ -57,7 +57,7 @@ def test_sim_run_reports_an_alarm_with_exit_code(tmp_path, capsys):
 
 
 def test_format_files_beside_the_program_are_bounded(tmp_path, capsys):
-    """The simulator's aux files (Heidenhain ``*.A`` beside the program, issue 20): an
+    """The simulator's aux files (Heidenhain ``*.A`` beside the program): an
     oversized, non-UTF-8 or FIFO one is one error line naming it, never a traceback, a hang
     or the whole file in memory."""
     import os

@@ -1,4 +1,4 @@
-"""The simulator's warm-up truth (issue 22, simulators/thermal.py): drift and sensor readings from
+"""The simulator's warm-up truth (simulators/thermal.py): drift and sensor readings from
 one thermal state, seen by a simulated run and recovered by the drift-aware analysis."""
 
 from __future__ import annotations

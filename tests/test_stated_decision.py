@@ -1,5 +1,5 @@
 """The stated-repeatability decision (identification/estimate_scatter.py ``with_stated``) made
-once and carried as data (issue 22 review): ``Estimate.stated_used`` is what every screen
+once and carried as data (found in review): ``Estimate.stated_used`` is what every screen
 shows, on the plain and the drift-aware path, and the drift refit replaces exactly the plain
 fit's scatter warnings (``Estimate.scatter_warnings``), never a warning that merely reads
 alike."""

@@ -1,4 +1,4 @@
-"""Stops against a real LinuxCNC 2.9 (issue 20, item 6: the stop matrix on the session's
+"""Stops against a real LinuxCNC 2.9 (the stop matrix on the session's
 LinuxCNC, tests/conftest.py ``lcnc``), phase × trigger: PREPARE, CAPTURE and IDENTIFY × an
 operator's abort (the HMI's ``session.abort``), SIGINT / SIGTERM on ``rumba verify`` (a real
 process mid-capture; in this process, a real signal to ``verify()`` held in its phase), the

@@ -1,4 +1,4 @@
-"""Every stop leaves a defined state (issue 20, item 6): phase × trigger × transport against the
+"""Every stop leaves a defined state: phase × trigger × transport against the
 simulated CNC behind its real front-end (asyncua server, pymodbus server, a pty), one simulator
 per transport for the whole module (a stop that left one out of step fails every later row).
 Each row holds a run in its phase, stops it, and checks: the journal row ABORTED (a person, a

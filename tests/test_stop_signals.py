@@ -1,4 +1,4 @@
-"""Ctrl-C and SIGTERM on a real ``rumba verify`` process (issue 20, item 6): the simulated CNC
+"""Ctrl-C and SIGTERM on a real ``rumba verify`` process: the simulated CNC
 is its own process (``rumba sim --serve opcua``), ``rumba verify`` another; the signal arrives
 while the run captures (seen in the journal: the first hits are in). Each row checks the exit
 code (130 SIGINT, 143 SIGTERM), no traceback on stderr, the journal row ABORTED naming the

@@ -1,4 +1,4 @@
-"""The end states of a stopped run (issue 20): every consumer of the session's status treats
+"""The end states of a stopped run: every consumer of the session's status treats
 ABORTED, INTERRUPTED and FAILED alike as a run that ended without a verdict — the MQTT verdict
 (ERROR, NotExecuting), the notification (ERROR), the CAN panel's lamp — and a run in any of
 them no longer blocks the next start."""

@@ -1,4 +1,4 @@
-"""A stop whose cancellation asyncio swallows still stops the run (issue 20): Python 3.11's
+"""A stop whose cancellation asyncio swallows still stops the run: Python 3.11's
 ``asyncio.wait_for`` returns a result that completed together with the cancel (gh-86296); a
 SIGTERM on ``rumba verify`` landing just as a hit arrived let the run go on to DONE while verify
 exited 143. Here the stop is timed deterministically into that window: the link schedules it

@@ -1,4 +1,4 @@
-"""A run stopped while a pose's temperature read waits (issue 22's review): the read is cancelled
+"""A run stopped while a pose's temperature read waits (found in review): the read is cancelled
 and awaited before the run reports itself ABORTED — journaled as cut by the stop, its
 transmitter connection closed, no task of it left running — and a value that had already come
 when the stop arrived is journaled, not lost. End to end: the warming CNC behind its real

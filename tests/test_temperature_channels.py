@@ -1,4 +1,4 @@
-"""Temperature channels end to end (issue 22 item 3): daemon.yaml → Service against the simulated
+"""Temperature channels end to end: daemon.yaml → Service against the simulated
 CNC with a warm-up (simulators/thermal.py) behind its real front-end (an asyncua server, a pymodbus
 server) and a simulated Modbus TCP transmitter beside it; the readings at the start, at every pose
 and at the end are journaled, agree with the thermal state the touches drift with, reach the

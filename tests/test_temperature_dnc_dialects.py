@@ -1,4 +1,4 @@
-"""Temperature channels over plain DNC for every dialect that can print (issue 22 item 3): the
+"""Temperature channels over plain DNC for every dialect that can print: the
 program prints the control's variable (Fanuc/Haas ``DPRNT`` of a common variable, 840D ``WRITE``
 of a string chain, TNC ``FN 16: F-PRINT`` with a fixed format file) beside its result lines, the
 DNC link parses the ``RTEMP`` lines and the daemon journals them; end to end over a real pty

@@ -1,4 +1,4 @@
-"""The fleet page over a real PostgreSQL shows each run's temperature channels (issue 22): the
+"""The fleet page over a real PostgreSQL shows each run's temperature channels: the
 summary the daemon drained with the run's analysis; garbage costs the cell, never the page."""
 
 from __future__ import annotations

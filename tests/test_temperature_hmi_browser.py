@@ -1,4 +1,4 @@
-"""The operator page in headless Chromium (peer) with temperature channels (issue 22): the trend
+"""The operator page in headless Chromium (peer) with temperature channels: the trend
 offers a link error against a recorded temperature (one dot per run, the fitted line, r and the
 slope ± u), and the verdict card of a run says what each channel read — or why it was not read."""
 
@@ -57,7 +57,7 @@ async def test_link_against_temperature_chart_and_the_cards_temperatures(tmp_pat
                                             " || {}).textContent")
             assert temps.startswith("Temperatures: spindle not read (") and \
                 "cannot read temperature channel spindle" in temps, temps
-            # issue 22: the rotary axes' indexing repeatability, the report's own lines
+            # the rotary axes' indexing repeatability, the report's own lines
             want = svc.sessions["mill1"].verdict["index_scatter"]
             assert want[0].startswith("B indexing repeatability: ") and \
                 "machine file states none, used: estimated" in want[0], want

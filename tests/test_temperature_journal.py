@@ -1,4 +1,4 @@
-"""Temperature readings are journaled like hits (issue 22 item 3): each in its own transaction
+"""Temperature readings are journaled like hits: each in its own transaction
 on arrival, so a daemon SIGKILLed mid-run loses none it had recorded; numbered in arrival
 order per run, an unreadable channel kept with its reason."""
 

@@ -1,4 +1,4 @@
-"""The judge on temperature channels (issue 22 item 3): outside the range or changed beyond the
+"""The judge on temperature channels: outside the range or changed beyond the
 limit over the run → WARN with the numbers, never FAIL; a limited channel that gave nothing →
 WARN (the limit could not be checked); an unlimited channel changes nothing."""
 

@@ -1,4 +1,4 @@
-"""A temperature line the DNC program should have printed but that never came (issue 22's
+"""A temperature line the DNC program should have printed but that never came (a
 review of the Sinumerik WRITE path): Siemens documents that WRITE refuses a line once its file
 outgrows MD11420 $MN_LEN_PROTOCOL_FILE ("the block or data is not saved"), and the DNC reader
 drops a garbled or out-of-range line. The missing reading is journaled as not read with the

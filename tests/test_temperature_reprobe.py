@@ -1,4 +1,4 @@
-"""Temperatures of a re-probe round over plain DNC (issue 22 follow-up): the re-probe program
+"""Temperatures of a re-probe round over plain DNC: the re-probe program
 (daemon/run/reprobe.py) prints its own RTEMP start, pose and end lines, its poses numbered by
 its own plan. Each reading is journaled under the plan pose actually re-probed and marked with
 its round; the run's start stays the plan program's start and its end is the last program's

@@ -1,4 +1,4 @@
-"""A run whose start temperature was not read (issue 22's review): every view shows the same
+"""A run whose start temperature was not read (found in review): every view shows the same
 numbers for it — the run's mean (contracts.temperatures.run_mean_c, one definition for the
 report, ``rumba history --against-temperature``, the HMI and the fleet page) and its change —
 and none claims a change it did not measure (with only the end read, the summary made the end

@@ -1,4 +1,4 @@
-"""A temperature transmitter switched off but still routable (issue 22 item 3's known defect): a
+"""A temperature transmitter switched off but still routable (a defect once known): a
 real TCP socket that accepts and never answers. The run does not wait for it at every pose: the
 first read that gets no answer marks the channel unreachable for the run (journaled with the
 reason at every pose), the pose reads run beside the capture, and the end tries it again."""

@@ -1,4 +1,4 @@
-"""A link error against a recorded temperature over the runs (issue 22 item 4): ``rumba history
+"""A link error against a recorded temperature over the runs: ``rumba history
 --against-temperature`` finds the slope a shop planted (EX0C moving 1.5 µm/°C with the spindle)
 within its stated 2u, states r, agrees with scipy's linregress, and says so when there is none."""
 

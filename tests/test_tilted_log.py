@@ -1,4 +1,4 @@
-"""The probing log of a tilted-probe program is true (issue 24 item 2): each touch's logged
+"""The probing log of a tilted-probe program is true: each touch's logged
 approach direction (dir_x dir_y dir_z, machine frame) is the program's tool-frame direction at
 its pose — the equator touches ⊥ the spindle, the pole against it — not the X-Y diagonal its
 touch number names on a table-table machine; the daemon's path (result line → touch table),

@@ -1,4 +1,4 @@
-"""Tilted-probe transits at rapid where the control's rapid is a straight line (issue 24 item 3):
+"""Tilted-probe transits at rapid where the control's rapid is a straight line:
 the program's multi-axis transits are checked as straight lines (``Move.linear_rapid``);
 SINUMERIK (after RTLION), Heidenhain (L … FMAX) and LinuxCNC (coordinated G0) run them as
 rapids, Fanuc and Haas (G00 non-linear unless parameter 1401 LRP, which a program cannot

@@ -24,7 +24,7 @@ def test_table_by_seq_and_no_duplicate() -> None:
 
 
 def test_named_gives_identity_and_the_programs_direction() -> None:
-    # the program's approach (a tilted touch's is in the tool frame, issue 24), not the
+    # the program's approach (a tilted touch's is in the tool frame), not the
     # touch number's nominal diagonal; that only when the program gives none
     hit = TABLE.named(2, AXES, True, t_s=1.5, raw="slot 1")
     assert (hit.pose, hit.ball, hit.touch, hit.repeat, hit.t_s) == (0, "B1", 2, 0, 1.5)

@@ -156,7 +156,7 @@ async def test_verify_through_the_running_daemon(tmp_path, capsys):
         out, err = capsys.readouterr()
         assert "PASS" in err and Path(out.split("report: ")[1].strip()).is_file()
         assert svc.store.runs()[0].trigger == "cli"
-        # issue 23: --operator names the person; journaled with the run and the start action
+        # --operator names the person; journaled with the run and the start action
         assert await verify_via_daemon(str(path), "mill1", quiet=True,
                                        operator="Anna Berg") == 0
         out, _ = capsys.readouterr()

@@ -1,4 +1,4 @@
-"""Target 7: the issue-20 input surfaces, by their property tests run longer, and real-size logs."""
+"""Target 7: the input surfaces, by their property tests run longer, and real-size logs."""
 
 # The tests of tests/test_inputs_fuzz.py, _surfaces.py and _network.py with their
 # example counts raised (``n`` shared out; hypothesis derandomized: the same ``--cases`` gives
@@ -45,7 +45,7 @@ def _to_bench(name: str, counts: dict[str, int], bad: list[str], seconds: float)
 
 def _huge_logs(rng: random.Random, n: int, tmp: Path) -> Tally:
     """Logs of real size, each refused within the time limit (``input_fuzz_helpers.HANG_S``):
-    one row over the 250 000-row ceiling (it took 241 s before issue 20), ten times over,
+    one row over the 250 000-row ceiling (it once took 241 s), ten times over,
     one 64 MiB line, a 10 GB sparse file, /dev/zero, a FIFO."""
     import contracts.probing_log as pl
     from tests.input_fuzz_helpers import EXAMPLE_LOG, READERS, outcome, special_file

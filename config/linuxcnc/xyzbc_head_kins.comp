@@ -1,4 +1,4 @@
-component xyzbc_head_kins "Swivel-head B + rotary-table C kinematics whose pins hold the location errors probing sees (rumba-cnc, issue 24)";
+component xyzbc_head_kins "Swivel-head B + rotary-table C kinematics whose pins hold the location errors probing sees (rumba-cnc)";
 
 description """
 Switchable kinematics for a travelling-column mill whose spindle head swivels about Y (joint 3,

@@ -115,7 +115,7 @@ def analyse_centres(machine: Machine, artefact: Artefact, data: CentreData, *,
                     estimator: Callable[[Centres], tuple[Any, Callable | None]] | None = None,
                     keep: dict[str, Any] | None = None,
                     rotary_repeatability_urad: Mapping[str, float] | None = None) -> Analysis:
-    """The whole analysis (its ``to_json()``: the keys of issue 2, plus a few more).
+    """The whole analysis (its ``to_json()``: the analysis contract's keys, plus a few more).
 
     ``links`` None: the identifiable set; () setup only. Poses in ``validate_poses`` are held
     out of the estimate and predicted (thesis annex B). ``estimator`` (centres input,
@@ -123,7 +123,7 @@ def analyse_centres(machine: Machine, artefact: Artefact, data: CentreData, *,
     returns the estimate and, for centres in an instrument frame, the map to controller X Y Z
     the analyses then run in. Visits are screened for gross faults first (``screen_centres``).
     ``keep``: receives the estimate itself under "estimate" (the run's compensation view is
-    planned from this very estimate, so the panel's link values are the report's, issue 23)
+    planned from this very estimate, so the panel's link values are the report's)
     and under "touch_data" every visit's centre fitted in its frame (what the store and
     ``--write-centres`` keep, ``identification.touch_frame``).
     ``rotary_repeatability_urad``: the machine file's stated rotary repeatability (µrad 1σ by
@@ -145,7 +145,7 @@ def analyse_centres(machine: Machine, artefact: Artefact, data: CentreData, *,
         k = int(np.flatnonzero(bad)[0])
         raise AnalysisError(f"{where}centre of ball {artefact.ids[c.ball[k]]} pose "
                             f"{int(c.pose[k])} is not a finite number")
-    drift = None  # a TCP drift fitted with the links where the timing separates it (issue 22)
+    drift = None  # a TCP drift fitted with the links where the timing separates it
     frame = None
     try:
         with np.errstate(all="ignore"):

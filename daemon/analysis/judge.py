@@ -1,5 +1,5 @@
 """The verdict: link errors and volumetric distortion against tolerances and a baseline run."""
-# Absolute and relative to the machine's baseline (a run a person accepted, issue 23) →
+# Absolute and relative to the machine's baseline (a run a person accepted) →
 # PASS / WARN / FAIL with one reason per violated limit.
 # Decision rule (ISO 14253-1, stated in every reason and in the report, ``decision_rule``): a
 # value whose magnitude exceeds a ``fail`` limit fails; one that exceeds ``warn`` — or whose
@@ -95,7 +95,7 @@ NO_BASELINE = "drift not checked: no baseline"
 def judge(analysis: Analysis, tol: Tolerances, last_good: Analysis | None = None) -> Judgement:
     """Grade one run's analysis against ``tol``.
 
-    ``last_good`` is the analysis of the machine's baseline run (issue 23: a run a person
+    ``last_good`` is the analysis of the machine's baseline run (a run a person
     accepted, ``daemon.store.baselines``): drift is judged against it; without one, and with
     drift limits set, the reasons say "drift not checked: no baseline"."""
     checks: list[Check] = []
@@ -167,7 +167,7 @@ def _has_drift_limits(tol: Tolerances) -> bool:
 
 
 def thermal_checks(analysis: Analysis, tol: Tolerances) -> list[Check]:
-    """The fitted TCP drift over the run per axis (issue 22) against ``thermal_drift_um``:
+    """The fitted TCP drift over the run per axis against ``thermal_drift_um``:
     WARN "machine not thermally stable". The links were estimated with the drift, so the
     reason names the machine's thermal state, never a link."""
     th = analysis.thermal
@@ -196,7 +196,7 @@ def thermal_checks(analysis: Analysis, tol: Tolerances) -> list[Check]:
 
 
 def temperature_checks(analysis: Analysis, tol: Tolerances) -> list[Check]:
-    """Each limited temperature channel (issue 22 item 3): outside its range or changed more
+    """Each limited temperature channel: outside its range or changed more
     than ``change_c`` over the run → WARN "machine not in its thermal condition" with the
     numbers; a limited channel not read at all → WARN (the limit could not be checked). Never
     FAIL: a temperature says the check ran warm, not that the geometry is out."""

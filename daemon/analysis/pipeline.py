@@ -69,7 +69,7 @@ def prepare(setup: MachineSetup, run_id: str,
 
     try:
         targets = targets_from(last_good if setup.program_targets == "last_good" else None)
-        printed = tuple(ch.address for ch in setup.temperatures  # issue 22: DNC prints them
+        printed = tuple(ch.address for ch in setup.temperatures  # DNC prints them
                         if ch.source == "controller"
                         and getattr(setup.link, "transport", "") == "serial")
         from drivers.registry import HANDSHAKE  # the link reads the controller's variables

@@ -203,7 +203,7 @@ class DriftAxis(_Json):
 
 @dataclass(frozen=True)
 class Thermal(_Json):
-    """A TCP drift during the run (a warming machine, issue 22; ``identification.drift``):
+    """A TCP drift during the run (a warming machine; ``identification.drift``):
     fitted with the links when the plan's timing separates it and BIC selects it, or why not.
     ``over_run_um``: the drift at the end of the run relative to its start, controller X Y Z."""
 
@@ -298,7 +298,7 @@ class Analysis(_Json):
     stability: Stability | None = field(default=None, metadata=_OMIT)
     scale_um_per_m: Scale | None = field(default=None, metadata=_OMIT)
     validation: Validation | None = field(default=None, metadata=_OMIT)
-    thermal: Thermal | None = field(default=None, metadata=_OMIT)  # issue 22
+    thermal: Thermal | None = field(default=None, metadata=_OMIT)
     # temperature channels of a journaled run (contracts.temperatures.summarise), per name
     temperatures: dict[str, Any] | None = field(default=None, metadata=_OMIT)
     # centres input (``rumba analyze --centres``): the file's frame, instrument and source

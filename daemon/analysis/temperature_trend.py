@@ -1,4 +1,4 @@
-"""A link error against a recorded temperature over a machine's runs (issue 22 item 4): does
+"""A link error against a recorded temperature over a machine's runs: does
 "EX0C move with the spindle temperature"? Each run gives one point, the channel's mean over the
 run (start, every pose, end) and the link's identified value ± u; the straight line is fitted
 by ordinary least squares with its slope's standard uncertainty from the residual scatter

@@ -1,4 +1,4 @@
-"""The drift search's outcome as the analysis states it (issue 22): the ``Thermal`` block and the
+"""The drift search's outcome as the analysis states it: the ``Thermal`` block and the
 centres with the fitted drift removed, on which every other analysis of the run is made."""
 
 from __future__ import annotations

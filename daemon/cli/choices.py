@@ -1,4 +1,4 @@
-"""Argument values the parsers and the commands share, kept light (no numpy): issue 19."""
+"""Argument values the parsers and the commands share, kept light (no numpy)."""
 
 from __future__ import annotations
 

@@ -3,7 +3,7 @@
 Every parser module defines ``register(subparsers) -> None`` which adds its parser and sets
 ``func`` (returning an exit code). The parsers are light (argument definitions only): ``func``
 imports the command's module of ``daemon.cli.commands`` when it runs, so ``rumba --help`` and
-argument errors import neither numpy, scipy, rich nor the network stacks (issue 19).
+argument errors import neither numpy, scipy, rich nor the network stacks.
 Expected failures (bad config, bad log, unreachable controller) raise ``UserError`` or
 ``ConfigError`` and end as one ``error: …`` line with exit code 2.
 Anything else is a defect of rumba-cnc, not of the input: it ends as one ``internal error`` line

@@ -1,4 +1,4 @@
-"""Long rich tables of plain cells printed fast, byte for byte as rich prints them (issue 19)."""
+"""Long rich tables of plain cells printed fast, byte for byte as rich prints them."""
 
 from __future__ import annotations
 

@@ -3,7 +3,7 @@
 # Stored with the run's analysis (table ``link_estimates``, migration 6): the run's stored
 # centres (validation poses held out, as the run did) estimated against the controller model
 # the run ran on, with the whole covariance of the links and the setup, and the plan of
-# controller changes holding those links (issue 20: heavy work never on the event loop; each
+# controller changes holding those links (heavy work never on the event loop; each
 # is ≈ 0.1 s for 14 poses). A stored view is keyed by what it depends on besides the run's
 # centres (the model, the artefact, the held-out poses, the controller values and the coverage
 # factor): a machine or artefact file edited since, or a journal whose earlier compensations
@@ -262,7 +262,7 @@ def at_run_end(setup: MachineSetup, store: Store, run_id: str, centre_rows: Sequ
     from the centre rows the run is about to store: the HMI, the unattended path and `rumba
     compensate` then read it instead of identifying again. ``est``: the run's own estimate
     (the one its report shows: every visit, the fitted drift when selected); the plan is
-    made from it, so the panel's links are the report's (issue 23). Without it, or for
+    made from it, so the panel's links are the report's. Without it, or for
     another layout, the stored centres are identified again (first visit per pose)."""
     c = estimation_centres(setup, centres_of(setup, centre_rows, run_id))
     key = model_key(setup, machine, params, coverage_k)

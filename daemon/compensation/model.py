@@ -35,7 +35,7 @@ FAMILY_OF_DIALECT = {"fanuc": "fanuc", "haas": "haas", "siemens": "siemens",
 
 
 def check_family(setup: MachineSetup, spec: ControllerKinematics) -> None:
-    """The machine file's controller addresses are of the configured controller (issue 23:
+    """The machine file's controller addresses are of the configured controller (
     $TC_CARR values proposed for a machine configured as Fanuc), else ``CompensationRefused``
     naming both."""
     want = FAMILY_OF_DIALECT.get(str(setup.dialect), str(setup.dialect))

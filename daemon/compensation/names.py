@@ -1,4 +1,4 @@
-"""Who confirmed a compensation, as the journal records it (issue 20): a name a person reads in
+"""Who confirmed a compensation, as the journal records it: a name a person reads in
 the journal, the report and a terminal, so it must print as what it is — one line, no control
 characters, no terminal escapes, no bidi overrides or invisible characters, a sane length — and
 must not pass for the reserved ``unattended`` marker the daemon writes for itself."""

@@ -74,7 +74,7 @@ class Proposal:
     refusals: list[str] = field(default_factory=list)
     skipped: dict[str, str] = field(default_factory=dict)  # name → why not applied
     current: dict[str, float] = field(default_factory=dict)  # name → value the control holds
-    # issue 23: the run's own figures (the report's), and where the link values come from
+    # the run's own figures (the report's), and where the link values come from
     run_figures: tuple[Figure, ...] = ()
     links_from: str = "run"  # "run": the report's estimate | "refit": stored centres again
     # what a confirmation would write from the values the controller holds now: the program

@@ -1,4 +1,4 @@
-"""The fleet page's link-against-temperature view as text (no I/O, issue 22 item 4): a chosen
+"""The fleet page's link-against-temperature view as text (no I/O): a chosen
 link error of a machine's runs against a chosen channel's mean over each run, from the raw
 readings in the fleet store, with the statistics of ``rumba history --against-temperature``
 (daemon/analysis/temperature_trend.py ``fit``: r, slope ± u, the 95 % Student's t interval) and

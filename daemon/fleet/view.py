@@ -36,7 +36,7 @@ def finite(x: Any, bound: float = math.inf) -> float | None:
     """A stored number as a float, or None when it is missing, not a number, NaN, infinite,
     an integer too large for a float or beyond ``bound``: the store is written by daemons of
     other versions and by hand, and one bad cell must cost its chart a point or a line, never
-    the page (a 500; the fuzz found 1e16 s and 1e16 µm dividing by zero, issue 20)."""
+    the page (a 500; the fuzz found 1e16 s and 1e16 µm dividing by zero)."""
     if isinstance(x, bool) or not isinstance(x, int | float):
         return None
     try:
@@ -209,7 +209,7 @@ def trend_charts(trend: Sequence[Mapping[str, Any]], limits: Mapping[str, Any]) 
 
 
 def temperatures_text(temps: Any) -> str:
-    """A run's temperature channels (issue 22), "spindle 20.5 → 24.1 °C (+3.6 °C)": the text
+    """A run's temperature channels, "spindle 20.5 → 24.1 °C (+3.6 °C)": the text
     the report and the HMI print (contracts.temperatures.channel_text: a start not read is
     said, never filled in); a store written by hand or another version costs the cell, never
     the page."""
@@ -234,7 +234,7 @@ def drift_baseline(run: Mapping[str, Any]) -> str:
 
 
 def report_cell(run: Mapping[str, Any]) -> str:
-    """The report's link; until it is there (issue 23: written after the run's end) "being
+    """The report's link; until it is there (written after the run's end) "being
     written", or why it was not — from the run's report job (migration 10), never its reason."""
     if run.get("has_report"):
         return f'<a class="report" href="/reports/{_e(run["id"])}.html">report</a>'
@@ -261,7 +261,7 @@ def machine_page(name: str, machine: Mapping[str, Any] | None, runs: Sequence[Ma
             f'{_e(machine.get("site"))} · {_e(machine.get("dialect"))} / '
             f'{_e(machine.get("transport"))}')
     against = (f'<p><a class="against-temperature" href="/machines/{_e(name)}/temperature">'
-               "Link errors against temperature</a></p>"  # issue 22, when a run has readings
+               "Link errors against temperature</a></p>"  # when a run has readings
                if any(r.get("temperatures") for r in runs) else "")
     html = (f'<header><p><a href="/">← fleet</a></p><h1>{_e(name)}</h1>'
             f'<p class="sub">{desc}</p></header><main>'
@@ -272,7 +272,7 @@ def machine_page(name: str, machine: Mapping[str, Any] | None, runs: Sequence[Ma
             '<th>Temperatures</th><th>Indexing repeatability</th><th>Drift baseline</th>'
             '<th>Report</th>'
             f"</tr></thead><tbody>{rows}</tbody></table>{against}"
-            # issue 23: the summary's figure is defined beside it, as on every surface
+            # the summary's figure is defined beside it, as on every surface
             f'<p class="definition">{_e(LABELS[VOLUMETRIC])}: {_e(DEFINITIONS[VOLUMETRIC])}.'
             "</p></main>")
     return _page(f"rumba fleet — {name}", html)

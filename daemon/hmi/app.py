@@ -104,7 +104,7 @@ async def status(request: web.Request) -> web.Response:
     return web.json_response({n: s.status() for n, s in _sessions(request).items()})
 
 
-# Start from the page asks for this pre-flight list, every item ticked (issue 23): a run that
+# Start from the page asks for this pre-flight list, every item ticked: a run that
 # starts with the probe in the magazine or a door open is a crash or a wasted hour.
 PREFLIGHT = (("probe", "Touch probe in the spindle, switched on"),
              ("balls", "Balls clean and tight on their stems, artefact clamped"),
@@ -147,7 +147,7 @@ async def start(request: web.Request) -> web.Response:
         request.query.get("trigger") == "cli" else "hmi"
     checked = await _preflight(request)
     person = _identity(request).name if _identity(request).via == "password" else ""
-    named = _operator(request)  # issue 23: `rumba verify --daemon --operator NAME`
+    named = _operator(request)  # `rumba verify --daemon --operator NAME`
     if isinstance(named, web.Response):
         return named
     if named:
@@ -238,7 +238,7 @@ async def runs(request: web.Request) -> web.Response:
 
 async def run_detail(request: web.Request) -> web.Response:
     """One run: its record and what its analysis says beyond the verdict — the rotary axes'
-    indexing repeatability behind the link u (issue 22, the report's own text) and the
+    indexing repeatability behind the link u (the report's own text) and the
     temperature channels; ``index_scatter`` null when the run has no analysis."""
     store = request.app[STORE_KEY]
     run_id = request.match_info["run_id"]
@@ -350,8 +350,8 @@ def create_app(sessions: Mapping[str, Session], store: Store, token: str,
     app.router.add_post("/api/machines/{machine}/abort", abort)
     app.router.add_get("/api/machines/{machine}/trend",
                        trend_handler(SESSIONS_KEY, STORE_KEY))
-    add_compensation_routes(app, SESSIONS_KEY, STORE_KEY)  # issue 13: confirm from the page
-    add_baseline_routes(app, SESSIONS_KEY, STORE_KEY)  # issue 23: the drift baseline
+    add_compensation_routes(app, SESSIONS_KEY, STORE_KEY)  # confirm from the page
+    add_baseline_routes(app, SESSIONS_KEY, STORE_KEY)  # the drift baseline
     app.router.add_get("/reports/{run_id:[A-Za-z0-9_.-]{1,64}}.{kind:html|json|pdf}",
                        report_file)
     return app

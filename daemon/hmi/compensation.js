@@ -1,4 +1,4 @@
-// rumba operator page, compensation panel (issue 13): the proposal of each machine's last
+// rumba operator page, compensation panel: the proposal of each machine's last
 // finished run, Confirm (a second, explicit confirmation naming the values) and Rollback.
 "use strict";
 window.rumbaComp = (() => {
@@ -41,7 +41,7 @@ window.rumbaComp = (() => {
     p.el.querySelector(".comp-confirm").disabled =
       p.busy || !d || !d.proposal || !d.proposal.applicable;
     p.el.querySelector(".comp-rollback").disabled = p.busy || !d || !d.last_applied;
-    // issue 23: only an engineer or admin confirms or rolls back; say so on the buttons
+    // only an engineer or admin confirms or rolls back; say so on the buttons
     const me = window.rumbaMe;
     if (me && !me.may_compensate) {
       for (const b of p.el.querySelectorAll(".comp-confirm, .comp-rollback")) {
@@ -95,7 +95,7 @@ window.rumbaComp = (() => {
           v => `${fmt(v)} ${l.unit}`)], ll);
         return tr;
       }));
-      // issue 23: each figure named and defined as on the report (one truth per run)
+      // each figure named and defined as on the report (one truth per run)
       el.querySelector(".comp-dist").replaceChildren(...(p.figures || []).map(f => {
         const div = document.createElement("div");
         const b = document.createElement("b");

@@ -129,7 +129,7 @@ async def script(request: web.Request) -> web.Response:
 
 
 class Views:
-    """The compensation view of each machine, computed off the event loop (issue 20: on the
+    """The compensation view of each machine, computed off the event loop (on the
     loop, a page refreshing a re-identification stalled the run) from the estimate the run
     stored when it ended (``daemon.compensation.identified``; a run journaled before that is
     identified here once and stored), and kept per machine, last finished run and journal

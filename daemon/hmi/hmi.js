@@ -136,7 +136,7 @@ function render(st) {
   }
   if (!running && st.reason) text = st.reason;
   el.querySelector(".progress-text").textContent = text;
-  // issue 23: which pose and ball the probe is on, live
+  // which pose and ball the probe is on, live
   const p = running && st.probing;
   const probing = el.querySelector(".probing");
   probing.hidden = !p;
@@ -153,13 +153,13 @@ function render(st) {
     badge.className = "badge " + v.status;
     showWhen(el, v.at);
     el.querySelector(".summary").textContent = v.summary || "";
-    // issue 23: each figure's one-sentence definition beside it, and the drift baseline
+    // each figure's one-sentence definition beside it, and the drift baseline
     el.querySelector(".definition").textContent = (v.figures || []).slice(0, 1).map(
       f => `${f.label}: ${f.definition}.`).join(" ");
     el.querySelector(".baseline").textContent = v.figures ? (v.baseline ?
       `Drift judged against baseline ${v.baseline.text}.` : "Drift not checked: no baseline.") : "";
     baselineButton(el, st, v);
-    // issue 22: the temperature channels read during the run, start → end
+    // the temperature channels read during the run, start → end
     let temps = el.querySelector(".temperatures");
     if (!temps) {
       temps = document.createElement("div");
@@ -167,7 +167,7 @@ function render(st) {
       el.querySelector(".baseline").after(temps);
     }
     temps.textContent = (v.temperatures || []).length ? `Temperatures: ${v.temperatures.join("; ")}.` : "";
-    // issue 22: the rotary axes' indexing repeatability the link u rest on (the report's text)
+    // the rotary axes' indexing repeatability the link u rest on (the report's text)
     let ix = el.querySelector(".index-scatter");
     if (!ix) {
       ix = document.createElement("ul");
@@ -186,7 +186,7 @@ function render(st) {
     const run = encodeURIComponent(st.verdict ? st.run_id : v.run_id);
     link(el.querySelector(".report"), v.report ? `/reports/${run}.html` : null);
     link(el.querySelector(".pdf"), v.pdf ? `/reports/${run}.pdf` : null);
-    // issue 23: the report is written after the run's end; say so until its links appear
+    // the report is written after the run's end; say so until its links appear
     reportState(el, v.report ? "" : reportText(v.report_state, v.report_error));
   } else if (!running) {
     el.querySelector(".badge").textContent = "none yet";
@@ -235,7 +235,7 @@ async function loadLastVerdicts() {
     const tr = document.createElement("tr");
     tr.dataset.run = run.id;
     tr.title = `run ${run.id}`;
-    // issue 23: the person who started it beside how (hmi, cnc, can, cli)
+    // the person who started it beside how (hmi, cnc, can, cli)
     const cells = [localIso(run.started_at), run.machine,
                    run.started_by ? `${run.started_by} (${run.trigger})` : run.trigger,
                    run.state, run.verdict || "—", `${run.hits} / ${run.touch_total}`,
@@ -301,7 +301,7 @@ function niceStep(span) {
 // One small chart per link error: its own axis in its own unit (µm or µrad), its warn and fail
 // limits (±, the judge bounds |value|), one dot per run coloured by the run's verdict.
 function chart(s, runs) {
-  // issue 23: large enough to read, runs placed by their date, date and time on the axis
+  // large enough to read, runs placed by their date, date and time on the axis
   const W = 380, H = 210, L = 52, R = 10, T = 24, B = 34;
   const vals = s.values.filter(v => v !== null);
   const lim = s.fail || s.warn || 0;
@@ -456,7 +456,7 @@ function scatter(a) {
   return svg;
 }
 
-// On a phone one chart at a time (issue 23): the picker chooses which link error is shown.
+// On a phone one chart at a time: the picker chooses which link error is shown.
 function pickControls(box, names) {
   const pick = box.querySelector(".trend-pick");
   const keep = pick.value;
@@ -470,7 +470,7 @@ function pickControls(box, names) {
   show();
 }
 
-// Start asks first (issue 23): every item of the pre-flight list ticked, then the run starts.
+// Start asks first: every item of the pre-flight list ticked, then the run starts.
 function preflight(name, go) {
   const dlg = document.getElementById("preflight");
   dlg.querySelector(".pf-machine").textContent = name;
@@ -490,7 +490,7 @@ function preflight(name, go) {
   dlg.showModal();
 }
 
-// Who is signed in (issue 23): the header names the person and role; the compensation
+// Who is signed in: the header names the person and role; the compensation
 // buttons say when the role may not use them (the daemon refuses anyway).
 window.rumbaMe = null;
 window.rumbaMeReady = fetch("/api/me", {credentials: "same-origin"}).then(r => r.json()).then(me => {

@@ -1,4 +1,4 @@
-"""Who acts on the HMI (issue 23): the name a confirmation is journaled under, and the audit
+"""Who acts on the HMI: the name a confirmation is journaled under, and the audit
 trail of what people ask for (``daemon.store.actions``) — refusals for a role too low included."""
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ from daemon.store.journal import Store
 
 def who(request: web.Request) -> str:
     """Who confirms, as the access layer knows the client (never a name the client sends):
-    the person's account name when signed in with a password (issue 23),
+    the person's account name when signed in with a password,
     ``hmi:<session id prefix>@<address>`` for a page signed in with the token,
     ``hmi:token@<address>`` for a script with the bearer token."""
     ident = request.get(IDENTITY_KEY)

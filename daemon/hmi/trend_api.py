@@ -1,7 +1,7 @@
 """``GET /api/machines/{machine}/trend?limit=N``: a machine's trend as JSON for the operator
 page's chart (``daemon.reports.trend.trend_series``: per link its unit, values and limits), its
 temperature channels, and with ``&against=CHANNEL&link=EX0C`` a link error against that
-recorded temperature, one point per run with r and the slope ± u (issue 22 item 4)."""
+recorded temperature, one point per run with r and the slope ± u."""
 
 from __future__ import annotations
 

@@ -34,7 +34,7 @@ class LimitFile(StrictModel):
     fail: float | None = Field(None, gt=0)
     drift_warn: float | None = Field(None, gt=0)
     drift_fail: float | None = Field(None, gt=0)
-    # where these numbers come from (issue 23), e.g. "ISO 10791-6 K2 acceptance 25 µm" or
+    # where these numbers come from, e.g. "ISO 10791-6 K2 acceptance 25 µm" or
     # "1/3 of the 0.10 mm position tolerance": printed beside the limit, never interpreted
     source: str | None = Field(None, min_length=3, max_length=300)
 
@@ -67,7 +67,7 @@ class TemperatureLimitFile(StrictModel):
 
 
 class TolerancesFile(StrictModel):
-    # what the limits are derived from (issue 23): the machine's accuracy class or acceptance
+    # what the limits are derived from: the machine's accuracy class or acceptance
     # protocol (ISO 230-1 / ISO 10791-6 tests) and the parts' tolerances; README "Choosing
     # limits"
     basis: str | None = Field(None, min_length=3, max_length=1000)
@@ -80,8 +80,8 @@ class TolerancesFile(StrictModel):
     sphere_form_um: float | None = Field(None, gt=0)
     coverage_k: float = Field(2.0, ge=0, le=5)
     run_drift_um: float | None = Field(None, gt=0)
-    thermal_drift_um: float | None = Field(None, gt=0)  # fitted TCP drift over a run (issue 22)
-    temperatures: dict[str, TemperatureLimitFile] = {}  # per channel name (issue 22 item 3)
+    thermal_drift_um: float | None = Field(None, gt=0)  # fitted TCP drift over a run
+    temperatures: dict[str, TemperatureLimitFile] = {}  # per channel name
 
     def to_tolerances(self) -> Tolerances:
         conv = (lambda x: x.to_limit() if x is not None else None)  # noqa: E731
@@ -170,7 +170,7 @@ class MachineSetup:
     reprobe_max: int = 2  # re-probe rounds of faulty ball visits (daemon/run/reprobe.py)
     operator: str | None = None  # for the report's audit fields
     artefact_file: Any = None  # contracts.setup_files.ArtefactFile (its calibration record)
-    temperatures: tuple[TemperatureChannel, ...] = ()  # channels read during a run (issue 22)
+    temperatures: tuple[TemperatureChannel, ...] = ()  # channels read during a run
 
 
 

@@ -35,6 +35,6 @@ class Tolerances:
     temperatures: dict[str, tuple[float | None, float | None, float | None]] = field(
         default_factory=dict)
     # what the limits are derived from (tolerances.basis) and each limit's stated source by
-    # its key (``links.EX0C``, ``volumetric_max_um`` …): issue 23, README "Choosing limits"
+    # its key (``links.EX0C``, ``volumetric_max_um`` …), the manual's "Set the limits"
     basis: str = ""
     sources: dict[str, str] = field(default_factory=dict)

@@ -65,7 +65,7 @@ def health_payload(analysis: Analysis) -> dict[str, Any]:
             "sphere_form_rms_max_um": max(form) if form else None,
             "stability_max_shift_um": analysis.stability.max_shift_um
             if analysis.stability else None,
-            # issue 23: the figures as the report shows them (rounded, name, unit, definition);
+            # the figures as the report shows them (rounded, name, unit, definition);
             # volumetric_max_um above stays as it was for existing subscribers
             "figures": figures_json(run_figures(analysis))}
 
@@ -160,7 +160,7 @@ class MachinePublisher:
             # elsewhere and would tell the network how the shop PC is laid out
             "report": PurePath(v["report"]).name if v.get("report") else None,
             "run_state": "DONE" if st["state"] == "IDLE" else st["state"],
-            # issue 23: "writing" at the run's end, then "written" (report set) or "failed"
+            # "writing" at the run's end, then "written" (report set) or "failed"
             "report_state": v.get("report_state") if ok else None,
             "elapsed_s": st["elapsed_s"]}, retain=True)
         return bool(ok)

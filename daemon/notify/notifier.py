@@ -159,7 +159,7 @@ class RunWatcher:
         self._waiting: dict[str, Any] | None = None  # a verdict whose report is being written
 
     def on_status(self, st: dict[str, Any]) -> None:
-        # issue 23: the report is written after the run's end; the notification waits for it
+        # the report is written after the run's end; the notification waits for it
         # (its path), and is sent without it when a new run starts first
         w = self._waiting
         if w is not None and (st["run_id"] != w["run_id"] or (st["verdict"] or {}).get(

@@ -1,4 +1,4 @@
-"""The daemon's OPC UA server (issue 25, off unless ``opcua_server`` is configured): per machine
+"""The daemon's OPC UA server (off unless ``opcua_server`` is configured): per machine
 under Machinery's ``Machines`` folder, its OPC 40001-1 identification, MachineryItemState, the
 check's live state, and an OPC 40001-101 ``ResultManagement`` serving the journal's runs.
 
@@ -347,7 +347,7 @@ class ResultServer:
         elif m.busy_run is not None:  # a run ended: its result is in the journal now
             if ((st.get("verdict") or {}).get("report_state") == "writing"
                     and st["run_id"] == m.busy_run):
-                return  # issue 23: "result ready" once its PDF is there (or failed)
+                return  # "result ready" once its PDF is there (or failed)
             run_id, m.busy_run = m.busy_run, None
             await self._last_result(m, ready=run_id)
 

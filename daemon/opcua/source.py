@@ -1,5 +1,5 @@
 """Where the OPC UA results server reads runs: a daemon's own SQLite journal, or the PostgreSQL
-fleet store every daemon of a shop drains to (issue 25 item 4: one endpoint for the shop).
+fleet store every daemon of a shop drains to (one endpoint for the shop).
 
 Both answer the same six questions, asynchronously (the fleet store is psycopg's async
 connection; the journal's SQLite calls are quick and stay on the event loop as everywhere

@@ -1,4 +1,4 @@
-"""SPC export (issue 25): a machine's runs as a Q-DAS ASCII transfer file (AQDEF, ``.dfq``).
+"""SPC export: a machine's runs as a Q-DAS ASCII transfer file (AQDEF, ``.dfq``).
 
 One part per machine (K1001 = machine name), one characteristic per identified ISO 230-1 link
 error plus the volumetric indicators, one value record per completed run. Written in the K-field
@@ -68,7 +68,7 @@ def characteristics(runs: Sequence[TrendPoint], tol: Tolerances) -> list[Charact
                                       else tol.default_translation_um)
         kind = "orientation" if u == "urad" else "position"
         out.append(Characteristic(name, f"{name}: ISO 230-1 location error ({kind})", u, lim))
-    # issue 23: the report's own names of these figures (daemon/analysis/figures.py)
+    # the report's own names of these figures (daemon/analysis/figures.py)
     out.append(Characteristic(VOLUMETRIC[0], figures.LABELS[figures.VOLUMETRIC], "um",
                               tol.volumetric_max_um))
     out.append(Characteristic(VOLUMETRIC[1], figures.LABELS[figures.AFTER_LINKS], "um", None))

@@ -26,7 +26,7 @@ class Audit:
     artefact_calibrated_on: str | None = None  # ISO date
     artefact_laboratory: str | None = None
     temperature_c: float | None = None  # no sensor is read yet: always None today
-    # issue 23 item 4: what QA asks besides
+    # what QA asks besides
     probe: str | None = None  # machine YAML ``probe`` + the plan's stylus diameter
     balls: str | None = None  # the artefact's ball diameters
     baseline: str | None = None  # the drift baseline (``store.baselines``), None: none set
@@ -120,7 +120,7 @@ def audit_rows(run: RunRow, audit: Audit, analysis: Analysis) -> list[tuple[str,
     elif not analysis.scale_um_per_m:
         cal += " (the method needs none: the artefact is estimated with the machine)"
     temp = (f"{audit.temperature_c:.1f} °C" if audit.temperature_c is not None
-            else temperatures.audit_text(analysis)  # issue 22: the run's channels
+            else temperatures.audit_text(analysis)  # the run's channels
             or f"{NOT_RECORDED} (no temperature sensor connected)")
     # a live run is reported before it ends: its span so far is the probing and the analysis
     span = (run.ended_at or time.time()) - run.started_at

@@ -70,7 +70,7 @@ def verification_of(store: Store, run: RunRow, analysis: Analysis,
         return None
     if last.verify_run_id is None:
         cj.update(store, last.id, verify_run_id=run.id)
-        # issue 23: the verification run is proposed as the drift baseline; a person confirms
+        # the verification run is proposed as the drift baseline; a person confirms
         if not objections(store, run.machine, run.id):  # never a FAILed one
             baselines.propose(store, run.machine, run.id,
                               f"verification run of compensation #{last.id} (run "

@@ -2,7 +2,7 @@
 
 # Issue 22 follow-up: the analysis JSON's estimation.index_scatter (identify.index_scatter) in
 # one text per axis, shown by the HTML report, its PDF and JSON, the HMI's verdict card and
-# its run API, so that one run tells one story (issue 23's pattern: defined once, here).
+# its run API, so that one run tells one story (defined once, here).
 
 from __future__ import annotations
 

@@ -125,17 +125,17 @@ def _page1(fig: Figure, run: RunRow, analysis: Analysis, doc: dict[str, Any],
            + (f"; drift reference run {analysis.reference_run}" if analysis.reference_run
               else ""), color="#444444")
     th = analysis.thermal
-    if th is not None:  # issue 22: the TCP drift fitted with the links, or why it was not
+    if th is not None:  # the TCP drift fitted with the links, or why it was not
         p.wrapped(("Thermal drift over the run (" + (th.shape or "") + (
             f", τ {th.tau_min:.0f} min" if th.tau_min is not None else "") + "): " + ", ".join(
             f"{a} {d.value:+.2f} ± {d.std:.2f} µm" for a, d in sorted(th.over_run_um.items())
             if d.value is not None and d.std is not None)
             + "; link errors estimated with it") if th.status == "selected" else th.message,
             width=125, color="#444444")
-    # issue 22: the rotary axes' indexing repeatability the link u rest on (the report's text)
+    # the rotary axes' indexing repeatability the link u rest on (the report's text)
     for line in index_scatter_lines(analysis):
         p.wrapped(line, width=125, color="#444444")
-    if analysis.temperatures:  # issue 22 item 3: the channels read during the run
+    if analysis.temperatures:  # the channels read during the run
         p.wrapped("Temperatures: " + "; ".join(temperatures.channel_text(n, t) for n, t in
                                                 analysis.temperatures.items()),
                   width=125, color="#444444")
@@ -230,7 +230,7 @@ def write_pdf(path: Path, run: RunRow, analysis: Analysis, doc: dict[str, Any], 
     links_in = (A4_IN[0] - 2 * MARGIN_IN) * _ratio(links) if links else 0.0
     bottom = A4_IN[1] - FOOTER_IN
     # TrueType text (not Type 3): selectable, searchable and crisp in every viewer. One subset
-    # per font (issue 23): matplotlib 3.11's PDF backend sizes its subsets by *ps*.fonttype
+    # per font: matplotlib 3.11's PDF backend sizes its subsets by *ps*.fonttype
     # (Type 3: 256 codes), so "—", "•", "→" opened a second copy of each font; at 42 the whole
     # BMP fits one subset. Ligatures ("fi") are always put in a second subset: _save drops them.
     with matplotlib.rc_context(ONE_SUBSET), PdfPages(path, metadata=meta) as pdf:

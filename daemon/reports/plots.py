@@ -236,7 +236,7 @@ def _fixed_margins(fig: Canvas, grid: tuple[int, int], top_in: float, bottom_in:
 def _fixed_grid(fig: Canvas, nrows: int) -> dict[str, float]:
     """The trend's panel grid in fixed margins (inches → figure fractions), its layout engine
     switched off: constrained layout over ~20 panels costs as much as drawing them twice over
-    (issue 23: the report in ≤ 2 s). Room for the title on top, a two-line panel title per
+    (the report in ≤ 2 s). Room for the title on top, a two-line panel title per
     row, the date ticks and the legend at the bottom."""
     w_in, h_in = (fig.get_size_inches() if isinstance(fig, Figure)
                   else fig.figure.get_size_inches())

@@ -215,8 +215,8 @@ def _render(run: RunRow, analysis: Analysis, judgement: Judgement | None,
     plots = render_plots(analysis, {(c[0], c[1]): c[4:7] for c in centre_rows}, trend, tol)
     health = analysis.health
     status = verdict["status"] if verdict else None
-    figures = run_figures(analysis)  # one definition of each quantity (issue 23)
-    index_scatter = index_scatter_doc(analysis)  # issue 22: the one text of every screen
+    figures = run_figures(analysis)  # one definition of each quantity
+    index_scatter = index_scatter_doc(analysis)  # the one text of every screen
     doc = {
         "run": {k: getattr(run, k) for k in ("id", "machine", "trigger", "state", "reason",
                                                "plan", "artefact", "dialect", "touch_total",

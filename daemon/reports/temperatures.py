@@ -1,4 +1,4 @@
-"""The run's temperature channels as the report prints them (issue 22 item 3): the audit row, the
+"""The run's temperature channels as the report prints them: the audit row, the
 PDF line and the HTML table's rows, from the analysis JSON's ``temperatures`` summary."""
 
 from __future__ import annotations

@@ -46,7 +46,7 @@ class RunCapture(RunEnding):
                      "; ".join(rp.faults))
             self.total += rp.prepared.job.touch_count
             self.store.set_state(run_id, str(self.state), touch_total=self.total)
-            # its temperatures are the round's, at the plan poses it probes again (issue 22)
+            # its temperatures are the round's, at the plan poses it probes again
             self.temps.begin_reprobe(run_id, rnd, tuple(p for _, p in rp.slots),
                                      self.clock.t_s())
             hits = hits + await self._capture(rp.prepared, rp.remap)

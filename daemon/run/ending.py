@@ -1,6 +1,6 @@
 """How a run ends short of its verdict, and the verdict's way to the CNC: the controller stopped
 through the link's ``abort()``, the end state journaled with its phase and cause, ERROR written
-back — each step bounded, in a task a second cancellation cannot cut short (issue 20)."""
+back — each step bounded, in a task a second cancellation cannot cut short."""
 
 from __future__ import annotations
 
@@ -22,7 +22,7 @@ class RunEnding(RunStatus):
     """The session's stopping and write-back steps (``daemon.run.session.Session`` is one)."""
 
     link: CncLink
-    temps: TemperatureRecorder  # the run's temperature channels (issue 22)
+    temps: TemperatureRecorder  # the run's temperature channels
     _abort_reason: str | None
     _controller_dirty: bool
 

@@ -1,4 +1,4 @@
-"""The machine lock of a run (issue 20): a run holds its machine from PREPARE to its end, so a
+"""The machine lock of a run: a run holds its machine from PREPARE to its end, so a
 compensation (CLI in another process, HMI, unattended) cannot write the controller's kinematics
 under it, and a run cannot start while a compensation is being written."""
 

@@ -34,7 +34,7 @@ class State(StrEnum):
 READY_STATES = (State.IDLE, State.ABORTED, State.INTERRUPTED, State.FAILED)
 """States in which a new run may start (the last outcome stays visible until then).
 
-How a run that did not reach its verdict ended (issue 20), each with its phase and cause:
+How a run that did not reach its verdict ended, each with its phase and cause:
 ABORTED, a person (HMI, CAN panel, a signal to ``rumba verify``) or the controller (a RESET the
 link reports) stopped it; INTERRUPTED, rumba lost the run: the link dropped, the controller fell
 silent (plain DNC cannot tell a RESET from a cut cable), the daemon stopped or crashed; FAILED,
@@ -45,14 +45,14 @@ STOPPED_STATES = (State.ABORTED, State.INTERRUPTED, State.FAILED)
 """The end states without a verdict of the machine (ERROR is written back to the CNC)."""
 
 END_READS = "after the last touch, while reading the end-of-run temperatures"
-"""Where a run is that stops while it waits for its last temperature reads (issue 22): the
+"""Where a run is that stops while it waits for its last temperature reads: the
 program has ended, the state is still CAPTURE (no state of its own for the few seconds the
 reads are bounded by), and "during CAPTURE" would tell the operator a touch was cut. The stop's
 reason names this instead (``RunStatus.during``): composed once, the one text the HMI's status,
 its run record and the journal show."""
 
 START_READS = "before the program started, while reading the start-of-run temperatures"
-"""Where a run is that stops while it waits for its first temperature reads (issue 22): the
+"""Where a run is that stops while it waits for its first temperature reads: the
 state is already STREAM (the program checked), yet none was loaded or sent, and "during STREAM"
 would tell the operator the program was cut. Like ``END_READS``: the stop's reason, the HMI
 status's ``step`` and its machine card show this one text."""
@@ -98,7 +98,7 @@ class RunStatus:
         self.first_hit_at: float | None = None
         self.estimated_s: float | None = None
         self.verdict: dict[str, Any] | None = None
-        # what the probe is on now (issue 23): {"pose", "ball", "touch"} of the touch the
+        # what the probe is on now: {"pose", "ball", "touch"} of the touch the
         # controller is at — the next one in the program's table once a hit has arrived
         self.probing: dict[str, Any] | None = None
         self._queues: set[asyncio.Queue] = set()

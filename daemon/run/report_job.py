@@ -1,4 +1,4 @@
-"""A run's report written off the run's critical path (issue 23 item 4), in a worker thread."""
+"""A run's report written off the run's critical path, in a worker thread."""
 
 # The verdict is journaled, judged, written back to the CNC and the run's end (DONE) published
 # before anything is rendered: the machine goes back to production ~2 s earlier (plots and PDF

@@ -2,7 +2,7 @@
 
 IDLE → PREPARE → STREAM → CAPTURE → IDENTIFY → JUDGE → WRITE-BACK → IDLE, or ABORTED /
 INTERRUPTED / FAILED with the phase and the cause (their meaning: run/phases.py READY_STATES);
-the report is written after the run's end, in a worker (run/report_job.py, issue 23).
+the report is written after the run's end, in a worker (run/report_job.py).
 The capture (run/capture.py) and the stopping and write-back steps (run/ending.py) are the
 session's own, in modules of their own. Each step is handed the previous step's result and the
 journal records it (raw hits before anything else looks at them); a probe that does not
@@ -197,10 +197,10 @@ class Session(RunCapture):
             if self._controller_dirty:  # the last stop could not reach the controller
                 await self._clear_leftover()
             reference = self.store.last_good(self.setup.name, before=run_id)  # targets
-            drift_ref = self._drift_reference(run_id)  # issue 23: a person's baseline
+            drift_ref = self._drift_reference(run_id)  # a person's baseline
             prepared = await self._prepare_program(run_id, reference)
             self.step = START_READS  # a stop here cuts no program: none was loaded yet
-            await self.temps.start(run_id, self.clock.t_s())  # issue 22; before the program: 0
+            await self.temps.start(run_id, self.clock.t_s())  # before the program: 0
             self.step = None  # STREAM proper: the program is loaded and sent next
             hits = await self._capture(prepared)
             hits = await self._reprobe(run_id, hits, reference)
@@ -216,7 +216,7 @@ class Session(RunCapture):
                                            judgement.reasons), strict=True)
             self._raise_if_stopped()
             self.store.mark_written_back(run_id)
-            # issue 23: the report is rendered after the run's end is published, in a worker
+            # the report is rendered after the run's end is published, in a worker
             self._report_task = report_job.start(self, run_id, analysis, judgement)
             self._enter(State.IDLE, "")
         except asyncio.CancelledError:
@@ -308,12 +308,12 @@ class Session(RunCapture):
         self.store.save_judgement(run_id, j)
         self.verdict = {"status": j.status, "summary": j.summary, "reasons": list(j.reasons),
                         "at": time.time(),  # when judged: the HMI shows its date and age
-                        # issue 23: the figures with their definitions, the drift baseline
+                        # the figures with their definitions, the drift baseline
                         "figures": figures_json(run_figures(analysis.data)),
                         "baseline": self.baseline.as_dict() if self.baseline else None,
-                        # issue 22: each temperature channel's start → end (the HMI card)
+                        # each temperature channel's start → end (the HMI card)
                         "temperatures": temperature_lines(analysis.data),
-                        # issue 22: the rotary axes' indexing repeatability behind the link u
+                        # the rotary axes' indexing repeatability behind the link u
                         "index_scatter": index_scatter_lines(analysis.data)}
         return j
 

@@ -1,4 +1,4 @@
-"""A run's temperature channels (issue 22 item 3): read at the start, at every pose and at the
+"""A run's temperature channels: read at the start, at every pose and at the
 end, each reading journaled on arrival; a channel that cannot be read is journaled with the
 reason and logged as a warning, never stops the run nor holds it up."""
 

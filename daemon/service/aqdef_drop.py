@@ -1,4 +1,4 @@
-"""The AQDEF file drop (issue 25, ``aqdef_dir`` in daemon.yaml, off when absent): after every
+"""The AQDEF file drop (``aqdef_dir`` in daemon.yaml, off when absent): after every
 run of a machine that reached a verdict, ``<aqdef_dir>/<machine>_<run id>.dfq`` with that run's
 value records, for an SPC system watching the folder (qs-STAT's upload, Solara …). Written
 atomically, so a watcher never reads half a file; a failed write is logged, never the run's."""

@@ -80,7 +80,7 @@ class Service:
         self._tasks: list[asyncio.Task] = []
         self.panel: Any = None
         self.fleet: FleetLink | None = None
-        self.opcua: Any = None  # daemon.opcua.server.ResultServer (issue 25)
+        self.opcua: Any = None  # daemon.opcua.server.ResultServer
         self.opcua_url: str | None = None
         self.aqdef: dict[str, Any] = {}  # machine -> daemon.service.aqdef_drop.AqdefDrop
 
@@ -107,7 +107,7 @@ class Service:
                                        f"{str(e) or type(e).__name__}") from None
                 if any(self.store.run(r).machine == name for r in self.interrupted):
                     await self._stop_leftover(name, link)
-                # runs are identified against the model the controller holds (issue 13)
+                # runs are identified against the model the controller holds
                 kw = {"analyse": journal_analyse(cfg.store_path), "after_run": after_run,
                       **self.session_kw}
                 self.sessions[name] = Session(setup, link, self.store, cfg.reports_dir, **kw)

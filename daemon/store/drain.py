@@ -212,7 +212,7 @@ class Drainer:
             seqs = [s for s in json.loads(kinds["hits"]) if s is not None]
             b.hits = db.execute(f"SELECT {', '.join(HIT_COLS)} FROM hits WHERE run_id=? AND"
                                 " seq BETWEEN ? AND ?", (run_id, min(seqs), max(seqs))).fetchall()
-        if "temperatures" in kinds:  # issue 22: the raw readings, journaled like hits
+        if "temperatures" in kinds:  # the raw readings, journaled like hits
             seqs = [s for s in json.loads(kinds["temperatures"]) if s is not None]
             b.temperatures = db.execute(
                 f"SELECT {', '.join(pg_temperatures.TEMP_COLS)} FROM temperatures WHERE"
@@ -238,7 +238,7 @@ class Drainer:
         if "report_jobs" in kinds:  # the report's own end (migration 10), apart from the run
             b.report_job = db.execute("SELECT state, reason, started_at, ended_at FROM"
                                       " report_jobs WHERE run_id=?", (run_id,)).fetchone()
-        if "baselines" in kinds:  # issue 23: who proposed / confirmed this run as a baseline
+        if "baselines" in kinds:  # who proposed / confirmed this run as a baseline
             b.baselines = db.execute("SELECT machine, run_id, state, by_person, at, note FROM"
                                      " baselines WHERE run_id=? ORDER BY id",
                                      (run_id,)).fetchall()

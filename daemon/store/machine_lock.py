@@ -1,5 +1,5 @@
 """One machine, one writer: the lock a verification run, a compensation confirm or rollback
-(CLI, HMI, unattended) takes on a machine, across threads and processes (issue 20).
+(CLI, HMI, unattended) takes on a machine, across threads and processes.
 
 An ``flock`` on a file beside the journal, one per machine (``.<journal>.machine-<name>.lock``).
 ``flock`` belongs to the open file, not to the process: two acquisitions in one daemon (a run

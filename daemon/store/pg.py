@@ -144,8 +144,8 @@ class PgStore:
                     await cur.executemany(
                         f"INSERT INTO centres ({', '.join(CENTRE_COLS)}) VALUES "
                         f"({', '.join(['%s'] * len(CENTRE_COLS))})", b.centres)
-            await pg_temperatures.insert(cur, b.temperatures)  # issue 22: raw readings
-            # issue 23: baseline decisions; the fleet store numbers them itself (several
+            await pg_temperatures.insert(cur, b.temperatures)  # raw readings
+            # baseline decisions; the fleet store numbers them itself (several
             # daemons' local ids would collide), a row already copied is not copied again
             if b.baselines:
                 await cur.executemany(
@@ -225,13 +225,13 @@ class PgStore:
     async def runs(self, machine: str, limit: int) -> list[dict[str, Any]]:
         """A machine's last ``limit`` runs, newest first, with whether a report exists, the
         temperature channels' summary of its analysis and its index scatter with the warnings
-        (issue 22; None without an analysis)."""
+        (None without an analysis)."""
         rows = await self._all(
             "SELECT r.id, r.trigger, r.state, r.verdict, r.summary, r.started_at, r.ended_at,"
             " EXISTS (SELECT 1 FROM reports p WHERE p.run_id = r.id),"
             # the analysis' temperatures, index scatter and warnings: read below
             " (SELECT e.analysis FROM estimates e WHERE e.run_id = r.id),"
-            # issue 23: the drift checks name the baseline run; the reason a report failure
+            # the drift checks name the baseline run; the reason a report failure
             " (SELECT v.checks FROM verdicts v WHERE v.run_id = r.id),"
             " (SELECT v.reasons FROM verdicts v WHERE v.run_id = r.id), r.reason,"
             # the report job (migration 10): being written, or why it was not

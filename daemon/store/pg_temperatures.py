@@ -1,4 +1,4 @@
-"""The fleet store's temperature readings (issue 22): each run's raw readings copied with its
+"""The fleet store's temperature readings: each run's raw readings copied with its
 rows (journal order, idempotent), and per run one channel's readings beside the run's links —
 what the fleet page's link-against-temperature view fits (daemon/analysis/temperature_trend.py).
 """

@@ -1,6 +1,6 @@
 """A run's report job in the journal (migration 10): writing → written | failed, with its reason.
 
-The report is rendered after the run's end (daemon/run/report_job.py, issue 23): the run's row
+The report is rendered after the run's end (daemon/run/report_job.py): the run's row
 says how the run ended, this one how its report did — a report that could not be written no
 longer rewrites the run's reason. Every surface that links to a report (HMI, fleet page, OPC UA
 results, notifications, ``rumba verify``) reads it here, or the fleet store's copy.

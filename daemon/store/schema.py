@@ -65,7 +65,7 @@ MIGRATIONS: list[list[str]] = [
             verify_run_id TEXT)""",
         "CREATE INDEX compensations_machine ON compensations(machine, id)",
     ],
-    [  # 5: a compensation is one decision (issue 20): the journal itself refuses a second
+    [  # 5: a compensation is one decision: the journal itself refuses a second
         # applied row of a run (and one still being written, 'applying'), and numbers each
         # decision to write a run's values (1, then 2 after a rollback and an explicit --again)
         # so two concurrent writers of the same decision cannot both commit
@@ -77,14 +77,14 @@ MIGRATIONS: list[list[str]] = [
     ],
     [  # 6: the run's compensation view (daemon/compensation/identified.py): its estimate,
         # every parameter with the whole covariance, and the plan of controller changes, as
-        # JSON, computed once when the run ends (issue 20: the view never identifies on the
+        # JSON, computed once when the run ends (the view never identifies on the
         # event loop); model_key says which controller model, artefact, held-out poses,
         # controller values and coverage factor they were computed for
         """CREATE TABLE link_estimates (
             run_id TEXT PRIMARY KEY REFERENCES runs(id), model_key TEXT NOT NULL,
             estimate TEXT NOT NULL, plan TEXT NOT NULL, created_at REAL NOT NULL)""",
     ],
-    [  # 7: people, not a shared token (issue 23 item 5): the person who started a run (an
+    [  # 7: people, not a shared token: the person who started a run (an
         # HMI account; '' for the controller, the CAN panel or a script) and every start,
         # abort, compensation confirm and rollback a person asked for on the HMI, with the
         # person's name and role (daemon/store/actions.py)
@@ -96,7 +96,7 @@ MIGRATIONS: list[list[str]] = [
             detail TEXT NOT NULL DEFAULT '')""",
         "CREATE INDEX hmi_actions_machine ON hmi_actions(machine, id)",
     ],
-    [  # 8: temperature channels (issue 22 item 3): every reading of a run (start, each pose,
+    [  # 8: temperature channels: every reading of a run (start, each pose,
         # end) committed on arrival like a hit; value_c NULL with the error when unreadable
         """CREATE TABLE temperatures (
             run_id TEXT NOT NULL REFERENCES runs(id), seq INTEGER NOT NULL,
@@ -104,7 +104,7 @@ MIGRATIONS: list[list[str]] = [
             value_c REAL, error TEXT NOT NULL DEFAULT '', received_at REAL NOT NULL,
             PRIMARY KEY (run_id, seq))""",
     ],
-    [  # 9: each machine's drift baseline (issue 23 item 2, daemon/store/baselines.py): a run
+    [  # 9: each machine's drift baseline (daemon/store/baselines.py): a run
         # a person confirmed (or the daemon proposed after a compensation), who and when
         """CREATE TABLE baselines (
             id INTEGER PRIMARY KEY AUTOINCREMENT, machine TEXT NOT NULL,
@@ -131,7 +131,7 @@ MIGRATIONS: list[list[str]] = [
             WHERE state = 'DONE' AND reason LIKE '%report not written%'
             AND id NOT IN (SELECT run_id FROM reports)""",
     ],
-    [  # 11: the program a temperature reading came from (issue 22): 0 the plan's, k the k-th
+    [  # 11: the program a temperature reading came from: 0 the plan's, k the k-th
         # re-probe round's, which prints its own start, pose and end lines over DNC; readings
         # journaled before are the plan's (a re-probe's were not told apart)
         "ALTER TABLE temperatures ADD COLUMN reprobe_round INTEGER NOT NULL DEFAULT 0",
@@ -166,13 +166,13 @@ CAPTURE_TRIGGERS: list[str] = [
       for t, k in (("runs", "id"), ("centres", "run_id"), ("estimates", "run_id"),
                    ("link_estimates", "run_id"), ("verdicts", "run_id"),
                    ("reports", "run_id"), ("machines", "name"),
-                   ("baselines", "run_id"),  # issue 23: a person's baseline decisions
+                   ("baselines", "run_id"),  # a person's baseline decisions
                    ("report_jobs", "run_id"))
       for op in ("INSERT", "UPDATE")),
     """CREATE TEMP TRIGGER IF NOT EXISTS outbox_hits_insert AFTER INSERT ON main.hits
        BEGIN INSERT INTO outbox(kind, key, hit_seq) VALUES ('hits', NEW.run_id, NEW.seq);
        SELECT rumba_outbox_wake(); END""",
-    # issue 22: temperature readings, journaled on arrival like hits and copied like them
+    # temperature readings, journaled on arrival like hits and copied like them
     """CREATE TEMP TRIGGER IF NOT EXISTS outbox_temperatures_insert AFTER INSERT ON
        main.temperatures BEGIN INSERT INTO outbox(kind, key, hit_seq)
        VALUES ('temperatures', NEW.run_id, NEW.seq); SELECT rumba_outbox_wake(); END""",

@@ -1,4 +1,4 @@
-"""The journal's temperature readings (issue 22 item 3): each committed on arrival in its own
+"""The journal's temperature readings: each committed on arrival in its own
 transaction, as a hit is (``Store.journal_hit``), so a ``kill -9`` loses none already read."""
 
 from __future__ import annotations

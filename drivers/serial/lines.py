@@ -73,7 +73,7 @@ class _DncProtocol(asyncio.Protocol):
         self._overlong = False  # discarding the rest of an over-long line up to its newline
         self.overlong_lines = 0
         self.transport: asyncio.BaseTransport | None = None
-        self.temperatures: list[str] = []  # RTEMP lines of the running program (issue 22)
+        self.temperatures: list[str] = []  # RTEMP lines of the running program
 
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
         self.transport = transport
@@ -166,7 +166,7 @@ class _DncProtocol(asyncio.Protocol):
 
 
 class PrintedTemperatures:
-    """The DNC link's temperatures (issue 22): the ``RTEMP`` lines its program printed."""
+    """The DNC link's temperatures: the ``RTEMP`` lines its program printed."""
 
     _proto: _DncProtocol | None
 

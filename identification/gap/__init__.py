@@ -1,4 +1,4 @@
-"""Sim-to-real gap diagnosis (issue 6, METHOD.md §6): locate, attribute, quantify — honestly."""
+"""Sim-to-real gap diagnosis (METHOD.md §6): locate, attribute, quantify — honestly."""
 
 from identification.gap.data import TouchData
 from identification.gap.diagnose import Options, diagnose

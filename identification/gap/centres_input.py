@@ -11,7 +11,7 @@ pattern of a touch probe (pre-travel) is a constant shift the probe setup absorb
 as it should be on centres an instrument already reduced. The probed sphere's distortion by the
 axis map is zero (no touches: ``radius_mm`` 0).
 
-Noise floor (issue 12): from the stated uncertainties (the file's ``u_um`` or
+Noise floor: from the stated uncertainties (the file's ``u_um`` or
 ``repeatability_um``, ``--repeatability-um``), else from repeats (``data.repeat_scatter_um``),
 else no diagnosis: a floor is never invented. The same rule holds for touches whose form
 residual is (numerically) zero — a simulation without noise: the floor comes from a stated

@@ -1,4 +1,4 @@
-"""What chip a run could not have seen (issue 21, item 4): the outlier test's sensitivity by touch.
+"""What chip a run could not have seen: the outlier test's sensitivity by touch.
 
 A chip of δ on an equator touch moves the fitted radius by δ/4 and the form residual by δ/2
 (``identification.outliers``): the sphere stage names it at D = √((δ/4s_r)² + (δ/2s_f)²) ≥

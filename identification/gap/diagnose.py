@@ -78,7 +78,7 @@ class Options:
     gravity_dir: Sequence[float] | None = None  # machine file ``gravity``; None: heuristic
     # stated centre repeatability (x, y, z µm): the floor where touches are exact (or absent)
     repeatability_um: Sequence[float] | None = None
-    # Per-visit scatter (issue 21, gap/scatter.py): index errors of the rotary axes and centre
+    # Per-visit scatter (gap/scatter.py): index errors of the rotary axes and centre
     # scatter per ball visit as REML variance components; a stated rotary repeatability
     # (machine file ``rotary_repeatability_urad``, µrad 1σ per axis letter) is used as given.
     visit_scatter: bool = True
@@ -201,7 +201,7 @@ def _analyse(machine: Machine, artefact: Artefact, data: TouchData, groups: Grou
                                         "probing pattern (absorbed by the setup and link "
                                         "errors, or not excited)"})
         cands.append(Candidate(eff, np.einsum("gom,mr->gor", cols, basis), r, basis))
-    cands += warmup_candidates(  # the exponential warm-up, τ profiled (issue 22)
+    cands += warmup_candidates(  # the exponential warm-up, τ profiled
         machine, problem, base,
         lambda e: effect_columns(e, twin, groups, ctx, ball_jac, base_pred_mm), typical_size,
         opt.families, known)

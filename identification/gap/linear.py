@@ -28,7 +28,7 @@ class Problem:
     whiten: np.ndarray  # (G, 4, 4) inverse Cholesky factors of the noise covariance
     fold: np.ndarray  # (G,) CV fold id; -1 = always training (separate hold-out mode)
     _base_u: tuple | None = None  # cached orthonormal basis of the twin's whitened columns
-    # Per-visit whitening (issue 21, ``identification.visit_scatter``): (groups (V, K) with −1
+    # Per-visit whitening (``identification.visit_scatter``): (groups (V, K) with −1
     # pads, inverse Cholesky factors (V, 4K, 4K)); replaces ``whiten`` where set. Folds and
     # training sets are unions of whole visits, so a visit is never split by it.
     visit: tuple[np.ndarray, np.ndarray] | None = None

@@ -45,7 +45,7 @@ def exclude_outliers(machine: Machine, artefact: Artefact, data: TouchData,
                          "radius_scale_um": _r(scr.radius_scale_um),
                          "form_scale_um": _r(scr.form_scale_um),
                          "centre_scale_um": _r(scr.centre_scale_um), "note": scr.note,
-                         # issue 21: the smallest chip this run names, by touch
+                         # the smallest chip this run names, by touch
                          "min_chip_um": min_chip_um(scr.radius_scale_um, scr.form_scale_um,
                                                     scr.centre_scale_um)},
         "outliers": []}

@@ -1,4 +1,4 @@
-"""The scatter-aware floor of the gap diagnosis (issue 21): per-visit index and centre scatter.
+"""The scatter-aware floor of the gap diagnosis: per-visit index and centre scatter.
 
 ``identification.visit_scatter`` estimates the components by REML on the twin's residuals
 (fixed effects: setup, links, the known and the already selected effects); here they become

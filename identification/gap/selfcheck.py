@@ -1,10 +1,10 @@
-"""Self-check of the gap diagnosis on data whose effect was withheld from the twin (issue 6).
+"""Self-check of the gap diagnosis on data whose effect was withheld from the twin.
 
 For every library family (and axis), simulate a run with the effect injected at ``factor`` × the
 noise floor — measured as the RMS, over all observations, of the part of the effect the twin's
 setup and link errors cannot absorb — diagnose it with a held-out split and compare. Variants
 (``VARIANTS``) inject one part of a family alone: the fixed-frame 2nd-harmonic radial error
-motion of a full-turn axis (issue 12: order 1 and 3 in the moving frame, → ``rotary_error_motion``
+motion of a full-turn axis (order 1 and 3 in the moving frame, → ``rotary_error_motion``
 on that axis). Control cases: no effect (→ ``none``), identical pre-travel for every direction
 and ball (→ ``absorbed`` or ``none``: it only changes the fitted radius), an effect outside the
 library — one pose displaced rigidly, as a non-repeatable indexing fault would — (→

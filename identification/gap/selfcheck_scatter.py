@@ -1,4 +1,4 @@
-"""Self-check conditions of issue 21: effects under index scatter, null runs with it, knocked balls.
+"""Self-check with visit errors: effects under index scatter, null runs with it, knocked balls.
 
 A scenario name with ``SUFFIX`` runs its base scenario on a machine whose rotary axes index with
 ``SCATTER_URAD`` (1σ per indexation, every rotary axis); the injected effect is scaled to the

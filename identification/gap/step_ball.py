@@ -1,4 +1,4 @@
-"""A ball that moved during the run (issue 21): knocked or loose in its holder, a step.
+"""A ball that moved during the run: knocked or loose in its holder, a step.
 
 Thesis §3.3: the method needs the artefact stable during a session. A step of ball b between
 visit k and k+1 adds to every later centre of b the ball-setup Jacobian times the step vector

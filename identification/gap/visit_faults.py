@@ -1,4 +1,4 @@
-"""One visit's fault or a pattern across visits (issue 21): settle the outlier test against the
+"""One visit's fault or a pattern across visits: settle the outlier test against the
 diagnosis.
 
 A chip is one ball at one visit; a systematic effect spans visits. The outlier test

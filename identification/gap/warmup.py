@@ -1,4 +1,4 @@
-"""The exponential warm-up as a gap candidate (issue 22): ``thermal_drift`` A·(1 − e^(−t/τ)) per
+"""The exponential warm-up as a gap candidate: ``thermal_drift`` A·(1 − e^(−t/τ)) per
 linear axis with τ profiled within ``TAU_BOUNDS_H``.
 
 The library's ``thermal_drift`` is linear in time; a machine warming up follows a first-order

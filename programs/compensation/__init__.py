@@ -1,4 +1,4 @@
-"""Compensation write-back: the identified correction in each control's own form (issue 13)."""
+"""Compensation write-back: the identified correction in each control's own form."""
 
 from __future__ import annotations
 

@@ -5,7 +5,7 @@ swivel table) gets the opposite change so the chain stays closed, changes on one
 adding up. An orientation is a rotary-axis vector component: the nominal unit vector ``v``
 (``vector`` of the section, reversed for a table axis) tilted by the held link θ becomes
 v + θ·(e_i × v) to first order, so the component the tilt moves is written as ±θ (unit-less,
-9 decimals; the nominal components stay). An inclined axis' tilt (about R0·e_i, issue 24) moves
+9 decimals; the nominal components stay). An inclined axis' tilt (about R0·e_i) moves
 two or three components: each is written as its nominal value plus its change
 (``ControllerParamSpec.vector_values``). Each line carries its old value as a comment.
 The carrier is re-selected (TCARR / CYCLE800) after the program for the values to act.

@@ -122,12 +122,12 @@ class Dialect:
     result_channel = ""  # where the controller writes the result lines
     verdict_variable = ""  # where the verdict program writes the verdict code (1-4)
     two_speed = False  # can render a two-speed touch (``backoff_words``)
-    # A tilted-probe program (issue 24) commands the head pivot through X Y Z: the control's
+    # A tilted-probe program commands the head pivot through X Y Z: the control's
     # tool-centre-point transformation must be off; ``tcpm_off`` is the block that ensures it
     # (a safety precondition, after the modal line), ``tcpm_note`` what the header says.
     tcpm_off = ""
     tcpm_note = ""
-    # Is a multi-axis rapid a straight line on this control (issue 24)? Then the checked
+    # Is a multi-axis rapid a straight line on this control? Then the checked
     # straight transits of a tilted-probe program (``Move.linear_rapid``) run as rapids, after
     # ``linear_rapid_on`` (the block that makes it so, if the control has one); else they stay
     # linear moves at the max feed — a non-linear rapid would leave the checked line.
@@ -272,7 +272,7 @@ class Dialect:
         return out
 
     def temperature_prints(self, program: Program) -> list[dict]:
-        """The macro variables the program prints (issue 22), each checked against the
+        """The macro variables the program prints, each checked against the
         dialect's variable form (contracts.temperatures.MACRO_VARIABLE): nothing else reaches
         the program text."""
         if not program.temperature_vars:

@@ -45,7 +45,7 @@ class Heidenhain(Dialect):
             ctx["cycle"] = 0
             ctx["axis"] = "XYZ"[k] + ("+" if u[k] > 0 else "-")
         else:
-            # a tilted probe (issue 24): cycle 4 MEASURING IN 3-D probes from where the tool is
+            # a tilted probe: cycle 4 MEASURING IN 3-D probes from where the tool is
             # (the start point) along IX IY IZ for ABST and writes X Y Z to Q115-Q117; it leaves
             # the rotary axes alone, which stand at the pose (Q118, Q119 set from it)
             ctx["cycle"] = 4
@@ -69,7 +69,7 @@ class Heidenhain(Dialect):
             fmt_ = ("RUMBA %.0LF %.0LF %.0LF " + b.id
                     + " %.0LF %.0LF %.4LF %.4LF %.4LF %.4LF %.4LF\\n")
             out[f"RUMBA_{b.id}.A"] = f'"{fmt_}", ' + ", ".join(q) + ";\n"
-        if program.temperature_vars:  # issue 22: pose Q1591, channel Q1592, value Q1593
+        if program.temperature_vars:  # pose Q1591, channel Q1592, value Q1593
             self.temperature_prints(program)  # checked before any file is written
             for marker, head, args in (("S", "S", ""), ("P", "P%.0LF", "Q1591, "),
                                        ("E", "E", "")):

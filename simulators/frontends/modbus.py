@@ -213,7 +213,7 @@ class ModbusFrontend:
             ms = min(int(float(getattr(self.ctrl, "machine_time_s", 0.0)) * 1000), 0xFFFFFFFF)
             mt = addr("MACHINE_TIME_MS")
             self.regs[mt:mt + 2] = u32_words(ms)
-            for axis, value in self.ctrl.sensor_temperatures().items():  # issue 22 item 3
+            for axis, value in self.ctrl.sensor_temperatures().items():
                 self.regs[thermal.MODBUS_ADDRESS[axis]] = thermal.counts(value,
                                                                          thermal.MODBUS_SCALE_C)
             for name, attr in HANDSHAKE.items():

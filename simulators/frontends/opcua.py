@@ -143,7 +143,7 @@ class OpcUaFrontend:
                                  ua.QualifiedName("Abort", ns), uamethod(self._abort), [], [])
         self._mirror = {r: 0.0 for r in HANDSHAKE}
         self._sensors = {}
-        for axis in thermal.AXES:  # structure temperatures (issue 22 item 3), read-only
+        for axis in thermal.AXES:  # structure temperatures, read-only
             path = thermal.OPCUA_PATH.format(axis=axis)
             parent = await folder(path.rpartition("/")[0])
             self._sensors[axis] = await parent.add_variable(
@@ -270,7 +270,7 @@ class OpcUaFrontend:
             if t != self._mirror.get("machine_time"):
                 await self._write("machine_time", t)
                 self._mirror["machine_time"] = t
-            for axis, value in self.ctrl.sensor_temperatures().items():  # issue 22 item 3
+            for axis, value in self.ctrl.sensor_temperatures().items():
                 if self._mirror.get(f"temp_{axis}") != value:
                     await self._sensor(axis).write_value(
                         ua.DataValue(ua.Variant(value, ua.VariantType.Double)))

@@ -211,7 +211,7 @@ class SerialFrontend(SerialEndpoints):
         # Only if no XOFF was sent since this XON was decided: bytes held on the line, woken by
         # the room that decided it, can refill the buffer past the high mark first, and an XON
         # sent after that XOFF freed the sender while we counted its bytes as written after
-        # XOFF ("the sender ignored XOFF" under load, issue 20).
+        # XOFF ("the sender ignored XOFF" under load).
         if not self._xoff:
             self._put_flow(XON)
 

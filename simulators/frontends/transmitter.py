@@ -1,4 +1,4 @@
-"""A simulated Modbus temperature transmitter beside the controller (issue 22 item 3), on TCP or
+"""A simulated Modbus temperature transmitter beside the controller, on TCP or
 on an RTU serial line: input registers 0, 1, 2 carry the X, Y, Z structure sensors of the
 controller's thermal state (int16, 0.1 °C per count, as a common RTD transmitter does), read
 live at every request."""

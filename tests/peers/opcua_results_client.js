@@ -1,5 +1,5 @@
 #!/usr/bin/env node
-// Independent OPC UA client (node-opcua) for rumba's results server (issue 25): checks the
+// Independent OPC UA client (node-opcua) for rumba's results server: checks the
 // address space against the official companion nodesets, reads identification and state, calls
 // the OPC 40001-101 methods, waits for a ResultReadyEvent and downloads a report.
 //

@@ -29,7 +29,7 @@ from daemon.cli.choices import DEFAULT_STYLUS_DIAMETER_MM
 from daemon.cli.tables import print_long_table
 from daemon.reports.index_scatter import index_scatter_lines
 
-if TYPE_CHECKING:  # the centres path's modules are imported when it runs (issue 19)
+if TYPE_CHECKING:  # the centres path's modules are imported when it runs
     from daemon.analysis.centres_shape import OneIndexation
 
 
@@ -213,7 +213,7 @@ def render(r: Analysis, console: Console) -> None:
         console.print(
             f"[bold]Stability[/] (poses probed again): largest ball-centre shift "
             f"{st.max_shift_um:.2f} µm{span} (ball {st.worst.ball}, pose {st.worst.pose})")
-    for line in index_scatter_lines(r):  # issue 22: the report's text; warnings just below
+    for line in index_scatter_lines(r):  # the report's text; warnings just below
         if not line.startswith("Warning: "):
             console.print(line, markup=False, highlight=False)
     for w in r.warnings:  # a faulty ball visit (touch_centres.screen_centres) in red

@@ -70,7 +70,7 @@ def render(p: Proposal) -> list[str]:
                      f"{_link(k, plan.links_compensable[k]):>14} "
                      f"{_link(k, plan.links_residual[k]):>14}")
     lines.append(f"  ({p.links_text()})")
-    # issue 23: the figures as the report and the HMI name and define them
+    # the figures as the report and the HMI name and define them
     for f in p.figures():
         lines.append(f"  {f.text()} — {f.definition}")
     if p.program is not None:

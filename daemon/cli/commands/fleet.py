@@ -80,7 +80,7 @@ def _opcua_config(path: Path) -> Any:
 
 
 async def _start_opcua(cfg: Any, dsn: str, poll_s: float) -> tuple[Any, Any]:
-    """The fleet store's machines over OPC UA: one endpoint for the shop (issue 25 item 4)."""
+    """The fleet store's machines over OPC UA: one endpoint for the shop."""
     from contracts.yaml_files import ConfigError
     from daemon.opcua.server import OpcUaServerError, ResultServer
     from daemon.opcua.source import FleetSource

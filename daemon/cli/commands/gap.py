@@ -135,7 +135,7 @@ def _print_report(rep: dict) -> None:
     for o in rep.get("outliers", ()):
         print(f"measurement outlier: {outlier_name(o)}, robust z {o['score']:.0f} ({o['stage']}"
               " stage): left out of the diagnosis")
-    for o in rep.get("explained_visits", ()):  # issue 21: a pattern across visits
+    for o in rep.get("explained_visits", ()):  # a pattern across visits
         print(f"not a chip: {outlier_name(o)} departs as {o['explained_by']} predicts for every "
               "visit: kept in the diagnosis")
     shown, more, below = shown_locations(rep["location"], rep["breakdowns"])
@@ -180,7 +180,7 @@ def _indexations(data: TouchData) -> np.ndarray:
 
 
 def _plan_warnings(machine: Machine, train_bc: np.ndarray, hold_bc: np.ndarray | None) -> None:
-    """Say which rotary positioning harmonics the estimate poses cannot identify (issue 21): a
+    """Say which rotary positioning harmonics the estimate poses cannot identify: a
     candidate fitted there and judged on the hold-out would otherwise just under-perform."""
     first, second = machine.rotary_axes
 

@@ -148,11 +148,11 @@ def _import(cfg: DaemonConfig, store: Store, args: argparse.Namespace) -> int:
 
 def _analyse(setup: MachineSetup, store: Store, hits: list[ProbeHit], run_id: str,
              path: str | Path) -> tuple[RunAnalysis, Judgement]:
-    # judged and recorded like a live run: against the machine's baseline (issue 23)
+    # judged and recorded like a live run: against the machine's baseline
     base = baselines.reference(store, setup.name, before=run_id)
     ref = (base[0].run_id, base[1]) if base else None
     try:
-        # an import of old data never reads a live machine (issue 20): the journal's model,
+        # an import of old data never reads a live machine: the journal's model,
         # not the HAL pins of whatever LinuxCNC happens to run on this PC
         model = controller_model(setup, store, check_hal=False)
         a = analyse(setup, hits, run_id, ref, controller=model)
@@ -184,7 +184,7 @@ def _list(store: Store, machine: str | None, limit: int) -> None:
                   f"{r.hits}/{r.touch_total}", "—" if vmax is None else f"{vmax:.1f}",
                   (r.reason or r.summary) + why)
     console.print(t)
-    # issue 23: the figure's definition beside it, and each machine's drift baseline
+    # the figure's definition beside it, and each machine's drift baseline
     console.print(f"{LABELS[VOLUMETRIC]}: {DEFINITIONS[VOLUMETRIC]}.", soft_wrap=True,
                   markup=False, highlight=False)
     machines = [machine] if machine else sorted({r.machine for r in store.runs(None, 500)})

@@ -46,7 +46,7 @@ class Outcome:
     drift_u: dict[str, float] | None
     chosen: Chosen
     optimiser_s: float
-    drift: tuple[DriftPlan, DriftPlan] | None = None  # reference, optimised (issue 22)
+    drift: tuple[DriftPlan, DriftPlan] | None = None  # reference, optimised
     assumed_index: str = ""  # the indexing repeatability the predictions assume, in words
 
 
@@ -76,7 +76,7 @@ def make_plan(machine_path: Path, artefact_path: Path, target_path: Path, dialec
     check_touch_count(ref, artefact, f"{ref_file}: poses")
     sigma = (tf.repeatability_um[0], tf.repeatability_um[1], tf.repeatability_um[2])
     # the machine file's stated rotary repeatability: the estimator's index components
-    # (issue 22), so the predicted u are its visit sandwich under them
+    #, so the predicted u are its visit sandwich under them
     index = {a: float(v) for a, v in (mf.rotary_repeatability_urad or {}).items()} or None
     d = get_dialect(dialect)
 
@@ -282,7 +282,7 @@ def _print(r: Outcome, dialect: object, sigma: object) -> None:
 
 def _harmonic_warnings(plan: Plan, machine: Machine) -> None:
     """A plan with validate poses: which rotary positioning harmonics its estimate poses cannot
-    identify for `rumba gap --holdout` (issue 21, ``identification.harmonic_support``)."""
+    identify for `rumba gap --holdout` (``identification.harmonic_support``)."""
     val = [p for p in plan.poses if p.role == "validate"]
     if not val:
         return

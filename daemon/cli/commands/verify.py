@@ -53,7 +53,7 @@ async def verify(cfg_path: str, machine: str, *, strict: bool = False, quiet: bo
             await link.connect()
         except (LinkError, OSError) as e:
             raise UserError(f"machine {machine}: controller unreachable: {e}") from None
-        kw = {"analyse": journal_analyse(cfg.store_path), **session_kw}  # issue 13
+        kw = {"analyse": journal_analyse(cfg.store_path), **session_kw}
         session = Session(setup, link, store, cfg.reports_dir, **kw)
         queue = session.subscribe()
         run_id = session.start("cli", started_by=operator)
@@ -137,7 +137,7 @@ def _verdict_exit(run_id: str, st: dict[str, Any], strict: bool, console: Consol
                   f"{v['summary']}")
     for r in v["reasons"]:
         console.print(f"  - {r}")
-    if v.get("report_state") == "failed":  # issue 23: the verdict stands, the report not
+    if v.get("report_state") == "failed":  # the verdict stands, the report not
         console.print(f"[bold magenta]report not written[/]: {v.get('report_error', '')}")
     if v.get("pdf"):
         print(f"for filing (PDF, A4): {v['pdf']}")
@@ -153,7 +153,7 @@ async def verify_via_daemon(cfg_path: str, machine: str, *, strict: bool = False
                             quiet: bool = False, console: Console | None = None,
                             operator: str = "") -> int:
     """Trigger the running daemon through its HMI API (bearer token) and follow its events;
-    ``operator``: the person journaled as starting the run (issue 23).
+    ``operator``: the person journaled as starting the run.
     SIGINT / SIGTERM abort that run on the daemon (HMI abort, same token, naming the signal)
     and return 128 + the signal number once the daemon reports the run ended."""
     import ssl

@@ -30,7 +30,7 @@ async def follow_run(events: aiohttp.ClientResponse, machine: str, run_id: str,
             continue
         bar.update(task, total=st["total"] or None, completed=st["done"], **bar_fields(st))
         if not st["busy"] and not report_writing(st):
-            return st  # issue 23: after the run's end, until its report is written (or not)
+            return st  # after the run's end, until its report is written (or not)
     raise UserError(f"the daemon closed its event stream before run {run_id} ended "
                     "(daemon stopped?); see `rumba history`")
 
@@ -62,7 +62,7 @@ async def abort_on_daemon(http: aiohttp.ClientSession, base: str, machine: str, 
 
 
 def report_writing(st: dict[str, Any]) -> bool:
-    """The run ended with its verdict and its report is still being written (issue 23)."""
+    """The run ended with its verdict and its report is still being written."""
     return st["state"] == "IDLE" and (st.get("verdict") or {}).get("report_state") == "writing"
 
 

@@ -1,4 +1,4 @@
-"""The arguments of every ``rumba`` subcommand, one light module each (no numpy): issue 19."""
+"""The arguments of every ``rumba`` subcommand, one light module each (no numpy)."""
 
 from __future__ import annotations
 

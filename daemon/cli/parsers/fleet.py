@@ -31,7 +31,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--public-origin", action="append", default=[],
                    help="scheme://name[:port] users type, besides the listen address")
     p.add_argument("--opcua", type=Path, metavar="YAML",
-                   help="also serve every machine's results over OPC UA (issue 25): a file "
+                   help="also serve every machine's results over OPC UA: a file "
                         "with the keys of daemon.yaml's opcua_server section")
     p.add_argument("--opcua-poll-s", type=float, default=5.0,
                    help="how often the OPC UA server looks for finished runs (default 5 s)")

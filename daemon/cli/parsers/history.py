@@ -29,7 +29,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="write the machine's completed runs as an AQDEF (Q-DAS .dfq) SPC file")
     g.add_argument("--against-temperature", metavar="CHANNEL",
                    help="a link error (--link) against this temperature channel over the "
-                        "machine's runs: r and slope ± u (issue 22)")
+                        "machine's runs: r and slope ± u")
     p.add_argument("--link", help="--against-temperature: the link error, e.g. EX0C")
     p.add_argument("--plot", metavar="PNG", help="--against-temperature: also a scatter plot")
     p.add_argument("--csv", metavar="OUT", help="output file for --export")
