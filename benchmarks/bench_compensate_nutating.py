@@ -1,4 +1,4 @@
-"""Issue 24 item 4, run by hand: compensation write-back on the nutating table's SINUMERIK type P
+"""Run by hand: compensation write-back on the nutating table's SINUMERIK type P
 carrier (inclined v1), verify → write → verify on the simulator, N seeds.
 
 Per seed the conditions of ``bench_head_families`` (random links ±40 µm / µrad on the

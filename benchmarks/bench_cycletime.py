@@ -54,7 +54,7 @@ def main() -> None:
 
 
 def heads() -> None:
-    """Issue 24 item 3: the head families' shipped plans, cycle time per dialect with the
+    """The head families' shipped plans, cycle time per dialect with the
     checked straight transits at the max feed (before) and at rapid where the dialect's rapid
     is a straight line (after: Siemens RTLION, Heidenhain L FMAX, LinuxCNC G0)."""
     art = load_artefact(CONFIG / "artefacts" / "vertical_4ball.yaml")

@@ -1,4 +1,4 @@
-"""Issue 24 acceptance, run by hand: for each head / nutating family, N seeds on the simulator
+"""Acceptance, run by hand: for each head / nutating family, N seeds on the simulator
 with injected link errors, the shipped plan and an optimised plan, program rendered in a dialect
 and run on the virtual controller: is every identifiable link within 3u of its truth?
 

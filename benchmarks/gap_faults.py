@@ -1,4 +1,4 @@
-"""Issue 21 items 4-5 measured for ``bench_gap.py --faults``: pole chips and creeping balls."""
+"""Measured for ``bench_gap.py --faults``: pole chips and creeping balls."""
 
 from __future__ import annotations
 

@@ -147,7 +147,7 @@ def _sizes(ch: ParamChange, a: float, b: float) -> tuple[str, str]:
 
 
 def worse_after(plan: CompensationPlan, after: tuple[float, float] | None = None) -> list[str]:
-    """Issue 23: "predicted after compensation" must never exceed "before" silently. The
+    """"predicted after compensation" must never exceed "before" silently. The
     changes reproduce the projection of the link-caused displacements on what they can hold;
     the remainder can still be larger (RMS or max) when the held part is ill-conditioned or
     clipped, and such changes would make the machine worse: refused, with both figures worded

@@ -11,6 +11,7 @@ rule with the order of ``ROOMS``: a room imports only rooms of a lower rank (and
 from __future__ import annotations
 
 import ast
+import re
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -160,3 +161,36 @@ def test_the_cycle_finder_sees_a_planted_circle():
     graph["identification.model"].add("identification.kinematics")
     graph["identification.kinematics"].add("identification.model")
     assert ["identification.kinematics", "identification.model"] in _cycles(graph)
+
+
+# The project's history lives in git: code, configuration and their comments say what and why,
+# never which issue asked for it ("(issue 22)", "issue 24 item 5: …"). Upstream trackers are
+# cited with their '#' (LinuxCNC's "#3650"), which this does not match.
+ISSUE_CITE = re.compile(r"\bissues? \d+|\bissue-\d+", re.I)
+CITE_SUFFIXES = {".py", ".yaml", ".yml", ".js", ".css", ".html", ".j2", ".comp", ".ini", ".hal",
+                 ".sh", ".md", ".toml"}
+CITE_SKIP = {".venv", ".peers", ".git", "build", "node_modules", "__pycache__"}
+CITE_ALLOWED = {"docs/README-MIGRATION.md", "docs/gen/text.py", "tests/test_architecture.py"}
+
+
+def issue_cites(root: Path) -> list[str]:
+    found = []
+    for p in sorted(root.rglob("*")):
+        rel = p.relative_to(root)
+        if (not p.is_file() or (p.suffix not in CITE_SUFFIXES and p.name != "Makefile")
+                or CITE_SKIP & set(rel.parts) or rel.as_posix() in CITE_ALLOWED):
+            continue
+        for n, line in enumerate(p.read_text(errors="replace").splitlines(), 1):
+            if ISSUE_CITE.search(line):
+                found.append(f"{rel}:{n}: {line.strip()[:100]}")
+    return found
+
+
+def test_no_issue_number_in_code_config_or_docs():
+    assert issue_cites(ROOT) == []
+
+
+def test_an_issue_number_in_a_comment_is_caught(tmp_path):
+    (tmp_path / "m.py").write_text("x = 1  # the drift (issue 22)\n# LinuxCNC #3650\n")
+    (tmp_path / "c.yaml").write_text("# swivel head, issue-24 plan\n")
+    assert [c.split(":")[0] for c in issue_cites(tmp_path)] == ["c.yaml", "m.py"]

@@ -303,7 +303,7 @@ def test_guard_refuses_a_total_over_its_limit() -> None:
 
 
 def test_guard_refuses_a_plan_predicted_worse_after_than_before() -> None:
-    """Issue 23: "predicted after compensation" never silently exceeds "before" (the panel
+    """"predicted after compensation" never silently exceeds "before" (the panel
     showed before 55.0 / after 68.0 µm): refused with both figures, RMS and max apart."""
     from identification.compensation import CompensationPlan
 

@@ -71,7 +71,7 @@ def _run(setup, effects: list[dict], seed: int = 5) -> dict:
 
 
 def test_a_thermal_drift_during_the_run_is_fitted_and_warned_not_blamed_on_links(setup):
-    # 240 µm/h in Z over the ~4 min between the two visits of pose 0: ≈ 15 µm. Issue 22: the
+    # 240 µm/h in Z over the ~4 min between the two visits of pose 0: ≈ 15 µm. The
     # drift is fitted with the links (identification.drift), the revisit shifts are what it
     # leaves, and the judge warns on the machine's thermal state, not on a link.
     drifting = _run(setup, [{"family": "thermal_drift", "axis": "Z",

@@ -1,4 +1,4 @@
-"""Issue 22: the links' covariance holds the rotary index scatter whether or not its test
+"""The links' covariance holds the rotary index scatter whether or not its test
 detects it (the p < 0.01 gate was a pre-test estimator: below detection the scatter was there
 and the covariance ignored it)."""
 

@@ -237,7 +237,7 @@ def test_notify_config_errors_name_the_key(tmp_path, notify, why):
 
 
 def test_the_notification_waits_for_the_report_and_is_never_lost():
-    """Issue 23: the report is written after the run's end. The FAIL notification waits for
+    """The report is written after the run's end. The FAIL notification waits for
     it (its path), goes out without it when the report failed, and is sent without it when a
     new run starts before the report was written (never lost)."""
     from types import SimpleNamespace

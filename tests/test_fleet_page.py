@@ -291,7 +291,7 @@ async def test_fleet_command_serves_the_store(fleet_db, tmp_path):
 
 
 def test_run_list_names_the_drift_baseline_and_a_report_being_written():
-    """Issue 23: each run says which baseline its drift was judged against (the verdict's
+    """Each run says which baseline its drift was judged against (the verdict's
     drift checks) or that there was none; a run whose report is still being written (after
     the run's end) or failed says so instead of a bare "—"."""
     import re

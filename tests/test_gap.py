@@ -295,7 +295,7 @@ def test_a_drift_that_only_interpolates_is_not_confirmed_on_time_blocks(setup, m
     truth = Truth({"EB0Z": -12e-6, "EC0Y": 17e-6, "EX0C": -0.106}, rng.normal(0, .2, (4, 3)),
                   rng.normal(0, .05, 3), [_warm_then_cool(machine, artefact, poses, 8.0)])
     data = simulate(machine, artefact, poses, truth, STYLUS_R, 0.5, seed=100)
-    # Issue 22: the library's warm-up A·(1 − e^(−t/τ)) follows this rise and flattening (it
+    # The library's warm-up A·(1 − e^(−t/τ)) follows this rise and flattening (it
     # turns back by only 13 % in the last quarter) and extrapolates it on time blocks: it is
     # named, exponential, confirmed. The check below is of the straight line alone.
     warm = diagnose(machine, artefact, data, STYLUS_R)

@@ -1,4 +1,4 @@
-"""Issue 21: per-visit index scatter, as a floor, a finding and under a systematic effect."""
+"""Per-visit index scatter, as a floor, a finding and under a systematic effect."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Issue 21: a knocked ball named (simlog and the G-code simulator), a creep is no step, the
+"""A knocked ball named (simlog and the G-code simulator), a creep is no step, the
 example log's verdict."""
 
 from __future__ import annotations

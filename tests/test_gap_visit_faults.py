@@ -1,4 +1,4 @@
-"""Issue 21 items 4-5: a pattern across visits is no chip, a pole chip the run cannot name is no
+"""A pattern across visits is no chip, a pole chip the run cannot name is no
 `unexplained`, a creeping ball under index scatter is named, and the self-check holds both."""
 
 from __future__ import annotations

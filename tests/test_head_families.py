@@ -1,4 +1,4 @@
-"""Issue 24: swivel head B + table C, fork head A/C on a bridge, nutating 45° table — inclined
+"""Swivel head B + table C, fork head A/C on a bridge, nutating 45° table — inclined
 axes in the chain, the identifiable link set by rank, tilted-probe programs (tool-frame touches,
 TCPM off), the safety check refusing head and rod collisions, and the simulated run identifying
 the injected links (the 20-seed acceptance: benchmarks/bench_head_families.py)."""

@@ -1,4 +1,4 @@
-"""Issue 24 end to end: each new family's shipped plan run the way a shop runs it — daemon.yaml →
+"""End to end: each new family's shipped plan run the way a shop runs it — daemon.yaml →
 ``Service`` (real driver, session, SQLite journal in tmp_path) against the simulated CNC behind a
 real front-end (swivel head: asyncua server / Siemens; fork head: pymodbus server / Heidenhain
 cycle 4; nutating table: pty DNC / Fanuc) — and the identified links match the truth."""

@@ -1,4 +1,4 @@
-"""Issue 20 through the commands and the daemon: a log analysed against the wrong machine
+"""Wrong inputs through the commands and the daemon: a log analysed against the wrong machine
 file is refused (identification's plausibility rule, reported by `rumba analyze` and the run
 pipeline), special and over-long files end as one ``error:`` line, a zero spindle axis stops
 `rumba gcode`, and every schema's booleans are strict."""

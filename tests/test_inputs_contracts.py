@@ -1,4 +1,4 @@
-"""Issue 20, "Inputs that still get through", at the readers: special files and over-long
+"""Inputs that once got through, at the readers: special files and over-long
 files are refused at once, direction vectors must be directions, YAML keys are given once and
 booleans are true/false, a NUL in an instrument file's comment and a '-0' counter are refused.
 Everything here is contracts only (no daemon): one ``ConfigError`` line naming the file."""

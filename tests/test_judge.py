@@ -78,7 +78,7 @@ def test_drift_against_the_baseline_run():
 
 
 def test_no_baseline_is_said_never_silently_dropped():
-    """Issue 23: without a baseline the drift is not checked, and the verdict says so (it
+    """Without a baseline the drift is not checked, and the verdict says so (it
     used to drop the drift checks silently when no PASS run existed)."""
     j = judge(analysis(eb0c=17.0), TOL, None)
     assert j.status == "PASS" and not any("drift" in c.quantity for c in j.checks)

@@ -1,4 +1,4 @@
-"""Issue 25 item 4: the OPC UA results of every machine of a shop from the PostgreSQL fleet
+"""The OPC UA results of every machine of a shop from the PostgreSQL fleet
 store (``rumba fleet --opcua``): one endpoint; node-opcua reads each machine's results with the
 ResultEvaluation of its verdicts, and a run drained to the store later raises its
 ResultReadyEvent (the server follows the store)."""

@@ -101,7 +101,7 @@ def blank_bands_in(img: np.ndarray, dpi: int) -> list[float]:
 
 @pytest.mark.peer
 def test_pdf_carries_the_html_sections_without_blank_bands(tmp_path):
-    """Issue 23 item 4: the PDF has the HTML's setup errors, validation, health, each figure's
+    """The PDF has the HTML's setup errors, validation, health, each figure's
     definition, the link errors with plain and controller names, the decision rule, the
     baseline, probe and balls, and the approval block; no page has a blank band of more than
     0.6 in between its text and plots (page 1 put the link plot at the page bottom before)."""
@@ -286,7 +286,7 @@ def test_durations_read_the_same_everywhere():
 
 
 def test_pdf_embeds_each_font_once_and_fonttools_stays_quiet(runs, caplog):
-    """Issue 23: "—", "•", "→" and ligatures ("fi") opened a second subset of DejaVu Sans and
+    """"—", "•", "→" and ligatures ("fi") opened a second subset of DejaVu Sans and
     DejaVu Sans Bold (4 embedded fonts for 2 faces); one subset each, and fontTools' table-
     pruning chatter is not in the log."""
     _s, _setup, (a, _j), html = runs

@@ -201,7 +201,7 @@ def test_each_visible_part_is_named_rotary_error_motion(thesis, letter, componen
 
 
 def test_second_harmonic_radial_motion_of_C_through_the_simulator_is_named(thesis, tmp_path):
-    """Issue 12 acceptance: the shipped errors file injects a fixed-frame 2nd-harmonic radial
+    """Acceptance: the shipped errors file injects a fixed-frame 2nd-harmonic radial
     error motion of C (4.7 / 3.8 µm) in the G-code simulator; two passes of the annex-B plan
     (the floor from repeats, thesis §3.4 scatter) go through `rumba gap` with every effect
     withheld: the verdict names rotary_error_motion:C, the held-out gap drops from ~4× to

@@ -1,4 +1,4 @@
-"""Issue 22 items 3-4 in the fleet store, against a real PostgreSQL started by the test: each
+"""Temperature channels in the fleet store, against a real PostgreSQL started by the test: each
 run's raw temperature readings are drained with its rows (journal order, nothing lost or copied
 twice, readings journaled before their trigger existed queued with their run), and the fleet
 page fits a link error against a channel over the runs with the statistics of ``rumba history

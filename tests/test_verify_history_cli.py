@@ -207,7 +207,7 @@ async def test_two_machines_run_concurrently_with_one_session_each(tmp_path):
 
 
 async def test_verify_operator_is_on_the_report_as_who_started_and_prepared(tmp_path, capsys):
-    """Issue 23 item 4: a person, not "cli", started the run: `--operator` goes to the
+    """A person, not "cli", started the run: `--operator` goes to the
     journal's run row and the report's Started by / Prepared by; a bad name is one line."""
     import json
 

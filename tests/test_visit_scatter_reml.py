@@ -1,4 +1,4 @@
-"""Issue 21: the visit-scatter REML is the textbook restricted likelihood, and unbiased for σ²."""
+"""The visit-scatter REML is the textbook restricted likelihood, and unbiased for σ²."""
 
 from __future__ import annotations
 

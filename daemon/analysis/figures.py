@@ -1,6 +1,6 @@
 """A run's reported quantities defined once: value, unit, label and a one-sentence definition."""
 
-# Issue 23 item 1: the report, its PDF and JSON, the HMI, the fleet page, the CLI and the
+# The report, its PDF and JSON, the HMI, the fleet page, the CLI and the
 # compensation panel all take a run's figures from here, so that one run tells one story.
 # Two distortions exist and are named apart: the distortion measured at the probed poses
 # (what the verdict judges) and the distortion the identified link errors alone cause once the

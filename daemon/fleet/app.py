@@ -126,7 +126,7 @@ LINK_NAME = re.compile(r"[A-Z0-9]{1,16}")  # a location error's name, e.g. EX0C
 
 
 async def _against(request: web.Request) -> dict[str, Any]:
-    """Issue 22 item 4: the chosen link against the chosen channel over the machine's runs
+    """The chosen link against the chosen channel over the machine's runs
     (query ``channel``, ``link``, ``days``; the first of each by default), fitted as ``rumba
     history --against-temperature`` fits it."""
     name = request.match_info["machine"]

@@ -219,7 +219,7 @@ def temperatures_text(temps: Any) -> str:
 
 
 def drift_baseline(run: Mapping[str, Any]) -> str:
-    """Issue 23: the baseline run the drift checks of ``run`` were judged against (from its
+    """The baseline run the drift checks of ``run`` were judged against (from its
     verdict's checks), "drift not checked: no baseline", or "—" (no drift limits, no verdict)."""
     try:
         checks = json.loads(run.get("checks") or "[]")

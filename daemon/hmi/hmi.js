@@ -375,7 +375,7 @@ async function loadTrend(name) {
   if ((t.channels || []).length) againstControls(name, box, t);
 }
 
-// Issue 22 item 4: a link error against a recorded temperature channel, one dot per run
+// A link error against a recorded temperature channel, one dot per run
 // (the channel's mean over the run), the least-squares line, r and the slope ± u.
 function againstControls(name, box, t) {
   // beside the trend box, not in it: the trend's charts stay one per link error

@@ -129,7 +129,7 @@ class MachinePublisher:
             self._report_end(st)
 
     def _report_end(self, st: dict[str, Any]) -> None:
-        """Issue 23: the report is written after the run's end; the retained verdict is
+        """The report is written after the run's end; the retained verdict is
         published again once it is written (its file name) or failed (report_state)."""
         v = st.get("verdict") or {}
         told = (st["run_id"], v.get("report_state"))

@@ -142,7 +142,7 @@ class ResultServer:
                     log.warning("%s: OPC UA results: reading the store failed: %s", name, e)
 
     async def _report_pending(self, run_id: str) -> bool:
-        """Issue 23: a daemon writes the report after the run's end (the store gets the run
+        """A daemon writes the report after the run's end (the store gets the run
         first): a run is announced once its report job has ended — written (its PDF is
         there) or failed (at once, with the reason) — never after a fixed wait. A job a
         daemon's crash left 'writing' is failed by that daemon's next start

@@ -1,6 +1,6 @@
 """The rotary axes' indexing repeatability behind a run's link u, as every screen prints it."""
 
-# Issue 22 follow-up: the analysis JSON's estimation.index_scatter (identify.index_scatter) in
+# The analysis JSON's estimation.index_scatter (identify.index_scatter) in
 # one text per axis, shown by the HTML report, its PDF and JSON, the HMI's verdict card and
 # its run API, so that one run tells one story (defined once, here).
 

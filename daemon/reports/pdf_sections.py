@@ -1,6 +1,6 @@
 """The PDF's third page: the sections the HTML carries below the plots, and the approval block."""
 
-# Issue 23 item 4: the PDF for filing carries what the HTML does — each figure with its
+# The PDF for filing carries what the HTML does — each figure with its
 # definition, the link errors by ISO 230-1 code, plain name and the controller's own term, the
 # setup errors, the validation on held-out poses, probe and ball health, the decision rule and
 # a prepared / checked / approved block with date and signature lines. Text only, placed line

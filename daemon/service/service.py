@@ -132,7 +132,7 @@ class Service:
                 session.start("rerun")
 
     async def _start_results(self) -> None:
-        """Issue 25: the AQDEF drop and the OPC UA results server, both optional, both
+        """The AQDEF drop and the OPC UA results server, both optional, both
         listening to the sessions' status (neither can block or fail a run)."""
         cfg = self.config
         if cfg.aqdef_dir is not None:

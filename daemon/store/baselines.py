@@ -1,6 +1,6 @@
 """Each machine's drift baseline: a run a person accepted, proposed or confirmed, journaled."""
 
-# Issue 23 item 2: drift is judged against a run a person chose, not "the last PASS run" (a
+# Drift is judged against a run a person chose, not "the last PASS run" (a
 # machine that stays in WARN lost its drift check). Every decision is a row of ``baselines``
 # (migration 8) with who and when: the machine's baseline is its newest ``confirmed`` row; a
 # ``proposed`` row (the verification run after a compensation) waits for a person to confirm

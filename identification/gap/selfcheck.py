@@ -61,7 +61,7 @@ VARIANTS: dict[str, tuple[str, dict]] = {
     "radial2_fixed": ("rotary_error_motion", {"orders": (2,), "components": ("radial",)}),
 }
 SCENARIOS = (*FAMILIES, *VARIANTS, *CONTROLS)  # what ``run`` injects by default, in order
-# Issue 21 (selfcheck_scatter.py): every library effect and the null run again under indexing
+# Every library effect and the null run again under indexing
 # scatter of the rotary axes, a knocked ball and a chip on the pole under the scatter.
 BASE_SCENARIOS = SCENARIOS
 SCENARIOS = (*BASE_SCENARIOS, *scatter_scenarios((*FAMILIES, *VARIANTS, "null")))

@@ -43,7 +43,7 @@ class Truth:
     tip_setup_mm: np.ndarray = field(default_factory=lambda: np.zeros(3))
     effects: list[tuple[Effect, np.ndarray]] = field(default_factory=list)
     pose_offsets_mm: dict[int, np.ndarray] = field(default_factory=dict)  # outside the library
-    # Issue 21: per-visit index errors of the rotary axes, drawn N(0, σ) per pose (µrad 1σ by
+    # Per-visit index errors of the rotary axes, drawn N(0, σ) per pose (µrad 1σ by
     # axis letter; the true axis stops at command + δ), and ball steps — (ball index, time s,
     # displacement mm in the last workpiece frame): the ball sits there from that time on.
     index_std_urad: dict[str, float] = field(default_factory=dict)

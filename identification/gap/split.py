@@ -1,6 +1,6 @@
 """Which data judge the twin: a separate log, leave-poses-out, or contiguous blocks of time.
 
-Issue 6: the gap is always judged on held-out data — a separate log, or an internal split *by
+The gap is always judged on held-out data — a separate log, or an internal split *by
 pose* (leave-poses-out cross-validation) or *by time block for drift*. The two internal splits
 answer different questions (seed 004 judges a fitted model on measurements it did not use):
 
@@ -101,7 +101,7 @@ def time_check(problem, groups: Groups, is_ho: np.ndarray, selected: list, split
                frac: float) -> dict | None:
     """A selection resting on a time-dependent effect, found leaving poses out, must also
     predict contiguous stretches of the run it did not see: the same twin and effects, judged
-    on time blocks, must explain half of the held-out excess. Issue 21: judged with the sphere
+    on time blocks, must explain half of the held-out excess. Judged with the sphere
     fits' whitening alone, the per-visit index scatter itself read as the excess a creeping
     ball failed to explain on held-out stretches (the creep read ``unexplained``); the
     diagnosis' own whitening is used. ``p_value_after``: the held-out stretches' gap with the
