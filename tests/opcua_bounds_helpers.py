@@ -41,15 +41,21 @@ def need_nodesets() -> None:
 
 @dataclass
 class LagMonitor:
-    """Counts how often the event loop came back late from a short sleep: a stall of the loop
-    (a method computing on it) shows as one late wake-up, however long it lasted."""
+    """Counts how often the event loop came back late from a short sleep because it computed:
+    a stall of the loop (a method computing on it) shows as one late wake-up, however long it
+    lasted. A stall is counted by the CPU seconds the loop's thread spent between two wake-ups
+    (``time.thread_time``), not by the clock: on a starved CI box the loop waits for a core
+    without computing (2 wake-ups 0.2 s late on the wall clock in a loaded run, none of them
+    the server's work), while a method computing on the loop spends its CPU there on any box.
+    The wall-clock lag is kept as information (``worst_s``)."""
 
     period_s: float = 0.02
     stall_s: float = 0.2
     wakeups: int = 0
     stalls: int = 0
     worst_s: float = 0.0
-    stalled_at: list[tuple[float, float]] = field(default_factory=list)  # (monotonic, lag s)
+    worst_cpu_s: float = 0.0
+    stalled_at: list[tuple[float, float]] = field(default_factory=list)  # (loop time, CPU s)
     _task: asyncio.Task | None = None
 
     def start(self) -> LagMonitor:
@@ -59,14 +65,16 @@ class LagMonitor:
     async def _run(self) -> None:
         loop = asyncio.get_running_loop()
         while True:
-            t = loop.time()
+            t, cpu = loop.time(), time.thread_time()
             await asyncio.sleep(self.period_s)
             late = loop.time() - t - self.period_s
+            busy = time.thread_time() - cpu
             self.wakeups += 1
             self.worst_s = max(self.worst_s, late)
-            if late > self.stall_s:
+            self.worst_cpu_s = max(self.worst_cpu_s, busy)
+            if busy > self.stall_s:
                 self.stalls += 1
-                self.stalled_at.append((loop.time(), late))
+                self.stalled_at.append((loop.time(), busy))
 
     async def stop(self) -> None:
         if self._task is not None:

@@ -32,7 +32,8 @@ async def main(work: Path, extra_runs: int) -> None:
             if line == "stats":
                 print(json.dumps({
                     "wakeups": monitor.wakeups, "stalls": monitor.stalls,
-                    "worst_s": monitor.worst_s, "stalled_at": monitor.stalled_at,
+                    "worst_s": monitor.worst_s, "worst_cpu_s": monitor.worst_cpu_s,
+                    "stalled_at": monitor.stalled_at,
                     "open": len(transfer.open), "released": transfer.released,
                     "tracebacks": tb.lines()}), flush=True)
         await monitor.stop()

@@ -9,6 +9,7 @@ are locked out as at the HMI."""
 from __future__ import annotations
 
 import asyncio
+import time
 
 import pytest
 import pytest_asyncio
@@ -199,3 +200,17 @@ async def test_wrong_passwords_are_locked_out_before_the_password_is_compared(tm
         assert limiter.retry_after("127.0.0.1") > 0
     finally:
         await s.close()
+
+
+async def test_the_lag_monitor_counts_computing_on_the_loop_not_waiting_for_a_core():
+    monitor = LagMonitor().start()
+    await asyncio.sleep(0.05)
+    t = time.thread_time()
+    while time.thread_time() - t < 0.3:  # a method computing on the loop for 0.3 CPU s
+        pass
+    await asyncio.sleep(0.05)
+    time.sleep(0.3)  # the loop's thread not computing (what a starved box looks like)
+    await asyncio.sleep(0.05)
+    await monitor.stop()
+    assert monitor.stalls == 1 and monitor.worst_cpu_s >= 0.3, monitor
+    assert monitor.worst_s >= 0.3, monitor  # the clock saw both

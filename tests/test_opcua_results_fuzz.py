@@ -144,6 +144,7 @@ class Harness:
             self.proc.wait(60)
         return {"leaked handles": st["open"], "loop wake-ups": st["wakeups"],
                 "stalls over 0.2 s": st["stalls"], "worst loop lag s": round(st["worst_s"], 3),
+                "worst loop CPU s": round(st["worst_cpu_s"], 3),
                 "released without Close": st["released"], "server tracebacks": st["tracebacks"]}
 
 
