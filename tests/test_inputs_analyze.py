@@ -188,11 +188,11 @@ def test_analyze_refuses_an_over_long_log_in_well_under_a_few_seconds(tmp_path: 
         for k in range(MAX_LOG_ROWS + 1):
             row[1], row[3] = str(k + 1), str(k // 56)
             f.write(",".join(row) + "\n")
-    t0 = time.perf_counter()
+    t0 = time.process_time()  # CPU seconds: the work, whatever else the box runs
     code, _, err = _analyze(path, THESIS, capsys)
-    took = time.perf_counter() - t0
+    took = time.process_time() - t0
     assert code == 2 and f"more than {MAX_LOG_ROWS} touch rows" in _one_error_line(err)
-    assert took < 2.0, f"{took:.1f} s"
+    assert took < 2.0, f"{took:.1f} CPU s"
 
 
 # ------------------------------------------------------------------ c. directions

@@ -105,14 +105,14 @@ def _big_log(path: Path, rows: int) -> None:
 def test_an_over_long_log_is_refused_before_it_is_parsed(tmp_path: Path, monkeypatch) -> None:
     path = tmp_path / "long.csv"
     _big_log(path, pl.MAX_LOG_ROWS + 1)
-    t0 = time.perf_counter()
+    t0 = time.process_time()  # CPU seconds: the work, whatever else the box runs
     with pytest.raises(ProbeLogError) as info:
         read_log(path, ARTEFACT)
-    took = time.perf_counter() - t0
+    took = time.process_time() - t0
     assert str(info.value) == (f"{path}: line {pl.MAX_LOG_ROWS + 3}: more than "
                                f"{pl.MAX_LOG_ROWS} touch rows (the reader's ceiling; one run "
                                "is far smaller)")
-    assert took < 2.0, f"{took:.1f} s to refuse {pl.MAX_LOG_ROWS + 1} rows"  # was 5 s (241 s)
+    assert took < 2.0, f"{took:.1f} CPU s to refuse {pl.MAX_LOG_ROWS + 1} rows"  # was 5 s (241 s)
     parsed = []  # and not a row was parsed: the count comes first
     monkeypatch.setattr(pl.ProbeLog, "_append", lambda self, *a: parsed.append(a))
     monkeypatch.setattr(pl, "MAX_LOG_ROWS", 10)
