@@ -21,7 +21,6 @@ from collections.abc import AsyncIterator
 from typing import Any
 
 from asyncua import Client, ua
-from asyncua.crypto.security_policies import SecurityPolicyBasic256Sha256
 
 from contracts.jobs import ProgramJob, Verdict
 from contracts.messages import ProbeHit
@@ -41,6 +40,7 @@ from drivers.hits import HitFactory, MalformedResult
 from drivers.opcua.reasons import MISSING_NODE, quiet_connection_loss, why
 from drivers.opcua.ring import _number, check_counter, ring_hit
 from drivers.opcua.schema import OpcUaLinkConfig
+from drivers.opcua_client import secure_client
 from drivers.retry import Refused, wait_event, with_backoff
 
 logging.getLogger("asyncua").setLevel(logging.ERROR)
@@ -92,21 +92,8 @@ class OpcUaLink(CncLink):
 
     async def _connect_once(self) -> Client:
         cfg = self.cfg
-        client = Client(cfg.url, timeout=cfg.request_timeout_s, watchdog_intervall=2.0)
-        client.application_uri = cfg.application_uri
-        client.name = "rumba-cnc daemon"
         try:
-            if cfg.security != "none":
-                mode = (ua.MessageSecurityMode.SignAndEncrypt if cfg.security.endswith("Encrypt")
-                        else ua.MessageSecurityMode.Sign)
-                await client.set_security(
-                    SecurityPolicyBasic256Sha256, certificate=str(cfg.certificate),
-                    private_key=str(cfg.private_key),
-                    server_certificate=str(cfg.server_certificate)
-                    if cfg.server_certificate else None, mode=mode)
-            if cfg.user is not None:
-                client.set_user(cfg.user.name)
-                client.set_password(cfg.user.secret())
+            client = await secure_client(cfg)
         except (OSError, ValueError) as e:
             raise _Fatal(f"opcua {cfg.url}: security setup: {e}") from None
         try:

@@ -14,7 +14,6 @@ from typing import Any
 
 from asyncua import Client, ua
 from asyncua.client.ua_file_transfer import UaDirectory, UaFile
-from asyncua.crypto.security_policies import SecurityPolicyBasic256Sha256
 
 from contracts.sinumerik_space import (
     BY_ROLE,
@@ -25,6 +24,7 @@ from contracts.sinumerik_space import (
 )
 from drivers.base import LinkError
 from drivers.cancel import keep_cancel
+from drivers.opcua_client import secure_client
 from drivers.retry import Refused
 from drivers.sinumerik.schema import SinumerikLinkConfig
 
@@ -54,21 +54,8 @@ class SinumerikSession:
     async def open(self) -> None:
         """Connect once; ``Refused``/``LinkError`` when unreachable, ``Fatal`` when refused."""
         cfg = self.cfg
-        client = Client(cfg.url, timeout=cfg.request_timeout_s, watchdog_intervall=2.0)
-        client.application_uri = cfg.application_uri
-        client.name = "rumba-cnc daemon"
         try:
-            if cfg.security != "none":
-                mode = (ua.MessageSecurityMode.SignAndEncrypt if cfg.security.endswith("Encrypt")
-                        else ua.MessageSecurityMode.Sign)
-                await client.set_security(
-                    SecurityPolicyBasic256Sha256, certificate=str(cfg.certificate),
-                    private_key=str(cfg.private_key),
-                    server_certificate=str(cfg.server_certificate)
-                    if cfg.server_certificate else None, mode=mode)
-            if cfg.user is not None:
-                client.set_user(cfg.user.name)
-                client.set_password(cfg.user.secret())
+            client = await secure_client(cfg)
         except (OSError, ValueError) as e:
             raise Fatal(f"sinumerik {cfg.url}: security setup: {e}") from None
         try:
