@@ -179,26 +179,27 @@ def _pose_touches(prog: Program, bld: MoveBuilder, pf: PoseFrame, ip: int, rep: 
               owns: Sequence[int] | None = None) -> np.ndarray:
         """Per move: keep-out slack of the straight move and, if it moves two axes, of both
         dog-legs (a non-linear rapid). ``owns``: ball a move may touch (radial moves), or -1."""
-        qa, qb, parent = [], [], []
-        for n, (p0, p1) in enumerate(path):
-            qa.append(p0)
-            qb.append(p1)
-            parent.append(n)
-            changed = [i for i in range(3) if abs(p1[i] - p0[i]) > 1e-12]
-            if len(changed) == 2:
-                for first in changed:
-                    mid = p0.copy()
-                    mid[first] = p1[first]
-                    qa += [p0, mid]
-                    qb += [mid, p1]
-                    parent += [n, n]
-        def full(q: list) -> np.ndarray:
-            return np.column_stack([np.array(q), np.broadcast_to(rot, (len(q), 2))])
+        p0 = np.array([seg[0] for seg in path], float)
+        p1 = np.array([seg[1] for seg in path], float)
+        qa, qb, parent = [p0], [p1], [np.arange(len(path))]
+        changed = np.abs(p1 - p0) > 1e-12
+        two = np.nonzero(changed.sum(axis=1) == 2)[0]
+        axes = np.nonzero(changed[two])[1].reshape(-1, 2)  # the two axes, in order
+        for first in axes.T:  # each dog-leg: one axis first, then the other
+            mid = p0[two].copy()
+            mid[np.arange(len(two)), first] = p1[two, first]
+            qa += [p0[two], mid]
+            qb += [mid, p1[two]]
+            parent += [two, two]
+        qa, qb, parent = np.concatenate(qa), np.concatenate(qb), np.concatenate(parent)
+
+        def full(q: np.ndarray) -> np.ndarray:
+            return np.column_stack([q, np.broadcast_to(rot, (len(q), 2))])
         pa, pb = tip_in_workpiece(prog, full(qa)), tip_in_workpiece(prog, full(qb))
         own = np.full(len(qa), -1) if owns is None else np.asarray(owns)[parent]
         sl = keepout_slack(prog, pa, pb, own, np.broadcast_to(u_w, pa.shape))[0]
         out = np.full(len(path), np.inf)
-        np.minimum.at(out, np.array(parent), sl)
+        np.minimum.at(out, parent, sl)
         return out
 
     def with_z(p: np.ndarray, z: float) -> np.ndarray:
