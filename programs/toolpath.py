@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import itertools
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import numpy as np
 
@@ -149,7 +149,7 @@ def build_program(machine: Machine, machine_file: MachineFile, artefact: Artefac
         if k2 != k_ret or abs(rate2 - rate) > 1e-9:
             raise ProgramError(f"pose {ip}: the retract axis changes with the rotary pose")
         seq = _pose_touches(prog, builder, pf, ip, rep, seq, balls_w, state, two_speed,
-                            sweep_height(rot, rot))
+                            lambda r=rot: sweep_height(r, r))
     tgt = [None] * 5
     tgt[k_ret] = z_start
     builder.emit("rapid", tgt, pose=ip)
@@ -159,9 +159,10 @@ def build_program(machine: Machine, machine_file: MachineFile, artefact: Artefac
 
 def _pose_touches(prog: Program, bld: MoveBuilder, pf: PoseFrame, ip: int, rep: int, seq: int,
                   balls_w: np.ndarray, state: ChainState, two_speed: bool,
-                  z_safe: float) -> int:
+                  z_safe: Callable[[], float]) -> int:
     """The touches of every ball at one pose. ``z_safe``: the retract value above every
-    keep-out along the spindle at this pose (the fallback when a transit is not clear)."""
+    keep-out along the spindle at this pose (the fallback when a transit is not clear),
+    computed only when a transit needs it."""
     machine, plan, artefact = prog.machine, prog.plan, prog.artefact
     k = prog.retract_axis
     heights = pose_heights(machine, prog.machine_file, artefact, balls_w, pf, state, k,
@@ -312,7 +313,7 @@ def _pose_touches(prog: Program, bld: MoveBuilder, pf: PoseFrame, ip: int, rep: 
                     best = (rank, visit)
         visit = best[1]
         if not over_ok[visit[0]]:  # a steep table the heights model got wrong
-            z_in = {**z_in, visit[0]: higher(z_in[visit[0]], z_safe)}
+            z_in = {**z_in, visit[0]: higher(z_in[visit[0]], z_safe())}
         return visit, edges, f_in, f_out, z_in
 
     # Where the tool stands before each ball is known in advance (the pole touch, always last,
