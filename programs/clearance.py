@@ -24,7 +24,11 @@ def tip_in_workpiece(prog: Program, q: np.ndarray) -> np.ndarray:
 
 
 def _affine(prog: Program, rot: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    uniq, inv = np.unique(rot, axis=0, return_inverse=True)
+    bits = np.ascontiguousarray(rot, float).view(np.int64)
+    if len(rot) and (bits == bits[0]).all():  # one rotary state, bit for bit: no sort
+        uniq, inv = rot[:1], np.zeros(len(rot), int)
+    else:
+        uniq, inv = np.unique(rot, axis=0, return_inverse=True)
     cache: dict = prog.__dict__.setdefault("_affine_cache", {})  # per rotary state
     missing = [r for r in map(tuple, uniq) if r not in cache]
     if missing:

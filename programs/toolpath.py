@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import itertools
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Sequence
 
 import numpy as np
 
@@ -46,7 +46,6 @@ from programs.geometry import (
 )
 from programs.heights import pose_heights
 from programs.model import (
-    Move,
     Program,
     Targets,
     Touch,
@@ -54,6 +53,7 @@ from programs.model import (
     chain_state,
     plan_visits,
 )
+from programs.moves import MoveBuilder, axes_only, seg_length, t3
 from programs.tilted import build_tilted, spindle_is_tilted
 from programs.tour import open_tour
 
@@ -64,6 +64,7 @@ ESTIMATE_OVERTRAVEL_MM = 1.0
 # the latched point, not from where the axes stopped, so the deceleration past the contact does
 # not matter; below APPROACH_GAP_MM, the back-off stays on the approach line already cleared.
 BACKOFF_MM = 0.3
+_SIDES = ((1, 2), (2, 3), (3, 4), (4, 1))  # the square's edges, by touch direction
 
 
 def clearance_margin(plan: Plan, standoff_mm: float) -> float:
@@ -73,25 +74,6 @@ def clearance_margin(plan: Plan, standoff_mm: float) -> float:
 
 
 # ------------------------------------------------------------------------------- generator
-
-
-class _Builder:
-    def __init__(self, prog: Program, start: tuple[float, ...]) -> None:
-        self.p = prog
-        self.pos = list(start)
-        self.block = 0
-
-    def emit(self, kind: str, target: Sequence[float | None], **kw: object) -> None:
-        new = [self.pos[i] if v is None else float(v) for i, v in enumerate(target)]
-        letters = self.p.axis_letters
-        words = tuple(letters[i] for i in range(5)
-                      if target[i] is not None and (kind in ("probe", "feed") or i >= 3
-                                                    or not abs(new[i] - self.pos[i]) <= 1e-12))
-        if not words and kind not in ("dwell",):
-            return
-        self.block += 1
-        self.pos = new
-        self.p.moves.append(Move(self.block, kind, tuple(new), words, **kw))  # type: ignore[arg-type]
 
 
 def build_program(machine: Machine, machine_file: MachineFile, artefact: Artefact, plan: Plan,
@@ -145,7 +127,7 @@ def build_program(machine: Machine, machine_file: MachineFile, artefact: Artefac
     ax_lo, ax_hi = machine.axes["XYZ"[k_ret]].travel
     # The rotary pose at program start is unknown: retract to the end of travel first.
     z_start = ax_hi if sgn > 0 else ax_lo
-    builder = _Builder(prog, (math.nan, math.nan, math.nan, math.nan, math.nan))
+    builder = MoveBuilder(prog, (math.nan, math.nan, math.nan, math.nan, math.nan))
     tgt: list[float | None] = [None] * 5
     tgt[k_ret] = z_start
     builder.emit("rapid", tgt, pose=0)
@@ -167,7 +149,7 @@ def build_program(machine: Machine, machine_file: MachineFile, artefact: Artefac
         if k2 != k_ret or abs(rate2 - rate) > 1e-9:
             raise ProgramError(f"pose {ip}: the retract axis changes with the rotary pose")
         seq = _pose_touches(prog, builder, pf, ip, rep, seq, balls_w, state, two_speed,
-                            sweep_height(rot, rot))
+                            lambda r=rot: sweep_height(r, r))
     tgt = [None] * 5
     tgt[k_ret] = z_start
     builder.emit("rapid", tgt, pose=ip)
@@ -175,11 +157,12 @@ def build_program(machine: Machine, machine_file: MachineFile, artefact: Artefac
 
 
 
-def _pose_touches(prog: Program, bld: _Builder, pf: PoseFrame, ip: int, rep: int, seq: int,
+def _pose_touches(prog: Program, bld: MoveBuilder, pf: PoseFrame, ip: int, rep: int, seq: int,
                   balls_w: np.ndarray, state: ChainState, two_speed: bool,
-                  z_safe: float) -> int:
+                  z_safe: Callable[[], float]) -> int:
     """The touches of every ball at one pose. ``z_safe``: the retract value above every
-    keep-out along the spindle at this pose (the fallback when a transit is not clear)."""
+    keep-out along the spindle at this pose (the fallback when a transit is not clear),
+    computed only when a transit needs it."""
     machine, plan, artefact = prog.machine, prog.plan, prog.artefact
     k = prog.retract_axis
     heights = pose_heights(machine, prog.machine_file, artefact, balls_w, pf, state, k,
@@ -197,26 +180,27 @@ def _pose_touches(prog: Program, bld: _Builder, pf: PoseFrame, ip: int, rep: int
               owns: Sequence[int] | None = None) -> np.ndarray:
         """Per move: keep-out slack of the straight move and, if it moves two axes, of both
         dog-legs (a non-linear rapid). ``owns``: ball a move may touch (radial moves), or -1."""
-        qa, qb, parent = [], [], []
-        for n, (p0, p1) in enumerate(path):
-            qa.append(p0)
-            qb.append(p1)
-            parent.append(n)
-            changed = [i for i in range(3) if abs(p1[i] - p0[i]) > 1e-12]
-            if len(changed) == 2:
-                for first in changed:
-                    mid = p0.copy()
-                    mid[first] = p1[first]
-                    qa += [p0, mid]
-                    qb += [mid, p1]
-                    parent += [n, n]
-        def full(q: list) -> np.ndarray:
-            return np.column_stack([np.array(q), np.broadcast_to(rot, (len(q), 2))])
+        p0 = np.array([seg[0] for seg in path], float)
+        p1 = np.array([seg[1] for seg in path], float)
+        qa, qb, parent = [p0], [p1], [np.arange(len(path))]
+        changed = np.abs(p1 - p0) > 1e-12
+        two = np.nonzero(changed.sum(axis=1) == 2)[0]
+        axes = np.nonzero(changed[two])[1].reshape(-1, 2)  # the two axes, in order
+        for first in axes.T:  # each dog-leg: one axis first, then the other
+            mid = p0[two].copy()
+            mid[np.arange(len(two)), first] = p1[two, first]
+            qa += [p0[two], mid]
+            qb += [mid, p1[two]]
+            parent += [two, two]
+        qa, qb, parent = np.concatenate(qa), np.concatenate(qb), np.concatenate(parent)
+
+        def full(q: np.ndarray) -> np.ndarray:
+            return np.column_stack([q, np.broadcast_to(rot, (len(q), 2))])
         pa, pb = tip_in_workpiece(prog, full(qa)), tip_in_workpiece(prog, full(qb))
         own = np.full(len(qa), -1) if owns is None else np.asarray(owns)[parent]
         sl = keepout_slack(prog, pa, pb, own, np.broadcast_to(u_w, pa.shape))[0]
         out = np.full(len(path), np.inf)
-        np.minimum.at(out, np.array(parent), sl)
+        np.minimum.at(out, parent, sl)
         return out
 
     def with_z(p: np.ndarray, z: float) -> np.ndarray:
@@ -229,107 +213,153 @@ def _pose_touches(prog: Program, bld: _Builder, pf: PoseFrame, ip: int, rep: int
         legs = [(here, with_z(here, z)), (with_z(here, z), with_z(corner, z))]
         return [(p0, p1) for p0, p1 in legs if np.linalg.norm(p1 - p0) > 1e-12]
 
-    for j in order:
-        ball = artefact.balls[j]
-        r_env = ball.diameter_mm / 2 + plan.stylus_radius_mm
+    dirs = {tt: (np.asarray(TOUCH_DIRECTIONS[tt]) if tt < 5 else -pf.spindle)
+            for tt in (1, 2, 3, 4, 5)}
+    for tt in (1, 2, 3, 4):
+        if order and abs(float(dirs[tt] @ pf.spindle)) > 1e-9:
+            raise ProgramError(f"pose {ip}: equator directions are not ⊥ the spindle axis")
+
+    def geometry(j: int) -> tuple:
+        r_env = artefact.balls[j].diameter_mm / 2 + plan.stylus_radius_mm
         a = r_env + prog.standoff_mm + APPROACH_GAP_MM  # square half side (edges clear by gap)
         c = centres[j]
 
         def at(r: np.ndarray, _c: np.ndarray = c) -> np.ndarray:
             return _c + pf.jinv @ r
 
-        dirs = {tt: (np.asarray(TOUCH_DIRECTIONS[tt]) if tt < 5 else -pf.spindle)
-                for tt in (1, 2, 3, 4, 5)}
-        for tt in (1, 2, 3, 4):
-            if abs(float(dirs[tt] @ pf.spindle)) > 1e-9:
-                raise ProgramError(f"pose {ip}: equator directions are not ⊥ the spindle axis")
         corner = {tt: at(-dirs[tt] * a * math.sqrt(2)) for tt in (1, 2, 3, 4)}
         clear5 = at(-dirs[5] * a)
-        z_pole = clear5[k]
+        return r_env, a, c, at, corner, clear5, clear5[k]
+
+    geo = {j: geometry(j) for j in order}
+    # Repeats revisit the same pose from the same place: reuse the decision.
+    memo: dict = prog.__dict__.setdefault("_decisions", {})
+
+    def memo_key(j: int, here: np.ndarray) -> tuple:
+        return (ip, j, tuple(np.round(here, 9)) if not np.any(np.isnan(here)) else None)
+
+    def candidates(j: int, here: np.ndarray) -> tuple:
+        """The moves whose clearance decides ball j's visit from ``here``: (segments, ball
+        each may touch or -1, groups, z_in)."""
+        r_env, a, _, at, corner, clear5, z_pole = geo[j]
+        known = not np.any(np.isnan(here))
+        z_in = {tt: higher(transit(here[hz] if known else corner[tt][hz], corner[tt][hz]),
+                           corner[tt][k], z_pole) for tt in (1, 2, 3, 4)}
+        # Visiting order of the equator touches: the cheapest rotation/direction around the
+        # square whose moves stay clear; an edge blocked by a neighbour is lifted over it.
+        up_pole = {tt: [(corner[tt], with_z(corner[tt], z_pole)),
+                        (with_z(corner[tt], z_pole), clear5)] for tt in (1, 2, 3, 4)}
+        down = {tt: [(with_z(corner[tt], z_in[tt]), corner[tt])] for tt in (1, 2, 3, 4)}
+        # up at ``here`` and across to the corner: a transit the heights model got wrong (a
+        # steep table) is lifted to z_safe below; checked in the same batch
+        over = {tt: way_over(here, corner[tt], z_in[tt]) if known else []
+                for tt in (1, 2, 3, 4)}
+        groups = ([down[tt] for tt in (1, 2, 3, 4)] + [up_pole[tt] for tt in (1, 2, 3, 4)]
+                  + [[(corner[ta], corner[tb])] for ta, tb in _SIDES]
+                  + [over[tt] for tt in (1, 2, 3, 4)])
+        # Radial moves (corner ⇄ probing line) are rapids when both dog-legs are clear of the
+        # other balls, else linear moves at the machine's max feed: checked in the same batch.
+        ends = {tt: at(-dirs[tt] * (r_env - prog.overtravel_mm)) for tt in (1, 2, 3, 4)}
+        clears = {tt: at(-dirs[tt] * a) for tt in (1, 2, 3, 4)}
+        radial = [(corner[tt], clears[tt]) for tt in (1, 2, 3, 4)] + \
+            [(ends[tt], corner[tt]) for tt in (1, 2, 3, 4)]
+        flat = [seg for g in groups for seg in g]
+        return flat + radial, [-1] * len(flat) + [j] * len(radial), (groups, up_pole, down), z_in
+
+    def decide(j: int, here: np.ndarray, cand: tuple, sl: np.ndarray) -> tuple:
+        """Ball j's visit from ``here`` given the slack ``sl`` of its ``candidates``."""
+        _, _, _, _, corner, _, z_pole = geo[j]
+        known = not np.any(np.isnan(here))
+        _, _, (groups, up_pole, down), z_in = cand
+        ok, i0 = [], 0
+        for g in groups:
+            ok.append(bool(sl[i0:i0 + len(g)].min(initial=np.inf) >= 0))
+            i0 += len(g)
+        fmax = prog.machine_file.dynamics.max_feed_mm_min
+        f_in = {tt: 0.0 if sl[i0 + tt - 1] >= 0 else fmax for tt in (1, 2, 3, 4)}
+        f_out = {tt: 0.0 if sl[i0 + tt + 3] >= 0 else fmax for tt in (1, 2, 3, 4)}
+        down_ok = dict(zip((1, 2, 3, 4), ok[:4], strict=True))
+        up_ok = dict(zip((1, 2, 3, 4), ok[4:8], strict=True))
+        over_ok = dict(zip((1, 2, 3, 4), ok[12:16], strict=True))
+        edges: dict[tuple[int, int], list] = {}
+        edge_ok: dict[tuple[int, int], bool] = {}
+        for (ta, tb), good in zip(_SIDES, ok[8:12], strict=True):
+            path, good_path = [(corner[ta], corner[tb])], good
+            if not good:
+                for z in (z_pole, higher(transit(corner[ta][hz], corner[tb][hz]), z_pole)):
+                    u, o = with_z(corner[ta], z), with_z(corner[tb], z)
+                    path = [(corner[ta], u), (u, o), (o, corner[tb])]
+                    if slack(path).min() >= 0:
+                        good_path = True
+                        break
+            edges[(ta, tb)], edge_ok[(ta, tb)] = path, good_path
+            edges[(tb, ta)] = [(p1, p0) for p0, p1 in reversed(path)]
+            edge_ok[(tb, ta)] = good_path
+
+        best = None
+        lengths: dict[int, float] = {}  # per segment: the 8 orders share them
+        for first in (1, 2, 3, 4):
+            for step in (1, -1):
+                visit = [(first - 1 + step * i) % 4 + 1 for i in range(4)]
+                path = down[visit[0]] + [seg for ta, tb in itertools.pairwise(visit)
+                                         for seg in edges[(ta, tb)]] + up_pole[visit[-1]]
+                good = (down_ok[visit[0]] and up_ok[visit[-1]]
+                        and all(edge_ok[e] for e in itertools.pairwise(visit)))
+                cost = sum(seg_length(seg, lengths) for seg in path)
+                cost += float(np.linalg.norm(here - path[0][0])) if known else 0.0
+                # rounded: ties break by order, not noise
+                rank = (not good, not over_ok[visit[0]], round(cost, 6))
+                if best is None or rank < best[0]:
+                    best = (rank, visit)
+        visit = best[1]
+        if not over_ok[visit[0]]:  # a steep table the heights model got wrong
+            z_in = {**z_in, visit[0]: higher(z_in[visit[0]], z_safe())}
+        return visit, edges, f_in, f_out, z_in
+
+    # Where the tool stands before each ball is known in advance (the pole touch, always last,
+    # retracts to the pole's clearance height above its end point): the clearance of every
+    # ball's candidate moves is computed in one batch. A start that turns out different when
+    # the moves are emitted is decided again from where the tool really is.
+    planned: dict[int, tuple] = {}
+    here = np.array(bld.pos[:3])
+    for j in order:
+        if memo_key(j, here) not in memo:
+            planned[j] = (here, candidates(j, here))
+        r_env, _, _, at, _, _, z_pole = geo[j]
+        here = np.array([float(x) for x in at(-dirs[5] * (r_env - prog.overtravel_mm))])
+        here[k] = float(z_pole)
+    if planned:
+        segs = [s for _, cand in planned.values() for s in cand[0]]
+        owns = [o for _, cand in planned.values() for o in cand[1]]
+        sl_all, i0 = slack(segs, owns), 0
+        for j, (h, cand) in planned.items():
+            n = len(cand[0])
+            planned[j] = (h, cand, sl_all[i0:i0 + n])
+            i0 += n
+
+    for j in order:
+        ball = artefact.balls[j]
+        r_env, a, c, at, corner, _, z_pole = geo[j]
         here = np.array(bld.pos[:3])
         known = not np.any(np.isnan(here))  # unknown right after the program start
-        # Repeats revisit the same pose from the same place: reuse the decision.
-        memo: dict = prog.__dict__.setdefault("_decisions", {})
-        key = (ip, j, tuple(np.round(here, 9)) if known else None)
+        key = memo_key(j, here)
         if key in memo:
             visit, edges, f_in, f_out, z_in = memo[key]
         else:
-            z_in = {tt: higher(transit(here[hz] if known else corner[tt][hz], corner[tt][hz]),
-                               corner[tt][k], z_pole) for tt in (1, 2, 3, 4)}
-
-            # Visiting order of the equator touches: the cheapest rotation/direction around the
-            # square whose moves stay clear; an edge blocked by a neighbour is lifted over it.
-            up_pole = {tt: [(corner[tt], with_z(corner[tt], z_pole)),
-                            (with_z(corner[tt], z_pole), clear5)] for tt in (1, 2, 3, 4)}
-            down = {tt: [(with_z(corner[tt], z_in[tt]), corner[tt])] for tt in (1, 2, 3, 4)}
-            # up at ``here`` and across to the corner: a transit the heights model got wrong (a
-            # steep table) is lifted to z_safe below; checked in the same batch
-            over = {tt: way_over(here, corner[tt], z_in[tt]) if known else []
-                    for tt in (1, 2, 3, 4)}
-            sides = [(1, 2), (2, 3), (3, 4), (4, 1)]
-            groups = ([down[tt] for tt in (1, 2, 3, 4)] + [up_pole[tt] for tt in (1, 2, 3, 4)]
-                      + [[(corner[ta], corner[tb])] for ta, tb in sides]
-                      + [over[tt] for tt in (1, 2, 3, 4)])
-            # Radial moves (corner ⇄ probing line) are rapids when both dog-legs are clear of the
-            # other balls, else linear moves at the machine's max feed: checked in the same batch.
-            ends = {tt: at(-dirs[tt] * (r_env - prog.overtravel_mm)) for tt in (1, 2, 3, 4)}
-            clears = {tt: at(-dirs[tt] * a) for tt in (1, 2, 3, 4)}
-            radial = [(corner[tt], clears[tt]) for tt in (1, 2, 3, 4)] + \
-                [(ends[tt], corner[tt]) for tt in (1, 2, 3, 4)]
-            flat = [seg for g in groups for seg in g]
-            sl = slack(flat + radial, [-1] * len(flat) + [j] * len(radial))
-            ok, i0 = [], 0
-            for g in groups:
-                ok.append(bool(sl[i0:i0 + len(g)].min(initial=np.inf) >= 0))
-                i0 += len(g)
-            fmax = prog.machine_file.dynamics.max_feed_mm_min
-            f_in = {tt: 0.0 if sl[i0 + tt - 1] >= 0 else fmax for tt in (1, 2, 3, 4)}
-            f_out = {tt: 0.0 if sl[i0 + tt + 3] >= 0 else fmax for tt in (1, 2, 3, 4)}
-            down_ok = dict(zip((1, 2, 3, 4), ok[:4], strict=True))
-            up_ok = dict(zip((1, 2, 3, 4), ok[4:8], strict=True))
-            over_ok = dict(zip((1, 2, 3, 4), ok[12:16], strict=True))
-            edges: dict[tuple[int, int], list] = {}
-            edge_ok: dict[tuple[int, int], bool] = {}
-            for (ta, tb), good in zip(sides, ok[8:12], strict=True):
-                path, good_path = [(corner[ta], corner[tb])], good
-                if not good:
-                    for z in (z_pole, higher(transit(corner[ta][hz], corner[tb][hz]), z_pole)):
-                        u, o = with_z(corner[ta], z), with_z(corner[tb], z)
-                        path = [(corner[ta], u), (u, o), (o, corner[tb])]
-                        if slack(path).min() >= 0:
-                            good_path = True
-                            break
-                edges[(ta, tb)], edge_ok[(ta, tb)] = path, good_path
-                edges[(tb, ta)] = [(p1, p0) for p0, p1 in reversed(path)]
-                edge_ok[(tb, ta)] = good_path
-
-            best = None
-            lengths: dict[int, float] = {}  # per segment: the 8 orders share them
-            for first in (1, 2, 3, 4):
-                for step in (1, -1):
-                    visit = [(first - 1 + step * i) % 4 + 1 for i in range(4)]
-                    path = down[visit[0]] + [seg for ta, tb in itertools.pairwise(visit)
-                                             for seg in edges[(ta, tb)]] + up_pole[visit[-1]]
-                    good = (down_ok[visit[0]] and up_ok[visit[-1]]
-                            and all(edge_ok[e] for e in itertools.pairwise(visit)))
-                    cost = sum(_length(seg, lengths) for seg in path)
-                    cost += float(np.linalg.norm(here - path[0][0])) if known else 0.0
-                    # rounded: ties break by order, not noise
-                    rank = (not good, not over_ok[visit[0]], round(cost, 6))
-                    if best is None or rank < best[0]:
-                        best = (rank, visit)
-            visit = best[1]
-            if not over_ok[visit[0]]:  # a steep table the heights model got wrong
-                z_in = {**z_in, visit[0]: higher(z_in[visit[0]], z_safe)}
-            memo[key] = (visit, edges, f_in, f_out, z_in)
+            if j in planned and np.array_equal(planned[j][0], here, equal_nan=True):
+                _, cand, sl = planned[j]
+            else:
+                cand = candidates(j, here)
+                sl = slack(cand[0], cand[1])
+            visit, edges, f_in, f_out, z_in = memo[key] = decide(j, here, cand, sl)
 
         kw0 = {"pose": ip, "ball": ball.id}
         first = corner[visit[0]]
         z = z_in[visit[0]]
         if known:  # else stay at the start retract (the end of travel) for the first move
-            bld.emit("rapid", _axes({k: z}), **kw0)
-        bld.emit("rapid", _axes({i: first[i] for i in hz}), **kw0)
-        bld.emit("rapid", _axes({k: first[k]}), **kw0)
+            bld.emit("rapid", axes_only({k: z}), **kw0)
+        bld.emit("rapid", axes_only({i: first[i] for i in hz}), **kw0)
+        bld.emit("rapid", axes_only({k: first[k]}), **kw0)
         for tt in [*visit, 5]:
             seq += 1
             d = dirs[tt]
@@ -337,9 +367,9 @@ def _pose_touches(prog: Program, bld: _Builder, pf: PoseFrame, ip: int, rep: int
             clear = at(-d * a)
             contact = at(-d * r_env)
             end = at(-d * (r_env - prog.overtravel_mm))
-            touch = Touch(TouchId(seq, ip, ball.id, tt, rep), j + 1, _t3(d),
-                          pose.b_deg, pose.c_deg, _t3(c), _t3(start), _t3(contact),
-                          _t3(end), plan.feeds.probe_mm_min)
+            touch = Touch(TouchId(seq, ip, ball.id, tt, rep), j + 1, t3(d),
+                          pose.b_deg, pose.c_deg, t3(c), t3(start), t3(contact),
+                          t3(end), plan.feeds.probe_mm_min)
             prog.touches.append(touch)
             kw = {**kw0, "touch": touch}
             if tt < 5:
@@ -351,7 +381,7 @@ def _pose_touches(prog: Program, bld: _Builder, pf: PoseFrame, ip: int, rep: int
                 bld.emit("feed" if f_in[tt] else "rapid", [*clear, None, None],
                          feed_mm_min=f_in[tt], **kw)  # in along the probing line
             else:
-                bld.emit("rapid", _axes({k: z_pole}), **kw)  # up beside the ball
+                bld.emit("rapid", axes_only({k: z_pole}), **kw)  # up beside the ball
                 bld.emit("rapid", [*clear, None, None], **kw)  # across over the pole
             if plan.dwell_s > 0:
                 bld.emit("dwell", [None] * 5, dwell_s=plan.dwell_s, **kw)
@@ -363,23 +393,6 @@ def _pose_touches(prog: Program, bld: _Builder, pf: PoseFrame, ip: int, rep: int
                 bld.emit("retract", [*corner[tt], None, None], feed_mm_min=f_out[tt],
                          **kw)
             else:  # only out of the ball: the next transit rises as far as it must
-                bld.emit("retract", _axes({k: z_pole}), **kw)
+                bld.emit("retract", axes_only({k: z_pole}), **kw)
     return seq
 
-
-def _length(seg: tuple[np.ndarray, np.ndarray], known: dict[int, float]) -> float:
-    """|seg|, computed once per segment object (``known``: by its id, the segments alive)."""
-    if id(seg) not in known:
-        known[id(seg)] = float(np.linalg.norm(seg[1] - seg[0]))
-    return known[id(seg)]
-
-
-def _axes(values: Mapping[int, float]) -> list[float | None]:
-    out: list[float | None] = [None] * 5
-    for i, v in values.items():
-        out[i] = float(v)
-    return out
-
-
-def _t3(v: np.ndarray) -> tuple[float, float, float]:
-    return (float(v[0]), float(v[1]), float(v[2]))
