@@ -35,7 +35,8 @@ from daemon.compensation.propose import (
 from daemon.machines.setup import MachineSetup
 from daemon.safepath import contained_path
 from daemon.store import machine_lock
-from daemon.store.journal import FINAL_STATES, Store
+from daemon.store.compensation_rows import unfinished_run
+from daemon.store.journal import Store
 from daemon.store.machine_lock import Lease, MachineBusy
 from programs.compensation import CompensationOutput
 
@@ -187,10 +188,7 @@ def _no_run(store: Store, machine: str) -> None:
     """Under the machine lock: a run of this machine the journal shows as not ended refuses
     the write (naming it). A live run holds the lock itself; one left behind by a crash is
     marked INTERRUPTED when the daemon starts again."""
-    placeholders = ",".join("?" * len(FINAL_STATES))
-    row = store.db.execute(
-        f"SELECT id, state FROM runs WHERE machine=? AND state NOT IN ({placeholders}) "
-        "ORDER BY started_at DESC LIMIT 1", (machine, *FINAL_STATES)).fetchone()
+    row = unfinished_run(store, machine)
     if row is not None:
         raise CompensationRefused(f"machine {machine}: run {row[0]} is in {row[1]} in the "
                                   "journal: compensate once it has ended")

@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 
 from daemon.machines.setup import MachineSetup
+from daemon.store.compensation_rows import link_view, save_link_view
 from daemon.store.journal import Store
 from identification.compensation import (
     CompensationPlan,
@@ -208,9 +209,7 @@ def plan_from_json(text: str) -> CompensationPlan:
 
 
 def save(store: Store, run_id: str, key: str, est: Estimate, plan: CompensationPlan) -> None:
-    store.db.execute("INSERT OR REPLACE INTO link_estimates (run_id, model_key, estimate, plan,"
-                     " created_at) VALUES (?, ?, ?, ?, ?)",
-                     (run_id, key, to_json(est), plan_to_json(plan), time.time()))
+    save_link_view(store, run_id, key, to_json(est), plan_to_json(plan), time.time())
 
 
 def load(store: Store, run_id: str, key: str
@@ -219,8 +218,7 @@ def load(store: Store, run_id: str, key: str
     key, or it cannot be read (it is then computed again); the plan None when only it cannot
     be read (stored before the plan carried its displacements: planned again from the stored
     estimate, which stays the run's own)."""
-    row = store.db.execute("SELECT model_key, estimate, plan FROM link_estimates WHERE"
-                           " run_id=?", (run_id,)).fetchone()
+    row = link_view(store, run_id)
     if row is None or row[0] != key:
         return None
     try:

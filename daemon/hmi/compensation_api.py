@@ -32,6 +32,7 @@ from daemon.hmi.access import page_asset
 from daemon.hmi.people import audit, require_journaled, who
 from daemon.reports.proposal import proposal_dict, why_nothing
 from daemon.run.session import Session
+from daemon.store.compensation_rows import compensations_state
 from daemon.store.journal import RunRow, Store, StoreError, validate_run_id
 
 FINISHED = ("DONE", "IMPORTED")  # a run that ended with an identification (not aborted)
@@ -146,10 +147,7 @@ class Views:
 
     def _key(self, store: Store, machine: str) -> tuple:
         run = last_finished(store, machine)
-        row = store.db.execute(
-            "SELECT COUNT(*), COALESCE(MAX(id), 0), COALESCE(SUM(id * LENGTH(state)), 0),"
-            " COUNT(verify_run_id) FROM compensations WHERE machine=?", (machine,)).fetchone()
-        return (run.id if run else None, *row)
+        return (run.id if run else None, *compensations_state(store, machine))
 
     def get(self, session: Session) -> tuple[dict[str, Any], Proposal | None]:
         """The view (a fresh copy; ``busy`` as now) and the proposal; blocking: call it in a
