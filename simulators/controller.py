@@ -233,6 +233,10 @@ class VirtualController(MachineSide):
         self.rng_seed = seed
         self._latch.reseed(seed)
 
+    def move_artefact(self, truth: TruthModel) -> None:
+        """The operator moved the balls (a map job's next placement): ``truth``, same machine."""
+        self.truth, self._latch = truth, ProbeLatch(truth, self.rng_seed)
+
     def halcmd_setp(self, pin: str, value: float) -> None:
         """``halcmd setp pin value`` on the simulated LinuxCNC (its compensation is halcmd
         lines, not G-code); only a declared kins pin: ``KeyError`` otherwise."""

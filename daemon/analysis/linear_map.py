@@ -14,7 +14,7 @@ import numpy as np
 
 from contracts import linear_map as doc
 from contracts.probing_log import read_log
-from contracts.setup_files import load_artefact, load_machine
+from contracts.setup_files import MachineFile, load_artefact, load_machine
 from daemon.analysis.judge import _grade
 from daemon.analysis.touch_centres import rows_to_centres, screen_centres
 from daemon.machines.tolerances import Limit
@@ -162,6 +162,21 @@ def run_map(machine_path: Path | str, inputs: Sequence[tuple[str, str]],
             limit_source: str | None = None, coverage_k: float = 2.0) -> MapRun:
     """Fit the map of ``inputs`` (probing log, artefact file) and build its document."""
     machine, mfile = load_machine(machine_path)
+    return fit_map_placements(machine, mfile, str(machine_path), inputs, holdout,
+                              stylus_radius_mm=stylus_radius_mm, fixed_radius=fixed_radius,
+                              repeatability_um=repeatability_um, options=options, limit=limit,
+                              limit_source=limit_source, coverage_k=coverage_k)
+
+
+def fit_map_placements(machine: Machine, mfile: MachineFile, machine_label: str,
+                       inputs: Sequence[tuple[str, str]],
+                       holdout: tuple[str, str] | None = None, *, stylus_radius_mm: float,
+                       fixed_radius: bool = False,
+                       repeatability_um: Sequence[float] | None = None,
+                       options: MapOptions | None = None, limit: Limit | None = None,
+                       limit_source: str | None = None, coverage_k: float = 2.0) -> MapRun:
+    """``run_map`` for a machine already loaded (the daemon's map job); ``machine_label``:
+    the machine file (or entry) the document names."""
     options = options or MapOptions()
     loaded = [load_placement(machine, f"P{i + 1}", log, art, stylus_radius_mm, fixed_radius)
               for i, (log, art) in enumerate(inputs)]
@@ -178,7 +193,7 @@ def run_map(machine_path: Path | str, inputs: Sequence[tuple[str, str]],
         base = fit_map(machine, placements, MapOptions(
             degrees={"X": 0, "Y": 0, "Z": 0}, sigma_um=repeatability_um, visit_scatter=False))
         ho = _holdout(machine, hl, est, base)
-    document = _document(machine, Path(machine_path), loaded, est, model,
+    document = _document(machine, Path(machine_label), loaded, est, model,
                          _figures(model, limit, limit_source, k), ho, opts)
     return MapRun(document, model, est, machine)
 

@@ -152,8 +152,13 @@ async def start(request: web.Request) -> web.Response:
         return named
     if named:
         person, checked = named, f"operator named by the script: {named}"
+    job = request.query.get("job", "check")
+    if job not in ("check", "map"):
+        return web.json_response({"error": "job: expected check or map"}, status=400)
+    if job == "map":
+        checked = f"{checked}; map job" if checked else "map job"
     try:
-        run_id = s.start(trigger, started_by=person)
+        run_id = s.start(trigger, started_by=person, job=job)
     except Refused as e:
         _journal(request, s.setup.name, "start", f"refused: {e}", detail=checked)
         return web.json_response({"error": str(e)}, status=409)
@@ -211,6 +216,30 @@ async def abort(request: web.Request) -> web.Response:
         _journal(request, s.setup.name, "abort", "refused: nothing to abort")
         return web.json_response({"error": f"{s.setup.name}: nothing to abort"}, status=409)
     _journal(request, s.setup.name, "abort", "ok", run_id=current, detail=by or "")
+    return web.json_response(s.status())
+
+
+async def continue_map(request: web.Request) -> web.Response:
+    """The operator has moved the artefact to the placement the map job's prompt names: the
+    job goes on (journaled with who pressed it and the prompt answered)."""
+    s = _session(request)
+    run_id = request.query.get("run_id")
+    if run_id is not None and (run_id != s.run_id or not s.busy):
+        return web.json_response({"error": f"{s.setup.name}: run {run_id[:64]!r} is not "
+                                           "running", **s.status()}, status=409)
+    require(request, "operator", "continuing a map job")
+    i = _identity(request)
+    person = i.name if i.via == "password" else (_operator(request) or "script")
+    if isinstance(person, web.Response):
+        return person
+    current = s.run_id or ""
+    try:
+        text = s.continue_map(person)
+    except Refused as e:
+        _journal(request, s.setup.name, "continue", f"refused: {e}", run_id=current)
+        return web.json_response({"error": str(e)}, status=409)
+    _journal(request, s.setup.name, "continue", "ok", run_id=current,
+             detail=f"continued by {person}: {text}")
     return web.json_response(s.status())
 
 
@@ -348,6 +377,7 @@ def create_app(sessions: Mapping[str, Session], store: Store, token: str,
     app.router.add_get("/api/runs/{run_id:[A-Za-z0-9_.-]{1,64}}", run_detail)
     app.router.add_post("/api/machines/{machine}/start", start)
     app.router.add_post("/api/machines/{machine}/abort", abort)
+    app.router.add_post("/api/machines/{machine}/continue", continue_map)
     app.router.add_get("/api/machines/{machine}/trend",
                        trend_handler(SESSIONS_KEY, STORE_KEY))
     add_compensation_routes(app, SESSIONS_KEY, STORE_KEY)  # confirm from the page

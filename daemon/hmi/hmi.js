@@ -98,6 +98,20 @@ function card(name) {
       if (!r.ok) el.querySelector(".message").textContent = r.body.error || "start refused";
     });
   });
+  // a map job (several placements, an operator prompt between them): its own start, and the
+  // Continue once the artefact stands where the prompt says
+  el.querySelector(".start-map").addEventListener("click", () => {
+    el.querySelector(".message").textContent = "";
+    preflight(name, async ticked => {
+      const r = await post(`/api/machines/${encodeURIComponent(name)}/start?job=map`,
+                           {preflight: ticked});
+      if (!r.ok) el.querySelector(".message").textContent = r.body.error || "start refused";
+    });
+  });
+  el.querySelector(".continue").addEventListener("click", async () => {
+    const r = await post(`/api/machines/${encodeURIComponent(name)}/continue`);
+    if (!r.ok) el.querySelector(".message").textContent = r.body.error || "continue refused";
+  });
   el.querySelector(".abort").addEventListener("click", async () => {
     if (!confirm(`Abort the run on ${name}? The machine stops.`)) return;
     const r = await post(`/api/machines/${encodeURIComponent(name)}/abort`);
@@ -144,6 +158,13 @@ function render(st) {
   if (p) Object.assign(probing.dataset, {pose: p.pose, ball: p.ball, touch: p.touch});
   el.querySelector(".start").disabled = running;
   el.querySelector(".abort").disabled = !running;
+  const startMap = el.querySelector(".start-map");
+  startMap.hidden = !st.map_job;
+  startMap.disabled = running;
+  if (st.map_job) startMap.title = `map job ${st.map_job.name}: ${st.map_job.placements} placements`;
+  const prompt = el.querySelector(".prompt");
+  prompt.hidden = !(running && st.prompt);
+  el.querySelector(".prompt-text").textContent = running && st.prompt ? st.prompt.text : "";
   // The daemon's own verdict; when it has none (just started, or the last run failed) the
   // last one of the history, with its date and age.
   const v = st.verdict || (!running ? journaled[st.machine] : null);

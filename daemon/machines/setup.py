@@ -10,6 +10,7 @@ from typing import Any, Literal
 
 from pydantic import Field, field_validator, model_validator
 
+from contracts.map_job import MapJob, load_map_job
 from contracts.result_lines import DialectName
 from contracts.setup_files import (
     MachineFile,
@@ -131,6 +132,9 @@ class MachineEntry(StrictModel):
     operator: Record | None = None  # who answers for this machine's checks (on every report)
     # temperature channels read at the start, every pose and the end (contracts/temperatures.py)
     temperatures: list[TemperatureChannel] = Field(default_factory=list, max_length=16)
+    # a map of the linear axes this machine may run (contracts/map_job.py): placements each a
+    # plan and an artefact file, an operator prompt between them; started as a job of its own
+    map_job: str | None = None
     _n = field_validator("name")(safe_name)
 
     @field_validator("temperatures")
@@ -171,7 +175,7 @@ class MachineSetup:
     operator: str | None = None  # for the report's audit fields
     artefact_file: Any = None  # contracts.setup_files.ArtefactFile (its calibration record)
     temperatures: tuple[TemperatureChannel, ...] = ()  # channels read during a run
-
+    map_job: MapJob | None = None  # the map-job file of daemon.yaml's ``map_job`` (loaded)
 
 
 def resolve_path(base: Path, p: str) -> Path:
@@ -252,7 +256,9 @@ def load_machines(entries: list[MachineEntry], base: Path, where: str
             validate_link(m.link, f"{key}.link", base), m.triggers,
             m.tolerances.to_tolerances(), m.touch_timeout_s, tuple(held),
             m.rerun_interrupted, m.program_targets, m.reprobe_max, operator=m.operator,
-            artefact_file=afile, temperatures=tuple(m.temperatures))
+            artefact_file=afile, temperatures=tuple(m.temperatures),
+            map_job=None if m.map_job is None else
+            load_map_job(named_file(base, m.map_job, f"{key}.map_job")))
     return machines
 
 

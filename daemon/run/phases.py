@@ -140,6 +140,11 @@ class RunStatus:
             "busy": self.busy, "link_ok": self.link_ok,
             "probing": self.probing if self.busy else None,
             "step": self._step if self.busy else None,  # START_READS, END_READS, or null
+            "job": getattr(self, "job", "check"),  # "check", or "map" (run/map_job.py)
+            "map_job": {"name": mj.name, "placements": len(mj.placements)}
+            if (mj := getattr(self.setup, "map_job", None)) else None,
+            # a map job's operator prompt between placements (the HMI's Continue), or null
+            "prompt": prompt.as_dict() if (prompt := getattr(self, "prompt", None)) else None,
         }
 
     def _probing(self, touch: Any) -> None:

@@ -33,8 +33,8 @@ from daemon.reports.index_scatter import index_scatter_lines
 from daemon.reports.temperatures import temperature_lines
 from daemon.run import lease as run_lease
 from daemon.run import report_job
-from daemon.run.capture import RunCapture
 from daemon.run.ending import ABORT_TIMEOUT_S, WRITE_BACK_TIMEOUT_S, await_run
+from daemon.run.map_job import RunMap, check_job
 from daemon.run.phases import (
     END_READS,
     START_READS,
@@ -64,7 +64,7 @@ RECONNECT_TIMEOUT_S = 3600.0 * 24  # keep trying; the HMI shows the link as down
 REPORT_STOP_WAIT_S = 15.0
 
 
-class Session(RunCapture):
+class Session(RunMap):
     """Runs verification programs on one machine through one link, one at a time."""
 
     def __init__(self, setup: MachineSetup, link: CncLink, store: Store, reports_dir: Path,
@@ -90,6 +90,9 @@ class Session(RunCapture):
         self.temps = TemperatureRecorder(setup.name, setup.temperatures, link, store,
                                          str(getattr(setup.link, "transport", "")))
         self.clock = RunClock()  # the current run's touch and temperature times
+        self.job = "check"  # the current run's job: "check" (the plan) or "map" (run/map_job.py)
+        self.prompt = None  # a map job's operator prompt between placements
+        self.map_events: list[dict[str, Any]] = []
         link.on_step = self._machine_step  # what the run waits for at the machine (NC start)
 
     def _machine_step(self, text: str | None) -> None:
@@ -107,9 +110,11 @@ class Session(RunCapture):
         self.set_link_ok(True)
 
     # ----------------------------------------------------------------------------- commands
-    def start(self, trigger: str, started_by: str = "") -> str:
+    def start(self, trigger: str, started_by: str = "", job: str = "check") -> str:
         """Start a run now (returns its id) or raise ``Refused`` with the reason;
-        ``started_by``: the person (an HMI account) who asked, journaled with the run."""
+        ``started_by``: the person (an HMI account) who asked, journaled with the run;
+        ``job``: the verification ("check") or the machine's map job ("map")."""
+        check_job(self.setup, job, trigger)
         if trigger not in ("cli", "rerun") and not getattr(self.setup.triggers, trigger, True):
             raise Refused(f"{self.setup.name}: trigger '{trigger}' is disabled in the config")
         if self.busy:
@@ -125,15 +130,18 @@ class Session(RunCapture):
         lease = self.lease = run_lease.take(self.lease, self.store.path, self.setup.name, trigger)
         self.run_id = new_run_id()
         lease.describe(f"run {self.run_id} (started by {started_by or trigger})")
-        self.trigger, self.started_by = trigger, started_by
+        self.trigger, self.started_by, self.job = trigger, started_by, job
         self.done, self.total = 0, 0
         self.started_at, self.first_hit_at, self.estimated_s = time.time(), None, None
         self.clock = RunClock()  # started by the link with the run's first program
         self.verdict, self.reason, self._abort_reason = None, "", None
         self.probing = None
         self._abort_state = State.ABORTED
-        self.store.new_run(self.run_id, self.setup.name, trigger, plan=self.setup.plan.name,
-                           artefact=self.setup.artefact.name, dialect=self.setup.dialect,
+        mj = self.setup.map_job if job == "map" else None
+        self.store.new_run(self.run_id, self.setup.name, trigger,
+                           plan=f"map job {mj.name}" if mj else self.setup.plan.name,
+                           artefact=", ".join(p.artefact.name for p in mj.placements) if mj
+                           else self.setup.artefact.name, dialect=self.setup.dialect,
                            started_by=started_by)
         self._enter(State.PREPARE, "")
         self._task = asyncio.get_running_loop().create_task(self._run(self.run_id),
@@ -196,6 +204,9 @@ class Session(RunCapture):
                 await self.reconnect()
             if self._controller_dirty:  # the last stop could not reach the controller
                 await self._clear_leftover()
+            if self.job == "map":  # placements, operator prompts, the map fit
+                await self._map_steps(run_id)
+                return
             reference = self.store.last_good(self.setup.name, before=run_id)  # targets
             drift_ref = self._drift_reference(run_id)  # a person's baseline
             prepared = await self._prepare_program(run_id, reference)

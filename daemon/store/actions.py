@@ -8,7 +8,7 @@ from dataclasses import dataclass
 
 from daemon.store.journal import Store
 
-ACTIONS = ("start", "abort", "confirm", "rollback")
+ACTIONS = ("start", "abort", "confirm", "rollback", "continue")
 
 
 @dataclass(frozen=True)

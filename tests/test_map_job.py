@@ -1,0 +1,206 @@
+"""The daemon's map job against the simulated CNC over OPC UA (real asyncua server and driver):
+two small placements, the operator prompt between them answered through the control API (the
+artefact moved on the simulator meanwhile), the map fitted and stored next to the reports; a
+stop at the prompt; the refusals (an unattended start, a Continue with no prompt, a bad job
+file)."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+from pathlib import Path
+
+import aiohttp
+import pytest
+import yaml
+
+from contracts.map_job import load_map_job
+from contracts.yaml_files import ConfigError
+from daemon.config import load_daemon_config
+from daemon.run.phases import Refused
+from daemon.service.service import Service
+from daemon.store.journal import Store
+from simulators.controller import VirtualController
+from simulators.frontends.opcua import OpcUaFrontend
+from simulators.truth import TruthModel
+from tests.daemon_helpers import CONFIG, write_daemon_yaml
+
+TOKEN = "t0k3n-for-tests-0123456789"
+MACHINE = CONFIG / "machines/thesis_wcbxfzyt.yaml"
+ERRORS = CONFIG / "errors/thesis_map_demo.yaml"  # links and the 18 motion errors
+ARTEFACTS = ("thesis_4ball_scaled", "thesis_4ball_map2")
+# nine indexations per placement (B -60/0/60 × C 0/120/240): 180 touches, a map fit of seconds
+SMALL_PLAN = {"name": "map-small", "stylus_diameter_mm": 6,
+              "grid": {"b": {"start_deg": -60, "stop_deg": 60, "step_deg": 60},
+                       "c": {"start_deg": 0, "stop_deg": 240, "step_deg": 120}},
+              "feeds": {"probe_mm_min": 300, "approach_mm_min": 2000},
+              "standoff_mm": 2, "overtravel_mm": 2, "clearance_mm": 10}
+TOUCHES = 9 * 4 * 5
+
+
+def truth(i: int) -> TruthModel:
+    return TruthModel.from_files(MACHINE, CONFIG / f"artefacts/{ARTEFACTS[i]}.yaml", ERRORS)
+
+
+def write_job(tmp) -> str:
+    (tmp / "map-small.yaml").write_text(yaml.safe_dump(SMALL_PLAN), encoding="utf-8")
+    job = {"name": "thesis-map-small", "placements": [
+        {"name": f"P{i + 1}", "plan": "map-small.yaml",
+         "artefact": str(CONFIG / f"artefacts/{a}.yaml"),
+         **({"instruction": "balls on the outer rods, B1 at the front left"} if i else {})}
+        for i, a in enumerate(ARTEFACTS)]}
+    path = tmp / "map-job.yaml"
+    path.write_text(yaml.safe_dump(job), encoding="utf-8")
+    return str(path)
+
+
+@pytest.fixture
+async def rig(tmp_path):
+    ctrl = VirtualController(truth(0), dialect="fanuc")
+    sim = OpcUaFrontend(ctrl, security="none")
+    url = await sim.start()
+    cfg = load_daemon_config(write_daemon_yaml(
+        tmp_path, token=TOKEN, link=f"{{transport: opcua, url: '{url}', security: none}}",
+        extra_machine=f"    map_job: {write_job(tmp_path)}"))
+    svc = Service(cfg)
+    await svc.start()
+    yield svc, ctrl, tmp_path
+    await svc.stop()
+    await sim.stop()
+
+
+def bearer() -> dict[str, str]:
+    return {"Authorization": f"Bearer {TOKEN}"}
+
+
+async def _status(http, svc) -> dict:
+    r = await http.get(svc.hmi_url + "api/status", headers=bearer())
+    return (await r.json())["mill1"]
+
+
+async def _until_prompt(http, svc) -> dict:
+    async with asyncio.timeout(120):
+        while True:
+            st = await _status(http, svc)
+            if st["prompt"] is not None:
+                return st
+            assert st["busy"], f"the run ended before its prompt: {st['state']} {st['reason']}"
+            await asyncio.sleep(0.05)
+
+
+async def _start_map(http, svc) -> str:
+    r = await http.post(svc.hmi_url + "api/machines/mill1/start",
+                        params={"job": "map", "operator": "Ana Lopez"}, headers=bearer())
+    assert r.status == 202, await r.text()
+    return (await r.json())["run_id"]
+
+
+async def test_two_placements_with_a_continue_give_a_journaled_map(rig):
+    svc, ctrl, tmp = rig
+    async with aiohttp.ClientSession() as http:
+        st = await _status(http, svc)
+        assert st["map_job"] == {"name": "thesis-map-small", "placements": 2}
+        run_id = await _start_map(http, svc)
+        st = await _until_prompt(http, svc)
+        # the first placement is journaled whole, the machine waits for the operator
+        assert st["prompt"]["placement"] == 2 and st["prompt"]["of"] == 2
+        assert "balls on the outer rods" in st["prompt"]["text"]
+        assert "waiting for the operator to move the artefact to P2" in st["step"]
+        store = svc.store
+        assert st["done"] == TOUCHES and st["total"] == 2 * TOUCHES
+        assert store.run(run_id).reason.startswith("waiting for the operator: move the artefact")
+        first = store.hits(run_id)
+        assert len(first) == TOUCHES and {h.extra["placement"] for h in first} == {1.0}
+        ctrl.move_artefact(truth(1))  # the operator moves the balls
+        r = await http.post(svc.hmi_url + "api/machines/mill1/continue",
+                            params={"operator": "Ana Lopez", "run_id": run_id},
+                            headers=bearer())
+        assert r.status == 200, await r.text()
+        r = await http.post(svc.hmi_url + "api/machines/mill1/continue", headers=bearer())
+        assert r.status == 409  # the prompt was answered: a second Continue has none
+        final = await svc.sessions["mill1"].wait()
+    assert final["state"] == "IDLE", final["reason"]
+    run = store.run(run_id)
+    assert run.state == "DONE" and run.hits == 2 * TOUCHES
+    assert "map of 2 placements" in run.reason
+    hits = store.hits(run_id)
+    assert [h.seq for h in hits] == list(range(1, 2 * TOUCHES + 1))  # one run, one sequence
+    assert [int(h.extra["placement"]) for h in hits] == [1] * TOUCHES + [2] * TOUCHES
+    reports = tmp / "reports"
+    doc = json.loads((reports / f"{run_id}.map.json").read_text(encoding="utf-8"))
+    assert [p["centres"] for p in doc["placements"]] == [36, 36]
+    steps = doc["job"]["operator_steps"]
+    assert len(steps) == 1 and steps[0]["placement"] == "P2"
+    assert steps[0]["continued_by"] == "Ana Lopez"
+    assert steps[0]["continued_at"] >= steps[0]["prompted_at"]
+    # the map sees the injected motion errors (thesis_map_demo: 5-20 µm over the strokes)
+    assert 5.0 < doc["figures"]["volumetric_max_um"]["value_um"] < 60.0
+    assert (reports / f"{run_id}.P1.csv").is_file() and (reports / f"{run_id}.P2.csv").is_file()
+    rows = store.db.execute("SELECT action, person, outcome, detail FROM hmi_actions WHERE "
+                            "run_id=? ORDER BY id", (run_id,)).fetchall()
+    assert [r[0] for r in rows] == ["start", "continue", "continue"]
+    # the bearer script's identity, the person it names, the prompt answered
+    assert rows[1][1:3] == ("token", "ok")
+    assert rows[1][3].startswith("continued by Ana Lopez: move the artefact to placement 2 of 2")
+    assert rows[2][2].startswith("refused: mill1: no map placement waits")
+
+
+async def test_abort_at_the_prompt_keeps_the_first_placement(rig):
+    svc, _ctrl, _tmp = rig
+    async with aiohttp.ClientSession() as http:
+        run_id = await _start_map(http, svc)
+        await _until_prompt(http, svc)
+        r = await http.post(svc.hmi_url + "api/machines/mill1/abort", headers=bearer())
+        assert r.status == 200, await r.text()
+        st = await r.json()
+    assert st["state"] == "ABORTED" and st["prompt"] is None
+    assert "waiting for the operator to move the artefact to P2" in st["reason"]
+    run = svc.store.run(run_id)
+    assert run.state == "ABORTED" and run.hits == TOUCHES
+    # the machine is free again: a verification run starts
+    session = svc.sessions["mill1"]
+    session.start("cli")
+    await session.abort("cli")
+
+
+async def test_unattended_starts_refuse_a_map_of_several_placements(rig):
+    svc, _ctrl, _tmp = rig
+    session = svc.sessions["mill1"]
+    for trigger in ("cnc", "rerun"):
+        with pytest.raises(Refused, match="2 placements and an operator must move the artefact"):
+            session.start(trigger, job="map")
+    assert not session.busy
+    with pytest.raises(Refused, match="no map placement waits"):
+        session.continue_map("someone")
+
+
+async def test_a_machine_without_a_map_job_refuses_one(tmp_path):
+    from tests.daemon_helpers import thesis_setup
+    from tests.replay_link import ReplayLink
+
+    setup = thesis_setup()
+    store = Store(tmp_path / "j.sqlite")
+    from daemon.run.session import Session
+
+    s = Session(setup, ReplayLink([], setup.machine), store, tmp_path / "reports")
+    with pytest.raises(Refused, match="no map job configured"):
+        s.start("hmi", job="map")
+    store.close()
+
+
+def test_a_job_file_with_a_bad_key_or_file_is_named(tmp_path):
+    path = write_job(tmp_path)
+    job = load_map_job(path)
+    assert [p.name for p in job.placements] == ["P1", "P2"]
+    assert "placement 2 of 2 (P2)" in job.placements[1].prompt(1, 2)
+    doc = yaml.safe_load(Path(path).read_text(encoding="utf-8"))
+    doc["placements"][1]["artefakt"] = doc["placements"][1].pop("artefact")
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(yaml.safe_dump(doc), encoding="utf-8")
+    with pytest.raises(ConfigError, match=r"bad.yaml.*placements.1.artefakt"):
+        load_map_job(bad)
+    doc["placements"][1]["artefact"] = "nowhere.yaml"
+    del doc["placements"][1]["artefakt"]
+    bad.write_text(yaml.safe_dump(doc), encoding="utf-8")
+    with pytest.raises(ConfigError, match=r"placements.1.artefact: file .*nowhere.yaml"):
+        load_map_job(bad)
