@@ -177,6 +177,22 @@ def observable_terms(machine: Machine, placements: Sequence[Placement],
                          tuple(t.name for t in candidates))
 
 
+def predicted_std(machine: Machine, placements: Sequence[Placement], obs: Observability,
+                  ranges_mm: dict[str, tuple[float, float]], sigma_um: float = 1.0
+                  ) -> dict[str, float]:
+    """The standard uncertainty (µm or µrad) of each kept map term from these placements at
+    the nominal machine, every centre coordinate with noise ``sigma_um`` and no prior: the
+    inverse information of the kept links, terms and setups (what a plan is judged by before
+    it runs; the fit's own u adds the a-posteriori σ and the prior)."""
+    basis = MapBasis(ranges_mm, tuple(obs.terms))
+    layout = JointLayout(obs.links, basis, tuple(len(p.artefact.balls) for p in placements))
+    j = _stacked(machine, placements, layout)
+    cov = np.linalg.pinv(j.T @ j) * sigma_um**2
+    s = layout.map_slice
+    return {t.name: float(np.sqrt(max(cov[i, i], 0.0)) * t.to_si)
+            for t, i in zip(obs.terms, range(s.start, s.stop), strict=True)}
+
+
 def _scale_observable(machine: Machine, placements: Sequence[Placement], j: np.ndarray,
                       kept: list[int], names: list[str], layout: JointLayout) -> bool:
     """Is the isotropic scale of the linear axes separate from the setup (and links)? Only a
