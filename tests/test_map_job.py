@@ -119,7 +119,10 @@ async def test_two_placements_with_a_continue_give_a_journaled_map(rig):
         r = await http.post(svc.hmi_url + "api/machines/mill1/continue", headers=bearer())
         assert r.status == 409  # the prompt was answered: a second Continue has none
         final = await svc.sessions["mill1"].wait()
+        listed = await (await http.get(svc.hmi_url + "api/runs", headers=bearer())).json()
     assert final["state"] == "IDLE", final["reason"]
+    assert [(r["state"], r["hits"]) for r in listed if r["id"] == run_id] == \
+        [("DONE", 2 * TOUCHES)]
     run = store.run(run_id)
     assert run.state == "DONE" and run.hits == 2 * TOUCHES
     assert "map of 2 placements" in run.reason
@@ -145,18 +148,30 @@ async def test_two_placements_with_a_continue_give_a_journaled_map(rig):
     assert rows[2][2].startswith("refused: mill1: no map placement waits")
 
 
-async def test_abort_at_the_prompt_keeps_the_first_placement(rig):
+@pytest.mark.parametrize("source", ["hmi", "CAN panel", "the daemon stopping"])
+async def test_a_stop_at_the_prompt_keeps_the_first_placement(rig, source):
     svc, _ctrl, _tmp = rig
+    session = svc.sessions["mill1"]
     async with aiohttp.ClientSession() as http:
         run_id = await _start_map(http, svc)
         await _until_prompt(http, svc)
-        r = await http.post(svc.hmi_url + "api/machines/mill1/abort", headers=bearer())
-        assert r.status == 200, await r.text()
-        st = await r.json()
-    assert st["state"] == "ABORTED" and st["prompt"] is None
+        if source == "hmi":
+            r = await http.post(svc.hmi_url + "api/machines/mill1/abort", headers=bearer())
+            assert r.status == 200, await r.text()
+            st = await r.json()
+        elif source == "CAN panel":
+            assert await svc.abort("mill1", source)
+            st = session.status()
+        else:
+            assert await session.interrupt(source)
+            st = session.status()
+        listed = await (await http.get(svc.hmi_url + "api/runs", headers=bearer())).json()
+    end = "INTERRUPTED" if source == "the daemon stopping" else "ABORTED"
+    assert st["state"] == end and st["prompt"] is None
     assert "waiting for the operator to move the artefact to P2" in st["reason"]
     run = svc.store.run(run_id)
-    assert run.state == "ABORTED" and run.hits == TOUCHES
+    assert run.state == end and run.hits == TOUCHES  # the first placement's hits kept
+    assert [r["state"] for r in listed if r["id"] == run_id] == [end]
     # the machine is free again: a verification run starts
     session = svc.sessions["mill1"]
     session.start("cli")
