@@ -219,3 +219,38 @@ def test_a_job_file_with_a_bad_key_or_file_is_named(tmp_path):
     bad.write_text(yaml.safe_dump(doc), encoding="utf-8")
     with pytest.raises(ConfigError, match=r"placements.1.artefact: file .*nowhere.yaml"):
         load_map_job(bad)
+
+
+async def test_rumba_verify_map_answers_the_prompt_on_the_terminal(tmp_path, monkeypatch, capsys):
+    from daemon.cli.commands import verify_map
+    from daemon.cli.commands.verify import verify
+
+    ctrl = VirtualController(truth(0), dialect="fanuc")
+    sim = OpcUaFrontend(ctrl, security="none")
+    url = await sim.start()
+    cfg = write_daemon_yaml(tmp_path, token=TOKEN,
+                            link=f"{{transport: opcua, url: '{url}', security: none}}",
+                            extra_machine=f"    map_job: {write_job(tmp_path)}")
+    entered = []
+
+    async def enter() -> bool:  # the operator moves the balls, then presses Enter
+        ctrl.move_artefact(truth(1))
+        entered.append(True)
+        return True
+
+    monkeypatch.setattr(verify_map, "_enter", enter)
+    try:
+        code = await verify(str(cfg), "mill1", quiet=True, operator="Ana Lopez", job="map")
+    finally:
+        await sim.stop()
+    out = capsys.readouterr()
+    assert code == 0, out.err  # the shipped daemon.yaml's volumetric limit: 200 µm warn
+    assert entered == [True]
+    assert "move the artefact to placement 2 of 2 (P2)" in out.err
+    assert "map (JSON): " in out.out and out.out.strip().endswith(".map.json")
+    store = Store(tmp_path / "journal.sqlite")
+    try:
+        run = store.runs("mill1")[0]
+        assert run.state == "DONE" and run.hits == 2 * TOUCHES and run.started_by == "Ana Lopez"
+    finally:
+        store.close()

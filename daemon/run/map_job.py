@@ -76,6 +76,7 @@ class RunMap(RunCapture):
     job: str
     prompt: Prompt | None
     map_events: list[dict[str, Any]]
+    map_result: dict[str, Any] | None  # the last map run's: {"status", "json"}
     _prepare: Callable[..., pipeline.Prepared]
 
     def continue_map(self, person: str) -> str:
@@ -96,7 +97,7 @@ class RunMap(RunCapture):
         prompted between them; IDENTIFY: the map fit and its files."""
         job = self.setup.map_job
         assert job is not None
-        self.map_events = []
+        self.map_events, self.map_result = [], None
         prepared = []
         for pl in job.placements:
             prepared.append(await asyncio.to_thread(self._prepare, self._placement_setup(pl),
@@ -121,7 +122,8 @@ class RunMap(RunCapture):
         await self.temps.end(run_id, self.clock.t_s())
         self._raise_if_stopped()
         self._enter(State.IDENTIFY)
-        summary = await asyncio.to_thread(self._fit_map, run_id, job, by_placement)
+        summary, self.map_result = await asyncio.to_thread(self._fit_map, run_id, job,
+                                                           by_placement)
         self._raise_if_stopped()
         self._enter(State.IDLE, summary)
 
@@ -149,9 +151,11 @@ class RunMap(RunCapture):
         self.step = None
         self.store.set_state(run_id, str(self.state), "")
 
-    def _fit_map(self, run_id: str, job: MapJob, by_placement: list[list[ProbeHit]]) -> str:
+    def _fit_map(self, run_id: str, job: MapJob, by_placement: list[list[ProbeHit]]
+                 ) -> tuple[str, dict[str, Any]]:
         """The placements' probing logs and the map fit (``rumba map``'s), its JSON written
-        next to the run's reports; the run's closing reason."""
+        next to the run's reports; the run's closing reason and its result for the status
+        (the volumetric figure's status against the machine's limit, the JSON's path)."""
         from daemon.analysis.linear_map import fit_map_placements
         from identification.linmap.problem import MapError
 
@@ -182,7 +186,7 @@ class RunMap(RunCapture):
         judged = f", {fig.status} ({fig.limit})" if fig.status else ", not judged (no limit)"
         return (f"map of {len(inputs)} placements: volumetric error max {fig.value_um:.2f} ± "
                 f"{fig.u_um or 0:.2f} µm, RMS {run.document.figures.volumetric_rms_um:.2f} µm"
-                f"{judged}; {out.name}")
+                f"{judged}; {out.name}"), {"status": fig.status, "json": str(out)}
 
 
 def _remap(placement: int, seq_offset: int) -> Callable[[ProbeHit], ProbeHit]:

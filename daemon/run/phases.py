@@ -145,6 +145,7 @@ class RunStatus:
             if (mj := getattr(self.setup, "map_job", None)) else None,
             # a map job's operator prompt between placements (the HMI's Continue), or null
             "prompt": prompt.as_dict() if (prompt := getattr(self, "prompt", None)) else None,
+            "map": getattr(self, "map_result", None),  # a map run's figure status and JSON
         }
 
     def _probing(self, touch: Any) -> None:

@@ -93,6 +93,7 @@ class Session(RunMap):
         self.job = "check"  # the current run's job: "check" (the plan) or "map" (run/map_job.py)
         self.prompt = None  # a map job's operator prompt between placements
         self.map_events: list[dict[str, Any]] = []
+        self.map_result: dict[str, Any] | None = None
         link.on_step = self._machine_step  # what the run waits for at the machine (NC start)
 
     def _machine_step(self, text: str | None) -> None:
@@ -135,7 +136,7 @@ class Session(RunMap):
         self.started_at, self.first_hit_at, self.estimated_s = time.time(), None, None
         self.clock = RunClock()  # started by the link with the run's first program
         self.verdict, self.reason, self._abort_reason = None, "", None
-        self.probing = None
+        self.probing, self.map_result = None, None
         self._abort_state = State.ABORTED
         mj = self.setup.map_job if job == "map" else None
         self.store.new_run(self.run_id, self.setup.name, trigger,

@@ -20,10 +20,11 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
 
 from daemon.cli.commands.verify_daemon import abort_on_daemon, bar_fields, follow_run
+from daemon.cli.commands.verify_map import Prompts, map_exit
 from daemon.cli.main import UserError
 from daemon.compensation.propose import journal_analyse
 from daemon.config import load_daemon_config
-from daemon.run.session import Session
+from daemon.run.session import Refused, Session
 from daemon.service.logs import setup_terminal_logging
 from daemon.service.service import LinkFactory, ServiceError, make_link
 from daemon.store.journal import Store, StoreError
@@ -35,7 +36,7 @@ COLOURS = {"PASS": "bold green", "WARN": "bold yellow", "FAIL": "bold red",
 
 async def verify(cfg_path: str, machine: str, *, strict: bool = False, quiet: bool = False,
                  link_factory: LinkFactory = make_link, console: Console | None = None,
-                 operator: str = "", **session_kw: Any) -> int:
+                 operator: str = "", job: str = "check", **session_kw: Any) -> int:
     cfg = load_daemon_config(cfg_path)
     setup = cfg.machines.get(machine)
     if setup is None:
@@ -56,7 +57,16 @@ async def verify(cfg_path: str, machine: str, *, strict: bool = False, quiet: bo
         kw = {"analyse": journal_analyse(cfg.store_path), **session_kw}
         session = Session(setup, link, store, cfg.reports_dir, **kw)
         queue = session.subscribe()
-        run_id = session.start("cli", started_by=operator)
+        try:
+            run_id = session.start("cli", started_by=operator, job=job)
+        except Refused as e:
+            raise UserError(str(e)) from None
+
+        async def go_on() -> None:
+            with contextlib.suppress(Refused):  # the run ended meanwhile
+                session.continue_map(operator or "rumba verify")
+
+        prompts = Prompts(console, go_on)
         stopped_by = _stop_on_signals(session, console)
         with Progress(TextColumn("[bold]{task.fields[state]:<10}"), BarColumn(),
                       MofNCompleteColumn(), TextColumn("touches  {task.fields[eta]}"),
@@ -69,6 +79,7 @@ async def verify(cfg_path: str, machine: str, *, strict: bool = False, quiet: bo
                                              return_when=asyncio.FIRST_COMPLETED)
                 if getter in done:
                     st = getter.result()
+                    prompts.see(st)
                     bar.update(task, total=st["total"] or None, completed=st["done"],
                                **bar_fields(st))
                 else:
@@ -81,10 +92,13 @@ async def verify(cfg_path: str, machine: str, *, strict: bool = False, quiet: bo
         # The run has ended (its abort, journal row and controller reset included) before the
         # store and link close: closing them under a live run was the Ctrl-C tracebacks.
         _restore_signals()
+        if "prompts" in locals():
+            prompts.close()
         with contextlib.suppress(Exception):
             await link.close()
         store.close()
-    code = _verdict_exit(run_id, st, strict, console)
+    code = map_exit(run_id, st, console) if job == "map" else \
+        _verdict_exit(run_id, st, strict, console)
     return 128 + int(stopped_by[0]) if stopped_by else code
 
 
@@ -151,7 +165,7 @@ def _verdict_exit(run_id: str, st: dict[str, Any], strict: bool, console: Consol
 
 async def verify_via_daemon(cfg_path: str, machine: str, *, strict: bool = False,
                             quiet: bool = False, console: Console | None = None,
-                            operator: str = "") -> int:
+                            operator: str = "", job: str = "check") -> int:
     """Trigger the running daemon through its HMI API (bearer token) and follow its events;
     ``operator``: the person journaled as starting the run.
     SIGINT / SIGTERM abort that run on the daemon (HMI abort, same token, naming the signal)
@@ -178,7 +192,8 @@ async def verify_via_daemon(cfg_path: str, machine: str, *, strict: bool = False
             events = await http.get(base + "api/events", ssl=ctx)
             if stopped_by:  # stopped before anything was started on the daemon
                 return 128 + int(stopped_by[0])
-            params = {"trigger": "cli", **({"operator": operator} if operator else {})}
+            who = {"operator": operator} if operator else {}
+            params = {"trigger": "cli", "job": job, **who}
             r = await http.post(base + f"api/machines/{machine}/start", params=params,
                                 ssl=ctx)
             body = await r.json()
@@ -189,7 +204,13 @@ async def verify_via_daemon(cfg_path: str, machine: str, *, strict: bool = False
                           MofNCompleteColumn(), TextColumn("touches  {task.fields[eta]}"),
                           console=console, disable=quiet) as bar:
                 task = bar.add_task(run_id, total=None, state="PREPARE", eta="")
-                follow = asyncio.create_task(follow_run(events, machine, run_id, bar, task))
+                async def go_on() -> None:
+                    await http.post(base + f"api/machines/{machine}/continue",
+                                    params={"run_id": run_id, **who}, ssl=ctx)
+
+                prompts = Prompts(console, go_on)
+                follow = asyncio.create_task(follow_run(events, machine, run_id, bar, task,
+                                                        prompts.see))
                 stopping = asyncio.create_task(stop.wait())
                 await asyncio.wait({follow, stopping}, return_when=asyncio.FIRST_COMPLETED)
                 stopping.cancel()
@@ -198,12 +219,14 @@ async def verify_via_daemon(cfg_path: str, machine: str, *, strict: bool = False
                                                follow, ctx)
                 else:
                     st = await follow
+                prompts.close()
             events.close()
     except aiohttp.ClientError as e:
         raise UserError(f"daemon at {base} unreachable: {e}") from None
     finally:
         _restore_signals()
-    code = _verdict_exit(run_id, st, strict, console)
+    code = map_exit(run_id, st, console) if job == "map" else \
+        _verdict_exit(run_id, st, strict, console)
     return 128 + int(stopped_by[0]) if stopped_by else code
 
 
@@ -217,8 +240,10 @@ def cmd_verify(args: argparse.Namespace) -> int:
             validate_by(operator, "--operator", allow_unattended=False)
         except BadName as e:
             raise UserError(str(e)) from None
+    job = "map" if getattr(args, "map", False) else "check"
     if args.daemon:
         return asyncio.run(verify_via_daemon(args.config, args.machine, strict=args.strict,
-                                             quiet=args.quiet, operator=operator or ""))
+                                             quiet=args.quiet, operator=operator or "",
+                                             job=job))
     return asyncio.run(verify(args.config, args.machine, strict=args.strict, quiet=args.quiet,
-                              operator=operator or ""))
+                              operator=operator or "", job=job))

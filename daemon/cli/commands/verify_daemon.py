@@ -9,6 +9,7 @@ import contextlib
 import json
 import signal
 import ssl
+from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
 from daemon.cli.main import UserError
@@ -19,9 +20,12 @@ if TYPE_CHECKING:
 
 
 async def follow_run(events: aiohttp.ClientResponse, machine: str, run_id: str,
-                     bar: Progress, task: TaskID) -> dict[str, Any]:
-    """The run's status events (``/api/events``) shown on ``bar`` until the daemon reports the
-    run ended; returns that last status."""
+                     bar: Progress, task: TaskID,
+                     on_status: Callable[[dict[str, Any]], None] | None = None
+                     ) -> dict[str, Any]:
+    """The run's status events (``/api/events``) shown on ``bar`` (and handed to
+    ``on_status``: a map job's prompts) until the daemon reports the run ended; returns that
+    last status."""
     async for line in events.content:
         if not line.startswith(b"data: "):
             continue
@@ -29,6 +33,8 @@ async def follow_run(events: aiohttp.ClientResponse, machine: str, run_id: str,
         if st["machine"] != machine or st["run_id"] != run_id:
             continue
         bar.update(task, total=st["total"] or None, completed=st["done"], **bar_fields(st))
+        if on_status is not None:
+            on_status(st)
         if not st["busy"] and not report_writing(st):
             return st  # after the run's end, until its report is written (or not)
     raise UserError(f"the daemon closed its event stream before run {run_id} ended "

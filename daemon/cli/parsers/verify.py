@@ -29,4 +29,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--daemon", action="store_true",
                    help="ask the running daemon of this config (through its HMI API) instead "
                         "of driving the link from this process")
+    p.add_argument("--map", action="store_true",
+                   help="run the machine's map job (daemon.yaml map_job: its placements, the "
+                        "operator prompted between them; Enter continues, as the HMI's "
+                        "Continue) and fit the map; exit 0 done, 1 when the map's volumetric "
+                        "error FAILs its limit, 2 otherwise")
     p.set_defaults(func=_run, preflight=_check)
