@@ -16,6 +16,7 @@ import yaml
 
 from contracts.map_job import load_map_job
 from contracts.yaml_files import ConfigError
+from daemon.cli.main import main
 from daemon.config import load_daemon_config
 from daemon.run.phases import Refused
 from daemon.service.service import Service
@@ -146,6 +147,15 @@ async def test_two_placements_with_a_continue_give_a_journaled_map(rig):
     assert rows[1][1:3] == ("token", "ok")
     assert rows[1][3].startswith("continued by Ana Lopez: move the artefact to placement 2 of 2")
     assert rows[2][2].startswith("refused: mill1: no map placement waits")
+    # rumba map takes the job file and the run's logs and fits the same map
+    again = tmp / "again.json"
+    code = main(["map", "--machine", str(MACHINE), "--job", str(tmp / "map-job.yaml"),
+                 "--log", str(reports / f"{run_id}.P1.csv"),
+                 "--log", str(reports / f"{run_id}.P2.csv"), "--json", str(again)])
+    assert code == 0
+    refit = json.loads(again.read_text(encoding="utf-8"))["figures"]["volumetric_max_um"]
+    assert refit["value_um"] == pytest.approx(doc["figures"]["volumetric_max_um"]["value_um"],
+                                              abs=1e-6)
 
 
 @pytest.mark.parametrize("source", ["hmi", "CAN panel", "the daemon stopping"])
@@ -201,6 +211,13 @@ async def test_a_machine_without_a_map_job_refuses_one(tmp_path):
     with pytest.raises(Refused, match="no map job configured"):
         s.start("hmi", job="map")
     store.close()
+
+
+def test_rumba_map_wants_one_log_per_placement_of_the_job(tmp_path, capsys):
+    code = main(["map", "--machine", str(MACHINE), "--job", write_job(tmp_path),
+                 "--log", str(tmp_path / "p1.csv"), "--json", str(tmp_path / "m.json")])
+    err = capsys.readouterr().err
+    assert code == 2 and "2 placements (P1, P2), 1 --log given" in err
 
 
 def test_a_job_file_with_a_bad_key_or_file_is_named(tmp_path):

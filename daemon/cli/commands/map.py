@@ -71,7 +71,38 @@ def limit_from_config(config: str, machine_path: str) -> tuple[Limit | None, str
     return (tol.volumetric_max_um, tol.sources.get("volumetric_max_um"), tol.coverage_k)
 
 
+def _from_job(args: argparse.Namespace) -> None:
+    """``--job`` with its ``--log`` files as the placements (the job's artefact files), the
+    stylus of the job's first plan unless given."""
+    from contracts.map_job import load_map_job
+    from contracts.yaml_files import ConfigError
+    from daemon.cli.choices import DEFAULT_STYLUS_DIAMETER_MM
+
+    if args.job is None:
+        if args.log:
+            raise _user_error("--log goes with --job (else give --placement LOG ARTEFACT)")
+        if args.stylus_diameter is None:
+            args.stylus_diameter = DEFAULT_STYLUS_DIAMETER_MM
+        return
+    if args.placement or args.map:
+        raise _user_error("--job gives the placements: not with --placement or --map")
+    try:
+        job = load_map_job(args.job)
+    except ConfigError as e:
+        raise _user_error(str(e)) from None
+    logs = args.log or []
+    if len(logs) != len(job.placements):
+        raise _user_error(f"--job {args.job}: {len(job.placements)} placements "
+                          f"({', '.join(p.name for p in job.placements)}), {len(logs)} --log "
+                          "given: one probing log per placement, in the job's order")
+    args.placement = [[log, str(p.artefact_file)] for log, p in zip(logs, job.placements,
+                                                                     strict=True)]
+    if args.stylus_diameter is None:
+        args.stylus_diameter = 2 * job.placements[0].plan.stylus_radius_mm
+
+
 def _check_args(args: argparse.Namespace) -> None:
+    _from_job(args)
     if bool(args.placement) == bool(args.map):
         raise _user_error("give the placements (--placement LOG ARTEFACT, repeated) or a saved "
                           "map (--map MAP.json), one of the two")

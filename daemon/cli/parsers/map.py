@@ -26,6 +26,12 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="a probing log and the artefact file of that placement (repeat for "
                         "each placement: its ball setup is its own, links, map and probe are "
                         "shared)")
+    p.add_argument("--job", metavar="MAP-JOB.yaml",
+                   help="a map-job file (rumba plan --map; the daemon's map_job) instead of "
+                        "--placement: its placements' artefact files with the probing logs of "
+                        "--log, one per placement in the job's order")
+    p.add_argument("--log", action="append", metavar="LOG.csv",
+                   help="--job: the probing log of the next placement (repeat)")
     p.add_argument("--holdout", nargs=2, metavar=("LOG", "ARTEFACT"),
                    help="a placement kept out of the fit: its residual before / after the map")
     p.add_argument("--map", metavar="MAP.json", help="a map written by `rumba map --json` "
@@ -46,8 +52,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="probing repeatability of a centre (µm); default: from the residuals")
     p.add_argument("--fixed-radius", action="store_true",
                    help="fit spheres with radius = ball + stylus radius (default: free radius)")
-    p.add_argument("--stylus-diameter", type=float, default=DEFAULT_STYLUS_DIAMETER_MM,
-                   metavar="MM", help=f"stylus diameter (default {DEFAULT_STYLUS_DIAMETER_MM})")
+    p.add_argument("--stylus-diameter", type=float, default=None,
+                   metavar="MM", help=f"stylus diameter (default: the job's first plan's with "
+                                      f"--job, else {DEFAULT_STYLUS_DIAMETER_MM})")
     p.add_argument("--limit-um", metavar="WARN[,FAIL]",
                    help="limits on the map's largest volumetric error (µm)")
     p.add_argument("--config", metavar="daemon.yaml",
