@@ -236,3 +236,43 @@ async def test_the_card_names_the_end_reads_not_capture(tmp_path, monkeypatch):
             assert got == ["IDLE", "ready", ""], (got, session.reason)
     finally:
         await svc.stop()
+
+
+async def test_a_map_job_prompts_the_operator_and_continue_goes_on(tmp_path):
+    """A machine with a map job shows Start map; between its placements the card shows the
+    prompt with a Continue button, which takes the job on to the next placement."""
+    from simulators.controller import VirtualController
+    from simulators.frontends.opcua import OpcUaFrontend
+    from tests.map_job_helpers import TOUCHES, truth, write_job
+
+    ctrl = VirtualController(truth(0), dialect="fanuc")
+    sim = OpcUaFrontend(ctrl, security="none")
+    url = await sim.start()
+    svc = Service(load_daemon_config(write_daemon_yaml(
+        tmp_path, token=TOKEN, link=f"{{transport: opcua, url: '{url}', security: none}}",
+        extra_machine=f"    map_job: {write_job(tmp_path)}")))
+    await svc.start()
+    try:
+        session = svc.sessions["mill1"]
+        async with chromium(tmp_path / "profile") as cdp:
+            sid = await cdp.page()
+            await cdp.sign_in(sid, svc.hmi_url, TOKEN)
+            card = "document.querySelector('.machine')"
+            await cdp.wait_for(sid, f"!{card}.querySelector('.start-map').hidden")
+            assert await cdp.eval(sid, f"{card}.querySelector('.prompt').hidden")
+            await cdp.eval(sid, f"{card}.querySelector('.start-map').click(); true")
+            await tick_preflight(cdp, sid)
+            text = await cdp.wait_for(sid, f"!{card}.querySelector('.prompt').hidden && "
+                                           f"{card}.querySelector('.prompt-text').textContent")
+            assert text.startswith("move the artefact to placement 2 of 2 (P2)")
+            assert session.job == "map" and session.done == TOUCHES
+            ctrl.move_artefact(truth(1))
+            await cdp.eval(sid, f"{card}.querySelector('.continue').click(); true")
+            await cdp.wait_for(sid, f"{card}.querySelector('.prompt').hidden && "
+                                    f"{card}.querySelector('.state').textContent === 'IDLE'",
+                               timeout_s=120)
+            run = svc.store.runs("mill1")[0]
+            assert run.state == "DONE" and run.hits == 2 * TOUCHES, run.reason
+    finally:
+        await svc.stop()
+        await sim.stop()
