@@ -243,3 +243,38 @@ async def test_rumba_verify_map_answers_the_prompt_on_the_terminal(tmp_path, mon
         assert run.state == "DONE" and run.hits == 2 * TOUCHES and run.started_by == "Ana Lopez"
     finally:
         store.close()
+
+
+def test_a_map_done_is_no_error_verdict_for_notifications_and_mqtt(tmp_path):
+    """A map job ends DONE without a verdict of the machine: no ERROR e-mail or webhook, the
+    retained MQTT verdict left the last check's; a map job stopped is an ERROR as any run."""
+    from types import SimpleNamespace
+
+    from daemon.mqtt.publisher import MachinePublisher
+    from daemon.notify.notifier import RunWatcher
+
+    sent: list = []
+    notifier = SimpleNamespace(cfg=SimpleNamespace(on=("FAIL", "ERROR")), site="s",
+                               notify=sent.append)
+    w = RunWatcher(notifier, "mill1")  # type: ignore[arg-type]
+
+    def st(state: str, run_id: str) -> dict:
+        return {"state": state, "run_id": run_id, "reason": f"{run_id} {state}",
+                "verdict": None, "job": "map", "trigger": "hmi", "link_ok": True, "done": 1,
+                "total": 2, "eta_s": None}
+
+    for s in (st("IDLE", ""), st("CAPTURE", "A"), st("IDLE", "A"), st("CAPTURE", "B"),
+              st("ABORTED", "B")):
+        w.on_status(s)
+    assert [(n.run_id, n.status) for n in sent] == [("B", "ERROR")]
+    store = Store(tmp_path / "j.sqlite")
+    try:
+        cfg = SimpleNamespace(queue_max=10, qos=1, root="rumba", site="s")
+        pub = MachinePublisher(cfg, "mill1", store)  # type: ignore[arg-type]
+        ended: list[str] = []
+        pub._verdict = lambda s: ended.append(s["run_id"]) or False  # type: ignore[method-assign]
+        for s in (st("CAPTURE", "A"), st("IDLE", "A"), st("CAPTURE", "B"), st("ABORTED", "B")):
+            pub.on_status(s)
+        assert ended == ["B"]
+    finally:
+        store.close()

@@ -138,6 +138,8 @@ class MachinePublisher:
             self._verdict(st)
 
     def _run_end(self, st: dict[str, Any]) -> None:
+        if st.get("job") == "map" and st["state"] == "IDLE":
+            return  # a map done leaves the machine's retained verdict (the last check's)
         run_id = st["run_id"]
         ok = self._verdict(st)
         analysis = self.store.analysis(run_id) if ok else None

@@ -179,6 +179,8 @@ class RunWatcher:
         self._send(st)
 
     def _send(self, st: dict[str, Any]) -> None:
+        if st.get("job") == "map" and st["state"] == "IDLE":
+            return  # a map done is no verdict of the machine (its figures: the map's JSON)
         v = st.get("verdict") or {}
         done = st["state"] == "IDLE" and v.get("status")
         status = v["status"] if done else "ERROR"
