@@ -81,6 +81,7 @@ async def test_two_placements_with_a_continue_give_a_journaled_map(rig):
         assert "waiting for the operator to move the artefact to P2" in st["step"]
         store = svc.store
         assert st["done"] == TOUCHES and st["total"] == 2 * TOUCHES
+        assert st["eta_s"] is None  # no machine time runs while the operator works
         assert store.run(run_id).reason.startswith("waiting for the operator: move the artefact")
         first = store.hits(run_id)
         assert len(first) == TOUCHES and {h.extra["placement"] for h in first} == {1.0}

@@ -143,10 +143,13 @@ class RunMap(RunCapture):
                      f"operator to move the artefact to {pl.name}")
         self.store.set_state(run_id, str(self.state), f"waiting for the operator: {text}")
         log.info("%s %s: %s", self.setup.name, run_id, text)
+        waited = time.time()
         try:
             await self.prompt.event.wait()
         finally:
             self.prompt = None
+        if self.first_hit_at is not None:  # the pace of the time left counts no waiting
+            self.first_hit_at += time.time() - waited
         self._raise_if_stopped()
         self.step = None
         self.store.set_state(run_id, str(self.state), "")

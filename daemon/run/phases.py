@@ -156,8 +156,8 @@ class RunStatus:
 
     def eta_s(self, now: float | None = None) -> float | None:
         """Time left: measured pace once touches arrive, else the program's estimate."""
-        if not self.busy:
-            return None
+        if not self.busy or getattr(self, "prompt", None) is not None:
+            return None  # idle, or a map job waiting for its operator: no machine time runs
         now = time.time() if now is None else now
         if self.first_hit_at is not None and self.done >= 2:
             pace = (now - self.first_hit_at) / (self.done - 1)
