@@ -279,3 +279,33 @@ def test_a_map_done_is_no_error_verdict_for_notifications_and_mqtt(tmp_path):
         assert ended == ["B"]
     finally:
         store.close()
+
+
+async def test_a_map_of_one_placement_may_start_unattended(tmp_path):
+    """Nobody needs to move anything: a CNC start runs a one-placement map job to its end."""
+    ctrl = VirtualController(truth(0), dialect="fanuc")
+    sim = OpcUaFrontend(ctrl, security="none")
+    url = await sim.start()
+    job = write_job(tmp_path)
+    doc = yaml.safe_load(Path(job).read_text(encoding="utf-8"))
+    doc["placements"] = doc["placements"][:1]
+    Path(job).write_text(yaml.safe_dump(doc), encoding="utf-8")
+    svc = Service(load_daemon_config(write_daemon_yaml(
+        tmp_path, token=TOKEN, link=f"{{transport: opcua, url: '{url}', security: none}}",
+        extra_machine=f"    map_job: {job}")))
+    await svc.start()
+    try:
+        session = svc.sessions["mill1"]
+        run_id = session.start("cnc", job="map")
+        final = await session.wait()
+    finally:
+        await svc.stop()
+        await sim.stop()
+    assert final["state"] == "IDLE" and final["reason"].startswith("map of 1 placement:")
+    assert final["map"]["status"] == "PASS"  # the daemon.yaml's 200 µm warn limit
+    store = Store(tmp_path / "journal.sqlite")
+    try:
+        run = store.run(run_id)
+        assert run.state == "DONE" and run.trigger == "cnc" and run.hits == TOUCHES
+    finally:
+        store.close()

@@ -122,8 +122,12 @@ class RunMap(RunCapture):
         await self.temps.end(run_id, self.clock.t_s())
         self._raise_if_stopped()
         self._enter(State.IDENTIFY)
-        summary, self.map_result = await asyncio.to_thread(self._fit_map, run_id, job,
-                                                           by_placement)
+        try:
+            summary, self.map_result = await asyncio.to_thread(self._fit_map, run_id, job,
+                                                               by_placement)
+        except OSError as e:  # the hits are journaled: `rumba history --export` has them
+            raise RunFailed(f"map: cannot write its files in {self.reports_dir}: "
+                            f"{e.strerror or e}") from None
         self._raise_if_stopped()
         self._enter(State.IDLE, summary)
 
@@ -187,7 +191,8 @@ class RunMap(RunCapture):
         out.write_text(json.dumps(doc, indent=1, ensure_ascii=False) + "\n", encoding="utf-8")
         fig = run.document.figures.volumetric_max_um
         judged = f", {fig.status} ({fig.limit})" if fig.status else ", not judged (no limit)"
-        return (f"map of {len(inputs)} placements: volumetric error max {fig.value_um:.2f} ± "
+        n = f"{len(inputs)} placement{'s' if len(inputs) > 1 else ''}"
+        return (f"map of {n}: volumetric error max {fig.value_um:.2f} ± "
                 f"{fig.u_um or 0:.2f} µm, RMS {run.document.figures.volumetric_rms_um:.2f} µm"
                 f"{judged}; {out.name}"), {"status": fig.status, "json": str(out)}
 
