@@ -25,7 +25,7 @@ import pytest_asyncio
 
 from contracts.jobs import VERDICT_CODES
 from daemon.config import load_daemon_config
-from daemon.run.session import State
+from daemon.run.session import Session, State
 from daemon.service.service import make_link
 from daemon.store import report_jobs
 from daemon.store.journal import Store
@@ -257,3 +257,72 @@ async def test_a_complete_run_after_the_matrix(rigs, tmp_path, monkeypatch, tran
     finally:
         await link.close()
         store.close()
+
+
+MAP_STOPS = [pytest.param(t, c, id=f"{t}-map-prompt-{SHORT.get(c, c)}")
+             for t in TRANSPORTS for c in (*OPERATOR, DAEMON)]
+
+
+@pytest.mark.asyncio(loop_scope="module")
+@pytest.mark.parametrize(("transport", "trigger"), MAP_STOPS)
+async def test_a_stop_at_the_map_prompt_keeps_the_first_placement(rigs, tmp_path, transport,
+                                                                   trigger):
+    """A map job (daemon/run/map_job.py) waiting for its operator between placements, the
+    machine idle: a stop ends it ABORTED / INTERRUPTED naming the prompt, the first placement's
+    hits kept, nothing running on the control, and the next run runs to its verdict."""
+    import yaml
+
+    rig = await rigs(transport)
+    rig.ctrl.reseed(0)
+    rig.ctrl.verdict = 0
+    path = write_config(tmp_path, _link(rig, trigger), dialect=DIALECT.get(transport, "fanuc"))
+    doc = yaml.safe_load(path.read_text(encoding="utf-8"))
+    machine = doc["machines"][0]
+    job = {"name": "stop-map", "placements": [
+        {"name": n, "plan": machine["plan"], "artefact": machine["artefact"]}
+        for n in ("P1", "P2")]}
+    (tmp_path / "map-job.yaml").write_text(yaml.safe_dump(job), encoding="utf-8")
+    machine["map_job"] = str(tmp_path / "map-job.yaml")
+    path.write_text(yaml.safe_dump(doc), encoding="utf-8")
+    cfg = load_daemon_config(path)
+    store = Store(cfg.store_path)
+    link = make_link(cfg.machines["mill1"])
+    await link.connect()
+    session = Session(cfg.machines["mill1"], link, store, cfg.reports_dir)
+    try:
+        run1 = session.start("hmi", job="map")
+        async with asyncio.timeout(120):
+            while session.prompt is None:
+                assert session.busy, f"{session.state}: {session.reason} ({_diagnose(rig)})"
+                await asyncio.sleep(0.02)
+        if trigger == DAEMON:
+            assert await session.interrupt(trigger)
+        else:
+            assert await session.abort(trigger)
+        end = "INTERRUPTED" if trigger == DAEMON else "ABORTED"
+        row = store.run(run1)
+        assert (row.state, session.state) == (end, State(end)), row.reason
+        assert "waiting for the operator to move the artefact to P2" in row.reason
+        assert row.hits == 4 * 4 * 5 and session.prompt is None  # placement 1 kept
+        await _error_read(rig)
+        # the next run takes a new program and runs to its verdict (stopping it while its link
+        # polls is the matrix's CAPTURE rows' job, with the link held)
+        run2 = session.start("hmi")
+        async with asyncio.timeout(120):
+            st = await session.wait()
+        assert st["state"] == "IDLE" and store.run(run2).state == "DONE", st["reason"]
+        await _error_read(rig)
+    finally:
+        with contextlib.suppress(Exception):
+            await link.close()
+        store.close()
+
+
+async def _error_read(rig) -> None:
+    """Nothing runs on the control any more after the stop (plain DNC: the tape's blocks
+    played out and the ERROR verdict read)."""
+    if rig.transport.startswith("serial"):
+        await _dnc_program_ended(rig, verdict_sent=True)
+    async with asyncio.timeout(30):
+        while rig.ctrl.state in ("running", "hold"):
+            await asyncio.sleep(0.02)
