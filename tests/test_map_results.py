@@ -176,9 +176,89 @@ def test_store_without_a_config_is_one_line_before_the_fit(files, extra, says): 
     assert code == 2 and says in se and "Traceback" not in se
 
 
+def own_journal(tmp, tmp_path, extra: str = ""):
+    """The module's daemon.yaml with a journal of this test's own (and ``extra`` lines)."""
+    cfg = tmp_path / "daemon.yaml"
+    cfg.write_text((tmp / "daemon.yaml").read_text().replace(
+        f"store: {{path: {tmp / 'journal.sqlite'}}}",
+        f"store: {{path: {tmp_path / 'own.sqlite'}}}\n{extra}"))
+    return cfg
+
+
 def test_a_saved_map_can_be_journaled(journaled, tmp_path):
-    _, cfg, mjson, *_ = journaled
+    tmp, _, mjson, *_ = journaled
     code, so, se = run_cli(["map", "--machine", str(MACHINE), "--map", str(mjson), "--config",
-                            str(cfg), "--store"])
+                            str(own_journal(tmp, tmp_path)), "--store"])
     assert code == 0, se
     assert "journaled map map-" in so
+    store = Store(tmp_path / "own.sqlite")
+    try:
+        (m,) = map_results.listed(store)
+    finally:
+        store.close()
+    assert m.report_html == "" and m.json_path == str(mjson.resolve())
+
+
+def test_runs_and_maps_in_one_aqdef_file_keep_their_own_characteristics(journaled, tmp_path):
+    """The runs' characteristics and records are those of a file without maps; the map's
+    follow with their own indices (a record never lands on a run's characteristic)."""
+    from daemon.reports.aqdef import aqdef_lines
+    from tests.daemon_helpers import TOLERANCES
+    from tests.test_aqdef import fill
+
+    tmp = journaled[0]
+    m = _one(tmp)
+    store = Store(tmp_path / "j.sqlite")
+    try:
+        fill(store, 3)
+        runs = store.trend("mill1")
+    finally:
+        store.close()
+    plain = aqdef_lines("mill1", runs, TOLERANCES)
+    both = aqdef_lines("mill1", runs, TOLERANCES, maps=[m])
+    out = tmp_path / "both.dfq"
+    out.write_bytes(("\r\n".join(both) + "\r\n").encode("cp1252"))
+    f = read_aqdef(out)
+    n_runs = int(plain[0].split()[1])
+    assert int(f.header["K0100"]) == len(f.characteristics) == n_runs + 5
+    names = [f.characteristics[i]["K2001"] for i in sorted(f.characteristics)]
+    assert names[n_runs:] == ["MAP_VD_MAX", "MAP_VD_RMS", "MAP_EXX_MAX", "MAP_EYY_MAX",
+                              "MAP_EZZ_MAX"]
+    # every run characteristic: the same three records as without the map
+    for i in range(1, n_runs + 1):
+        assert [r["K0006"] for r in f.values[i]] == ["r0000", "r0001", "r0002"]
+    for i in range(n_runs + 1, n_runs + 6):
+        assert [r["K0006"] for r in f.values[i]] == [m.id]
+    # the description part of the runs' characteristics unchanged by the map's
+    desc = [x for x in plain if x[:2] in ("K1", "K2")]
+    assert [x for x in both if x[:2] in ("K1", "K2")][:len(desc)] == desc
+
+
+def test_the_aqdef_drop_gets_a_map_jobs_map_and_a_stored_map(journaled, tmp_path):
+    """aqdef_dir: a map job's run (no daily-check analysis) drops its map's figures; ``rumba
+    map --store`` drops the map it journaled."""
+    from daemon.service.aqdef_drop import AqdefDrop
+    from tests.daemon_helpers import thesis_setup
+
+    tmp, _, mjson, rep, *_ = journaled
+    store = Store(tmp_path / "j.sqlite")
+    try:
+        store.new_run("JOB-1", "mill1", "hmi", state="DONE")
+        map_results.record_map_result(store, "JOB-1", mjson, rep)
+        drop = AqdefDrop(tmp_path / "spc", thesis_setup(), store)
+        path = drop.drop("JOB-1")
+        assert path == tmp_path / "spc" / "mill1_JOB-1.dfq"
+        f = read_aqdef(path)
+        names = {c["K2001"] for c in f.characteristics.values()}
+        assert "MAP_VD_MAX" in names and "VD_MAX" not in names
+        store.new_run("JOB-2", "mill1", "hmi", state="ABORTED")
+        assert drop.drop("JOB-2") is None  # no verdict, no map: nothing for the SPC chart
+    finally:
+        store.close()
+    spc_cfg = own_journal(tmp, tmp_path, f"aqdef_dir: {tmp_path / 'drop'}")
+    code, so, se = run_cli(["map", "--machine", str(MACHINE), "--map", str(mjson), "--config",
+                            str(spc_cfg), "--store"])
+    assert code == 0, se
+    (dfq,) = (tmp_path / "drop").glob("mill1_map-*.dfq")
+    assert f"wrote {dfq} (AQDEF)" in so
+    assert read_aqdef(dfq).characteristics[1]["K2001"] == "MAP_VD_MAX"

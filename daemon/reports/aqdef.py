@@ -135,7 +135,8 @@ def aqdef_lines(machine: str, runs: Sequence[TrendPoint], tol: Tolerances, *,
     """The file's lines (without line ends): K0100, the part (K1xxx), the characteristics
     (K2xxx/i), then per run (oldest first) and characteristic one value record (K0001/i …),
     then per map result (oldest first) one value record of each map characteristic."""
-    run_chars = characteristics(runs, tol)
+    # a file of maps only (a map job's drop) has no empty run characteristics
+    run_chars = characteristics(runs, tol) if runs or not maps else []
     chars = run_chars + map_characteristics(maps, tol)
     out = [f"K0100 {len(chars)}",
            f"K1001 {text(machine, 30)}",

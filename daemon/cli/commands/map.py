@@ -97,6 +97,15 @@ def store_map(config: str, machine_path: str, map_json: str, report: str | None)
     finally:
         store.close()
     print(f"journaled map {m.id} of {m.machine}: {m.describe()}")
+    if cfg.aqdef_dir is not None:  # the SPC folder gets it as it gets each run's
+        from daemon.service.aqdef_drop import drop_file
+
+        try:
+            path = drop_file(cfg.aqdef_dir, entry, m.id, [], [m])
+        except OSError as e:
+            raise _user_error(f"map {m.id} journaled, but its AQDEF file not written in "
+                              f"{cfg.aqdef_dir}: {e.strerror or e}") from None
+        print(f"wrote {path} (AQDEF)")
 
 
 def _check_args(args: argparse.Namespace) -> None:
