@@ -8,7 +8,10 @@ from __future__ import annotations
 import json
 import shutil
 
+import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from contracts.linear_map import load_map
 from daemon.store import map_results
@@ -262,3 +265,53 @@ def test_the_aqdef_drop_gets_a_map_jobs_map_and_a_stored_map(journaled, tmp_path
     (dfq,) = (tmp_path / "drop").glob("mill1_map-*.dfq")
     assert f"wrote {dfq} (AQDEF)" in so
     assert read_aqdef(dfq).characteristics[1]["K2001"] == "MAP_VD_MAX"
+
+
+_LEAVES = [("figures", "volumetric_max_um", "value_um"), ("figures", "volumetric_max_um", "u_um"),
+           ("figures", "volumetric_max_um", "status"), ("figures", "volumetric_max_um", "limit"),
+           ("figures", "volumetric_rms_um"), ("figures", "points"), ("basis", "axes"),
+           ("observability", "unobservable"), ("placements",), ("schema",), ("machine",),
+           ("functions",), ("fit", "residual_rms_um"), ("holdout",), ("created_utc",)]
+_VALUES = st.one_of(st.floats(allow_nan=True, allow_infinity=True), st.integers(-10**20, 10**20),
+                    st.text(max_size=30), st.none(), st.booleans(),
+                    st.lists(st.floats(allow_nan=True), max_size=3),
+                    st.dictionaries(st.text(max_size=5), st.floats(), max_size=3))
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[
+    HealthCheck.function_scoped_fixture])
+@given(leaf=st.sampled_from(_LEAVES), value=_VALUES, k=st.integers(0, 17),
+       drop=st.booleans())
+def test_fuzzed_map_files_are_journaled_or_refused_in_one_line(journaled, tmp_path, leaf, value,
+                                                               k, drop):
+    """A map file edited by hand (any leaf replaced or removed, NaN / Infinity literals, a
+    function's samples cut): journaled with finite figures, or one MapResultError naming the
+    file — tracebacks 0, nothing journaled by a refusal."""
+    mjson = journaled[2]
+    d = json.loads(mjson.read_text())
+    node = d
+    for key in leaf[:-1]:
+        node = node[key]
+    if leaf == ("functions",):  # a function's samples cut short
+        node = d["functions"][k % len(d["functions"])]
+        node["u"] = node["u"][: len(node["u"]) // 2] if drop else node["u"]
+        node["value"] = [value if isinstance(value, float) else 1.0] * len(node["value"])
+    elif drop:
+        node.pop(leaf[-1], None)
+    else:
+        node[leaf[-1]] = value
+    bad = tmp_path / "fuzzed.json"
+    bad.write_text(json.dumps(d, allow_nan=True))
+    store = Store(tmp_path / "fuzz.sqlite")
+    try:
+        before = len(map_results.listed(store, limit=10**6))
+        try:
+            m = map_results.record_map_result(store, None, bad, machine="mill1")
+        except map_results.MapResultError as e:
+            assert "\n" not in str(e) and "fuzzed.json" in str(e)
+            assert len(map_results.listed(store, limit=10**6)) == before
+        else:
+            assert np.isfinite(m.volumetric_max_um) and np.isfinite(m.volumetric_rms_um)
+            assert m.verdict in (None, "PASS", "WARN", "FAIL")
+    finally:
+        store.close()

@@ -93,6 +93,9 @@ def sha256_of(path: Path | str) -> str:
 def _max_of(f: Any) -> dict[str, Any] | None:
     if not f.terms or not f.value:
         return None
+    if not len(f.value) == len(f.u) == len(f.x_mm):
+        raise MapResultError(f"functions: {f.name}: value, u and x_mm differ in length "
+                             f"({len(f.value)}, {len(f.u)}, {len(f.x_mm)})")
     v = np.abs(np.asarray(f.value, float))
     i = int(np.argmax(v))
     return {"value_um": float(v[i]), "u_um": float(f.u[i]), "at_mm": float(f.x_mm[i])}
@@ -160,6 +163,10 @@ def record_map_result(store: Store, run_id: str | None, map_json_path: Path | st
     except ConfigError as e:
         raise MapResultError(str(e)) from None
     html = _report_html(report_dir)
+    try:
+        figs = figures_of(doc)
+    except MapResultError as e:
+        raise MapResultError(f"{map_json_path}: {e}") from None
     if run_id is not None:
         validate_run_id(run_id)
         run = store.run(run_id)  # StoreError: not in this journal
@@ -170,10 +177,21 @@ def record_map_result(store: Store, run_id: str | None, map_json_path: Path | st
         raise MapResultError("a map made outside a run needs the machine's name")
     else:
         map_id = new_map_id()
-    figs = figures_of(doc)
+    try:  # JSON's NaN / Infinity literals parse; a figure that is one is not a figure
+        text = json.dumps(figs, allow_nan=False)
+    except ValueError:
+        raise MapResultError(f"{map_json_path}: figures: a figure that is not a finite number "
+                             "(NaN or infinite): not journaled") from None
+    if figs["volumetric_max_um"] < 0 or figs["volumetric_rms_um"] < 0 or (
+            figs["volumetric_max_u_um"] or 0) < 0:
+        raise MapResultError(f"{map_json_path}: figures: a negative volumetric error or u: "
+                             "not journaled")
+    if figs["status"] not in (None, "PASS", "WARN", "FAIL"):
+        raise MapResultError(f"{map_json_path}: figures.volumetric_max_um.status: expected "
+                             f"PASS, WARN, FAIL or null, got {figs['status']!r}")
     row = (map_id, machine, run_id or "", time.time(), figs["status"],
            figs["volumetric_max_um"], figs["volumetric_max_u_um"], figs["volumetric_rms_um"],
-           figs["limit"] or "", len(doc.placements), json.dumps(figs, allow_nan=False),
+           figs["limit"] or "", len(doc.placements), text,
            str(Path(map_json_path).resolve()), sha256_of(map_json_path),
            str(html.resolve()) if html else "", sha256_of(html) if html else "", recorded_by)
     with store.transaction():
