@@ -353,7 +353,7 @@ def create_app(sessions: Mapping[str, Session], store: Store, token: str,
                        trend_handler(SESSIONS_KEY, STORE_KEY))
     add_compensation_routes(app, SESSIONS_KEY, STORE_KEY)  # confirm from the page
     add_baseline_routes(app, SESSIONS_KEY, STORE_KEY)  # the drift baseline
-    add_map_routes(app, STORE_KEY)  # maps of the linear axes
+    add_map_routes(app, STORE_KEY, REPORT_CSP)  # maps of the linear axes
     app.router.add_get("/reports/{run_id:[A-Za-z0-9_.-]{1,64}}.{kind:html|json|pdf}",
                        report_file)
     return app

@@ -41,7 +41,9 @@ def map_dict(m: map_results.MapResult) -> dict[str, Any]:
             "pdf": base + "map.pdf" if pdf else None, "json": base + "map.json"}
 
 
-def add_routes(app: web.Application, store_key: web.AppKey) -> None:
+def add_routes(app: web.Application, store_key: web.AppKey, report_csp: str) -> None:
+    """The routes; ``report_csp``: the run reports' policy (no script, data: images)."""
+
     async def maps(request: web.Request) -> web.Response:
         machine = request.query.get("machine")
         if machine is not None and not 0 < len(machine) <= 64:
@@ -51,8 +53,6 @@ def add_routes(app: web.Application, store_key: web.AppKey) -> None:
         return web.json_response([map_dict(m) for m in got])
 
     async def file(request: web.Request) -> web.StreamResponse:
-        from daemon.hmi.app import REPORT_CSP  # the run reports' policy: no script, data: images
-
         map_id, name = request.match_info["map_id"], request.match_info["name"]
         try:
             m = map_results.get(request.app[store_key], map_id)
@@ -69,7 +69,7 @@ def add_routes(app: web.Application, store_key: web.AppKey) -> None:
         resp = web.FileResponse(path, headers={"Content-Type": TYPES[name]})
         if name == "map.pdf":
             resp.headers["Content-Disposition"] = f'inline; filename="rumba-{map_id}.pdf"'
-        resp.headers["Content-Security-Policy"] = REPORT_CSP
+        resp.headers["Content-Security-Policy"] = report_csp
         return resp
 
     async def script(request: web.Request) -> web.Response:
