@@ -170,13 +170,31 @@ def test_record_map_result_for_a_daemon_job_takes_the_runs_id_and_machine(journa
 
 
 @pytest.mark.parametrize(("extra", "says"), [
-    (["--store"], "--store journals the map in the daemon's journal: give --config"),
+    (["--json", "/nonexistent/x.json", "--store"],
+     "--store journals the map in the daemon's journal: give --config"),
+    (["--predict", "p.csv", "--out", "o.csv", "--config", "{cfg}", "--store"],
+     "--store journals the map file's path and hash: give --json OUT.json and/or --report"),
 ])
-def test_store_without_a_config_is_one_line_before_the_fit(files, extra, says):  # noqa: F811
-    _, out, _ = files
-    code, _so, se = run_cli(["map", "--machine", str(MACHINE), "--placement", *out[0],
-                            "--json", "/nonexistent/x.json", *extra])
+def test_store_without_a_config_or_a_file_is_one_line_before_the_fit(journaled, extra,
+                                                                      says):
+    _, cfg, *_, out = journaled
+    extra = [x.replace("{cfg}", str(cfg)) for x in extra]
+    code, _so, se = run_cli(["map", "--machine", str(MACHINE), "--placement", *out[0], *extra])
     assert code == 2 and says in se and "Traceback" not in se
+
+
+def test_history_refuses_json_for_a_run_and_an_unknown_id(journaled):
+    tmp, cfg, *_ = journaled
+    store = Store(tmp / "journal.sqlite")
+    try:
+        store.new_run("r-plain-1", "mill1", "cnc", state="DONE")
+    finally:
+        store.close()
+    for ident, says in (("r-plain-1", "--json OUT exports a map result; r-plain-1 is not one"),
+                        ("no-such", "--json OUT exports a map result; no-such is not one")):
+        code, _, se = run_cli(["history", "--config", str(cfg), "--export", ident,
+                               "--json", "x.json"])
+        assert code == 2 and says in se and "Traceback" not in se
 
 
 def own_journal(tmp, tmp_path, extra: str = ""):
