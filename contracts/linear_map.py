@@ -152,6 +152,22 @@ class Holdout(_Model):
     method: str
 
 
+class OperatorStep(_Model):
+    placement: str  # the placement the operator moved the artefact to
+    prompted_at: float  # Unix time the prompt was shown
+    continued_at: float  # Unix time of the Continue
+    continued_by: str  # who pressed it (the HMI account, the script's operator)
+
+
+class JobRecord(_Model):
+    """The daemon's map job the map came from (``contracts.map_job``)."""
+
+    name: str
+    run_id: str
+    file: str
+    operator_steps: list[OperatorStep] = []
+
+
 class LinearMapFile(_Model):
     schema_: Literal["rumba-linear-map/1"]
     model_config = ConfigDict(extra="forbid", frozen=True, populate_by_name=True)
@@ -170,6 +186,7 @@ class LinearMapFile(_Model):
     figures: Figures
     holdout: Holdout | None = None
     warnings: list[str] = []
+    job: JobRecord | None = None  # a map fitted by the daemon's map job: the job and its steps
 
     def to_json(self) -> dict[str, Any]:
         d = self.model_dump(by_alias=False)

@@ -106,6 +106,12 @@ async def test_two_placements_with_a_continue_give_a_journaled_map(rig):
     reports = tmp / "reports"
     doc = json.loads((reports / f"{run_id}.map.json").read_text(encoding="utf-8"))
     assert [p["centres"] for p in doc["placements"]] == [36, 36]
+    from contracts.linear_map import load_map
+    from daemon.store.map_results import listed
+
+    assert load_map(reports / f"{run_id}.map.json").job.run_id == run_id  # a map file
+    journaled = [m for m in listed(store, "mill1") if m.id == run_id]
+    assert len(journaled) == 1  # the map results of history, HMI, fleet store, OPC UA
     steps = doc["job"]["operator_steps"]
     assert len(steps) == 1 and steps[0]["placement"] == "P2"
     assert steps[0]["continued_by"] == "Ana Lopez"

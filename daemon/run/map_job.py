@@ -23,12 +23,15 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
+from contracts.linear_map import JobRecord, OperatorStep
 from contracts.map_job import JobPlacement, MapJob
 from contracts.messages import ProbeHit
 from contracts.probing_log import write_log
 from daemon.analysis import pipeline
 from daemon.run.capture import RunCapture
 from daemon.run.phases import END_READS, START_READS, Refused, RunFailed, State
+from daemon.store.journal import StoreError
+from daemon.store.map_results import record_map_result
 
 log = logging.getLogger("rumba.session")
 
@@ -128,6 +131,12 @@ class RunMap(RunCapture):
         except OSError as e:  # the hits are journaled: `rumba history --export` has them
             raise RunFailed(f"map: cannot write its files in {self.reports_dir}: "
                             f"{e.strerror or e}") from None
+        try:  # journaled as a map result (history, HMI, fleet store, OPC UA, AQDEF)
+            record_map_result(self.store, run_id, self.map_result["json"], None,
+                              recorded_by="map job")
+        except StoreError as e:
+            raise RunFailed(f"map: written to {self.map_result['json']} but not journaled: "
+                            f"{e}") from None
         self._raise_if_stopped()
         self._enter(State.IDLE, summary)
 
@@ -184,11 +193,12 @@ class RunMap(RunCapture):
         except (MapError, ValueError) as e:
             raise RunFailed(f"map: {e} (the placements' hits are journaled and their logs "
                             f"written to {self.reports_dir})") from None
-        doc = run.document.to_json()
-        doc["job"] = {"name": job.name, "run_id": run_id, "file": str(job.path),
-                      "operator_steps": list(self.map_events)}
+        doc = run.document.model_copy(update={"job": JobRecord(
+            name=job.name, run_id=run_id, file=str(job.path),
+            operator_steps=[OperatorStep(**e) for e in self.map_events])})
         out = self.reports_dir / f"{run_id}.map.json"
-        out.write_text(json.dumps(doc, indent=1, ensure_ascii=False) + "\n", encoding="utf-8")
+        out.write_text(json.dumps(doc.to_json(), indent=1, ensure_ascii=False) + "\n",
+                       encoding="utf-8")
         fig = run.document.figures.volumetric_max_um
         judged = f", {fig.status} ({fig.limit})" if fig.status else ", not judged (no limit)"
         n = f"{len(inputs)} placement{'s' if len(inputs) > 1 else ''}"
