@@ -194,3 +194,61 @@ def test_an_issue_number_in_a_comment_is_caught(tmp_path):
     (tmp_path / "m.py").write_text("x = 1  # the drift (issue 22)\n# LinuxCNC #3650\n")
     (tmp_path / "c.yaml").write_text("# swivel head, issue-24 plan\n")
     assert [c.split(":")[0] for c in issue_cites(tmp_path)] == ["c.yaml", "m.py"]
+
+
+# SQL lives in daemon/store/ only: every other module asks the store a question by name. A
+# statement is recognised by its shape (keyword followed by what must follow it), uppercase as
+# the project writes SQL, in any string literal that is not a docstring (f-strings with their
+# holes as "?"), so "Select" (a SINUMERIK method) or "RESELECT THE CARRIER" do not count.
+SQL = re.compile(r"\bSELECT\b[\s\S]+?\bFROM\b|\bINSERT\s+(?:OR\s+\w+\s+)?INTO\b"
+                 r"|\bUPDATE\s+\S+\s+SET\b|\bDELETE\s+FROM\b"
+                 r"|\bCREATE\s+(?:UNIQUE\s+)?(?:TABLE|INDEX|VIEW)\b|\b(?:ALTER|DROP)\s+TABLE\b")
+SQL_HOME = "daemon/store/"
+
+
+def _literals(tree: ast.AST) -> list[tuple[int, str]]:
+    docs = {id(n.body[0].value) for n in ast.walk(tree)
+            if isinstance(n, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef))
+            and n.body and isinstance(n.body[0], ast.Expr)
+            and isinstance(n.body[0].value, ast.Constant)}
+    out = []
+    for n in ast.walk(tree):
+        if isinstance(n, ast.Constant) and isinstance(n.value, str) and id(n) not in docs:
+            out.append((n.lineno, n.value))
+        elif isinstance(n, ast.JoinedStr):
+            out.append((n.lineno, "".join(v.value if isinstance(v, ast.Constant) else "?"
+                                          for v in n.values)))
+    return out
+
+
+def sql_outside_store(root: Path) -> list[str]:
+    found = []
+    for pkg in OURS:
+        for p in sorted((root / pkg).rglob("*.py")):
+            rel = p.relative_to(root).as_posix()
+            if rel.startswith(SQL_HOME):
+                continue
+            for line, text in _literals(ast.parse(p.read_text(encoding="utf-8"), rel)):
+                if SQL.search(text):
+                    found.append(f"{rel}:{line}: {' '.join(text.split())[:80]}")
+    return sorted(found)
+
+
+def test_sql_only_in_the_store():
+    assert sql_outside_store(ROOT) == []
+
+
+def test_sql_outside_the_store_is_caught(tmp_path):
+    (tmp_path / "daemon" / "hmi").mkdir(parents=True)
+    (tmp_path / "daemon" / "store").mkdir()
+    for pkg in set(OURS) - {"daemon"}:
+        (tmp_path / pkg).mkdir()
+    (tmp_path / "daemon" / "hmi" / "v.py").write_text(
+        '"""SELECT the run FROM the list (prose)."""\n'
+        'SELECT = "Select"\nNOTE = "RESELECT THE CARRIER FROM THE MAGAZINE"\n'
+        'q = f"SELECT {cols} FROM runs WHERE id=?"\n'
+        'w = ("UPDATE compensations"\n     " SET state=?")\n')
+    (tmp_path / "daemon" / "store" / "s.py").write_text('q = "DELETE FROM runs"\n')
+    (tmp_path / "benchmarks" / "b.py").write_text('c.execute("INSERT INTO m VALUES (%s)")\n')
+    assert [f.rsplit(":", 1)[0] for f in sql_outside_store(tmp_path)] == [
+        "benchmarks/b.py:1", "daemon/hmi/v.py:4", "daemon/hmi/v.py:5"]
