@@ -54,9 +54,9 @@ import yaml
 from contracts.setup_files import load_artefact, load_machine
 from daemon.analysis.identify import analyse_centres
 from daemon.analysis.touch_centres import rows_to_centres
-from daemon.cli.commands.plan import make_plan
 from identification.estimate import estimate
 from identification.uncertainty import t_variance_factor
+from programs.plan_make import make_plan
 from simulators.errors_schema import errors_from_dict
 from simulators.offline import run_sync
 from simulators.thermal import AxisWarmup, ThermalState
