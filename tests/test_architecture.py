@@ -252,3 +252,37 @@ def test_sql_outside_the_store_is_caught(tmp_path):
     (tmp_path / "benchmarks" / "b.py").write_text('c.execute("INSERT INTO m VALUES (%s)")\n')
     assert [f.rsplit(":", 1)[0] for f in sql_outside_store(tmp_path)] == [
         "benchmarks/b.py:1", "daemon/hmi/v.py:4", "daemon/hmi/v.py:5"]
+
+
+# The tests stand on the product, never the other way: no package of ours (benchmarks and demos
+# included) imports ``tests``. What both need (the replay link, exact synthetic logs, the rigs
+# of simulated CNCs) lives in the product or in benchmarks/rigs/. One named exception: the
+# fuzz campaign runs the input property tests themselves with larger budgets.
+TESTS_IMPORT_ALLOWED = {"benchmarks.fuzz.inputs"}
+
+
+def _imports_tests(path: Path) -> bool:
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"), str(path))):
+        if isinstance(node, ast.Import) and any(a.name.split(".")[0] == "tests"
+                                                for a in node.names):
+            return True
+        if (isinstance(node, ast.ImportFrom) and node.level == 0 and node.module
+                and node.module.split(".")[0] == "tests"):
+            return True
+    return False
+
+
+def test_nothing_of_ours_imports_the_tests():
+    files = [p for pkg in OURS for p in (ROOT / pkg).rglob("*.py")]
+    assert sorted(_module(p) for p in files if _imports_tests(p)) == sorted(TESTS_IMPORT_ALLOWED)
+
+
+def test_an_import_of_the_tests_is_caught(tmp_path):
+    cases = {"a.py": "def f():\n    from tests.synth import make_rows\n",
+             "b.py": "import tests.test_e2e_transports as e2e\n",
+             "c.py": "from tests import replay_link\n",
+             "d.py": "from benchmarks.rigs import rig_helpers\nimport testsuite\n"}
+    for name, text in cases.items():
+        (tmp_path / name).write_text(text)
+    assert [n for n in cases if _imports_tests(tmp_path / n)] == ["a.py", "b.py", "c.py"]
+
