@@ -286,3 +286,58 @@ def test_an_import_of_the_tests_is_caught(tmp_path):
         (tmp_path / name).write_text(text)
     assert [n for n in cases if _imports_tests(tmp_path / n)] == ["a.py", "b.py", "c.py"]
 
+
+# A configuration is read and checked without the runtime: the schemas and loaders (daemon/
+# config.py, daemon/*/config.py, drivers/*/schema.py) reach, through any chain of our imports,
+# no protocol stack, web server or renderer. `rumba check` stays light, and a schema cannot
+# come to depend on the HMI's or a link's state.
+RUNTIME_LIBS = {"aiohttp", "asyncua", "pymodbus", "serial", "serial_asyncio", "can", "psycopg",
+                "aiomqtt", "matplotlib", "jinja2", "pylsv2", "linuxcnc"}
+PARSERS = {"psycopg.conninfo"}  # libpq's own URL parser checks store.url, nothing connects
+
+
+def _config_modules(graph: dict[str, set[str]]) -> list[str]:
+    return sorted(m for m in graph if m == "daemon.config" or (
+        m.split(".")[0] in ("daemon", "drivers") and m.rsplit(".", 1)[-1] in ("config", "schema")
+        and m != "daemon.store.schema"))  # the journal's migrations, not a configuration
+
+
+def _reach(graph: dict[str, set[str]], start: str) -> set[str]:
+    seen, todo = {start}, [start]
+    while todo:
+        for dep in graph[todo.pop()] - seen:
+            seen.add(dep)
+            todo.append(dep)
+    return seen
+
+
+def _runtime_libraries(module: str) -> set[str]:
+    """The runtime libraries ``module`` imports, at any depth of the file."""
+    path = ROOT / (module.replace(".", "/") + ".py")
+    if not path.exists():
+        path = ROOT / module.replace(".", "/") / "__init__.py"
+    names = set()
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"), str(path))):
+        if isinstance(node, ast.Import):
+            names.update(a.name for a in node.names)
+        elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+            names.update(f"{node.module}.{a.name}" for a in node.names)
+    return {n.split(".")[0] for n in names
+            if n.split(".")[0] in RUNTIME_LIBS and not any(n.startswith(p) for p in PARSERS)}
+
+
+def runtime_in_configuration(graph: dict[str, set[str]]) -> list[str]:
+    return sorted(f"{c} reaches {m} ({', '.join(sorted(_runtime_libraries(m)))})"
+                  for c in _config_modules(graph) for m in sorted(_reach(graph, c))
+                  if _runtime_libraries(m))
+
+
+def test_configuration_schemas_import_no_runtime():
+    assert len(_config_modules(GRAPH)) >= 10  # the walker sees them
+    assert runtime_in_configuration(GRAPH) == []
+
+
+def test_a_runtime_import_in_a_schema_is_caught():
+    graph = {m: set(deps) for m, deps in GRAPH.items()}
+    graph["daemon.config"].add("daemon.hmi.limits")  # the HMI's request limits: aiohttp
+    assert runtime_in_configuration(graph) == ["daemon.config reaches daemon.hmi.limits (aiohttp)"]
