@@ -2,14 +2,15 @@
 # Install the independent peers the tests talk to (see tests/peers/PEERS_FINDINGS.md).
 #
 #   bash .ci/install-peers.sh [PEER...]       PEER: socat mbpoll node-opcua chromium linuxcnc
-#                                             postgresql mosquitto
+#                                             postgresql mosquitto aqdefreader
 #                                             (default: all of them)
 #
 # Idempotent: what is installed already is skipped (a second run with everything present takes
 # well under a second); `apt-get update` runs once, and only when a Debian package is missing.
 # Debian packages come from Debian's own bookworm repositories, without recommends (linuxcnc-uspace
 # would otherwise pull an RT kernel, Qt and OpenCV). node-opcua goes to .peers/node/ (git-ignored;
-# RUMBA_PEERS_DIR=DIR puts it in DIR/node instead).
+# RUMBA_PEERS_DIR=DIR puts it in DIR/node instead). aqdefreader (an independent Q-DAS reader)
+# goes to its own venv in .peers/aqdef/: it needs pandas, which the product does not.
 # Prints one timing line per peer and a version summary at the end.
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
@@ -21,8 +22,13 @@ NODE_OPCUA_VERSION=2.182.2
 # peer checks the server against them. 2.182.0 is the version node-opcua 2.182.2 depends on.
 NODE_OPCUA_NODESETS_VERSION=2.182.0
 NODE_PREFIX=${RUMBA_PEERS_DIR:-.peers}/node
+# pandas 3 breaks the reader's own create_column_dataframe (tests/peers/PEERS_FINDINGS.md); the
+# reading the tests use works on both, pinned below 3 all the same.
+AQDEF_VERSION=1.3.0
+AQDEF_PREFIX=${RUMBA_PEERS_DIR:-.peers}/aqdef
+PYTHON=${PYTHON:-python3.11}
 
-ALL_PEERS=(socat mbpoll node-opcua chromium linuxcnc postgresql mosquitto)
+ALL_PEERS=(socat mbpoll node-opcua chromium linuxcnc postgresql mosquitto aqdefreader)
 declare -A APT_PKGS=(
   [socat]="socat"
   [mbpoll]="mbpoll libmodbus-dev pkg-config"
@@ -80,9 +86,27 @@ node_opcua_version() {  # node_opcua_version [PACKAGE]: installed version of nod
   [[ -f $pj ]] && node -p "require(process.argv[1]).version" "$(readlink -f "$pj")" 2>/dev/null || true
 }
 
+aqdef_version() {  # the installed aqdefreader's version, or nothing
+  [[ -x $AQDEF_PREFIX/bin/python ]] &&
+    "$AQDEF_PREFIX/bin/python" -c 'import importlib.metadata as m; print(m.version("aqdefreader"))' \
+      2>/dev/null || true
+}
+
 install_peer() {
   local peer=$1 t0 pkgs
   t0=$(now)
+  if [[ $peer == aqdefreader ]]; then
+    if [[ $(aqdef_version) == "$AQDEF_VERSION" ]]; then
+      log "aqdefreader: already installed ($AQDEF_VERSION in $AQDEF_PREFIX) $(since "$t0")"
+      return
+    fi
+    "$PYTHON" -m venv "$AQDEF_PREFIX"
+    "$AQDEF_PREFIX/bin/python" -m pip install --quiet "aqdefreader==$AQDEF_VERSION" 'pandas<3' \
+      chardet >/dev/null
+    [[ $(aqdef_version) == "$AQDEF_VERSION" ]] || { log "aqdefreader: install failed"; exit 1; }
+    log "aqdefreader: installed $AQDEF_VERSION into $AQDEF_PREFIX in $(since "$t0")"
+    return
+  fi
   if [[ $peer == node-opcua ]]; then
     if [[ $(node_opcua_version) == "$NODE_OPCUA_VERSION" &&
           $(node_opcua_version node-opcua-nodesets) == "$NODE_OPCUA_NODESETS_VERSION" ]]; then
@@ -129,6 +153,7 @@ for p in "${peers[@]}"; do
     linuxcnc) v="linuxcnc-uspace $(dpkg-query -W -f='${Version}' linuxcnc-uspace), linuxcnc-uspace-dev $(dpkg-query -W -f='${Version}' linuxcnc-uspace-dev)" ;;
     postgresql) v="postgresql $(dpkg-query -W -f='${Version}' postgresql)" ;;
     mosquitto) v="mosquitto $(dpkg-query -W -f='${Version}' mosquitto)" ;;
+    aqdefreader) v="aqdefreader $(aqdef_version) with pandas $("$AQDEF_PREFIX/bin/python" -c 'import pandas; print(pandas.__version__)')" ;;
   esac
   log "version $p: $v"
 done

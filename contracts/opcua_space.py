@@ -78,3 +78,52 @@ def node_id(role: str, ns: int, overrides: dict[str, str] | None = None) -> str:
     if overrides and role in overrides:
         return overrides[role]
     return f"ns={ns};s={BY_ROLE[role].path}"
+
+
+# --------------------------------------------------------------- the daemon's results server
+# Not the gateway profile above: what the daemon's own OPC UA results server (daemon/opcua/)
+# serves to a quality system, per machine under Machinery's Machines folder, in the namespace
+# below. ``MAP_VARIABLES`` are the children of ``<machine>.Map``: the last map of the linear
+# axes journaled for that machine; a Double in µm carries an EngineeringUnits property
+# (EUInformation, UNECE code 4H) and is NaN when the machine has no map or the figure none.
+RESULTS_NAMESPACE_URI = "urn:rumba-cnc:results"
+
+
+@dataclass(frozen=True)
+class ResultVariable:
+    name: str  # browse name; node id ``ns=<index>;s=<machine>.Map.<name>``
+    kind: Literal["Double", "Int32", "UInt32", "String", "String[]", "DateTime"]
+    unit: Literal["um", ""]
+    doc: str
+
+
+MAP_VARIABLES: tuple[ResultVariable, ...] = (
+    ResultVariable("LastMapId", "String", "", "id of the last map result ('' : none): the map "
+                   "job's run id, or map-… for one journaled by `rumba map --store`"),
+    ResultVariable("LastMapTime", "DateTime", "", "when it was journaled (UTC)"),
+    ResultVariable("LastMapVerdict", "String", "", "PASS, WARN or FAIL against the volumetric "
+                   "limit; 'not judged' without a limit"),
+    ResultVariable("LastMapEvaluation", "Int32", "", "its ResultEvaluationEnum as for a run: "
+                   "0 Undefined, 1 OK, 2 NotOK, 3 NotDecidable"),
+    ResultVariable("Limit", "String", "", "the limit it was judged against, as the report "
+                   "words it"),
+    ResultVariable("VolumetricMax_um", "Double", "um", "largest volumetric error over the "
+                   "covered box (tool tip relative to the workpiece, rotary axes at zero, after "
+                   "the best rigid-body motion)"),
+    ResultVariable("VolumetricMaxU_um", "Double", "um", "standard uncertainty of "
+                   "VolumetricMax_um"),
+    ResultVariable("VolumetricRms_um", "Double", "um", "RMS of the volumetric error over the "
+                   "covered box"),
+    ResultVariable("PositioningMaxEXX_um", "Double", "um", "largest |EXX| over the covered X "
+                   "stroke (NaN: not mapped)"),
+    ResultVariable("PositioningMaxEYY_um", "Double", "um", "largest |EYY| over the covered Y "
+                   "stroke"),
+    ResultVariable("PositioningMaxEZZ_um", "Double", "um", "largest |EZZ| over the covered Z "
+                   "stroke"),
+    ResultVariable("Placements", "UInt32", "", "placements of the artefact the map was "
+                   "fitted from"),
+    ResultVariable("CoveredRange_mm", "String", "", "covered controller strokes, e.g. "
+                   "'X -400..400, Y -300..300, Z -100..400'"),
+    ResultVariable("NotObservable", "String[]", "", "directions and terms the data do not "
+                   "determine (the map's observability statement)"),
+)

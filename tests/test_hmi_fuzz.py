@@ -77,7 +77,8 @@ ROUTES = ["/", "/login", "/logout", "/hmi.js", "/hmi.css", "/api/status", "/api/
           "/api/machines/nope/start", "/reports/20200101T000000Z-0a0a.html",
           "/reports/x.json", "/reports/", "/api/", "/favicon.ico", "/compensation.js",
           "/api/compensation?machine=mill1", "/api/compensation/confirm",
-          "/api/compensation/rollback"]
+          "/api/compensation/rollback", "/api/maps", "/maps.js",
+          "/maps/map-20200101-000000-0a0a/map.html", "/maps/x/map.json"]
 # Bytes a request line may carry (no space, CR, LF), plus percent escapes and dot segments.
 URL_CHARS = st.characters(min_codepoint=0x21, max_codepoint=0x7E)
 SEGMENT = st.one_of(st.text(URL_CHARS, max_size=12), st.sampled_from(

@@ -28,12 +28,12 @@ from aiohttp import web
 
 from contracts.setup_types import SAFE_NAME
 from daemon.analysis.temperature_trend import fit, fleet_points
-from daemon.fleet import temperature_view, view
+from daemon.fleet import map_view, temperature_view, view
 from daemon.hmi.access import secured_app
 from daemon.hmi.app import REPORT_CSP, run_id_ok
 from daemon.hmi.auth import Auth
 from daemon.hmi.limits import HmiLimits, int_param
-from daemon.store import pg_temperatures
+from daemon.store import pg_maps, pg_temperatures
 from daemon.store.journal import StoreError
 from daemon.store.pg import PgStore
 from daemon.store.url import redact
@@ -114,12 +114,24 @@ async def machine(request: web.Request) -> web.Response:
     since = time.time() - days * 86400.0
 
     async def load(s: PgStore) -> tuple:
-        return await s.machine(name), await s.runs(name, RUNS_SHOWN), await s.trend(name, since)
+        return (await s.machine(name), await s.runs(name, RUNS_SHOWN),
+                await s.trend(name, since), await pg_maps.listed(s.conn, name, RUNS_SHOWN))
 
-    m, runs, trend = await _reader(request).call(load, (None, [], []))
-    if m is None and not runs:
+    m, runs, trend, maps = await _reader(request).call(load, (None, [], [], []))
+    if m is None and not runs and not maps:
         raise web.HTTPNotFound(text=f"no machine {name!r} in the fleet store")
-    return _html(view.machine_page(name, m, runs, trend, days))
+    page = view.machine_page(name, m, runs, trend, days)
+    return _html(page.replace("</main>", map_view.maps_section(maps) + "</main>", 1))
+
+
+async def machine_maps_json(request: web.Request) -> web.Response:
+    """A machine's map results of the linear axes, newest first (``limit``, default 50)."""
+    name = request.match_info["machine"]
+    if not SAFE_NAME.fullmatch(name):
+        raise web.HTTPNotFound(text="no such machine (names are 1-32 of A-Z a-z 0-9 _ . -)")
+    limit = int_param(request, "limit", RUNS_SHOWN, 1, 1000)
+    maps = await _reader(request).call(lambda s: pg_maps.listed(s.conn, name, limit), [])
+    return web.json_response({"machine": name, "maps": map_view.maps_json(maps)})
 
 
 LINK_NAME = re.compile(r"[A-Z0-9]{1,16}")  # a location error's name, e.g. EX0C
@@ -236,6 +248,7 @@ def create_fleet_app(dsn: str, token: str, *, stale_after_h: float = 26.0,
     app.router.add_get("/api/fleet", fleet_json)
     app.router.add_get("/machines/{machine:[^/]{1,64}}", machine)
     app.router.add_get("/machines/{machine:[^/]{1,64}}/temperature", against_temperature)
+    app.router.add_get("/api/machines/{machine:[^/]{1,64}}/maps", machine_maps_json)
     app.router.add_get("/api/machines/{machine:[^/]{1,64}}/temperature",
                        against_temperature_json)
     app.router.add_get("/reports/{run_id:[A-Za-z0-9_.-]{1,64}}.html", report)

@@ -39,6 +39,7 @@ from daemon.hmi.auth import Auth, Identity
 from daemon.hmi.baseline_api import add_routes as add_baseline_routes
 from daemon.hmi.compensation_api import add_routes as add_compensation_routes
 from daemon.hmi.limits import HmiLimits, int_param
+from daemon.hmi.map_api import add_routes as add_map_routes
 from daemon.hmi.trend_api import trend_handler
 from daemon.hmi.users import Accounts
 from daemon.reports.index_scatter import index_scatter_doc
@@ -352,6 +353,7 @@ def create_app(sessions: Mapping[str, Session], store: Store, token: str,
                        trend_handler(SESSIONS_KEY, STORE_KEY))
     add_compensation_routes(app, SESSIONS_KEY, STORE_KEY)  # confirm from the page
     add_baseline_routes(app, SESSIONS_KEY, STORE_KEY)  # the drift baseline
+    add_map_routes(app, STORE_KEY, REPORT_CSP)  # maps of the linear axes
     app.router.add_get("/reports/{run_id:[A-Za-z0-9_.-]{1,64}}.{kind:html|json|pdf}",
                        report_file)
     return app

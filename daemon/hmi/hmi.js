@@ -261,6 +261,7 @@ async function loadLastVerdicts() {
   }));
   // The fetch answered a moment ago: the live events since then are newer.
   Object.values(live).forEach(liveRow);
+  if (window.rumbaMaps) window.rumbaMaps.load();  // maps.js: a map job is a run too
   // The last verdict of each machine's history, for a card whose daemon has none yet.
   for (const run of [...runs].reverse()) {
     if (run.verdict) {

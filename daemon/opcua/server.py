@@ -1,6 +1,7 @@
 """The daemon's OPC UA server (off unless ``opcua_server`` is configured): per machine
 under Machinery's ``Machines`` folder, its OPC 40001-1 identification, MachineryItemState, the
-check's live state, and an OPC 40001-101 ``ResultManagement`` serving the journal's runs.
+check's live state, the last map of the linear axes (daemon/opcua/map_nodes.py), and an
+OPC 40001-101 ``ResultManagement`` serving the journal's runs.
 
 Security as the simulator's controller server (contracts/opcua_security.py): Basic256Sha256
 SignAndEncrypt only, user name + password, client certificates checked against the configured
@@ -23,7 +24,7 @@ from asyncua.crypto.validator import CertificateValidator, CertificateValidatorO
 
 from contracts.opcua_certs import ensure_certificate
 from contracts.opcua_security import SecureServer
-from daemon.opcua import nodesets, results
+from daemon.opcua import map_nodes, nodesets, results
 from daemon.opcua.auth import LimitedPasswordUsers
 from daemon.opcua.config import IdentificationFile, OpcUaServerConfig
 from daemon.opcua.filetransfer import ResultTransfer
@@ -66,6 +67,7 @@ class MachineNodes:
         self.transfer: ResultTransfer | None = None
         self.queue: asyncio.Queue = asyncio.Queue()
         self.busy_run: str | None = None
+        self.map = map_nodes.MapNodes(name)  # the last map of the linear axes
 
 
 class ResultServer:
@@ -115,6 +117,8 @@ class ResultServer:
                                    f"{e.strerror or e}") from None
         for m in self.machines.values():
             self._tasks.append(asyncio.create_task(self._writer(m), name=f"opcua-{m.name}"))
+        self._tasks.append(asyncio.create_task(map_nodes.follow(
+            self.source, [m.map for m in self.machines.values()]), name="opcua-maps"))
         return self.endpoint
 
     def follow(self, interval_s: float) -> None:
@@ -231,6 +235,7 @@ class ResultServer:
             m.vars[var] = await check.add_variable(ua.NodeId(f"{name}.Check.{var}", idx),
                                                    ua.QualifiedName(var, idx),
                                                    ua.Variant(value, vt))
+        await m.map.add(obj, idx)
         self.machines[name] = m
         await self._last_result(m)
 
@@ -357,6 +362,7 @@ class ResultServer:
             ITEM_STATES[item], self.ns[nodesets.MACHINERY_URI]), ua.VariantType.NodeId))
 
     async def _last_result(self, m: MachineNodes, ready: str | None = None) -> None:
+        await map_nodes.refresh(self.source, m.map)
         run = next((r for r in await self.source.runs(m.name, 50) if r.final), None)
         if run is not None:
             v = await self.source.verdict(run.id)

@@ -1,7 +1,7 @@
 """Where the OPC UA results server reads runs: a daemon's own SQLite journal, or the PostgreSQL
 fleet store every daemon of a shop drains to (one endpoint for the shop).
 
-Both answer the same six questions, asynchronously (the fleet store is psycopg's async
+Both answer the same seven questions, asynchronously (the fleet store is psycopg's async
 connection; the journal's SQLite calls are quick and stay on the event loop as everywhere
 in the daemon)."""
 
@@ -12,8 +12,9 @@ from pathlib import Path
 from typing import Any, Protocol
 
 from daemon.analysis.result import Analysis
-from daemon.store import pg_results, report_jobs
+from daemon.store import map_results, pg_maps, pg_results, report_jobs
 from daemon.store.journal import RunRow, Store, StoreError, validate_run_id
+from daemon.store.map_results import MapResult
 
 
 class ResultSource(Protocol):
@@ -23,6 +24,7 @@ class ResultSource(Protocol):
     async def analysis(self, run_id: str) -> Analysis | None: ...
     async def report(self, run_id: str) -> Path | None: ...
     async def report_job(self, run_id: str) -> tuple[str, str] | None: ...
+    async def last_map(self, machine: str) -> MapResult | None: ...
 
 
 class JournalSource:
@@ -57,6 +59,10 @@ class JournalSource:
         except StoreError:
             return None
         return (job.state, job.reason) if job else None
+
+    async def last_map(self, machine: str) -> MapResult | None:
+        """The machine's last map result of the linear axes (None: none journaled)."""
+        return map_results.last(self.store, machine)
 
 
 class FleetSource:
@@ -104,3 +110,6 @@ class FleetSource:
             return None
         job = await self.pg.report_job(run_id)
         return (str(job[0]), str(job[1])) if job else None
+
+    async def last_map(self, machine: str) -> MapResult | None:
+        return await pg_maps.last(self.pg.conn, machine)

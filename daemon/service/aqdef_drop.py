@@ -1,6 +1,7 @@
 """The AQDEF file drop (``aqdef_dir`` in daemon.yaml, off when absent): after every
 run of a machine that reached a verdict, ``<aqdef_dir>/<machine>_<run id>.dfq`` with that run's
-value records, for an SPC system watching the folder (qs-STAT's upload, Solara …). Written
+value records (and a map job's map figures), for an SPC system watching the folder (qs-STAT's
+upload, Solara …); ``rumba map --store`` drops ``<machine>_<map id>.dfq`` there too. Written
 atomically, so a watcher never reads half a file; a failed write is logged, never the run's."""
 
 from __future__ import annotations
@@ -11,7 +12,9 @@ from typing import Any
 
 from daemon.machines.setup import MachineSetup
 from daemon.reports.aqdef import write_aqdef
+from daemon.store import map_results
 from daemon.store.journal import Store, TrendPoint
+from daemon.store.map_results import MapResult
 
 log = logging.getLogger("rumba.aqdef")
 IDLE_STATES = ("IDLE", "ABORTED", "INTERRUPTED", "FAILED")
@@ -40,14 +43,23 @@ class AqdefDrop:
 
     def drop(self, run_id: str) -> Path | None:
         run, analysis = self.store.run(run_id), self.store.analysis(run_id)
-        if run.verdict is None or analysis is None:
+        mapped = map_results.find(self.store, run_id)  # a map job's run: its map's figures
+        checked = run.verdict is not None and analysis is not None
+        if not checked and mapped is None:
             return None  # no verdict (aborted, failed …): nothing for the SPC chart
-        self.directory.mkdir(parents=True, exist_ok=True)
-        path = self.directory / f"{self.setup.name}_{run_id}.dfq"
-        write_aqdef(path, self.setup.name, [TrendPoint(run.id, run.started_at, run.verdict,
-                                                       analysis)],
-                    self.setup.tolerances, operator=self.setup.operator,
-                    artefact=self.setup.artefact.name)
+        runs = [TrendPoint(run.id, run.started_at, run.verdict, analysis)] if checked else []
+        path = drop_file(self.directory, self.setup, run_id, runs,
+                         [mapped] if mapped is not None else [])
         self.written.append(path)
-        log.info("%s: AQDEF %s", self.setup.name, path)
         return path
+
+
+def drop_file(directory: Path, setup: MachineSetup, ident: str, runs: list[TrendPoint],
+              maps: list[MapResult]) -> Path:
+    """``<directory>/<machine>_<ident>.dfq`` with these runs' and maps' value records."""
+    directory.mkdir(parents=True, exist_ok=True)
+    path = directory / f"{setup.name}_{ident}.dfq"
+    write_aqdef(path, setup.name, runs, setup.tolerances, operator=setup.operator,
+                artefact=setup.artefact.name, maps=maps)
+    log.info("%s: AQDEF %s", setup.name, path)
+    return path

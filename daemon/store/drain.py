@@ -23,7 +23,7 @@ from typing import Any
 
 import psycopg
 
-from daemon.store import pg_temperatures
+from daemon.store import map_results, pg_maps, pg_temperatures
 from daemon.store.journal import Store, StoreError
 from daemon.store.pg import (
     CENTRE_COLS,
@@ -160,7 +160,8 @@ class Drainer:
         rows = db.execute("SELECT DISTINCT kind = 'machines', key FROM (SELECT kind, key FROM"
                           f" outbox WHERE key NOT IN ({','.join('?' * len(skip))})"
                           " ORDER BY seq LIMIT ?)", (*skip, BATCH_ROWS)).fetchall()
-        if not rows:
+        maps = map_results.pending(self.store)  # flagged, not queued: see map_results.pending
+        if not rows and not maps:
             return 0
         if self.pg is None:
             self.pg = await PgStore.connect(self.dsn, app=self.app)
@@ -168,7 +169,7 @@ class Drainer:
                 log.info("fleet store %s reachable again; copying %d rows", redact(self.dsn),
                          self.backlog())
             self.last_error = ""
-        copied = 0
+        copied = await self._copy_maps(maps)
         for is_machine, key in rows:
             top = db.execute("SELECT MAX(seq), COUNT(*) FROM outbox WHERE key=? AND"
                              f" kind {'=' if is_machine else '!='} 'machines'",
@@ -191,6 +192,18 @@ class Drainer:
             copied += top[1]
             self.last_copy_at = time.time()
         return copied
+
+    async def _copy_maps(self, rows: list[tuple]) -> int:
+        """Each map result in its own statement (autocommit), then flagged copied (or refused:
+        its id is another machine's, logged once, kept locally)."""
+        for row in rows:
+            assert self.pg is not None
+            ok = await asyncio.wait_for(pg_maps.write(self.pg.conn, row), WRITE_TIMEOUT_S)
+            if not ok:
+                log.error("map result %s already in the fleet store for another machine than "
+                          "%s: not copied; it stays in the local journal", row[0], row[1])
+            map_results.mark_copied(self.store, row[0], row[3], refused=not ok)
+        return len(rows)
 
     async def _copy_machine(self, name: str) -> None:
         row = self.store.db.execute(f"SELECT {', '.join(MACHINE_COLS)} FROM machines WHERE"

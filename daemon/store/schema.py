@@ -136,6 +136,20 @@ MIGRATIONS: list[list[str]] = [
         # journaled before are the plan's (a re-probe's were not told apart)
         "ALTER TABLE temperatures ADD COLUMN reprobe_round INTEGER NOT NULL DEFAULT 0",
     ],
+    [  # 12: maps of the linear axes (daemon/store/map_results.py): a map's figures, verdict
+        # and the path and SHA-256 of its map file and report; id = the daemon job's run id,
+        # or a map-… id for a map made by `rumba map --store`. fleet_copied: 0 not yet copied
+        # to the fleet store, 1 copied, 2 refused there (the id taken by another machine)
+        """CREATE TABLE map_results (
+            id TEXT PRIMARY KEY, machine TEXT NOT NULL, run_id TEXT NOT NULL DEFAULT '',
+            created_at REAL NOT NULL, verdict TEXT, volumetric_max_um REAL NOT NULL,
+            volumetric_max_u_um REAL, volumetric_rms_um REAL NOT NULL,
+            limit_text TEXT NOT NULL DEFAULT '', placements INTEGER NOT NULL,
+            figures TEXT NOT NULL, json_path TEXT NOT NULL, json_sha256 TEXT NOT NULL,
+            report_html TEXT NOT NULL DEFAULT '', report_sha256 TEXT NOT NULL DEFAULT '',
+            recorded_by TEXT NOT NULL DEFAULT '', fleet_copied INTEGER NOT NULL DEFAULT 0)""",
+        "CREATE INDEX map_results_machine ON map_results(machine, created_at)",
+    ],
 ]
 SCHEMA_VERSION = len(MIGRATIONS)
 

@@ -26,6 +26,18 @@ def opcua() -> str:
         "between the last counter it saw and the current one, so up to "
         f"{s.RING_SLOTS} touches may arrive between two notifications without loss. The "
         f"state node takes the values {', '.join(code(x) for x in s.STATES)}.\n",
+        "## Results server: the last map of the linear axes\n",
+        "Not the gateway profile: what the daemon's own OPC UA results server (`opcua_server` "
+        "in daemon.yaml) serves per machine, beside its `Check` object and its OPC 40001-101 "
+        "`ResultManagement`: the object `<machine>.Map` in the namespace "
+        f"{code(s.RESULTS_NAMESPACE_URI)} holds the figures of the machine's last journaled "
+        "map (`rumba map --store`, or the daemon's map job). Each µm variable carries an "
+        "`EngineeringUnits` property (EUInformation, UNECE `4H`, µm) and is NaN when the "
+        "machine has no map or the map not that figure. The server shows a new map at its "
+        "start, at a run's end and within 10 s of its journaling.\n",
+        table(["variable (`ns=<index>;s=<machine>.Map.…`)", "type", "unit", "meaning"],
+              [[code(v.name), v.kind, "µm" if v.unit == "um" else "", cell(v.doc)]
+               for v in s.MAP_VARIABLES]),
     ])
 
 

@@ -22,7 +22,7 @@ from daemon.compensation.propose import ControllerModelError, controller_model
 from daemon.config import DaemonConfig, load_daemon_config
 from daemon.machines.setup import MachineSetup
 from daemon.reports.compensation import verification_of
-from daemon.store import baselines, report_jobs
+from daemon.store import baselines, map_results, report_jobs
 from daemon.store.journal import Store, StoreError
 from daemon.store.probing_csv import export_csv, journal_import, read_import
 
@@ -64,6 +64,11 @@ def cmd_history(args: argparse.Namespace) -> int:
 
 
 def _export(cfg: DaemonConfig, store: Store, args: argparse.Namespace) -> int:
+    if map_results.find(store, args.export) is not None:
+        return _export_map(store, args)
+    if args.json:
+        raise UserError(f"--json OUT exports a map result; {args.export} is not one (a run: "
+                        "--csv OUT)")
     if not args.csv:
         raise UserError("--export needs --csv OUT")
     try:
@@ -76,6 +81,19 @@ def _export(cfg: DaemonConfig, store: Store, args: argparse.Namespace) -> int:
     return 0
 
 
+def _export_map(store: Store, args: argparse.Namespace) -> int:
+    """A map result: its map file as journaled (SHA-256 checked) to --json OUT."""
+    if not args.json:
+        raise UserError(f"{args.export} is a map result (no touches of its own): --export "
+                        f"{args.export} --json OUT writes its map file")
+    try:
+        m = map_results.export_map(store, args.export, args.json)
+    except StoreError as e:
+        raise UserError(str(e)) from None
+    print(f"{args.json}: map {m.id} of {m.machine} ({m.describe()})")
+    return 0
+
+
 def _export_aqdef(cfg: DaemonConfig, store: Store, args: argparse.Namespace) -> int:
     """One machine per file (one AQDEF part): --machine, or the only one configured."""
     from daemon.reports.aqdef import write_aqdef
@@ -85,12 +103,14 @@ def _export_aqdef(cfg: DaemonConfig, store: Store, args: argparse.Namespace) -> 
                         f"{', '.join(cfg.machines)})")
     setup = cfg.machines[args.machine or next(iter(cfg.machines))]
     runs = store.trend(setup.name, limit=1_000_000)  # completed runs, oldest first
+    maps = map_results.listed(store, setup.name, 1_000_000)[::-1]  # oldest first
     try:
         n = write_aqdef(args.export_aqdef, setup.name, runs, setup.tolerances,
-                        operator=setup.operator, artefact=setup.artefact.name)
+                        operator=setup.operator, artefact=setup.artefact.name, maps=maps)
     except OSError as e:
         raise UserError(f"{args.export_aqdef}: cannot write: {e.strerror or e}") from None
-    print(f"wrote {args.export_aqdef}: {n} runs of {setup.name} (AQDEF)")
+    also = f" and {len(maps)} map results" if maps else ""
+    print(f"wrote {args.export_aqdef}: {n} runs{also} of {setup.name} (AQDEF)")
     return 0
 
 
@@ -184,6 +204,7 @@ def _list(store: Store, machine: str | None, limit: int) -> None:
                   f"{r.hits}/{r.touch_total}", "—" if vmax is None else f"{vmax:.1f}",
                   (r.reason or r.summary) + why)
     console.print(t)
+    _list_maps(console, store, machine, limit)
     # the figure's definition beside it, and each machine's drift baseline
     console.print(f"{LABELS[VOLUMETRIC]}: {DEFINITIONS[VOLUMETRIC]}.", soft_wrap=True,
                   markup=False, highlight=False)
@@ -211,3 +232,26 @@ def _list(store: Store, machine: str | None, limit: int) -> None:
                        *(f"{links[n].value:+.1f}" if n in links else "—" for n in names),
                        "—" if v is None else f"{v:.1f}")
         console.print(tt)
+
+
+def _list_maps(console: Console, store: Store, machine: str | None, limit: int) -> None:
+    """The map results (kind map), newest first: their figures over the covered box, verdict,
+    what is not observable and where their report is."""
+    maps = map_results.listed(store, machine, limit)
+    if not maps:
+        return
+    t = Table(title="Map results of the linear axes (kind map, most recent first)")
+    for h in ("recorded", "map", "kind", "machine", "placements", "covered mm",
+              "vol. max ± u µm", "vol. RMS µm", "verdict", "not observable", "report"):
+        t.add_column(h)
+    for m in maps:
+        f = m.figures
+        covered = " ".join(f"{a} {lo:g}..{hi:g}" for a, (lo, hi) in f["covered_mm"].items())
+        u = "" if m.volumetric_max_u_um is None else f" ± {m.volumetric_max_u_um:.1f}"
+        verdict = (f"[{STYLE.get(m.verdict, 'white')}]{m.verdict}[/]" if m.verdict
+                   else "not judged")
+        t.add_row(time.strftime("%Y-%m-%d %H:%M", time.localtime(m.created_at)), m.id,
+                  m.kind, m.machine, str(m.placements), covered,
+                  f"{m.volumetric_max_um:.1f}{u}", f"{m.volumetric_rms_um:.1f}", verdict,
+                  ", ".join(f["unobservable"]) or "—", m.report_html or m.json_path)
+    console.print(t)

@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 import json
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from rich.console import Console
@@ -55,9 +56,9 @@ def parse_limit(text: str | None) -> Limit | None:
     return Limit(v[0], v[1] if len(v) == 2 else None)
 
 
-def limit_from_config(config: str, machine_path: str) -> tuple[Limit | None, str | None, float]:
-    """The volumetric limit, its stated source and the coverage k of the daemon.yaml entry
-    of this machine (by the machine's name)."""
+def config_entry(config: str, machine_path: str) -> tuple[Any, Any]:
+    """(the daemon config, the daemon.yaml entry of this machine, found by the machine's
+    name): its tolerances judge the map, its name journals it."""
     from daemon.config import load_daemon_config
 
     machine, _ = load_machine(machine_path)
@@ -67,8 +68,44 @@ def limit_from_config(config: str, machine_path: str) -> tuple[Limit | None, str
         names = ", ".join(s.name for s in mine) or "none"
         raise _user_error(f"--config {config}: {len(mine)} machine entries of {machine.name} "
                           f"({names}); expected one (or give --limit-um)")
-    tol = mine[0].tolerances
+    return cfg, mine[0]
+
+
+def limit_from_config(config: str, machine_path: str) -> tuple[Limit | None, str | None, float]:
+    """The volumetric limit, its stated source and the coverage k of the daemon.yaml entry
+    of this machine (by the machine's name)."""
+    tol = config_entry(config, machine_path)[1].tolerances
     return (tol.volumetric_max_um, tol.sources.get("volumetric_max_um"), tol.coverage_k)
+
+
+def store_map(config: str, machine_path: str, map_json: str, report: str | None) -> None:
+    """Journal the map written to ``map_json`` (and ``report``) in the journal of ``config``,
+    under the daemon.yaml name of the machine: history, HMI, fleet store, OPC UA, AQDEF."""
+    from daemon.store.journal import Store, StoreError
+    from daemon.store.map_results import record_map_result
+
+    cfg, entry = config_entry(config, machine_path)
+    try:
+        store = Store(cfg.store_path, cfg.synchronous, source=f"{cfg.path}: store.path")
+    except StoreError as e:
+        raise _user_error(f"the map is written ({map_json}) but not journaled: {e}") from None
+    try:
+        m = record_map_result(store, None, map_json, report, machine=entry.name,
+                              recorded_by="rumba map")
+    except StoreError as e:
+        raise _user_error(f"the map is written ({map_json}) but not journaled: {e}") from None
+    finally:
+        store.close()
+    print(f"journaled map {m.id} of {m.machine}: {m.describe()}")
+    if cfg.aqdef_dir is not None:  # the SPC folder gets it as it gets each run's
+        from daemon.service.aqdef_drop import drop_file
+
+        try:
+            path = drop_file(cfg.aqdef_dir, entry, m.id, [], [m])
+        except OSError as e:
+            raise _user_error(f"map {m.id} journaled, but its AQDEF file not written in "
+                              f"{cfg.aqdef_dir}: {e.strerror or e}") from None
+        print(f"wrote {path} (AQDEF)")
 
 
 def _check_args(args: argparse.Namespace) -> None:
@@ -83,9 +120,15 @@ def _check_args(args: argparse.Namespace) -> None:
     if args.placement and not (args.json or args.predict or args.report):
         raise _user_error("nothing to write: give --json OUT.json, --report DIR and/or "
                           "--predict/--out")
-    if args.map and not (args.predict or args.report):
-        raise _user_error("--map: nothing to do: give --predict POINTS.csv --out PRED.csv "
-                          "and/or --report DIR")
+    if args.map and not (args.predict or args.report or args.store):
+        raise _user_error("--map: nothing to do: give --predict POINTS.csv --out PRED.csv, "
+                          "--report DIR and/or --store")
+    if args.store and not args.config:
+        raise _user_error("--store journals the map in the daemon's journal: give --config "
+                          "daemon.yaml (it names the journal and the machine)")
+    if args.store and args.placement and not (args.json or args.report):
+        raise _user_error("--store journals the map file's path and hash: give --json "
+                          "OUT.json and/or --report DIR")
     if not 1 <= args.max_degree <= MAX_DEGREE_CAP:
         raise _user_error(f"--max-degree: expected 1..{MAX_DEGREE_CAP}, got {args.max_degree}")
     if args.limit_um and args.config:
@@ -203,6 +246,8 @@ def cmd_map(args: argparse.Namespace) -> int:
             n = predict_points(model, args.predict, args.out)
             print(f"wrote {n} predictions to {args.out}")
         write_report(args.report, saved, model)
+        if args.store:
+            store_map(args.config, args.machine, args.map, args.report)
         return 0
     from daemon.analysis.linear_map import run_map  # the fit's modules (scipy): when it runs
 
@@ -232,4 +277,7 @@ def cmd_map(args: argparse.Namespace) -> int:
         n = predict_points(run.model, args.predict, args.out)
         print(f"wrote {n} predictions to {args.out}")
     write_report(args.report, run.document, run.model)
+    if args.store:
+        store_map(args.config, args.machine, args.json or str(Path(args.report) / "map.json"),
+                  args.report)
     return 0

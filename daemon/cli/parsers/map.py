@@ -51,5 +51,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--limit-um", metavar="WARN[,FAIL]",
                    help="limits on the map's largest volumetric error (µm)")
     p.add_argument("--config", metavar="daemon.yaml",
-                   help="take the limit from this machine's tolerances.volumetric_max_um")
+                   help="take the limit from this machine's tolerances.volumetric_max_um "
+                        "(the entry whose machine file has this machine's name)")
+    p.add_argument("--store", action="store_true",
+                   help="journal the map (its figures, verdict and the paths and SHA-256 of "
+                        "its map file and report) in the journal of --config: rumba history, "
+                        "the HMI, the fleet store, OPC UA and AQDEF show it")
     p.set_defaults(func=_run)
