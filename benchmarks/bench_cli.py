@@ -40,7 +40,13 @@ def write_175_pose_log(out: Path) -> int:
 
     from contracts.probing_log import write_log
     from contracts.setup_files import load_artefact, load_machine, load_plan
-    from tests.synth import THESIS_LINKS_UM_URAD, Truth, make_rows, thesis_noise, to_internal
+    from simulators.exact_log import (
+        THESIS_LINKS_UM_URAD,
+        Truth,
+        make_rows,
+        thesis_noise,
+        to_internal,
+    )
 
     machine, _ = load_machine(MACHINE)
     artefact = load_artefact(ARTEFACT)

@@ -30,20 +30,15 @@ def _fmt(name: str, times: list[float]) -> str:
 
 
 async def _daemon_side(tmp: Path, runs: int, plan: str) -> tuple[str, list[str]]:
-    import functools
-
     import aiohttp
 
-    import tests.test_hmi_compensate as hmi_world
+    from benchmarks.rigs.hmi_compensation import bearer, run_once, world
     from daemon.compensation.propose import propose
     from daemon.hmi.compensation_api import Views
     from daemon.store.journal import Store
-    from tests.daemon_helpers import write_daemon_yaml
-    from tests.test_hmi_compensate import bearer, run_once, world
 
-    hmi_world.write_daemon_yaml = functools.partial(write_daemon_yaml, plan=plan)  # type: ignore
     lines = [f"plan {plan}"]
-    async with world(tmp) as svc, aiohttp.ClientSession() as http:
+    async with world(tmp, plan=plan) as svc, aiohttp.ClientSession() as http:
         run_id = await run_once(svc)
         session = svc.sessions["mill1"]
         cold = []

@@ -51,10 +51,10 @@ def bench_journal(n: int = 400) -> None:
 async def bench_session_175() -> None:
     """The daemon's own cost per touch (journal + bookkeeping + progress), without transport,
     on a 175-pose × 4-ball run (3 500 touches), plus identification/report time and memory."""
+    from benchmarks.rigs.daemon_helpers import thesis_rows, thesis_setup
+    from daemon.analysis.replay_link import ReplayLink, prepare_from_rows
     from daemon.run.session import Session
     from daemon.store.journal import Store
-    from tests.daemon_helpers import thesis_rows, thesis_setup
-    from tests.replay_link import ReplayLink, prepare_from_rows
 
     setup = thesis_setup(plan="thesis_ch4_175poses")
     rows = thesis_rows(setup)
@@ -96,14 +96,14 @@ async def bench_session_175() -> None:
 
 async def bench_transport(transport: str, time_scale: float = 0.1) -> None:
     """Capture wall time minus the simulator's scaled machine time, per touch (7-pose plan)."""
+    from benchmarks.rigs.daemon_helpers import thesis_setup
+    from benchmarks.rigs.sim_wiring import sim_link
     from daemon.machines.setup import MachineSetup
     from daemon.run.session import Session
     from daemon.service.service import make_link
     from daemon.store.journal import Store
     from simulators.controller import VirtualController
     from simulators.truth import TruthModel
-    from tests.daemon_helpers import thesis_setup
-    from tests.sim_wiring import sim_link
 
     setup = thesis_setup()
     truth = TruthModel.from_files(CONFIG / "machines/thesis_wcbxfzyt.yaml",

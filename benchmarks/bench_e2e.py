@@ -21,16 +21,21 @@ TIME_SCALE = 0.0  # VirtualController default in the rigs: as fast as the contro
 
 async def one(transport: str, dialect: str, baud: int | None = None,
               floor_s: float = 0.0) -> None:
-    import tests.test_e2e_transports as e2e
+    from benchmarks.rigs import rig_helpers
+    from benchmarks.rigs.e2e_run import run_start_of_shift
     from simulators.controller import VirtualController
 
-    if baud is not None:
-        e2e.BAUD = baud
-    ctrl = VirtualController(e2e.make_truth(), time_scale=TIME_SCALE)
-    rig = await e2e.start_rig(transport, ctrl)
+    line_rate = rig_helpers.BAUD
+    if baud is not None:  # the rig's serial line rate, read when the rig starts
+        rig_helpers.BAUD = baud
+    try:
+        ctrl = VirtualController(rig_helpers.make_truth(), time_scale=TIME_SCALE)
+        rig = await rig_helpers.start_rig(transport, ctrl)
+    finally:
+        rig_helpers.BAUD = line_rate
     try:
         with tempfile.TemporaryDirectory(dir=ROOT) as tmp:  # the project's disk, not tmpfs
-            r = await e2e.run_start_of_shift(rig, dialect, Path(tmp), PLAN)
+            r = await run_start_of_shift(rig, dialect, Path(tmp), PLAN)
     finally:
         await rig.close()
     m, t0, n = r["marks"], r["t0"], r["run"].hits

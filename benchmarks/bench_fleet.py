@@ -23,6 +23,7 @@ from pathlib import Path
 import psycopg
 
 from contracts.messages import ProbeHit
+from daemon.store import pg_bulk
 
 
 def _hit(seq: int) -> ProbeHit:
@@ -88,8 +89,7 @@ def store_bench(daemons: int, touches: int, interval_s: float = 0.0) -> None:
             lats, commits = [r["lat"] for r in res], sorted(x for r in res for x in r["commit"])
             wall = time.time() - go
         with psycopg.connect(pg.dsn) as c:
-            n, distinct = c.execute("SELECT COUNT(*), COUNT(DISTINCT (run_id, seq)) FROM hits"
-                                    ).fetchone()  # type: ignore[misc]
+            n, distinct = pg_bulk.hit_counts(c)
         allv = sorted(x for lat in lats for x in lat)
         q = statistics.quantiles(allv, n=100)
         qc = statistics.quantiles(commits, n=100) if len(commits) > 1 else [commits[0]] * 99
@@ -174,12 +174,12 @@ async def page_bench(machines: int = 100, days: int = 365, repeats: int = 10) ->
         rnd = random.Random(1)
         now = time.time()
         t0 = time.perf_counter()
-        with psycopg.connect(pg.dsn) as c, c.cursor() as cur:
+        with psycopg.connect(pg.dsn) as c:
             for m in range(machines):
                 name = f"mill{m:03d}"
-                cur.execute("INSERT INTO machines VALUES (%s,'site','fanuc','opcua',%s,%s)",
-                            (name, json.dumps({"links": {}, "default_um": {"warn": 10, "fail": 20},
-                                               "default_urad": {"warn": 30, "fail": 60}}), now))
+                row = (name, "site", "fanuc", "opcua",
+                       json.dumps({"links": {}, "default_um": {"warn": 10, "fail": 20},
+                                   "default_urad": {"warn": 30, "fail": 60}}), now)
                 runs, est = [], []
                 for d in range(days):
                     rid = f"{name}-{d:03d}"
@@ -190,11 +190,9 @@ async def page_bench(machines: int = 100, days: int = 365, repeats: int = 10) ->
                     est.append((rid, json.dumps({"links": {
                         k: {"value": rnd.gauss(0, 8), "std": 1.0, "unit": u, "thesis_name": k}
                         for k, u in LINKS.items()}})))
-                cur.executemany("INSERT INTO runs VALUES (%s,%s,%s,%s,%s,%s,%s,%s,%s,%s,%s,%s,"
-                                "%s,%s)", runs)
-                cur.executemany("INSERT INTO estimates VALUES (%s,%s)", est)
+                pg_bulk.load_history(c, row, runs, est)
             c.commit()
-            cur.execute("ANALYZE")
+            pg_bulk.analyze(c)
         seeded = time.perf_counter() - t0
         app = create_fleet_app(pg.dsn, "bench-token-0123456789", bind_host="127.0.0.1")
         runner = web.AppRunner(app, handle_signals=False)

@@ -14,7 +14,7 @@ from contracts.probing_log import write_log
 from contracts.setup_files import load_artefact, load_machine, load_plan
 from daemon.cli.commands.analyze import run_analysis
 from identification import montecarlo as mc
-from tests.synth import THESIS_LINKS_UM_URAD, Truth, make_rows, thesis_noise, to_internal
+from simulators.exact_log import THESIS_LINKS_UM_URAD, Truth, make_rows, thesis_noise, to_internal
 
 ROOT = Path(__file__).resolve().parents[1]
 MACHINE = ROOT / "config/machines/thesis_wcbxfzyt.yaml"

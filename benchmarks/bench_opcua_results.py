@@ -20,9 +20,7 @@ from pathlib import Path
 async def main(n: int, runs: int) -> None:
     from asyncua import Client, ua
 
-    from daemon.opcua.server import ResultServer
-    from daemon.store.journal import Store
-    from tests.opcua_results_helpers import (
+    from benchmarks.rigs.opcua_results_helpers import (
         CLIENT_URI,
         PASSWORD,
         USER,
@@ -30,6 +28,8 @@ async def main(n: int, runs: int) -> None:
         make_pki,
         server_config,
     )
+    from daemon.opcua.server import ResultServer
+    from daemon.store.journal import Store
 
     with tempfile.TemporaryDirectory() as d:
         tmp = Path(d)

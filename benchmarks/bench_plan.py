@@ -28,7 +28,7 @@ import numpy as np
 from contracts.setup_files import load_artefact, load_machine
 from daemon.analysis.identify import analyse_centres
 from daemon.analysis.touch_centres import rows_to_centres
-from daemon.cli.commands.plan import Outcome, make_plan
+from programs.plan_make import Outcome, make_plan
 from simulators.errors_schema import load_errors
 from simulators.offline import run_sync
 from simulators.truth import TruthModel

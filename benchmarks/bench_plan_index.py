@@ -28,9 +28,9 @@ import yaml
 
 from contracts.setup_files import load_artefact, load_machine, load_plan
 from daemon.analysis.touch_centres import rows_to_centres
-from daemon.cli.commands.plan import make_plan
 from identification.estimate import estimate
 from programs.generate import generate
+from programs.plan_make import make_plan
 from programs.plan_report import plan_links, predicted_u
 from simulators.errors_schema import errors_from_dict
 from simulators.offline import run_sync

@@ -26,9 +26,9 @@ from typing import Any
 
 
 def _journal(tmp: Path, n_runs: int, plan: str) -> tuple[Any, ...]:
+    from benchmarks.rigs.daemon_helpers import thesis_setup
+    from benchmarks.rigs.report_helpers import journal_run
     from daemon.store.journal import Store
-    from tests.daemon_helpers import thesis_setup
-    from tests.report_helpers import journal_run
 
     setup = thesis_setup(plan=plan)
     store = Store(tmp / "j.sqlite")

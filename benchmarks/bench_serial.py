@@ -12,10 +12,10 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 async def _stream(baud: int, time_scale: float, n_poses: int) -> str:
+    from benchmarks.rigs.transport_sim import real_setup
     from drivers.serial.link import SerialDncLink
     from drivers.serial.schema import SerialLinkConfig
     from simulators.frontends.serial import SerialFrontend, SerialSettings
-    from tests.transport_sim import real_setup
 
     vc, job = real_setup("fanuc", poses=((0.0, 0.0),) * n_poses, time_scale=time_scale)
     fe = SerialFrontend(vc, SerialSettings(baudrate=baud, framing="7E1", rx_buffer_bytes=256))

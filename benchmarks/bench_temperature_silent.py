@@ -18,15 +18,15 @@ import tempfile
 import time
 from pathlib import Path
 
+from benchmarks.rigs.e2e_run import RUN_TIMEOUT_S, wait_verdict_on_cnc
+from benchmarks.rigs.rig_helpers import start_rig
+from benchmarks.rigs.temperature_helpers import SilentTransmitter, column
+from benchmarks.rigs.warm_cnc import SPINDLE, machine_entry, warm_truth, write_config
 from daemon.config import load_daemon_config
 from daemon.service.service import Service
 from daemon.store.temperatures import temperatures
 from simulators.controller import VirtualController
 from simulators.frontends.transmitter import TransmitterFrontend
-from tests.rig_helpers import start_rig
-from tests.test_e2e_transports import RUN_TIMEOUT_S, wait_verdict_on_cnc
-from tests.test_temperature_channels import SPINDLE, machine_entry, warm_truth, write_config
-from tests.test_temperature_silent import SilentTransmitter, column
 
 
 async def one(case: str, tmp: Path, timeout_s: float) -> tuple[float, int, float]:

@@ -37,9 +37,9 @@ from scipy.stats import bartlett
 from benchmarks.bench_warmup import ARTEFACT, ERRORS, MACHINE, TARGETS
 from contracts.setup_files import load_artefact, load_machine
 from daemon.analysis.touch_centres import rows_to_centres
-from daemon.cli.commands.plan import make_plan
 from identification.estimate import estimate
 from identification.model import Centres, predict
+from programs.plan_make import make_plan
 from simulators.errors_schema import errors_from_dict
 from simulators.offline import run_sync
 from simulators.truth import TruthModel

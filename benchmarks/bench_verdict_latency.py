@@ -19,10 +19,10 @@ from pathlib import Path
 
 
 async def _one(tmp: Path, i: int) -> tuple[float, float]:
+    from benchmarks.rigs.daemon_helpers import thesis_rows, thesis_setup
+    from daemon.analysis.replay_link import ReplayLink, prepare_from_rows
     from daemon.run.session import Session
     from daemon.store.journal import Store
-    from tests.daemon_helpers import thesis_rows, thesis_setup
-    from tests.replay_link import ReplayLink, prepare_from_rows
 
     setup = thesis_setup()
     rows = thesis_rows(setup)

@@ -54,9 +54,9 @@ import yaml
 from contracts.setup_files import load_artefact, load_machine
 from daemon.analysis.identify import analyse_centres
 from daemon.analysis.touch_centres import rows_to_centres
-from daemon.cli.commands.plan import make_plan
 from identification.estimate import estimate
 from identification.uncertainty import t_variance_factor
+from programs.plan_make import make_plan
 from simulators.errors_schema import errors_from_dict
 from simulators.offline import run_sync
 from simulators.thermal import AxisWarmup, ThermalState
@@ -212,10 +212,10 @@ def _span(machine, mf, art, plan, text: str) -> float:
 
 def gap(seeds: int, axis: str = "Z", first: int = 0) -> None:
     """The withheld warm-up 8 µm·(1 − e^(−t/900 s)) along ``axis`` (module doc)."""
+    from benchmarks.rigs.gap_helpers import STYLUS_R, annex_b_setup, gap_truth
     from identification.effects import make_effect
     from identification.gap import diagnose
     from identification.gap.simlog import simulate
-    from tests.gap_helpers import STYLUS_R, annex_b_setup, gap_truth
 
     machine, artefact, poses = annex_b_setup()
     eff = make_effect("thermal_drift", axis, machine, model="exponential")

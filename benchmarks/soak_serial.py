@@ -1,7 +1,7 @@
-"""Soak of the serial DNC end-to-end cases (tests/test_e2e_transports.py): every serial
-transport × dialect, N consecutive rounds in one process, failures counted (target 0). Not part
-of ``make test`` nor of ``make bench`` (the name keeps it out of the benchmark runner):
-``.venv/bin/python benchmarks/soak_serial.py --runs 200``."""
+"""Soak of the serial DNC end-to-end cases (benchmarks/rigs/e2e_run.py, as the end-to-end
+tests run them): every serial transport × dialect, N consecutive rounds in one process,
+failures counted (target 0). Not part of ``make test`` nor of ``make bench`` (the name keeps
+it out of the benchmark runner): ``.venv/bin/python benchmarks/soak_serial.py --runs 200``."""
 
 from __future__ import annotations
 
@@ -16,10 +16,12 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 async def _soak(runs: int, cases: list[tuple[str, str]], budget_s: float | None) -> int:
+    from benchmarks.rigs.e2e_run import run_start_of_shift
+    from benchmarks.rigs.rig_helpers import Rig, make_truth, start_rig
+    from daemon.run.session import State
     from simulators.controller import VirtualController
-    from tests import test_e2e_transports as e2e
 
-    rigs: dict[str, e2e.Rig] = {}
+    rigs: dict[str, Rig] = {}
     failures: list[str] = []
     done = 0
     t_start = time.monotonic()
@@ -27,16 +29,16 @@ async def _soak(runs: int, cases: list[tuple[str, str]], budget_s: float | None)
         for n in range(1, runs + 1):
             for transport, dialect in cases:
                 if transport not in rigs:
-                    rigs[transport] = await e2e.start_rig(
-                        transport, VirtualController(e2e.make_truth()))
+                    rigs[transport] = await start_rig(
+                        transport, VirtualController(make_truth()))
                 rig = rigs[transport]
                 fe = rig.extra.get("frontend")
                 alarms_before = len(fe.alarms) if fe is not None else 0
                 with tempfile.TemporaryDirectory() as tmp:
                     t = time.monotonic()
                     try:
-                        r = await e2e.run_start_of_shift(rig, dialect, Path(tmp))
-                        ok = r["state"] == e2e.State.IDLE and r["verdict"]["status"] == "PASS"
+                        r = await run_start_of_shift(rig, dialect, Path(tmp))
+                        ok = r["state"] == State.IDLE and r["verdict"]["status"] == "PASS"
                         why = "" if ok else f"{r['state']}: {r['reason']} {r['verdict']}"
                     except Exception as e:  # a failed case is counted, the soak goes on
                         ok, why = False, f"{type(e).__name__}: {e}"

@@ -24,7 +24,7 @@ from contracts.yaml_files import (
     read_yaml,
     validate_file,
 )
-from daemon.hosts import is_loopback
+from daemon.hosts import is_loopback, normal_origin
 from daemon.machines.setup import MachineEntry, MachineSetup, load_machines, resolve_path
 from daemon.mqtt.config import MqttFile
 from daemon.notify.config import NotifyFile
@@ -56,8 +56,6 @@ class HmiFile(StrictModel):
     @field_validator("public_origins")
     @classmethod
     def _origins(cls, v: list[str]) -> list[str]:
-        from daemon.hmi.limits import normal_origin
-
         bad = [o for o in v if normal_origin(o.rstrip("/")) is None]
         if bad:
             raise ValueError(f"{bad}: expected http(s)://host[:port], no path")

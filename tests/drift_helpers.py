@@ -10,7 +10,7 @@ import numpy as np
 from contracts.setup_files import load_artefact, load_machine, load_plan
 from identification.kinematics import Machine
 from identification.model import Artefact
-from tests.synth import THESIS_LINKS_UM_URAD, Truth, to_internal
+from simulators.exact_log import THESIS_LINKS_UM_URAD, Truth, to_internal
 
 SIGMA = np.array([0.66, 0.98, 0.44])  # thesis §3.4 centre repeatability, µm
 RUN_S, BALL_S = 223.0, 3.7  # the shift plan's run (14 poses + the revisit) and between balls, s
@@ -47,6 +47,6 @@ def shift_visits() -> ShiftVisits:
 
 
 def thesis_truth() -> Truth:
-    """The thesis links (tests/synth.py) with a small setup offset and scale."""
+    """The thesis links (simulators/exact_log.py) with a small setup offset and scale."""
     return Truth(to_internal(THESIS_LINKS_UM_URAD), np.full((4, 3), 0.02),
                  np.array([0.01, -0.01, 0.02]))

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from tests.daemon_helpers import write_daemon_yaml
+from benchmarks.rigs.daemon_helpers import write_daemon_yaml
 from tests.test_map_cli import MACHINE, run_cli
 
 

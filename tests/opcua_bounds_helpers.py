@@ -16,10 +16,7 @@ from typing import Any
 import pytest
 from asyncua import Client, ua
 
-from daemon.opcua.server import ResultServer
-from daemon.service.heap import freeze_startup_heap
-from daemon.store.journal import Store
-from tests.opcua_results_helpers import (
+from benchmarks.rigs.opcua_results_helpers import (
     CLIENT_URI,
     NODESETS_DIR,
     PASSWORD,
@@ -28,6 +25,9 @@ from tests.opcua_results_helpers import (
     make_pki,
     server_config,
 )
+from daemon.opcua.server import ResultServer
+from daemon.service.heap import freeze_startup_heap
+from daemon.store.journal import Store
 
 RESULT_URI = "http://opcfoundation.org/UA/Machinery/Result/"
 RUMBA_URI = "urn:rumba-cnc:results"

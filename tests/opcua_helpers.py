@@ -6,12 +6,12 @@ from __future__ import annotations
 import contextlib
 from collections.abc import AsyncIterator
 
+from benchmarks.rigs.daemon_helpers import CONFIG
 from drivers.opcua.link import OpcUaLink
 from drivers.opcua.schema import OpcUaLinkConfig
 from simulators.controller import VirtualController
 from simulators.frontends.opcua import OpcUaFrontend
 from simulators.truth import TruthModel
-from tests.daemon_helpers import CONFIG
 
 ERRORS = CONFIG / "errors/thesis_tableB2.yaml"
 

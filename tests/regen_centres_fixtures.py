@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from contracts.setup_files import load_artefact, load_machine, load_plan
-from tests.synth import THESIS_LINKS_UM_URAD, Truth, to_internal, true_centres
+from simulators.exact_log import THESIS_LINKS_UM_URAD, Truth, to_internal, true_centres
 
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "tests" / "data" / "centres"

@@ -3,7 +3,7 @@
 Thesis machine (WCBXFZYT) with the Table B.2 link errors (METHOD.md §5), setup errors of a few
 hundred µm, the 4-ball artefact probed at the 14 annex-B poses (plan thesis_annexB_14poses,
 6 mm stylus) and the thesis probing repeatability (centre std 0.66 / 0.98 / 0.44 µm, obtained
-as in ``tests.synth.thesis_noise``). Fixed seed: the file is reproducible byte for byte.
+as in ``simulators.exact_log.thesis_noise``). Fixed seed: the file is reproducible byte for byte.
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ import numpy as np
 
 from contracts.probing_log import write_log
 from contracts.setup_files import load_artefact, load_machine, load_plan
-from tests.synth import THESIS_LINKS_UM_URAD, Truth, make_rows, thesis_noise, to_internal
+from simulators.exact_log import THESIS_LINKS_UM_URAD, Truth, make_rows, thesis_noise, to_internal
 
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "config" / "examples" / "thesis_annexB_14poses.csv"

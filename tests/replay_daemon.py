@@ -8,13 +8,13 @@ from __future__ import annotations
 import asyncio
 import sys
 
+from benchmarks.rigs.daemon_helpers import thesis_rows
 from contracts.yaml_files import ConfigError
+from daemon.analysis.replay_link import ReplayLink, prepare_from_rows
 from daemon.cli.commands.run import serve
 from daemon.cli.main import UserError
 from daemon.config import load_daemon_config
 from daemon.service.service import Service
-from tests.daemon_helpers import thesis_rows
-from tests.replay_link import ReplayLink, prepare_from_rows
 
 
 def main() -> None:

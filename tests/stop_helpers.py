@@ -18,10 +18,10 @@ from typing import Any
 
 import yaml
 
+from benchmarks.rigs.daemon_helpers import CONFIG
 from daemon.analysis import pipeline
 from daemon.run.phases import STOPPED_STATES
 from daemon.run.session import Session, State
-from tests.daemon_helpers import CONFIG
 
 SHORT_PLAN = {  # 4 poses × 4 balls × 5 touches: the fewest that still identify (2 do not)
     "name": "stop-matrix-4poses", "stylus_diameter_mm": 6,

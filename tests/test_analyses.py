@@ -16,7 +16,7 @@ from identification.analyses import (
 )
 from identification.estimate import estimate
 from identification.model import predict
-from tests.synth import THESIS_LINKS_UM_URAD, Truth, make_rows, to_internal
+from simulators.exact_log import THESIS_LINKS_UM_URAD, Truth, make_rows, to_internal
 
 CFG = Path(__file__).resolve().parents[1] / "config"
 PLAN = load_plan(CFG / "plans/thesis_annexB_14poses.yaml")

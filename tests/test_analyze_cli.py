@@ -10,7 +10,7 @@ from contracts.probing_log import HEADER, write_log
 from contracts.setup_files import load_artefact, load_machine, load_plan
 from daemon.cli.commands.analyze import run_analysis
 from daemon.cli.main import main
-from tests.synth import THESIS_LINKS_UM_URAD, Truth, make_rows, to_internal
+from simulators.exact_log import THESIS_LINKS_UM_URAD, Truth, make_rows, to_internal
 
 ROOT = Path(__file__).resolve().parents[1]
 CFG = ROOT / "config"

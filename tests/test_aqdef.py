@@ -8,12 +8,12 @@ import time
 
 import pytest
 
+from benchmarks.rigs.daemon_helpers import TOLERANCES, write_daemon_yaml
 from daemon.analysis.result import Analysis, LinkError, VolumetricPoint
 from daemon.cli.main import main as cli_main
 from daemon.reports.aqdef import VOLUMETRIC, write_aqdef
 from daemon.store.journal import Store, TrendPoint
 from tests.aqdef_reader import read_aqdef
-from tests.daemon_helpers import TOLERANCES, write_daemon_yaml
 
 LINKS = {"EX0C": "um", "EY0C": "um", "EA0C": "urad", "EB0C": "urad",
          "EX0B": "um", "EZ0B": "um", "EA0B": "urad", "EC0B": "urad"}
@@ -119,7 +119,7 @@ def test_two_machines_need_a_machine_name(tmp_path, capsys):
     dialect: fanuc
     link: {{transport: opcua, url: 'opc.tcp://127.0.0.1:4841', security: none}}
 """
-    from tests.daemon_helpers import CONFIG
+    from benchmarks.rigs.daemon_helpers import CONFIG
     cfg = write_daemon_yaml(tmp_path, extra_machine=extra.format(
         m=CONFIG / "machines/thesis_wcbxfzyt.yaml", a=CONFIG / "artefacts/thesis_4ball.yaml",
         p=CONFIG / "plans/thesis_ch3_7poses.yaml"))
@@ -135,8 +135,8 @@ def _status(state: str, run_id: str | None) -> dict:
 
 
 def test_the_drop_writes_one_file_per_judged_run_and_never_fails_a_run(tmp_path, caplog):
+    from benchmarks.rigs.daemon_helpers import thesis_setup
     from daemon.service.aqdef_drop import AqdefDrop
-    from tests.daemon_helpers import thesis_setup
 
     store = Store(tmp_path / "journal.sqlite")
     fill(store, 2)

@@ -194,3 +194,150 @@ def test_an_issue_number_in_a_comment_is_caught(tmp_path):
     (tmp_path / "m.py").write_text("x = 1  # the drift (issue 22)\n# LinuxCNC #3650\n")
     (tmp_path / "c.yaml").write_text("# swivel head, issue-24 plan\n")
     assert [c.split(":")[0] for c in issue_cites(tmp_path)] == ["c.yaml", "m.py"]
+
+
+# SQL lives in daemon/store/ only: every other module asks the store a question by name. A
+# statement is recognised by its shape (keyword followed by what must follow it), uppercase as
+# the project writes SQL, in any string literal that is not a docstring (f-strings with their
+# holes as "?"), so "Select" (a SINUMERIK method) or "RESELECT THE CARRIER" do not count.
+SQL = re.compile(r"\bSELECT\b[\s\S]+?\bFROM\b|\bINSERT\s+(?:OR\s+\w+\s+)?INTO\b"
+                 r"|\bUPDATE\s+\S+\s+SET\b|\bDELETE\s+FROM\b"
+                 r"|\bCREATE\s+(?:UNIQUE\s+)?(?:TABLE|INDEX|VIEW)\b|\b(?:ALTER|DROP)\s+TABLE\b")
+SQL_HOME = "daemon/store/"
+
+
+def _literals(tree: ast.AST) -> list[tuple[int, str]]:
+    docs = {id(n.body[0].value) for n in ast.walk(tree)
+            if isinstance(n, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef))
+            and n.body and isinstance(n.body[0], ast.Expr)
+            and isinstance(n.body[0].value, ast.Constant)}
+    out = []
+    for n in ast.walk(tree):
+        if isinstance(n, ast.Constant) and isinstance(n.value, str) and id(n) not in docs:
+            out.append((n.lineno, n.value))
+        elif isinstance(n, ast.JoinedStr):
+            out.append((n.lineno, "".join(v.value if isinstance(v, ast.Constant) else "?"
+                                          for v in n.values)))
+    return out
+
+
+def sql_outside_store(root: Path) -> list[str]:
+    found = []
+    for pkg in OURS:
+        for p in sorted((root / pkg).rglob("*.py")):
+            rel = p.relative_to(root).as_posix()
+            if rel.startswith(SQL_HOME):
+                continue
+            for line, text in _literals(ast.parse(p.read_text(encoding="utf-8"), rel)):
+                if SQL.search(text):
+                    found.append(f"{rel}:{line}: {' '.join(text.split())[:80]}")
+    return sorted(found)
+
+
+def test_sql_only_in_the_store():
+    assert sql_outside_store(ROOT) == []
+
+
+def test_sql_outside_the_store_is_caught(tmp_path):
+    (tmp_path / "daemon" / "hmi").mkdir(parents=True)
+    (tmp_path / "daemon" / "store").mkdir()
+    for pkg in set(OURS) - {"daemon"}:
+        (tmp_path / pkg).mkdir()
+    (tmp_path / "daemon" / "hmi" / "v.py").write_text(
+        '"""SELECT the run FROM the list (prose)."""\n'
+        'SELECT = "Select"\nNOTE = "RESELECT THE CARRIER FROM THE MAGAZINE"\n'
+        'q = f"SELECT {cols} FROM runs WHERE id=?"\n'
+        'w = ("UPDATE compensations"\n     " SET state=?")\n')
+    (tmp_path / "daemon" / "store" / "s.py").write_text('q = "DELETE FROM runs"\n')
+    (tmp_path / "benchmarks" / "b.py").write_text('c.execute("INSERT INTO m VALUES (%s)")\n')
+    assert [f.rsplit(":", 1)[0] for f in sql_outside_store(tmp_path)] == [
+        "benchmarks/b.py:1", "daemon/hmi/v.py:4", "daemon/hmi/v.py:5"]
+
+
+# The tests stand on the product, never the other way: no package of ours (benchmarks and demos
+# included) imports ``tests``. What both need (the replay link, exact synthetic logs, the rigs
+# of simulated CNCs) lives in the product or in benchmarks/rigs/. One named exception: the
+# fuzz campaign runs the input property tests themselves with larger budgets.
+TESTS_IMPORT_ALLOWED = {"benchmarks.fuzz.inputs"}
+
+
+def _imports_tests(path: Path) -> bool:
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"), str(path))):
+        if isinstance(node, ast.Import) and any(a.name.split(".")[0] == "tests"
+                                                for a in node.names):
+            return True
+        if (isinstance(node, ast.ImportFrom) and node.level == 0 and node.module
+                and node.module.split(".")[0] == "tests"):
+            return True
+    return False
+
+
+def test_nothing_of_ours_imports_the_tests():
+    files = [p for pkg in OURS for p in (ROOT / pkg).rglob("*.py")]
+    assert sorted(_module(p) for p in files if _imports_tests(p)) == sorted(TESTS_IMPORT_ALLOWED)
+
+
+def test_an_import_of_the_tests_is_caught(tmp_path):
+    cases = {"a.py": "def f():\n    from tests.synth import make_rows\n",
+             "b.py": "import tests.test_e2e_transports as e2e\n",
+             "c.py": "from tests import replay_link\n",
+             "d.py": "from benchmarks.rigs import rig_helpers\nimport testsuite\n"}
+    for name, text in cases.items():
+        (tmp_path / name).write_text(text)
+    assert [n for n in cases if _imports_tests(tmp_path / n)] == ["a.py", "b.py", "c.py"]
+
+
+# A configuration is read and checked without the runtime: the schemas and loaders (daemon/
+# config.py, daemon/*/config.py, drivers/*/schema.py) reach, through any chain of our imports,
+# no protocol stack, web server or renderer. `rumba check` stays light, and a schema cannot
+# come to depend on the HMI's or a link's state.
+RUNTIME_LIBS = {"aiohttp", "asyncua", "pymodbus", "serial", "serial_asyncio", "can", "psycopg",
+                "aiomqtt", "matplotlib", "jinja2", "pylsv2", "linuxcnc"}
+PARSERS = {"psycopg.conninfo"}  # libpq's own URL parser checks store.url, nothing connects
+
+
+def _config_modules(graph: dict[str, set[str]]) -> list[str]:
+    return sorted(m for m in graph if m == "daemon.config" or (
+        m.split(".")[0] in ("daemon", "drivers") and m.rsplit(".", 1)[-1] in ("config", "schema")
+        and m != "daemon.store.schema"))  # the journal's migrations, not a configuration
+
+
+def _reach(graph: dict[str, set[str]], start: str) -> set[str]:
+    seen, todo = {start}, [start]
+    while todo:
+        for dep in graph[todo.pop()] - seen:
+            seen.add(dep)
+            todo.append(dep)
+    return seen
+
+
+def _runtime_libraries(module: str) -> set[str]:
+    """The runtime libraries ``module`` imports, at any depth of the file."""
+    path = ROOT / (module.replace(".", "/") + ".py")
+    if not path.exists():
+        path = ROOT / module.replace(".", "/") / "__init__.py"
+    names = set()
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"), str(path))):
+        if isinstance(node, ast.Import):
+            names.update(a.name for a in node.names)
+        elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+            names.update(f"{node.module}.{a.name}" for a in node.names)
+    return {n.split(".")[0] for n in names
+            if n.split(".")[0] in RUNTIME_LIBS and not any(n.startswith(p) for p in PARSERS)}
+
+
+def runtime_in_configuration(graph: dict[str, set[str]]) -> list[str]:
+    return sorted(f"{c} reaches {m} ({', '.join(sorted(_runtime_libraries(m)))})"
+                  for c in _config_modules(graph) for m in sorted(_reach(graph, c))
+                  if _runtime_libraries(m))
+
+
+def test_configuration_schemas_import_no_runtime():
+    assert len(_config_modules(GRAPH)) >= 10  # the walker sees them
+    assert runtime_in_configuration(GRAPH) == []
+
+
+def test_a_runtime_import_in_a_schema_is_caught():
+    graph = {m: set(deps) for m, deps in GRAPH.items()}
+    graph["daemon.config"].add("daemon.hmi.limits")  # the HMI's request limits: aiohttp
+    assert runtime_in_configuration(graph) == ["daemon.config reaches daemon.hmi.limits (aiohttp)"]

@@ -10,6 +10,8 @@ import time
 
 import pytest
 
+from benchmarks.rigs.daemon_helpers import write_daemon_yaml
+from benchmarks.rigs.report_helpers import journal_run
 from daemon.analysis.judge import NO_BASELINE, judge
 from daemon.compensation import journal as cj
 from daemon.config import load_daemon_config
@@ -17,8 +19,6 @@ from daemon.reports.compensation import verification_of
 from daemon.store import baselines
 from daemon.store.journal import Store
 from tests.cli_helpers import run_cli
-from tests.daemon_helpers import write_daemon_yaml
-from tests.report_helpers import journal_run
 
 
 @pytest.fixture

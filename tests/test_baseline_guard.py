@@ -10,6 +10,9 @@ import time
 
 import pytest
 
+from benchmarks.rigs.daemon_helpers import thesis_rows, thesis_setup, write_daemon_yaml
+from benchmarks.rigs.report_helpers import journal_run
+from daemon.analysis.replay_link import ReplayLink, prepare_from_rows
 from daemon.compensation import journal as cj
 from daemon.config import load_daemon_config
 from daemon.reports.compensation import verification_of
@@ -18,9 +21,6 @@ from daemon.store import baselines
 from daemon.store.journal import Store
 from tests.browser import chromium
 from tests.cli_helpers import run_cli
-from tests.daemon_helpers import thesis_rows, thesis_setup, write_daemon_yaml
-from tests.replay_link import ReplayLink, prepare_from_rows
-from tests.report_helpers import journal_run
 from tests.test_hmi_users import PASSWORDS, TOKEN, add_user, jar_session, sign_in
 
 

@@ -20,10 +20,10 @@ from identification.frame import estimate_weighted
 from programs.dialects import get_dialect
 from programs.toolpath import build_program
 from simulators.errors_schema import errors_from_dict
+from simulators.exact_log import THESIS_LINKS_UM_URAD
 from simulators.offline import run_sync
 from simulators.truth import TruthModel
 from tests.regen_centres_fixtures import DMIS_ROTATION_DEG, DMIS_TRANSLATION_MM, rotation
-from tests.synth import THESIS_LINKS_UM_URAD
 
 ROOT = Path(__file__).resolve().parents[1]
 CFG = ROOT / "config"

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import pytest
 
+from benchmarks.rigs.reader_helpers import ARTEFACT, centre_rows
 from contracts import centres_file
 from contracts.centres_file import (
     HEADER,
@@ -19,7 +20,6 @@ from contracts.centres_file import (
     write_centres,
 )
 from contracts.probing_log import ProbeLogWarning
-from tests.reader_helpers import ARTEFACT, centre_rows
 
 
 def _text(rows: list[CentreRow], **kw) -> str:

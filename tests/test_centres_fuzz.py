@@ -14,12 +14,12 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from benchmarks.rigs.reader_helpers import ARTEFACT, centre_rows, mutate_line, mutate_whole
 from contracts.centres_file import HEADER, CentresFile, CentresFileError, write_centres
 from contracts.importers import import_centres
 from contracts.probing_log import ProbeLogError, ProbeLogWarning
 from contracts.setup_files import load_machine
 from daemon.analysis.centres_input import load
-from tests.reader_helpers import ARTEFACT, centre_rows, mutate_line, mutate_whole
 from tests.regen_centres_fixtures import centres
 
 ROOT = Path(__file__).resolve().parents[1]

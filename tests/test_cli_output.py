@@ -11,12 +11,12 @@ import sys
 
 import pytest
 
+from benchmarks.rigs.daemon_helpers import CONFIG, ROOT, TOLERANCES
 from daemon.analysis.judge import judge
 from daemon.analysis.result import Analysis, Stability, Where
 from daemon.cli.main import main as cli_main
 from demos.e2e import links_line
 from identification.gap.selfcheck import SCENARIOS, Case, Summary
-from tests.daemon_helpers import CONFIG, ROOT, TOLERANCES
 
 EXAMPLE = CONFIG / "examples/daemon_sim.yaml"
 

@@ -8,9 +8,9 @@ import json
 
 import pytest
 
+from benchmarks.rigs.daemon_helpers import CONFIG
 from daemon.cli.main import main as cli_main
 from programs.dialects import get_dialect
-from tests.daemon_helpers import CONFIG
 
 SETUP = ["--machine", str(CONFIG / "machines/thesis_wcbxfzyt.yaml"),
          "--artefact", str(CONFIG / "artefacts/thesis_4ball.yaml")]

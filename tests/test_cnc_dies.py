@@ -13,9 +13,9 @@ import signal
 import pytest
 from asyncua import ua
 
+from benchmarks.rigs.daemon_helpers import CONFIG
 from drivers.opcua.reasons import why
 from tests.cli_helpers import free_port
-from tests.daemon_helpers import CONFIG
 from tests.stop_helpers import latest_run, rumba_process, until_capturing, write_config
 
 WAIT_S = 120.0

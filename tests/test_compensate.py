@@ -11,6 +11,7 @@ from pathlib import Path
 import pytest
 import yaml
 
+from benchmarks.rigs.daemon_helpers import CONFIG, write_daemon_yaml
 from contracts.probing_log import write_log
 from daemon.analysis import pipeline
 from daemon.compensation import journal as cj
@@ -19,9 +20,8 @@ from daemon.config import load_daemon_config
 from daemon.store.journal import Store
 from daemon.store.schema import MIGRATIONS, for_postgres
 from drivers.linuxcnc import halkins
+from simulators.exact_log import shipped_run_rows
 from tests.cli_helpers import run_cli
-from tests.daemon_helpers import CONFIG, write_daemon_yaml
-from tests.synth import shipped_run_rows
 
 LINKS = {"EA0B": 18, "EC0B": -23, "EX0C": -40, "EA0C": -19, "EB0C": 26, "EC0Y": 17,
          "EA0Z": -24, "EB0Z": -12}
@@ -267,7 +267,7 @@ def test_refused_on_an_error_verdict(tmp_path, capsys):
 
 
 def test_refused_without_controller_kinematics(tmp_path, capsys):
-    from tests.daemon_helpers import thesis_rows, thesis_setup
+    from benchmarks.rigs.daemon_helpers import thesis_rows, thesis_setup
 
     cfg = write_daemon_yaml(tmp_path)
     data = yaml.safe_load((CONFIG / "machines/thesis_wcbxfzyt.yaml").read_text())
@@ -340,7 +340,7 @@ def test_hal_file_found_from_the_ini_and_replaced_with_a_backup(tmp_path):
 def test_siemens_program_journals_the_closing_vector_and_rolls_back(tmp_path, capsys):
     """Another family: the reviewed $TC_CARR program in the reports directory; the closing
     vector the writer changes with a pivot is journaled too and restored by the rollback."""
-    from tests.daemon_helpers import thesis_rows, thesis_setup
+    from benchmarks.rigs.daemon_helpers import thesis_rows, thesis_setup
 
     cfg = write_daemon_yaml(tmp_path, dialect="siemens")  # the machine file's controller
     thesis = CONFIG / "machines/thesis_wcbxfzyt.yaml"

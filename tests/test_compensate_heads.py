@@ -164,8 +164,8 @@ def test_rumba_compensate_proposes_the_head_carrier_values(tmp_path: Path, capsy
     the head's b-x/b-z and c-y are skipped with the reason, and the reviewed MPF names them."""
 
     from contracts.probing_log import write_log
+    from simulators.exact_log import shipped_run_rows
     from tests.cli_helpers import run_cli
-    from tests.synth import shipped_run_rows
 
     links = {"EX0C": -40, "EA0C": -19, "EB0C": 26, "EA0B": 22, "EC0B": -23, "EC0Y": 17,
              "EA0Z": -24, "EB0Z": -12}

@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 import yaml
 
+from daemon.analysis.replay_link import ReplayLink, prepare_from_rows
 from daemon.compensation import identified
 from daemon.compensation import journal as cj
 from daemon.compensation.propose import (
@@ -34,7 +35,6 @@ from daemon.store.journal import Store
 from daemon.store.schema import MIGRATIONS
 from identification.compensation import plan_compensation
 from tests.cli_helpers import run_cli
-from tests.replay_link import ReplayLink, prepare_from_rows
 from tests.test_compensate import LINKS, MACHINE, _world
 from tests.test_compensate_transaction import X, _rows, fake_linuxcnc
 

@@ -22,6 +22,7 @@ from pathlib import Path
 import pytest
 
 from contracts.probing_log import write_log
+from daemon.analysis.replay_link import ReplayLink
 from daemon.compensation import journal as cj
 from daemon.compensation.names import BadName, validate_by
 from daemon.config import load_daemon_config
@@ -29,9 +30,8 @@ from daemon.run.session import Refused, Session
 from daemon.store import machine_lock
 from daemon.store.journal import Store
 from drivers.linuxcnc import halkins
+from simulators.exact_log import shipped_run_rows
 from tests.cli_helpers import run_cli
-from tests.replay_link import ReplayLink
-from tests.synth import shipped_run_rows
 from tests.test_compensate import LINKS, MACHINE, PLAN, _journal, _world
 
 PINS = {"xyzbc-trt-kins.x-rot-point": 0.0, "xyzbc-trt-kins.y-rot-point": 0.0,
@@ -130,7 +130,7 @@ def _slow_session(cfg: str, rows) -> tuple[Session, Store]:
     conf = load_daemon_config(cfg)
     setup = conf.machines["lcnc"]
     store = Store(conf.store_path)
-    from tests.replay_link import prepare_from_rows
+    from daemon.analysis.replay_link import prepare_from_rows
 
     link = ReplayLink(rows, setup.machine, delay_s=0.5)
     return Session(setup, link, store, conf.reports_dir, prepare=prepare_from_rows(rows)), store

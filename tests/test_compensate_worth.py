@@ -14,11 +14,11 @@ from pathlib import Path
 import aiohttp
 import pytest
 
+from benchmarks.rigs.daemon_helpers import CONFIG
+from benchmarks.rigs.hmi_compensation import TOKEN, bearer, get_state, run_once
 from daemon.config import load_daemon_config
 from daemon.service.service import Service
 from demos.e2e import tolerances_yaml
-from tests.daemon_helpers import CONFIG
-from tests.test_hmi_compensate import TOKEN, bearer, get_state, run_once
 
 pytestmark = [pytest.mark.slow]
 

@@ -22,7 +22,7 @@ from identification.estimate import estimate
 from identification.kinematics import ChainState, TopologyError, rotary_columns, tip_minus_ball
 from identification.model import Centres, Layout, predict
 from identification.uncertainty import expanded_k
-from tests.synth import THESIS_LINKS_UM_URAD, Truth, to_internal, true_centres
+from simulators.exact_log import THESIS_LINKS_UM_URAD, Truth, to_internal, true_centres
 
 CFG = Path(__file__).resolve().parents[1] / "config"
 SIGMA_UM = (0.66, 0.98, 0.44)  # thesis §3.4 centre repeatability

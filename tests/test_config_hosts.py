@@ -7,9 +7,9 @@ from __future__ import annotations
 
 import pytest
 
+from benchmarks.rigs.daemon_helpers import write_daemon_yaml
 from contracts.yaml_files import ConfigError
 from daemon.config import load_daemon_config
-from tests.daemon_helpers import write_daemon_yaml
 
 BAD = ["''", "' '", "'mqtt://broker'", "'broker:1883'", "'two words'", "'-x.example'"]
 

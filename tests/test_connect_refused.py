@@ -11,6 +11,7 @@ import socket
 
 import pytest
 
+from benchmarks.rigs.transport_sim import make_truth
 from drivers.base import LinkError
 from drivers.modbus.link import ModbusLink
 from drivers.modbus.schema import ModbusLinkConfig
@@ -18,7 +19,6 @@ from drivers.opcua.link import OpcUaLink
 from drivers.opcua.schema import OpcUaLinkConfig
 from simulators.controller import VirtualController
 from simulators.frontends.modbus import ModbusFrontend
-from tests.transport_sim import make_truth
 
 PATIENT_S = 600.0  # a connect timeout no test could wait for: only a fast refusal passes
 

@@ -9,11 +9,11 @@ import sys
 
 import pytest
 
+from benchmarks.rigs.daemon_helpers import thesis_rows, thesis_setup, write_daemon_yaml
+from daemon.analysis.replay_link import Faults, ReplayLink, prepare_from_rows
 from daemon.config import load_daemon_config
 from daemon.service.service import Service
 from demos.fleet import DemoFailed, runs_ended
-from tests.daemon_helpers import thesis_rows, thesis_setup, write_daemon_yaml
-from tests.replay_link import Faults, ReplayLink, prepare_from_rows
 
 TOKEN = "t0k3n-for-fleet-wait-012345"
 

@@ -11,11 +11,11 @@ from pathlib import Path
 
 import yaml
 
+from benchmarks.rigs.daemon_helpers import CONFIG, thesis_rows, thesis_setup, write_daemon_yaml
 from contracts.probing_log import write_log
 from simulators.controller import VirtualController
 from simulators.truth import TruthModel
 from tests.cli_helpers import run_cli
-from tests.daemon_helpers import CONFIG, thesis_rows, thesis_setup, write_daemon_yaml
 
 THESIS = CONFIG / "machines/thesis_wcbxfzyt.yaml"
 

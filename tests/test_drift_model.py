@@ -15,8 +15,8 @@ from identification.drift import (
 from identification.estimate import estimate
 from identification.identifiability import nominal_centres
 from identification.model import Centres, Layout, predict
+from simulators.exact_log import THESIS_LINKS_UM_URAD, true_centres
 from tests.drift_helpers import SIGMA, shift_visits, thesis_truth
-from tests.synth import THESIS_LINKS_UM_URAD, true_centres
 
 
 @pytest.fixture(scope="module")

@@ -10,8 +10,8 @@ from identification.drift import estimate_drift_aware, shape_values
 from identification.estimate import estimate
 from identification.estimate_scatter import visit_sandwich
 from identification.model import Centres
+from simulators.exact_log import THESIS_LINKS_UM_URAD, true_centres
 from tests.drift_helpers import SIGMA, shift_visits, thesis_truth
-from tests.synth import THESIS_LINKS_UM_URAD, true_centres
 
 INDEX_URAD = 15.0  # B and C index scatter 1σ per visit: detected by the REML test
 

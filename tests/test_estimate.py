@@ -11,7 +11,7 @@ from daemon.analysis.touch_centres import rows_to_centres
 from identification.estimate import RankDeficientError, estimate
 from identification.identifiability import identifiable_links, nominal_centres
 from identification.model import Layout, predict
-from tests.synth import THESIS_LINKS_UM_URAD, Truth, make_rows, to_internal
+from simulators.exact_log import THESIS_LINKS_UM_URAD, Truth, make_rows, to_internal
 
 CFG = Path(__file__).resolve().parents[1] / "config"
 EIGHT = {"EB0Z", "EA0Y", "EC0Y", "EA0B", "EC0B", "EX0C", "EA0C", "EB0C"}
@@ -62,8 +62,8 @@ def test_round_trip_with_half_micron_noise(thesis, plan: str, seed: int) -> None
     assert np.all(np.abs(bv - truth.balls_mm * 1e3) < 3 * bs)
     pv, ps = e.probe_um
     assert np.all(np.abs(pv - truth.tip_mm * 1e3) < 3 * ps)
-    # Centre noise of a 0.5 µm touch scatter: 0.35 / 0.35 / 0.56 µm (tests/synth), reduced by
-    # the degrees of freedom used by the fit.
+    # Centre noise of a 0.5 µm touch scatter: 0.35 / 0.35 / 0.56 µm (simulators/exact_log.py),
+    # reduced by the degrees of freedom used by the fit.
     expect = np.sqrt(np.mean([0.125, 0.125, 0.3125]) * (1 - e.layout.size / (3 * len(c))))
     assert 0.6 * expect < e.residual_rms_um < 1.4 * expect
 
@@ -217,7 +217,7 @@ def test_uncertainties_are_calibrated_under_anisotropic_repeatability(thesis) ->
     the reported standard uncertainties match the actual scatter of every link estimate over
     repeated simulated runs. A single pooled σ gave ratios from 0.6 (EX0C, EB0C) to 1.3
     (EA0Y); σ per axis from the residuals brings each into [0.75, 1.3] over 60 runs."""
-    from tests.synth import thesis_noise
+    from simulators.exact_log import thesis_noise
 
     m, a = thesis
     tn, cn = thesis_noise()

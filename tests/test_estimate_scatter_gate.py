@@ -10,7 +10,7 @@ from contracts.setup_files import load_artefact, load_machine, load_plan
 from identification.estimate import estimate
 from identification.model import Centres
 from identification.visit_scatter import LR_ALPHA
-from tests.synth import THESIS_LINKS_UM_URAD, Truth, to_internal, true_centres
+from simulators.exact_log import THESIS_LINKS_UM_URAD, Truth, to_internal, true_centres
 
 SIGMA = np.array([0.66, 0.98, 0.44])  # thesis §3.4 centre repeatability, µm
 INDEX_URAD = 4.0  # B and C index scatter 1σ per visit: a good trunnion, often not detected

@@ -21,8 +21,8 @@ from daemon.cli.main import main
 from identification.drift import estimate_drift_aware, shape_values
 from identification.estimate import estimate
 from identification.model import Centres
+from simulators.exact_log import make_rows, true_centres
 from tests.drift_helpers import SIGMA, shift_visits, thesis_truth
-from tests.synth import make_rows, true_centres
 
 ROOT = Path(__file__).resolve().parents[1]
 CFG = ROOT / "config"
@@ -204,9 +204,9 @@ def test_the_daemons_run_analysis_and_compensation_take_the_machine_files_value(
     """The session's path: MachineSetup.machine_file → pipeline.analyse (the run's analysis)
     and the compensation's own estimate (``identified.identify``): 40 µrad stated on a run
     without index scatter is used (its links widen), nothing stated leaves them as they were."""
+    from benchmarks.rigs.daemon_helpers import thesis_rows, thesis_setup
     from daemon.analysis import pipeline
     from daemon.compensation import identified
-    from tests.daemon_helpers import thesis_rows, thesis_setup
 
     plain = thesis_setup(plan="thesis_annexB_14poses")
     mf = plain.machine_file.model_copy(update={"rotary_repeatability_urad": {"B": 40.0,

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import pytest
 
+from benchmarks.rigs.daemon_helpers import CONFIG
 from contracts.setup_files import load_machine
 from daemon.analysis.figures import (
     DEFINITIONS,
@@ -17,7 +18,6 @@ from daemon.analysis.figures import (
 )
 from daemon.analysis.result import Analysis, VolumetricPoint
 from daemon.compensation.propose import spec_of
-from tests.daemon_helpers import CONFIG
 
 
 class _Setup:

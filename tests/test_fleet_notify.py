@@ -14,16 +14,16 @@ from email import message_from_bytes
 import pytest
 from aiohttp import web
 
+from benchmarks.rigs.daemon_helpers import thesis_rows, thesis_setup, write_daemon_yaml
 from contracts.yaml_files import ConfigError
+from daemon.analysis.replay_link import ReplayLink, prepare_from_rows
 from daemon.config import load_daemon_config
 from daemon.notify.config import NotifyFile, load_notify
 from daemon.notify.notifier import missed_checks
 from daemon.service.service import Service
 from daemon.store.journal import Store
 from simulators.fleet_peers import free_port
-from tests.daemon_helpers import thesis_rows, thesis_setup, write_daemon_yaml
 from tests.fleet_helpers import until
-from tests.replay_link import ReplayLink, prepare_from_rows
 
 HOOK_TOKEN = "hook-t0k3n-0123456789"
 MAIL_PASSWORD = "mail-passw0rd-0123456789"

@@ -10,17 +10,17 @@ import sqlite3
 import psycopg
 import pytest
 
+from benchmarks.rigs.daemon_helpers import thesis_rows, thesis_setup
 from contracts.messages import ProbeHit
 from contracts.yaml_files import ConfigError
+from daemon.analysis.replay_link import ReplayLink, prepare_from_rows
 from daemon.run.session import Session, State
 from daemon.store.drain import Drainer
 from daemon.store.journal import Store, StoreError
 from daemon.store.pg import PgStore
 from daemon.store.schema import SCHEMA_VERSION
 from daemon.store.url import parse_store_url, redact
-from tests.daemon_helpers import thesis_rows, thesis_setup
 from tests.fleet_helpers import fresh_db, start_postgres, until
-from tests.replay_link import ReplayLink, prepare_from_rows
 
 peer = pytest.mark.peer
 

@@ -8,6 +8,7 @@ import json
 import numpy as np
 import pytest
 
+from benchmarks.rigs.gap_helpers import CONFIG, STYLUS_R, annex_b_setup, gap_truth
 from contracts.setup_files import load_machine, load_plan
 from identification.effects import make_effect
 from identification.gap import TouchData, diagnose, selfcheck
@@ -17,7 +18,6 @@ from identification.gap.simlog import Truth, simulate
 from identification.gap.twin import fit_twin
 from identification.kinematics import ChainState, rotary_columns, solve_centre
 from identification.model import predict
-from tests.gap_helpers import CONFIG, STYLUS_R, annex_b_setup, gap_truth
 
 KEYS = {"noise_floor_um", "baseline", "candidates", "verdict", "location"}
 

@@ -10,14 +10,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from benchmarks.rigs import gap_helpers
+from benchmarks.rigs.gap_helpers import STYLUS_R, annex_b_setup, gap_truth, log_rows
 from contracts.centres_file import read_centres, write_centres
 from contracts.probing_log import write_log
 from daemon.cli.main import main
 from identification.effects import make_effect
 from identification.gap import Options, diagnose
 from identification.gap.simlog import simulate
-from tests import gap_helpers
-from tests.gap_helpers import STYLUS_R, annex_b_setup, gap_truth, log_rows
 
 MACHINE = str(gap_helpers.MACHINE)
 ARTEFACT = str(gap_helpers.ARTEFACT)

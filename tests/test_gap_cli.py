@@ -7,13 +7,20 @@ import json
 import numpy as np
 import pytest
 
+from benchmarks.rigs.gap_helpers import (
+    CONFIG,
+    STYLUS_R,
+    annex_b_setup,
+    gap_json,
+    gap_truth,
+    log_rows,
+)
 from contracts.probing_log import write_log
 from contracts.setup_files import load_artefact, load_machine
 from daemon.cli.main import main
 from identification.effects import make_effect
 from identification.gap import diagnose
 from identification.gap.simlog import simulate
-from tests.gap_helpers import CONFIG, STYLUS_R, annex_b_setup, gap_json, gap_truth, log_rows
 
 
 @pytest.fixture(scope="module")

@@ -10,13 +10,13 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from benchmarks.rigs.gap_helpers import CONFIG, STYLUS_R, annex_b_setup, gap_truth
 from contracts.probing_log import read_log, write_log
 from daemon.cli.main import main
 from identification.effects import make_effect
 from identification.gap import diagnose
 from identification.gap.locate import MAX_SHOWN, shown_locations
 from identification.gap.simlog import simulate
-from tests.gap_helpers import CONFIG, STYLUS_R, annex_b_setup, gap_truth
 
 EXAMPLE = CONFIG / "examples/thesis_annexB_14poses.csv"
 

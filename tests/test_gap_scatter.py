@@ -6,13 +6,7 @@ import numpy as np
 import pytest
 import yaml
 
-from contracts.setup_files import load_machine, load_plan, machine_from_dict
-from contracts.yaml_files import ConfigError
-from identification.effects import make_effect, sub_models
-from identification.gap import Options, diagnose
-from identification.gap.simlog import index_errors_deg, simulate
-from identification.visit_scatter import arrange, estimate_components, restricted_nll
-from tests.gap_helpers import (
+from benchmarks.rigs.gap_helpers import (
     CONFIG,
     MACHINE,
     STYLUS_R,
@@ -20,6 +14,12 @@ from tests.gap_helpers import (
     gap_truth,
     scatter_components,
 )
+from contracts.setup_files import load_machine, load_plan, machine_from_dict
+from contracts.yaml_files import ConfigError
+from identification.effects import make_effect, sub_models
+from identification.gap import Options, diagnose
+from identification.gap.simlog import index_errors_deg, simulate
+from identification.visit_scatter import arrange, estimate_components, restricted_nll
 
 
 @pytest.fixture(scope="module")

@@ -9,14 +9,7 @@ import numpy as np
 import pytest
 import yaml
 
-from contracts.setup_files import load_artefact, load_machine, plan_from_dict
-from contracts.yaml_files import ConfigError
-from daemon.cli.main import main
-from identification.effects import make_effect
-from identification.gap import diagnose
-from identification.gap.selfcheck import run_case
-from identification.gap.simlog import simulate
-from tests.gap_helpers import (
+from benchmarks.rigs.gap_helpers import (
     ARTEFACT,
     CONFIG,
     EXAMPLE,
@@ -26,6 +19,13 @@ from tests.gap_helpers import (
     gap_truth,
     scatter_components,
 )
+from contracts.setup_files import load_artefact, load_machine, plan_from_dict
+from contracts.yaml_files import ConfigError
+from daemon.cli.main import main
+from identification.effects import make_effect
+from identification.gap import diagnose
+from identification.gap.selfcheck import run_case
+from identification.gap.simlog import simulate
 
 
 @pytest.fixture(scope="module")
@@ -53,12 +53,12 @@ def test_a_creeping_ball_is_no_step(setup):
 
 def test_simulator_indexes_with_scatter_and_knocks_a_ball(tmp_path):
     # The G-code simulator through its errors file: index scatter per indexation and a step.
+    from benchmarks.rigs.gap_helpers import gap_json, scatter_components
     from programs.dialects import get_dialect
     from programs.toolpath import build_program
     from simulators.errors_schema import errors_from_dict
     from simulators.offline import run_sync
     from simulators.truth import TruthModel
-    from tests.gap_helpers import gap_json, scatter_components
 
     m, mf = load_machine(MACHINE)
     a = load_artefact(ARTEFACT)

@@ -13,12 +13,7 @@ import json
 import numpy as np
 import pytest
 
-from contracts.probing_log import write_log
-from contracts.setup_files import load_plan
-from daemon.cli.main import main
-from identification.effects import make_effect
-from identification.gap.simlog import simulate
-from tests.gap_helpers import (
+from benchmarks.rigs.gap_helpers import (
     ARTEFACT,
     CONFIG,
     MACHINE,
@@ -27,6 +22,11 @@ from tests.gap_helpers import (
     gap_truth,
     log_rows,
 )
+from contracts.probing_log import write_log
+from contracts.setup_files import load_plan
+from daemon.cli.main import main
+from identification.effects import make_effect
+from identification.gap.simlog import simulate
 
 
 @pytest.fixture(scope="module")

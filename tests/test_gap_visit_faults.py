@@ -8,12 +8,12 @@ import json
 import numpy as np
 import pytest
 
+from benchmarks.rigs.gap_helpers import STYLUS_R, annex_b_setup, gap_truth
 from identification.effects import make_effect
 from identification.gap import diagnose
 from identification.gap.selfcheck import run_case
 from identification.gap.selfcheck_scatter import PoleChip, chip_named
 from identification.gap.simlog import simulate
-from tests.gap_helpers import STYLUS_R, annex_b_setup, gap_truth
 
 
 @pytest.fixture(scope="module")

@@ -6,11 +6,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from benchmarks.rigs.gap_helpers import STYLUS_R, annex_b_setup, gap_truth
 from identification.effects import make_effect
 from identification.gap import diagnose
 from identification.gap.simlog import simulate
 from identification.gap.warmup import TAU_BOUNDS_H, model_of, tau_param, warmup_effect
-from tests.gap_helpers import STYLUS_R, annex_b_setup, gap_truth
 
 
 @pytest.fixture(scope="module")

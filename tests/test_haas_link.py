@@ -13,6 +13,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from benchmarks.rigs.transport_sim import latched_equal, make_truth
 from contracts.jobs import ProgramJob, Verdict
 from contracts.setup_files import plan_from_dict
 from contracts.yaml_files import ConfigError
@@ -24,7 +25,6 @@ from drivers.registry import link_config
 from programs.generate import generate
 from simulators.controller import VirtualController
 from simulators.frontends.haas import HaasFrontend
-from tests.transport_sim import latched_equal, make_truth
 
 
 def job_for(truth, poses=((0.0, 0.0), (30.0, 60.0)), handshake: bool = True) -> ProgramJob:

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 import yaml
 
+from benchmarks.rigs.daemon_helpers import CONFIG
 from contracts.setup_files import load_artefact, load_machine, load_plan, machine_from_dict
 from contracts.yaml_files import ConfigError
 from daemon.analysis.touch_centres import rows_to_centres
@@ -25,7 +26,6 @@ from programs.toolpath import build_program
 from simulators.errors_schema import load_errors
 from simulators.offline import run_sync
 from simulators.truth import TruthModel
-from tests.daemon_helpers import CONFIG
 
 ARTEFACT = CONFIG / "artefacts/vertical_4ball.yaml"
 # The simulated probing noise of the one-run tests below: deterministic, as in

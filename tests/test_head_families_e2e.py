@@ -13,6 +13,8 @@ from pathlib import Path
 import pytest
 import yaml
 
+from benchmarks.rigs.daemon_helpers import CONFIG
+from benchmarks.rigs.rig_helpers import start_rig
 from contracts.setup_files import load_plan
 from daemon.config import load_daemon_config
 from daemon.run.session import State
@@ -20,8 +22,6 @@ from daemon.service.service import Service
 from identification.estimate import coverage_factor
 from simulators.controller import VirtualController
 from simulators.truth import TruthModel
-from tests.daemon_helpers import CONFIG
-from tests.rig_helpers import start_rig
 from tests.test_head_families import FAMILIES, NOISE_SEED, PLANS, RANK_SETS
 
 RUN_TIMEOUT_S = 300.0  # 220-240 touches on a loaded 2-core box; a failed run raises at once

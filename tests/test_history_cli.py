@@ -9,11 +9,11 @@ import sqlite3
 import numpy as np
 import pytest
 
+from benchmarks.rigs.daemon_helpers import thesis_rows, thesis_setup, write_daemon_yaml
 from contracts.probing_log import write_log
 from daemon.analysis.pipeline import PipelineError
 from daemon.cli.main import main as cli_main
 from identification.spherefit import SphereFitError
-from tests.daemon_helpers import thesis_rows, thesis_setup, write_daemon_yaml
 
 
 def run_cli(argv: list[str], capsys) -> tuple[int, str, str]:

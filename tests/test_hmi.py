@@ -10,12 +10,12 @@ import time
 import aiohttp
 import pytest
 
+from benchmarks.rigs.daemon_helpers import thesis_rows, thesis_setup, write_daemon_yaml
 from contracts.yaml_files import ConfigError
+from daemon.analysis.replay_link import ReplayLink, prepare_from_rows
 from daemon.config import load_daemon_config
 from daemon.service.service import Service
 from tests.browser import chromium, tick_preflight
-from tests.daemon_helpers import thesis_rows, thesis_setup, write_daemon_yaml
-from tests.replay_link import ReplayLink, prepare_from_rows
 
 TOKEN = "t0k3n-for-tests-0123456789"
 
@@ -41,10 +41,10 @@ async def service(tmp_path):
 @pytest.fixture
 async def sim_service(tmp_path):
     """The service against the simulated CNC over OPC UA (real asyncua server and driver)."""
+    from benchmarks.rigs.daemon_helpers import CONFIG
     from simulators.controller import VirtualController
     from simulators.frontends.opcua import OpcUaFrontend
     from simulators.truth import TruthModel
-    from tests.daemon_helpers import CONFIG
 
     truth = TruthModel.from_files(CONFIG / "machines/thesis_wcbxfzyt.yaml",
                                   CONFIG / "artefacts/thesis_4ball.yaml",

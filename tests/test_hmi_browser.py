@@ -13,13 +13,13 @@ from zoneinfo import ZoneInfo
 
 import pytest
 
+from benchmarks.rigs.daemon_helpers import thesis_rows, thesis_setup, write_daemon_yaml
+from benchmarks.rigs.report_helpers import journal_run
+from daemon.analysis.replay_link import ReplayLink, prepare_from_rows
 from daemon.config import load_daemon_config
 from daemon.run.phases import END_READS
 from daemon.service.service import Service
 from tests.browser import chromium, tick_preflight
-from tests.daemon_helpers import thesis_rows, thesis_setup, write_daemon_yaml
-from tests.replay_link import ReplayLink, prepare_from_rows
-from tests.report_helpers import journal_run
 
 pytestmark = [pytest.mark.peer]
 TOKEN = "t0k3n-for-browser-0123456789"

@@ -15,12 +15,12 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from benchmarks.rigs.daemon_helpers import thesis_rows, thesis_setup, write_daemon_yaml
+from daemon.analysis.replay_link import ReplayLink, prepare_from_rows
 from daemon.config import load_daemon_config
 from daemon.hmi.app import AUTH_KEY, COOKIE, LIMITER_KEY, PUBLIC
 from daemon.hmi.limits import HmiLimits
 from daemon.service.service import Service
-from tests.daemon_helpers import thesis_rows, thesis_setup, write_daemon_yaml
-from tests.replay_link import ReplayLink, prepare_from_rows
 
 TOKEN = "t0k3n-for-tests-0123456789"
 

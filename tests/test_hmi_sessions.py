@@ -11,12 +11,12 @@ from pathlib import Path
 import aiohttp
 import pytest
 
+from benchmarks.rigs.daemon_helpers import thesis_rows, thesis_setup, write_daemon_yaml
+from daemon.analysis.replay_link import ReplayLink, prepare_from_rows
 from daemon.config import load_daemon_config
 from daemon.hmi.app import AUTH_KEY, COOKIE
 from daemon.hmi.auth import SECRET_FILE, SESSION_TTL_S, Auth
 from daemon.service.service import Service, ServiceError
-from tests.daemon_helpers import thesis_rows, thesis_setup, write_daemon_yaml
-from tests.replay_link import ReplayLink, prepare_from_rows
 
 TOKEN = "t0k3n-for-tests-0123456789"
 

@@ -14,12 +14,12 @@ from pathlib import Path
 import aiohttp
 import pytest
 
+from benchmarks.rigs.daemon_helpers import thesis_rows, thesis_setup, write_daemon_yaml
+from daemon.analysis.replay_link import ReplayLink, prepare_from_rows
 from daemon.cli.main import main as cli_main
 from daemon.config import load_daemon_config
 from daemon.hmi.tls import server_context
 from daemon.service.service import Service, ServiceError
-from tests.daemon_helpers import thesis_rows, thesis_setup, write_daemon_yaml
-from tests.replay_link import ReplayLink, prepare_from_rows
 from tests.tls_helpers import make_cert
 
 TOKEN = "t0k3n-for-tests-0123456789"

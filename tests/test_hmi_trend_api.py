@@ -8,11 +8,11 @@ import time
 
 import aiohttp
 
+from benchmarks.rigs.daemon_helpers import thesis_rows, thesis_setup, write_daemon_yaml
+from benchmarks.rigs.report_helpers import journal_run
+from daemon.analysis.replay_link import ReplayLink, prepare_from_rows
 from daemon.config import load_daemon_config
 from daemon.service.service import Service
-from tests.daemon_helpers import thesis_rows, thesis_setup, write_daemon_yaml
-from tests.replay_link import ReplayLink, prepare_from_rows
-from tests.report_helpers import journal_run
 
 TOKEN = "t0k3n-for-trend-api-0123456789"
 

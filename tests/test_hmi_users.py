@@ -14,14 +14,14 @@ import sys
 import aiohttp
 import pytest
 
+from benchmarks.rigs.daemon_helpers import thesis_rows, thesis_setup, write_daemon_yaml
 from contracts.yaml_files import ConfigError
+from daemon.analysis.replay_link import ReplayLink, prepare_from_rows
 from daemon.config import load_daemon_config
 from daemon.hmi.users import UsersError, parse, read_users, verify_password
 from daemon.service.service import Service
 from daemon.store.actions import actions
 from tests.cli_helpers import run_cli
-from tests.daemon_helpers import thesis_rows, thesis_setup, write_daemon_yaml
-from tests.replay_link import ReplayLink, prepare_from_rows
 
 TOKEN = "t0k3n-for-users-0123456789"
 PREFLIGHT = {"preflight": ["probe", "balls", "doors", "area"]}

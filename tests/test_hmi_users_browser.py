@@ -14,12 +14,12 @@ from zoneinfo import ZoneInfo
 
 import pytest
 
+from benchmarks.rigs.daemon_helpers import thesis_rows, thesis_setup, write_daemon_yaml
+from daemon.analysis.replay_link import ReplayLink, prepare_from_rows
 from daemon.config import load_daemon_config
 from daemon.service.service import Service
 from tests.browser import chromium, tick_preflight
 from tests.cli_helpers import run_cli
-from tests.daemon_helpers import thesis_rows, thesis_setup, write_daemon_yaml
-from tests.replay_link import ReplayLink, prepare_from_rows
 from tests.test_hmi_browser import past_run
 
 pytestmark = [pytest.mark.peer]

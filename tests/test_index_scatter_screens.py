@@ -14,6 +14,8 @@ import aiohttp
 import yaml
 from aiohttp import web
 
+from benchmarks.rigs.daemon_helpers import CONFIG, thesis_rows, thesis_setup, write_daemon_yaml
+from daemon.analysis.replay_link import ReplayLink, prepare_from_rows
 from daemon.analysis.result import Analysis
 from daemon.config import load_daemon_config
 from daemon.hmi.app import create_app
@@ -21,8 +23,6 @@ from daemon.reports.index_scatter import NONE, TITLE, index_scatter_lines
 from daemon.reports.report import pdf_path, write_report
 from daemon.service.service import Service
 from daemon.store.journal import Store
-from tests.daemon_helpers import CONFIG, thesis_rows, thesis_setup, write_daemon_yaml
-from tests.replay_link import ReplayLink, prepare_from_rows
 from tests.test_estimate_stated import _analyse, scatter_log  # noqa: F401  (a fixture)
 from tests.test_one_truth import flat, fleet_page, pdf_text
 

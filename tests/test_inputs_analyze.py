@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 import pytest
 
+from benchmarks.rigs.daemon_helpers import thesis_setup
 from contracts.probing_log import MAX_LOG_ROWS, read_log
 from contracts.setup_files import load_artefact, load_machine
 from contracts.yaml_files import ConfigError, StrictModel, _is_bool_field
@@ -30,8 +31,7 @@ from identification.plausibility import (
     implausible,
     setup_limit_mm,
 )
-from tests.daemon_helpers import thesis_setup
-from tests.synth import Truth, true_centres
+from simulators.exact_log import Truth, true_centres
 
 ROOT = Path(__file__).resolve().parents[1]
 CFG = ROOT / "config"

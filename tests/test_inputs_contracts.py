@@ -18,13 +18,13 @@ import yaml
 import contracts.centres_file as centres_file
 import contracts.importers.common as importers_common
 import contracts.probing_log as pl
+from benchmarks.rigs.reader_helpers import ARTEFACT, CONFIG, centre_rows
 from contracts.centres_file import CentresFileError, read_centres, write_centres
 from contracts.importers import CentresImportError, import_centres
 from contracts.input_files import bounded_lines
 from contracts.probing_log import ProbeLogError, read_log
 from contracts.setup_files import load_artefact, load_machine, load_plan
 from contracts.yaml_files import ConfigError, read_yaml
-from tests.reader_helpers import ARTEFACT, CONFIG, centre_rows
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE_LOG = CONFIG / "examples/thesis_annexB_14poses.csv"

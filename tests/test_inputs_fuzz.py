@@ -26,14 +26,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import contracts.probing_log as pl
-from contracts.centres_file import read_centres, write_centres
-from contracts.probing_log import read_log
-from contracts.setup_files import load_artefact, load_machine, load_plan, machine_from_dict
-from contracts.yaml_files import ConfigError, read_yaml
-from daemon.analysis.identify import AnalysisError, analyse_centres
-from daemon.analysis.touch_centres import rows_to_centres
-from identification.plausibility import MAX_LINK_ROTATION_RAD, MAX_LINK_TRANSLATION_MM
-from tests.input_fuzz_helpers import (
+from benchmarks.rigs.input_fuzz_helpers import (
     DATA,
     EXAMPLE_LOG,
     READERS,
@@ -42,7 +35,14 @@ from tests.input_fuzz_helpers import (
     outcome,
     special_file,
 )
-from tests.reader_helpers import ARTEFACT, CONFIG, centre_rows
+from benchmarks.rigs.reader_helpers import ARTEFACT, CONFIG, centre_rows
+from contracts.centres_file import read_centres, write_centres
+from contracts.probing_log import read_log
+from contracts.setup_files import load_artefact, load_machine, load_plan, machine_from_dict
+from contracts.yaml_files import ConfigError, read_yaml
+from daemon.analysis.identify import AnalysisError, analyse_centres
+from daemon.analysis.touch_centres import rows_to_centres
+from identification.plausibility import MAX_LINK_ROTATION_RAD, MAX_LINK_TRANSLATION_MM
 
 GEOMETRY_EXAMPLES = 30  # an analysis takes about 0.3 s
 FUZZ = settings(max_examples=60, deadline=None, derandomize=True, database=None,

@@ -1,8 +1,8 @@
 """Property-based fuzzing of the input surfaces that come over a network: an MQTT
 password without TLS, the fleet page's paths and the garbage a fleet store may hold (the
 command-line and file ones: tests/test_inputs_fuzz_surfaces.py). Classified and counted as in
-tests/test_inputs_fuzz.py (``tests.input_fuzz_helpers``); ``benchmarks/fuzz/inputs.py`` runs
-the same tests longer."""
+tests/test_inputs_fuzz.py (``benchmarks.rigs.input_fuzz_helpers``);
+``benchmarks/fuzz/inputs.py`` runs the same tests longer."""
 
 from __future__ import annotations
 
@@ -20,8 +20,8 @@ import yaml
 from hypothesis import example, given
 from hypothesis import strategies as st
 
+from benchmarks.rigs.input_fuzz_helpers import Tally, outcome
 from contracts.yaml_files import ConfigError
-from tests.input_fuzz_helpers import Tally, outcome
 from tests.test_inputs_fuzz import FUZZ
 
 # ---------------------------------------------------------------------- MQTT credentials
@@ -35,8 +35,8 @@ _REMOTE = ["192.0.2.1", "broker.example", "10.0.0.1", "0.0.0.0", "::", "fe80::1"
 
 
 def test_an_mqtt_password_crosses_a_network_only_inside_tls(tmp_path: Path) -> None:
+    from benchmarks.rigs.daemon_helpers import write_daemon_yaml
     from daemon.config import load_daemon_config
-    from tests.daemon_helpers import write_daemon_yaml
 
     tally = Tally("mqtt password / TLS")
     secret = tmp_path / "mqtt.pw"

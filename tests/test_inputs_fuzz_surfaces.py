@@ -2,7 +2,7 @@
 files: who confirms a compensation (``--by``, HMI names), control characters in a centres file
 or a log, the plan name, ``rumba plan -o`` and ``--max-time``, ``rumba gcode`` on a spindle axis
 that is no direction (the network ones: tests/test_inputs_fuzz_network.py). Classified and
-counted as in tests/test_inputs_fuzz.py (``tests.input_fuzz_helpers``);
+counted as in tests/test_inputs_fuzz.py (``benchmarks.rigs.input_fuzz_helpers``);
 ``benchmarks/fuzz/inputs.py`` runs the same tests longer."""
 
 from __future__ import annotations
@@ -20,11 +20,11 @@ import yaml
 from hypothesis import given
 from hypothesis import strategies as st
 
+from benchmarks.rigs.input_fuzz_helpers import Tally, outcome
+from benchmarks.rigs.reader_helpers import CONFIG
 from contracts.plan_targets import load_targets_file
 from contracts.yaml_files import ConfigError
 from daemon.compensation.names import BadName, validate_by
-from tests.input_fuzz_helpers import Tally, outcome
-from tests.reader_helpers import CONFIG
 from tests.test_inputs_fuzz import FUZZ
 
 # ----------------------------------------------------------------------------- --by, HMI
@@ -115,9 +115,9 @@ def test_a_control_character_in_a_centres_file_or_log_is_never_accepted(tmp_path
     """The centres CSV (``rumba-centres v1``: a comment, a header value, a cell) and the
     probing log — never read as if the character were not there (Python's strip() takes
     \\x0b, \\x0c, \\x1c-\\x1f away); tests/test_inputs_fuzz.py does KinOpt and DMIS."""
+    from benchmarks.rigs.input_fuzz_helpers import EXAMPLE_LOG, READERS
+    from benchmarks.rigs.reader_helpers import centre_rows
     from contracts.centres_file import read_centres, write_centres
-    from tests.input_fuzz_helpers import EXAMPLE_LOG, READERS
-    from tests.reader_helpers import centre_rows
 
     tally = Tally("centres/log control chars")
     base = tmp_path / "base.csv"

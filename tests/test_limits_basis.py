@@ -10,13 +10,13 @@ from pathlib import Path
 import pytest
 import yaml
 
+from benchmarks.rigs.daemon_helpers import CONFIG, thesis_rows, thesis_setup, write_daemon_yaml
 from contracts.probing_log import write_log
 from contracts.yaml_files import ConfigError
 from daemon.config import load_daemon_config
 from daemon.machines.setup import TolerancesFile
 from demos.limits import tolerances as demo_tolerances
 from tests.cli_helpers import run_cli
-from tests.daemon_helpers import CONFIG, thesis_rows, thesis_setup, write_daemon_yaml
 
 LIMITED = ("default_translation_um", "default_rotation_urad", "volumetric_max_um")
 

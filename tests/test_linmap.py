@@ -23,8 +23,8 @@ from identification.linmap.fit import MapOptions, fit_map
 from identification.linmap.observe import observable_terms
 from identification.linmap.problem import JointLayout, Placement, covered_ranges, evaluate
 from identification.linmap.terms import MapBasis, candidate_terms
+from simulators.exact_log import THESIS_LINKS_UM_URAD, to_internal
 from tests.map_helpers import map_truth, moved, placement, with_true_distance
-from tests.synth import THESIS_LINKS_UM_URAD, to_internal
 
 ROOT = Path(__file__).resolve().parent.parent
 CFG = ROOT / "config"

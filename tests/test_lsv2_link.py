@@ -15,6 +15,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from benchmarks.rigs.transport_sim import latched_equal, make_truth
 from contracts.jobs import ProgramJob, Verdict
 from contracts.messages import TouchId
 from contracts.setup_files import plan_from_dict
@@ -27,7 +28,6 @@ from programs.dialects import get_dialect
 from programs.generate import generate
 from simulators.controller import VirtualController
 from simulators.frontends.lsv2 import Lsv2Frontend, telegram
-from tests.transport_sim import latched_equal, make_truth
 
 DIALECT = get_dialect("heidenhain")
 

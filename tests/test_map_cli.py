@@ -15,8 +15,8 @@ from hypothesis import strategies as st
 from contracts.linear_map import SCHEMA, load_map
 from contracts.probing_log import write_log
 from contracts.setup_files import load_artefact, load_machine
+from simulators.exact_log import THESIS_LINKS_UM_URAD, to_internal
 from tests.map_helpers import map_truth, moved, placement, with_true_distance, write_artefact
-from tests.synth import THESIS_LINKS_UM_URAD, to_internal
 
 ROOT = Path(__file__).resolve().parent.parent
 

@@ -231,8 +231,8 @@ def test_a_saved_map_can_be_journaled(journaled, tmp_path):
 def test_runs_and_maps_in_one_aqdef_file_keep_their_own_characteristics(journaled, tmp_path):
     """The runs' characteristics and records are those of a file without maps; the map's
     follow with their own indices (a record never lands on a run's characteristic)."""
+    from benchmarks.rigs.daemon_helpers import TOLERANCES
     from daemon.reports.aqdef import aqdef_lines
-    from tests.daemon_helpers import TOLERANCES
     from tests.test_aqdef import fill
 
     tmp = journaled[0]
@@ -266,8 +266,8 @@ def test_runs_and_maps_in_one_aqdef_file_keep_their_own_characteristics(journale
 def test_the_aqdef_drop_gets_a_map_jobs_map_and_a_stored_map(journaled, tmp_path):
     """aqdef_dir: a map job's run (no daily-check analysis) drops its map's figures; ``rumba
     map --store`` drops the map it journaled."""
+    from benchmarks.rigs.daemon_helpers import thesis_setup
     from daemon.service.aqdef_drop import AqdefDrop
-    from tests.daemon_helpers import thesis_setup
 
     tmp, _, mjson, rep, *_ = journaled
     store = Store(tmp_path / "j.sqlite")

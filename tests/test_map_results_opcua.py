@@ -13,13 +13,7 @@ from typing import Any
 import pytest
 from asyncua import Client, ua
 
-from contracts.opcua_space import MAP_VARIABLES, RESULTS_NAMESPACE_URI
-from daemon.opcua import map_nodes
-from daemon.opcua.server import ResultServer
-from daemon.store import map_results
-from daemon.store.journal import Store
-from tests.map_result_helpers import journaled_map
-from tests.opcua_results_helpers import (
+from benchmarks.rigs.opcua_results_helpers import (
     CLIENT_URI,
     NODESETS_DIR,
     PASSWORD,
@@ -27,6 +21,12 @@ from tests.opcua_results_helpers import (
     make_pki,
     server_config,
 )
+from contracts.opcua_space import MAP_VARIABLES, RESULTS_NAMESPACE_URI
+from daemon.opcua import map_nodes
+from daemon.opcua.server import ResultServer
+from daemon.store import map_results
+from daemon.store.journal import Store
+from tests.map_result_helpers import journaled_map
 from tests.test_map_cli import files  # noqa: F401 (files: the fixture)
 
 pytestmark = [pytest.mark.peer]  # the official nodesets come with node-opcua's install

@@ -9,7 +9,7 @@ from contracts.setup_files import load_artefact, load_machine
 from identification import montecarlo as mc
 from identification.estimate import estimate
 from identification.model import Centres
-from tests.synth import Truth, true_centres
+from simulators.exact_log import Truth, true_centres
 
 CFG = Path(__file__).resolve().parents[1] / "config"
 EIGHT = ("EB0Z", "EA0Y", "EC0Y", "EA0B", "EC0B", "EX0C", "EA0C", "EB0C")

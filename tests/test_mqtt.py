@@ -10,15 +10,15 @@ from pathlib import Path
 import aiomqtt
 import pytest
 
+from benchmarks.rigs.daemon_helpers import thesis_rows, thesis_setup
 from contracts.yaml_files import ConfigError
+from daemon.analysis.replay_link import ReplayLink, prepare_from_rows
 from daemon.config import read_token_file
 from daemon.mqtt.config import MqttConfig, MqttFile, load_mqtt
 from daemon.mqtt.publisher import MachinePublisher
 from daemon.run.session import Session, State
 from daemon.store.journal import Store
-from tests.daemon_helpers import thesis_rows, thesis_setup
 from tests.fleet_helpers import start_mosquitto, until
-from tests.replay_link import ReplayLink, prepare_from_rows
 from tests.tls_helpers import make_cert
 
 peer = pytest.mark.peer

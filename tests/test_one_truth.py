@@ -19,6 +19,7 @@ from pathlib import Path
 import aiohttp
 import pytest
 
+from benchmarks.rigs.hmi_compensation import TOKEN, bearer, world
 from daemon.analysis.figures import DEFINITIONS, LABELS, VOLUMETRIC, link_label, run_figures
 from daemon.compensation.propose import controller_model, reidentify
 from daemon.store import baselines
@@ -26,7 +27,6 @@ from daemon.store.drain import RUN_COLS
 from daemon.store.pg import PgStore, RunBatch
 from tests.browser import chromium
 from tests.cli_helpers import run_cli
-from tests.test_hmi_compensate import TOKEN, bearer, world
 
 pytestmark = [pytest.mark.peer]
 

@@ -14,9 +14,9 @@ import sys
 
 import pytest
 
+from benchmarks.rigs.transport_sim import make_job
 from simulators.controller import VirtualController
 from tests.opcua_helpers import opcua_link, thesis_truth
-from tests.transport_sim import make_job
 
 WAITS = ["asyncua", pytest.param("asyncio", marks=pytest.mark.skipif(
     sys.version_info >= (3, 12), reason="CPython gh-86296 is fixed in 3.12"))]

@@ -20,10 +20,7 @@ import pytest
 import pytest_asyncio
 from asyncua import Client, ua
 
-from contracts.opcua_certs import ensure_certificate
-from daemon.opcua.server import ResultServer
-from daemon.store.journal import Store
-from tests.opcua_results_helpers import (
+from benchmarks.rigs.opcua_results_helpers import (
     CLIENT_URI,
     NODESETS_DIR,
     PASSWORD,
@@ -33,6 +30,9 @@ from tests.opcua_results_helpers import (
     make_pki,
     server_config,
 )
+from contracts.opcua_certs import ensure_certificate
+from daemon.opcua.server import ResultServer
+from daemon.store.journal import Store
 
 ROOT = Path(__file__).resolve().parents[1]
 NODE_SCRIPT = ROOT / "tests" / "peers" / "opcua_results_client.js"

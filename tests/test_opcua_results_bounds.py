@@ -15,6 +15,7 @@ import pytest
 import pytest_asyncio
 from asyncua import ua
 
+from benchmarks.rigs.opcua_results_helpers import PASSWORD
 from daemon.opcua import filetransfer
 from daemon.opcua.filters import MAX_DEPTH
 from tests.opcua_bounds_helpers import (
@@ -31,7 +32,6 @@ from tests.opcua_bounds_helpers import (
     serve,
     until,
 )
-from tests.opcua_results_helpers import PASSWORD
 
 SC = ua.StatusCodes
 pytestmark = pytest.mark.asyncio(loop_scope="module")

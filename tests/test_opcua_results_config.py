@@ -7,10 +7,10 @@ from pathlib import Path
 
 import pytest
 
+from benchmarks.rigs.daemon_helpers import write_daemon_yaml
 from contracts.yaml_files import ConfigError
 from daemon.config import load_daemon_config
 from daemon.opcua.config import NODESETS
-from tests.daemon_helpers import write_daemon_yaml
 
 
 def opcua_yaml(tmp: Path, **over: str) -> Path:

@@ -11,14 +11,7 @@ import pytest
 import pytest_asyncio
 from asyncua import Client, ua
 
-from daemon.opcua.server import ResultServer
-from daemon.opcua.source import FleetSource
-from daemon.store import report_jobs
-from daemon.store.drain import Drainer
-from daemon.store.journal import Store
-from daemon.store.pg import PgStore
-from tests.fleet_helpers import fresh_db, start_postgres
-from tests.opcua_results_helpers import (
+from benchmarks.rigs.opcua_results_helpers import (
     CLIENT_URI,
     PASSWORD,
     USER,
@@ -27,6 +20,13 @@ from tests.opcua_results_helpers import (
     make_pki,
     server_config,
 )
+from daemon.opcua.server import ResultServer
+from daemon.opcua.source import FleetSource
+from daemon.store import report_jobs
+from daemon.store.drain import Drainer
+from daemon.store.journal import Store
+from daemon.store.pg import PgStore
+from tests.fleet_helpers import fresh_db, start_postgres
 from tests.test_opcua_results import need_node, run_node
 
 EVALUATION = {"run-pass": 1, "run-fail": 2, "run-nd": 3, "run-warn": 1, "run-aborted": 0}

@@ -15,13 +15,13 @@ from pathlib import Path
 import pytest
 import yaml
 
+from benchmarks.rigs.e2e_run import NOISE_SEED, write_config
+from benchmarks.rigs.opcua_results_helpers import NODESETS_DIR, PASSWORD, USER, make_pki
+from benchmarks.rigs.rig_helpers import make_truth, start_rig
 from daemon.config import load_daemon_config
 from daemon.service.service import Service
 from simulators.controller import VirtualController
 from tests.aqdef_reader import read_aqdef
-from tests.opcua_results_helpers import NODESETS_DIR, PASSWORD, USER, make_pki
-from tests.rig_helpers import make_truth, start_rig
-from tests.test_e2e_transports import NOISE_SEED, write_config
 from tests.test_opcua_results import need_node, run_node
 
 EVALUATION = {"PASS": 1, "FAIL": 2}

@@ -31,7 +31,7 @@ from identification.outliers import (
     screen,
     split_repeat,
 )
-from tests.synth import THESIS_LINKS_UM_URAD, Truth, make_rows, thesis_noise, to_internal
+from simulators.exact_log import THESIS_LINKS_UM_URAD, Truth, make_rows, thesis_noise, to_internal
 
 CFG = Path(__file__).resolve().parents[1] / "config"
 MACHINE, ARTEFACT = CFG / "machines/thesis_wcbxfzyt.yaml", CFG / "artefacts/thesis_4ball.yaml"

@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from benchmarks.rigs.gap_helpers import ARTEFACT, CONFIG, MACHINE, STYLUS_R, THESIS_LINKS, log_rows
 from contracts.probing_log import write_log
 from contracts.setup_files import load_artefact, load_machine, load_plan
 from daemon.cli.main import main
@@ -16,7 +17,6 @@ from identification.harmonic_support import harmonic_support, warnings
 from identification.identifiability import identifiable_links, nominal_centres
 from programs.safety import check_program
 from programs.toolpath import build_program
-from tests.gap_helpers import ARTEFACT, CONFIG, MACHINE, STYLUS_R, THESIS_LINKS, log_rows
 
 NEW = CONFIG / "plans/shift_holdout_14poses.yaml"
 OLD = CONFIG / "plans/thesis_annexB_14poses.yaml"

@@ -17,11 +17,11 @@ import yaml
 
 from contracts.setup_files import load_artefact, load_machine, load_plan
 from daemon.analysis.touch_centres import rows_to_centres
-from daemon.cli.commands.plan import make_plan
 from daemon.cli.main import main
 from identification.estimate import estimate
 from identification.identifiability import nominal_centres
 from programs.generate import generate
+from programs.plan_make import make_plan
 from programs.plan_report import estimate_visits, plan_links, predicted_u
 from simulators.errors_schema import errors_from_dict
 from simulators.offline import run_sync

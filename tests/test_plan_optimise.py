@@ -220,7 +220,7 @@ def test_prediction_is_the_estimators_own_covariance():
 
 
 def test_validation_poses_are_held_out_and_do_not_count_for_the_targets(tmp_path):
-    from daemon.cli.commands.plan import make_plan
+    from programs.plan_make import make_plan
     f = tmp_path / "t.yaml"
     f.write_text(TARGETS.read_text(encoding="utf-8").replace(
         "reference_plan: ../shift_start_14poses.yaml", f"reference_plan: {SHIPPED}").replace(

@@ -8,7 +8,7 @@ import pytest
 from contracts.probing_log import HEADER, MAGIC, ProbeLogError, ProbeLogWarning, read_log, write_log
 from contracts.setup_files import load_artefact, load_machine
 from daemon.analysis.touch_centres import rows_to_centres
-from tests.synth import Truth, make_rows, true_centres
+from simulators.exact_log import Truth, make_rows, true_centres
 
 CFG = Path(__file__).resolve().parents[1] / "config"
 POSES = [(0.0, 0.0), (30.0, 60.0), (-30.0, 240.0)]

@@ -8,6 +8,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from benchmarks.rigs.reader_helpers import ARTEFACT, CONFIG, mutate_line, mutate_whole
 from contracts.probing_log import (
     HEADER,
     ProbeLog,
@@ -18,8 +19,7 @@ from contracts.probing_log import (
 )
 from contracts.setup_files import load_machine
 from daemon.analysis.touch_centres import rows_to_centres
-from tests.reader_helpers import ARTEFACT, CONFIG, mutate_line, mutate_whole
-from tests.synth import Truth, make_rows
+from simulators.exact_log import Truth, make_rows
 
 
 @pytest.fixture(scope="module")

@@ -14,12 +14,12 @@ from pathlib import Path
 
 import pytest
 
+from benchmarks.rigs.daemon_helpers import thesis_setup
+from benchmarks.rigs.report_helpers import journal_run
 from daemon.analysis import pipeline
 from daemon.analysis.judge import Judgement
 from daemon.reports import report
 from daemon.store.journal import Store
-from tests.daemon_helpers import thesis_setup
-from tests.report_helpers import journal_run
 
 
 def render(store: Store, setup, run_id: str, a: pipeline.RunAnalysis, j: Judgement,

@@ -9,12 +9,12 @@ import threading
 
 import pytest
 
+from benchmarks.rigs.daemon_helpers import thesis_rows, thesis_setup
+from daemon.analysis.replay_link import Faults, ReplayLink, prepare_from_rows
 from daemon.reports import report
 from daemon.run.session import Session
 from daemon.store import report_jobs
 from daemon.store.journal import Store
-from tests.daemon_helpers import thesis_rows, thesis_setup
-from tests.replay_link import Faults, ReplayLink, prepare_from_rows
 
 
 @pytest.fixture
@@ -146,10 +146,10 @@ async def test_sigterm_on_rumba_run_under_the_report_stops_the_daemon_cleanly(tm
     a report is being written: the stop returns, the report job is journaled failed naming
     the stop before the journal closes, the verdict written back, no report task left; the
     next start finds nothing left 'writing'."""
+    from benchmarks.rigs.daemon_helpers import write_daemon_yaml
     from daemon.config import load_daemon_config
     from daemon.run import session as session_mod
     from daemon.service.service import Service
-    from tests.daemon_helpers import write_daemon_yaml
 
     cfg = load_daemon_config(write_daemon_yaml(tmp_path))
     setup = thesis_setup()

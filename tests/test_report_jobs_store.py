@@ -135,9 +135,9 @@ async def test_report_jobs_reach_the_fleet_store_and_its_run_list(pg, tmp_path: 
 
 
 def test_rumba_history_lists_a_failed_report_jobs_reason(tmp_path: Path, capsys) -> None:
+    from benchmarks.rigs.daemon_helpers import write_daemon_yaml
     from daemon.config import load_daemon_config
     from tests.cli_helpers import run_cli
-    from tests.daemon_helpers import write_daemon_yaml
 
     cfg = write_daemon_yaml(tmp_path)
     store = Store(load_daemon_config(cfg).store_path)

@@ -22,6 +22,8 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from matplotlib.quiver import QuiverKey
 
+from benchmarks.rigs.daemon_helpers import CONFIG, TOLERANCES, thesis_setup, write_daemon_yaml
+from benchmarks.rigs.report_helpers import journal_run
 from daemon.analysis.judge import Check, Judgement
 from daemon.analysis.result import Analysis, Cluster, LinkError
 from daemon.analysis.verdict_text import ADVICE, duration_text
@@ -31,8 +33,6 @@ from daemon.reports import plots as report_plots
 from daemon.reports import report
 from daemon.reports.pdf import write_pdf
 from daemon.store.journal import Store, TrendPoint
-from tests.daemon_helpers import CONFIG, TOLERANCES, thesis_setup, write_daemon_yaml
-from tests.report_helpers import journal_run
 
 AUDIT = report.Audit(machine_serial="DMU65-2019-04417", operator="J. Keller, shift 1",
                      artefact_certificate="DAkkS D-K-15183 #2024-117",

@@ -6,10 +6,10 @@ from __future__ import annotations
 
 import logging
 
+from benchmarks.rigs.daemon_helpers import thesis_setup
+from benchmarks.rigs.report_helpers import journal_run
 from daemon.reports import report
 from daemon.store.journal import Store
-from tests.daemon_helpers import thesis_setup
-from tests.report_helpers import journal_run
 
 
 def test_pdf_font_subsetting_is_silent_at_info(tmp_path, caplog):

@@ -12,6 +12,7 @@ import pytest
 import pytest_asyncio
 from pydantic import ValidationError
 
+from benchmarks.rigs.daemon_helpers import CONFIG, thesis_setup, write_daemon_yaml
 from daemon.analysis.pipeline import prepare
 from daemon.analysis.result import Analysis
 from daemon.config import load_daemon_config
@@ -21,7 +22,6 @@ from daemon.store.probing_csv import export_csv
 from simulators.controller import VirtualController
 from simulators.faults import Fault, FaultPlan
 from simulators.offline import run_program
-from tests.daemon_helpers import CONFIG, thesis_setup, write_daemon_yaml
 from tests.opcua_helpers import opcua_link, thesis_truth
 
 CHIP_AT = (3, "B2", 2)  # pose, ball, touch

@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from benchmarks.rigs.gap_helpers import gap_json
 from contracts.setup_files import load_artefact, load_machine, load_plan
 from contracts.yaml_files import ConfigError
 from identification.axis_effects import fixed_error_motion, fixed_to_moving, order1_params
@@ -16,7 +17,6 @@ from identification.effects import library, make_effect
 from identification.gap import diagnose, selfcheck
 from identification.gap.simlog import Truth, simulate
 from identification.kinematics import Axis, axis_htm
-from tests.gap_helpers import gap_json
 
 CONFIG = Path(__file__).resolve().parents[1] / "config"
 STYLUS_R = 3.0

@@ -16,9 +16,13 @@ from typing import Any
 
 import pytest
 
+from benchmarks.rigs.daemon_helpers import thesis_rows, thesis_setup
+from benchmarks.rigs.temperature_helpers import run_from_cnc
+from benchmarks.rigs.warm_cnc import SPINDLE, machine_entry, write_config
 from contracts.jobs import ProgramJob, RunClock
 from contracts.messages import ProbeHit
 from daemon.analysis.pipeline import hit_to_row
+from daemon.analysis.replay_link import ReplayLink, prepare_from_rows
 from daemon.analysis.touch_centres import rows_to_centres
 from daemon.config import load_daemon_config
 from daemon.run.session import Session, State
@@ -26,10 +30,7 @@ from daemon.store.journal import Store
 from drivers.hits import HitFactory
 from simulators import thermal
 from simulators.faults import Fault, FaultPlan
-from tests.daemon_helpers import thesis_rows, thesis_setup
-from tests.replay_link import ReplayLink, prepare_from_rows
-from tests.temperature_helpers import run_from_cnc
-from tests.test_temperature_channels import SPINDLE, cnc, machine_entry, write_config
+from tests.test_temperature_channels import cnc
 from tests.test_temperature_reprobe import CHIP_AT, _seq
 
 __all__ = ["cnc"]  # the warming CNC behind each transport (tests/test_temperature_channels.py)

@@ -106,9 +106,9 @@ def test_contained_path_accepts_plain_names_and_refuses_symlink_escapes(tmp_path
 def test_prepare_refuses_an_auxiliary_file_name_that_leaves_its_directory(monkeypatch):
     """Aux files (Heidenhain format files) become files on the controller and next to
     `rumba gcode -o`; a name with a separator is refused before anything is sent."""
+    from benchmarks.rigs.daemon_helpers import thesis_setup
     from daemon.analysis import pipeline
     from programs import dialects
-    from tests.daemon_helpers import thesis_setup
 
     setup = thesis_setup()
     cls = type(dialects.get_dialect(setup.dialect))

@@ -11,8 +11,8 @@ import signal
 import socket
 import sys
 
+from benchmarks.rigs.daemon_helpers import CONFIG, ROOT, write_daemon_yaml
 from daemon.service import sdnotify
-from tests.daemon_helpers import CONFIG, ROOT, write_daemon_yaml
 
 
 def dgram_socket(address: str) -> socket.socket:

@@ -14,11 +14,11 @@ import logging
 
 import pytest
 
+from benchmarks.rigs.transport_sim import make_job, make_truth
 from drivers.serial.link import SerialDncLink
 from drivers.serial.schema import SerialLinkConfig
 from simulators.controller import VirtualController
 from simulators.frontends.serial import SerialFrontend, SerialSettings
-from tests.transport_sim import make_job, make_truth
 
 POSES = ((0.0, 0.0), (30.0, 60.0))
 

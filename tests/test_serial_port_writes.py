@@ -139,8 +139,8 @@ async def test_a_run_through_a_control_that_stalls_reading_ends_without_a_traceb
     # descheduled on a loaded machine): the link keeps writing at the line rate until the pty
     # is full, then waits; the control catches up (XOFF/XON on the backlog) and the run ends
     # with every hit; nothing logged a traceback meanwhile or after.
+    from benchmarks.rigs.transport_sim import latched_equal, real_setup
     from simulators.frontends.serial import SerialFrontend, SerialSettings
-    from tests.transport_sim import latched_equal, real_setup
 
     vc, job = real_setup("fanuc", poses=((0, 0), (30, 60), (0, 180), (-30, 300)))
     fe = SerialFrontend(vc, SerialSettings(baudrate=115200, framing="8N1",

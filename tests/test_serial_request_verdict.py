@@ -11,6 +11,12 @@ import time
 
 import pytest
 
+from benchmarks.rigs.transport_sim import (
+    MACRO_VERDICT_VARIABLE,
+    first_touch_of,
+    make_truth,
+    real_setup,
+)
 from contracts.jobs import Verdict
 from contracts.result_lines import DIALECT_NAMES
 from drivers.base import LinkError
@@ -20,7 +26,6 @@ from programs.dialects import get_dialect
 from programs.geometry import ProgramError
 from simulators.controller import VERDICT_VARIABLE, VirtualController
 from simulators.frontends.serial import SerialFrontend, SerialSettings
-from tests.transport_sim import MACRO_VERDICT_VARIABLE, first_touch_of, make_truth, real_setup
 from tests.waiting import settle, until
 
 # ------------------------------------------------------------------------ request grammar

@@ -23,11 +23,11 @@ from typing import Any, TypeVar
 
 import pytest
 
+from benchmarks.rigs.transport_sim import latched_equal, real_setup
 from drivers.serial.link import XOFF, SerialDncLink, frame_program
 from drivers.serial.schema import SerialLinkConfig
 from simulators.faults import Fault, FaultPlan
 from simulators.frontends.serial import SerialFrontend, SerialSettings
-from tests.transport_sim import latched_equal, real_setup
 
 T = TypeVar("T")
 BAUD = 115200

@@ -9,10 +9,10 @@ from __future__ import annotations
 
 import asyncio
 
+from benchmarks.rigs.rig_helpers import make_truth
 from drivers.serial.lines import XOFF, XON
 from simulators.controller import VirtualController
 from simulators.frontends.serial import SerialFrontend
-from tests.rig_helpers import make_truth
 
 
 class Line:

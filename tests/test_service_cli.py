@@ -15,8 +15,8 @@ from pathlib import Path
 
 import pytest
 
+from benchmarks.rigs.daemon_helpers import ROOT, write_daemon_yaml
 from tests.cli_helpers import free_port, run_cli
-from tests.daemon_helpers import ROOT, write_daemon_yaml
 
 # ------------------------------------------------------------------------- bad configuration
 
@@ -156,11 +156,11 @@ async def test_kill_9_with_simulated_cnc_over_opcua(tmp_path):
     import asyncio
     import shutil
 
+    from benchmarks.rigs.daemon_helpers import CONFIG
     from contracts.opcua_certs import ensure_certificate
     from simulators.controller import VirtualController
     from simulators.frontends.opcua import OpcUaFrontend
     from simulators.truth import TruthModel
-    from tests.daemon_helpers import CONFIG
 
     pki = tmp_path / "pki"
     await ensure_certificate(pki / "client/cert.der", pki / "client/key.pem",

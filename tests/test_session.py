@@ -1,6 +1,6 @@
 """Session state machine: full run, refusal, abort, faults, journal completeness, write-back.
 
-Uses the test-only ReplayLink (tests/replay_link.py) that replays exact synthetic probing logs;
+Uses the ReplayLink (daemon/analysis/replay_link.py) that replays exact synthetic probing logs;
 the real transports against the simulator are the end-to-end suite's job.
 """
 
@@ -10,11 +10,11 @@ import asyncio
 
 import pytest
 
+from benchmarks.rigs.daemon_helpers import thesis_rows, thesis_setup
+from daemon.analysis.replay_link import Faults, ReplayLink, prepare_from_rows
 from daemon.run.session import Refused, Session, State
 from daemon.store import baselines
 from daemon.store.journal import Store
-from tests.daemon_helpers import thesis_rows, thesis_setup
-from tests.replay_link import Faults, ReplayLink, prepare_from_rows
 from tests.waiting import until
 
 
@@ -161,7 +161,8 @@ async def test_fail_verdict_and_drift_against_the_baseline(env):
     assert any(r.startswith("drift not checked: no baseline") for r in s.verdict["reasons"])
     baselines.confirm(store, setup.name, first, "Anna Berg")  # a person accepts it
     # the machine drifts: EB0C +26 → +56 µrad (drift 30 > drift_fail 20, |value| > warn 40)
-    drifted = dict(__import__("tests.synth", fromlist=["x"]).THESIS_LINKS_UM_URAD, EB0C=56.0)
+    drifted = dict(__import__("simulators.exact_log", fromlist=["x"]).THESIS_LINKS_UM_URAD,
+                   EB0C=56.0)
     link.rows = thesis_rows(setup, drifted, seed=1)
     s._prepare = prepare_from_rows(link.rows)
     second = s.start("hmi")

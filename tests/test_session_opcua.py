@@ -12,12 +12,12 @@ import pytest
 import pytest_asyncio
 import yaml
 
+from benchmarks.rigs.daemon_helpers import thesis_setup
 from daemon.run.session import Session, State
 from daemon.store.journal import Store
 from identification.estimate import coverage_factor
 from simulators.controller import VirtualController
 from simulators.faults import Fault, FaultPlan
-from tests.daemon_helpers import thesis_setup
 from tests.opcua_helpers import ERRORS, opcua_link, thesis_truth
 
 TIME_SCALE = 0.02  # 140 touches ≈ 107 s of machine time → ≈ 2 s

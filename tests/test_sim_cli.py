@@ -4,13 +4,13 @@ from __future__ import annotations
 
 import pytest
 
+from benchmarks.rigs.sim_helpers import TABLE_B2, truth_with
 from contracts.probing_log import read_log
 from contracts.setup_files import load_artefact, load_machine
 from contracts.yaml_files import ConfigError
 from daemon.cli.main import main
 from simulators.errors_schema import errors_from_dict, load_errors
 from simulators.truth import TruthModel
-from tests.sim_helpers import TABLE_B2, truth_with
 from tests.sim_programs import program
 
 M = "config/machines/thesis_wcbxfzyt.yaml"

@@ -8,10 +8,10 @@ import time
 
 import pytest
 
+from benchmarks.rigs.sim_helpers import TABLE_B2, truth_with
 from simulators.controller import Block, FaultEvent, PrintLine, StateChange, TouchResult
 from simulators.controller import VirtualController as VC
 from simulators.faults import Fault, FaultPlan
-from tests.sim_helpers import TABLE_B2, truth_with
 from tests.sim_programs import program
 from tests.waiting import settle, until
 

@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 from scipy.optimize import brentq
 
+from benchmarks.rigs.sim_helpers import TABLE_B2, g_true, truth_with
 from identification.effects import make_effect
 from identification.spherefit import fit_spheres
 from simulators.controller import VirtualController
-from tests.sim_helpers import TABLE_B2, g_true, truth_with
 from tests.sim_programs import program
 
 POSES = [(0.0, 0.0), (30.0, 60.0), (-45.0, 330.0)]

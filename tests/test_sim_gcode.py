@@ -6,9 +6,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from benchmarks.rigs.sim_helpers import TABLE_B2, analytic_contact, truth_with
 from simulators.controller import VirtualController
 from simulators.gcode import DIALECTS
-from tests.sim_helpers import TABLE_B2, analytic_contact, truth_with
 from tests.sim_programs import program
 from tests.waiting import until
 

@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 from scipy.optimize import brentq
 
+from benchmarks.rigs.sim_helpers import TABLE_B2, analytic_contact, g_true, truth_with
 from contracts.messages import TOUCH_DIRECTIONS
 from simulators.probe import collision, first_contact
-from tests.sim_helpers import TABLE_B2, analytic_contact, g_true, truth_with
 
 
 @pytest.mark.parametrize("errors", [{}, TABLE_B2], ids=["perfect", "tableB2+setup"])

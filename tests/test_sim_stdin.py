@@ -9,9 +9,9 @@ import signal
 import subprocess
 import sys
 
+from benchmarks.rigs.daemon_helpers import CONFIG
 from drivers.modbus.link import ModbusLink
 from drivers.modbus.schema import ModbusLinkConfig
-from tests.daemon_helpers import CONFIG
 
 SIM = [sys.executable, "-m", "daemon.cli", "sim",
        "--machine", str(CONFIG / "machines/thesis_wcbxfzyt.yaml"),

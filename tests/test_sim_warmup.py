@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 import yaml
 
+from benchmarks.rigs.sim_helpers import TABLE_B2, truth_with
 from contracts.setup_files import load_artefact, load_machine, load_plan
 from contracts.yaml_files import ConfigError
 from daemon.analysis.identify import analyse_centres
@@ -21,7 +22,6 @@ from simulators.errors_schema import errors_from_dict
 from simulators.offline import run_sync
 from simulators.thermal import ThermalState
 from simulators.truth import TruthModel
-from tests.sim_helpers import TABLE_B2, truth_with
 from tests.sim_programs import program
 
 MACHINE = "config/machines/thesis_wcbxfzyt.yaml"

@@ -15,6 +15,7 @@ import pytest_asyncio
 from asyncua import Client, ua
 from asyncua.client.ua_file_transfer import UaDirectory, UaFile
 
+from benchmarks.rigs.transport_sim import latched_equal, make_truth
 from contracts.jobs import ProgramJob, Verdict
 from contracts.opcua_certs import ensure_certificate
 from contracts.setup_files import plan_from_dict
@@ -26,7 +27,6 @@ from drivers.sinumerik.schema import SinumerikLinkConfig
 from programs.generate import generate
 from simulators.controller import VirtualController
 from simulators.frontends.sinumerik import SinumerikFrontend
-from tests.transport_sim import latched_equal, make_truth
 
 USERS = {"rumba": "s3cret-Passw0rd"}
 pytestmark = pytest.mark.asyncio(loop_scope="module")

@@ -47,7 +47,8 @@ def test_general_points_many_per_group() -> None:
 
 
 def test_noise_propagation_matches_the_design() -> None:
-    # Touch scatter σ along each direction → centre std σ/√2 (x, y), σ√1.25 (z) (tests/synth).
+    # Touch scatter σ along each direction → centre std σ/√2 (x, y), σ√1.25 (z)
+    # (simulators/exact_log.py).
     rng = np.random.default_rng(5)
     n, s = 20000, 1e-3
     c = np.zeros((n, 3))

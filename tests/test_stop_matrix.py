@@ -23,6 +23,7 @@ import threading
 import pytest
 import pytest_asyncio
 
+from benchmarks.rigs.rig_helpers import make_truth, start_rig
 from contracts.jobs import VERDICT_CODES
 from daemon.config import load_daemon_config
 from daemon.run.session import Session, State
@@ -30,7 +31,6 @@ from daemon.service.service import make_link
 from daemon.store import report_jobs
 from daemon.store.journal import Store
 from simulators.controller import VirtualController
-from tests.rig_helpers import make_truth, start_rig
 from tests.stop_helpers import REPORT_JOB, Hold, held_session, until_reached, write_config
 
 TRANSPORTS = ("opcua", "modbus", "serial-pty", "sinumerik", "lsv2", "haas")

@@ -23,8 +23,8 @@ from pathlib import Path
 import pytest
 import yaml
 
+from benchmarks.rigs.daemon_helpers import CONFIG
 from tests.cli_helpers import free_port
-from tests.daemon_helpers import CONFIG
 from tests.stop_helpers import latest_run, rumba_process, until_capturing, write_config
 
 ROOT = Path(__file__).resolve().parents[1]

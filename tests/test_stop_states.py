@@ -60,10 +60,10 @@ async def test_the_hmi_abort_names_a_scripts_signal_and_stops_only_its_run(tmp_p
     signal (the journal's text is fixed, never the client's), ``run_id`` only that run."""
     import aiohttp
 
+    from benchmarks.rigs.daemon_helpers import thesis_rows, thesis_setup, write_daemon_yaml
+    from daemon.analysis.replay_link import ReplayLink, prepare_from_rows
     from daemon.config import load_daemon_config
     from daemon.service.service import Service
-    from tests.daemon_helpers import thesis_rows, thesis_setup, write_daemon_yaml
-    from tests.replay_link import ReplayLink, prepare_from_rows
 
     token = "t0k3n-for-tests-0123456789"
     rows = thesis_rows(thesis_setup())

@@ -11,12 +11,12 @@ from collections.abc import AsyncIterator, Callable
 
 import pytest
 
+from benchmarks.rigs.daemon_helpers import thesis_rows, thesis_setup
 from contracts.jobs import ProgramJob
 from contracts.messages import ProbeHit
+from daemon.analysis.replay_link import ReplayLink, prepare_from_rows
 from daemon.run.session import Session, State
 from daemon.store.journal import Store
-from tests.daemon_helpers import thesis_rows, thesis_setup
-from tests.replay_link import ReplayLink, prepare_from_rows
 
 STOP_AT = 5
 

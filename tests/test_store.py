@@ -11,10 +11,10 @@ import time
 
 import pytest
 
+from benchmarks.rigs.daemon_helpers import thesis_rows, thesis_setup
 from contracts.probing_log import read_log
 from daemon.store.journal import SCHEMA_VERSION, Store, StoreError
 from daemon.store.probing_csv import export_csv, import_csv
-from tests.daemon_helpers import thesis_rows, thesis_setup
 from tests.store_helpers import hit
 
 

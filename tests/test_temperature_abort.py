@@ -17,6 +17,14 @@ import pytest
 import pytest_asyncio
 import yaml
 
+from benchmarks.rigs.e2e_run import RUN_TIMEOUT_S
+from benchmarks.rigs.temperature_helpers import (
+    SilentTransmitter,
+    column,
+    one_channel_recorder,
+    silent_transmitter,
+)
+from benchmarks.rigs.warm_cnc import SPINDLE, machine_entry
 from contracts.temperatures import TemperatureChannel, TemperatureReading
 from daemon.config import load_daemon_config
 from daemon.run import temperatures as run_temperatures
@@ -28,14 +36,7 @@ from daemon.store.journal import Store
 from daemon.store.temperatures import temperatures
 from simulators.controller import VirtualController
 from simulators.faults import Fault, FaultPlan
-from tests.temperature_helpers import (
-    SilentTransmitter,
-    column,
-    one_channel_recorder,
-    silent_transmitter,
-)
-from tests.test_e2e_transports import RUN_TIMEOUT_S
-from tests.test_temperature_channels import SPINDLE, cnc, machine_entry
+from tests.test_temperature_channels import cnc
 
 __all__ = ["cnc"]  # the warming CNC fixture, shared with the channels' end-to-end tests
 

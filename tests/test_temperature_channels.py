@@ -9,68 +9,27 @@ from __future__ import annotations
 
 import contextlib
 import json
-from pathlib import Path
-from typing import Any
 
 import pytest
 import pytest_asyncio
-import yaml
 
+from benchmarks.rigs.rig_helpers import start_rig
+from benchmarks.rigs.temperature_helpers import run_from_cnc
+from benchmarks.rigs.warm_cnc import (
+    SPINDLE,
+    machine_entry,
+    sensor,
+    warm_truth,
+    write_config,
+)
 from contracts.yaml_files import ConfigError
 from daemon.config import load_daemon_config
 from daemon.run.session import State
-from simulators import thermal
 from simulators.controller import VirtualController
-from simulators.errors_schema import errors_from_dict
 from simulators.frontends.transmitter import TransmitterFrontend
-from simulators.truth import TruthModel
-from tests.daemon_helpers import CONFIG
-from tests.rig_helpers import ERRORS, start_rig
-from tests.temperature_helpers import run_from_cnc
-from tests.test_e2e_transports import PLAN
 
-WARMUP = {"axes": {"Z": {"amplitude_um": 6.0, "tau_s": 300.0, "rise_c": 8.0},
-                   "X": {"amplitude_um": 0.0, "tau_s": 600.0, "rise_c": 3.0}},
-          "start_state": 0.0, "ambient_c": 20.5}
-# the controller's own sensor of Z, per transport, where the simulator exposes it
-SPINDLE = {"opcua": {"address": thermal.OPCUA_PATH.format(axis="Z")},
-           "modbus": {"address": f"holding:{thermal.MODBUS_ADDRESS['Z']}",
-                      "scale": thermal.MODBUS_SCALE_C},
-           # the R parameter the PLC copies the sensor into, read as the control's R node
-           "sinumerik": {"address": "/Channel/Parameter/R[u1,"
-                                    f"{thermal.SIEMENS_VARIABLE['Z'][1:]}]"}}
 UNREADABLE = {"opcua": "/Channel/Temperatures/none", "modbus": "input:4000",
               "sinumerik": "/Channel/Parameter/R[u1,999]"}
-DIALECT = {"sinumerik": "siemens"}
-
-
-def warm_truth() -> TruthModel:
-    errors = yaml.safe_load(ERRORS.read_text())
-    errors["thermal"] = WARMUP
-    truth = TruthModel.from_files(CONFIG / "machines/thesis_wcbxfzyt.yaml",
-                                  CONFIG / "artefacts/thesis_4ball.yaml", ERRORS)
-    return TruthModel.build(truth.machine, truth.machine_file, truth.artefact,
-                            errors_from_dict(errors))
-
-
-def machine_entry(link: dict[str, Any], channels: list[dict[str, Any]],
-                  temp_limits: dict[str, Any]) -> dict[str, Any]:
-    return {"name": "mill1", "machine": str(CONFIG / "machines/thesis_wcbxfzyt.yaml"),
-            "artefact": str(CONFIG / "artefacts/thesis_4ball.yaml"),
-            "plan": str(CONFIG / f"plans/{PLAN}.yaml"),
-            "dialect": DIALECT.get(link["transport"], "fanuc"), "link": link,
-            "touch_timeout_s": 30, "temperatures": channels,
-            "tolerances": {"default_rotation_urad": {"warn": 40, "fail": 80},
-                           "default_translation_um": {"warn": 150, "fail": 300},
-                           "temperatures": temp_limits}}
-
-
-def write_config(tmp: Path, entry: dict[str, Any]) -> Path:
-    doc = {"store": {"path": str(tmp / "journal.sqlite")}, "reports_dir": str(tmp / "reports"),
-           "hmi": {"enabled": False}, "machines": [entry]}
-    path = tmp / "daemon.yaml"
-    path.write_text(yaml.safe_dump(doc, allow_unicode=True), encoding="utf-8")
-    return path
 
 
 @pytest_asyncio.fixture
@@ -86,13 +45,6 @@ async def cnc(request):
         with contextlib.suppress(Exception):
             await tx.stop()
         await rig.close()
-
-
-def sensor(axis: str, t_s: float) -> float:
-    w = WARMUP["axes"][axis]
-    return thermal.ThermalState({axis: thermal.AxisWarmup(w["amplitude_um"], w["tau_s"],
-                                                          w["rise_c"])},
-                                ambient_c=WARMUP["ambient_c"]).temperatures_c(t_s)[axis]
 
 
 @pytest.mark.asyncio

@@ -15,6 +15,9 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from benchmarks.rigs.e2e_run import copy_aux_files
+from benchmarks.rigs.temperature_helpers import run_from_cnc
+from benchmarks.rigs.warm_cnc import machine_entry, sensor, write_config
 from contracts.temperatures import MACRO_VARIABLE, PRINTED_RANGE_C, parse_printed
 from contracts.yaml_files import ConfigError
 from daemon.config import load_daemon_config
@@ -23,9 +26,7 @@ from programs.dialects import get_dialect
 from programs.geometry import ProgramError
 from programs.model import Program
 from simulators import thermal
-from tests.temperature_helpers import run_from_cnc
-from tests.test_e2e_transports import copy_aux_files
-from tests.test_temperature_channels import cnc, machine_entry, sensor, write_config
+from tests.test_temperature_channels import cnc
 
 __all__ = ["cnc"]  # the warming CNC fixture, shared with the channels' end-to-end tests
 

@@ -13,11 +13,11 @@ from collections.abc import AsyncIterator
 import pytest
 import pytest_asyncio
 
+from benchmarks.rigs.temperature_helpers import one_channel_recorder
 from contracts.temperatures import TemperatureChannel
 from daemon.run.temperatures import STOPPED, TemperatureRecorder
 from daemon.store.journal import Store
 from daemon.store.temperatures import temperatures
-from tests.temperature_helpers import one_channel_recorder
 from tests.test_temperature_abort import running_reads
 
 VALUE_C = 24.25

@@ -18,6 +18,7 @@ import psycopg
 import pytest
 from scipy import stats
 
+from benchmarks.rigs.temperature_helpers import fleet_against
 from contracts.temperatures import TemperatureReading
 from daemon.analysis.temperature_trend import TempPoint, fit
 from daemon.store.drain import Drainer
@@ -27,7 +28,6 @@ from daemon.store.pg_temperatures import TEMP_COLS
 from daemon.store.temperatures import journal_temperature
 from tests.browser import chromium
 from tests.fleet_helpers import fresh_db, pg
-from tests.temperature_helpers import fleet_against
 from tests.test_fleet_page import TOKEN, serving
 
 __all__ = ["pg"]  # the module's PostgreSQL (tests/fleet_helpers.py)

@@ -6,12 +6,12 @@ from __future__ import annotations
 
 import pytest
 
+from benchmarks.rigs.daemon_helpers import thesis_rows, thesis_setup, write_daemon_yaml
+from daemon.analysis.replay_link import ReplayLink, prepare_from_rows
 from daemon.config import load_daemon_config
 from daemon.reports.index_scatter import NONE
 from daemon.service.service import Service
 from tests.browser import chromium
-from tests.daemon_helpers import thesis_rows, thesis_setup, write_daemon_yaml
-from tests.replay_link import ReplayLink, prepare_from_rows
 from tests.test_temperature_trend import CHANNELS, fill
 
 pytestmark = [pytest.mark.peer]

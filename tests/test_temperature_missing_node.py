@@ -10,12 +10,12 @@ import logging
 
 import pytest
 
+from benchmarks.rigs.rig_helpers import start_rig
+from benchmarks.rigs.temperature_helpers import run_from_cnc
+from benchmarks.rigs.warm_cnc import SPINDLE, machine_entry, warm_truth, write_config
 from daemon.config import load_daemon_config
 from daemon.run.session import State
 from simulators.controller import VirtualController
-from tests.rig_helpers import start_rig
-from tests.temperature_helpers import run_from_cnc
-from tests.test_temperature_channels import SPINDLE, machine_entry, warm_truth, write_config
 
 
 @pytest.mark.asyncio

@@ -10,13 +10,14 @@ from __future__ import annotations
 
 import pytest
 
+from benchmarks.rigs.temperature_helpers import run_from_cnc
+from benchmarks.rigs.warm_cnc import machine_entry, write_config
 from daemon.config import load_daemon_config
 from daemon.run.session import State
 from daemon.run.temperatures import NOT_PRINTED
 from simulators import thermal
 from simulators.faults import Fault, FaultPlan
-from tests.temperature_helpers import run_from_cnc
-from tests.test_temperature_channels import cnc, machine_entry, write_config
+from tests.test_temperature_channels import cnc
 
 __all__ = ["cnc"]  # the warming CNC fixture, shared with the channels' end-to-end tests
 

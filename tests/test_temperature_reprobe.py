@@ -10,14 +10,15 @@ from __future__ import annotations
 
 import pytest
 
+from benchmarks.rigs.daemon_helpers import thesis_setup
+from benchmarks.rigs.temperature_helpers import run_from_cnc
+from benchmarks.rigs.warm_cnc import machine_entry, sensor, write_config
 from daemon.analysis.pipeline import prepare
 from daemon.config import load_daemon_config
 from daemon.run.session import State
 from simulators import thermal
 from simulators.faults import Fault, FaultPlan
-from tests.daemon_helpers import thesis_setup
-from tests.temperature_helpers import run_from_cnc
-from tests.test_temperature_channels import cnc, machine_entry, sensor, write_config
+from tests.test_temperature_channels import cnc
 
 __all__ = ["cnc"]  # the warming CNC fixture, shared with the channels' end-to-end tests
 

@@ -13,8 +13,11 @@ import time
 import aiohttp
 import pytest
 
+from benchmarks.rigs.daemon_helpers import thesis_rows, thesis_setup, write_daemon_yaml
+from benchmarks.rigs.temperature_helpers import fleet_against
 from contracts.temperatures import TemperatureReading, channel_text, run_mean_c, summarise
 from daemon.analysis.judge import judge
+from daemon.analysis.replay_link import ReplayLink, prepare_from_rows
 from daemon.analysis.result import Analysis, LinkError
 from daemon.analysis.temperature_trend import points
 from daemon.cli.main import main as cli_main
@@ -26,10 +29,7 @@ from daemon.service.service import Service
 from daemon.store.drain import Drainer
 from daemon.store.journal import Store
 from daemon.store.temperatures import journal_temperature, temperatures
-from tests.daemon_helpers import thesis_rows, thesis_setup, write_daemon_yaml
 from tests.fleet_helpers import fresh_db, pg
-from tests.replay_link import ReplayLink, prepare_from_rows
-from tests.temperature_helpers import fleet_against
 
 __all__ = ["pg"]  # the module's PostgreSQL (tests/fleet_helpers.py)
 CHANNELS = "    temperatures: [{name: spindle, address: /Channel/Temperatures/Z}]"

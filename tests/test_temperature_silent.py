@@ -11,14 +11,20 @@ from collections.abc import AsyncIterator
 import pytest
 import pytest_asyncio
 
+from benchmarks.rigs.temperature_helpers import (
+    SilentTransmitter,
+    column,
+    run_from_cnc,
+    silent_transmitter,
+)
+from benchmarks.rigs.warm_cnc import SPINDLE, machine_entry, write_config
 from contracts.temperatures import TemperatureChannel, TransmitterFile
 from daemon.config import load_daemon_config
 from daemon.run.session import State
 from daemon.run.temperatures import TemperatureRecorder
 from daemon.store.journal import Store
 from daemon.store.temperatures import temperatures
-from tests.temperature_helpers import SilentTransmitter, column, run_from_cnc, silent_transmitter
-from tests.test_temperature_channels import SPINDLE, cnc, machine_entry, write_config
+from tests.test_temperature_channels import cnc
 
 __all__ = ["cnc"]  # the warming CNC fixture, shared with the channels' end-to-end tests
 

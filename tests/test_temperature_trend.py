@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 from scipy import stats
 
+from benchmarks.rigs.daemon_helpers import write_daemon_yaml
 from daemon.analysis.result import Analysis, LinkError
 from daemon.analysis.temperature_trend import fit, points
 from daemon.cli.main import main as cli_main
 from daemon.store.journal import Store
-from tests.daemon_helpers import write_daemon_yaml
 
 CHANNELS = "    temperatures: [{name: spindle, address: /Channel/Temperatures/Z}]"
 T0 = time.mktime((2026, 1, 5, 6, 0, 0, 0, 0, -1))
@@ -100,10 +100,10 @@ def test_bad_request_is_one_error_line(tmp_path, capsys, args, message):
 async def test_hmi_trend_against_a_channel_over_http(tmp_path):
     import aiohttp
 
+    from benchmarks.rigs.daemon_helpers import thesis_rows, thesis_setup
+    from daemon.analysis.replay_link import ReplayLink, prepare_from_rows
     from daemon.config import load_daemon_config
     from daemon.service.service import Service
-    from tests.daemon_helpers import thesis_rows, thesis_setup
-    from tests.replay_link import ReplayLink, prepare_from_rows
 
     token = "t0k3n-for-temperature-trend-0123"
     fill(tmp_path, slope=1.5)

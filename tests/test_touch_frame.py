@@ -10,6 +10,7 @@ import warnings
 import numpy as np
 import pytest
 
+from benchmarks.rigs.daemon_helpers import CONFIG, TOLERANCES
 from contracts.messages import TOUCH_DIRECTIONS
 from contracts.probing_log import read_log
 from contracts.setup_files import load_artefact, load_machine, load_plan
@@ -25,7 +26,6 @@ from programs.toolpath import build_program
 from simulators.errors_schema import errors_from_dict
 from simulators.offline import run_sync
 from simulators.truth import TruthModel
-from tests.daemon_helpers import CONFIG, TOLERANCES
 
 DIRS = np.array(list(TOUCH_DIRECTIONS.values()))
 R_MM = 15.7

@@ -12,6 +12,14 @@ from hypothesis import given
 from hypothesis import strategies as st
 from pymodbus.client import AsyncModbusTcpClient
 
+from benchmarks.rigs.transport_sim import (
+    first_touch_of,
+    hits_until_miss,
+    latched_equal,
+    make_job,
+    make_truth,
+    real_setup,
+)
 from contracts.jobs import Verdict
 from contracts.modbus_map import (
     LINEAR_COUNTS_PER_MM,
@@ -32,14 +40,6 @@ from drivers.modbus.link import ModbusLink, program_blocks
 from drivers.modbus.schema import ModbusLinkConfig
 from simulators.controller import VirtualController
 from simulators.frontends.modbus import ModbusFrontend
-from tests.transport_sim import (
-    first_touch_of,
-    hits_until_miss,
-    latched_equal,
-    make_job,
-    make_truth,
-    real_setup,
-)
 
 DIALECT = "fanuc"
 
@@ -307,10 +307,10 @@ async def test_mailbox_garbage_fails_the_service_run_with_the_reason(tmp_path):
     """daemon.yaml → Service → Modbus link: garbage in MBX_ACK mid-stream. With every silence
     timeout at an hour the run must still end at once, FAILED, naming the register; the CNC
     gets ERROR and its program is stopped."""
+    from benchmarks.rigs.daemon_helpers import write_daemon_yaml
     from daemon.config import load_daemon_config
     from daemon.run.session import State
     from daemon.service.service import Service
-    from tests.daemon_helpers import write_daemon_yaml
 
     ctrl = VirtualController(make_truth(), dialect=DIALECT)
     fe = GarbageFrontend(ctrl, {addr("MBX_ACK"): 0xBEEF}, after_blocks=40)

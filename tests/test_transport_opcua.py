@@ -13,6 +13,13 @@ import pytest
 import pytest_asyncio
 from asyncua import Client, ua
 
+from benchmarks.rigs.transport_sim import (
+    first_touch_of,
+    hits_until_miss,
+    latched_equal,
+    make_job,
+    make_truth,
+)
 from contracts.jobs import Verdict
 from contracts.opcua_certs import ensure_certificate
 from drivers.base import LinkError
@@ -21,7 +28,6 @@ from drivers.opcua.link import OpcUaLink
 from drivers.opcua.schema import OpcUaLinkConfig
 from simulators.controller import VirtualController
 from simulators.frontends.opcua import OpcUaFrontend
-from tests.transport_sim import first_touch_of, hits_until_miss, latched_equal, make_job, make_truth
 
 USERS = {"rumba": "s3cret-Passw0rd"}
 ROOT = Path(__file__).resolve().parents[1]

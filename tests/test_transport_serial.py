@@ -15,13 +15,13 @@ import time
 import pytest
 import serial
 
+from benchmarks.rigs.transport_sim import first_touch_of, hits_until_miss, latched_equal, real_setup
 from contracts.result_lines import DIALECT_NAMES
 from drivers.base import ControllerAlarm, LinkError
 from drivers.serial.link import SerialDncLink, frame_program
 from drivers.serial.schema import SerialLinkConfig
 from simulators.faults import Fault, FaultPlan
 from simulators.frontends.serial import SerialFrontend, SerialSettings
-from tests.transport_sim import first_touch_of, hits_until_miss, latched_equal, real_setup
 
 
 def link_for(url: str, **kw) -> SerialDncLink:

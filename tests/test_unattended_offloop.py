@@ -14,6 +14,7 @@ from pathlib import Path
 
 import pytest
 
+from daemon.analysis.replay_link import ReplayLink, prepare_from_rows
 from daemon.compensation import journal as cj
 from daemon.compensation.propose import journal_analyse
 from daemon.config import load_daemon_config
@@ -21,7 +22,6 @@ from daemon.run.session import Refused, Session
 from daemon.run.unattended import after_run
 from daemon.store.journal import Store
 from drivers.linuxcnc import halkins
-from tests.replay_link import ReplayLink, prepare_from_rows
 from tests.test_compensate import LINKS, _world
 from tests.test_compensate_transaction import X, _rows, fake_linuxcnc
 

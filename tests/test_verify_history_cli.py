@@ -8,10 +8,10 @@ from pathlib import Path
 
 import pytest
 
+from benchmarks.rigs.daemon_helpers import thesis_rows, thesis_setup, write_daemon_yaml
+from daemon.analysis.replay_link import Faults, ReplayLink, prepare_from_rows
 from daemon.cli.commands.verify import verify
 from tests.cli_helpers import free_port, run_cli
-from tests.daemon_helpers import thesis_rows, thesis_setup, write_daemon_yaml
-from tests.replay_link import Faults, ReplayLink, prepare_from_rows
 from tests.waiting import until
 
 # --------------------------------------------------------------------------------- verify

@@ -15,10 +15,10 @@ from aiohttp import web
 from rich.console import Console
 from rich.progress import Progress
 
+from benchmarks.rigs.daemon_helpers import thesis_rows, thesis_setup, write_daemon_yaml
+from daemon.analysis.replay_link import ReplayLink, prepare_from_rows
 from daemon.cli.commands.verify import verify
 from daemon.cli.commands.verify_daemon import bar_fields, follow_run
-from tests.daemon_helpers import thesis_rows, thesis_setup, write_daemon_yaml
-from tests.replay_link import ReplayLink, prepare_from_rows
 
 
 def _status(state: str, done: int = 0, *, run_id: str = "R1", machine: str = "mill1",

@@ -27,8 +27,8 @@ from identification.compensation import (
 )
 from identification.estimate import estimate
 from identification.worth import pair, plain
+from simulators.exact_log import Truth, shipped_run_rows, to_internal
 from tests.cli_helpers import run_cli
-from tests.synth import Truth, shipped_run_rows, to_internal
 from tests.test_compensate import CONFIG, LINKS, MACHINE, PLAN, _world
 from tests.test_compensation_math import _centres
 

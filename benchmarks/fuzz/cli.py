@@ -20,8 +20,8 @@ PLAN = CONFIG / "plans/thesis_ch3_7poses.yaml"
 
 
 def fuzz(rng: random.Random, n: int, limit_s: float = 20.0) -> Tally:
+    from benchmarks.rigs.daemon_helpers import write_daemon_yaml
     from daemon.cli.main import main
-    from tests.daemon_helpers import write_daemon_yaml
 
     tally = Tally("rumba CLI")
     base_log = EXAMPLE.read_text(encoding="utf-8")

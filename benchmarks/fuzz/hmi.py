@@ -50,10 +50,10 @@ async def _campaign(rng: random.Random, n: int, tally: Tally) -> None:
     import aiohttp
     from yarl import URL
 
+    from benchmarks.rigs.daemon_helpers import thesis_rows, thesis_setup, write_daemon_yaml
+    from daemon.analysis.replay_link import ReplayLink, prepare_from_rows
     from daemon.config import load_daemon_config
     from daemon.service.service import Service
-    from tests.daemon_helpers import thesis_rows, thesis_setup, write_daemon_yaml
-    from tests.replay_link import ReplayLink, prepare_from_rows
 
     errors = _Errors()
     logging.getLogger().addHandler(errors)

@@ -48,7 +48,7 @@ def _huge_logs(rng: random.Random, n: int, tmp: Path) -> Tally:
     one row over the 250 000-row ceiling (it once took 241 s), ten times over,
     one 64 MiB line, a 10 GB sparse file, /dev/zero, a FIFO."""
     import contracts.probing_log as pl
-    from tests.input_fuzz_helpers import EXAMPLE_LOG, READERS, outcome, special_file
+    from benchmarks.rigs.input_fuzz_helpers import EXAMPLE_LOG, READERS, outcome, special_file
 
     lines = EXAMPLE_LOG.read_text().splitlines()
     head, row = lines[:2], lines[2].split(",")

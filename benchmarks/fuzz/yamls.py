@@ -18,11 +18,11 @@ UNKNOWN = "zz_unknown_key"
 
 def loaders(tmp: Path) -> list[tuple[str, Path, Callable[[Path], object]]]:
     """(kind, shipped file, loader) for every schema; daemon.yaml is the tests' own layout."""
+    from benchmarks.rigs.daemon_helpers import write_daemon_yaml
     from contracts.setup_files import load_artefact, load_machine, load_plan
     from daemon.config import load_daemon_config
     from simulators.errors_schema import load_errors
     from simulators.faults import FaultPlan
-    from tests.daemon_helpers import write_daemon_yaml
 
     out: list[tuple[str, Path, Callable[[Path], object]]] = []
     for kind, sub, fn in (("machine", "machines", load_machine),

@@ -5,21 +5,18 @@ controller's kinematic model, with old and new values and who confirmed it (tabl
 from __future__ import annotations
 
 import json
-import sqlite3
 import time
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
+from daemon.store import compensation_journal as table
+from daemon.store.compensation_journal import DecisionTaken
 from daemon.store.journal import Store
 
 State = Literal["applied", "applying", "rolled_back", "refused", "proposed"]
 STATES: tuple[str, ...] = ("applied", "applying", "rolled_back", "refused", "proposed")
 ROLLBACK_PREFIX = "rollback of compensation #"
-
-
-class DecisionTaken(Exception):
-    """The journal refused a second write of the same run (its unique indexes, migration 5):
-    another confirm got there first."""
+__all__ = ["DecisionTaken"]  # raised by begin_apply, caught by its callers
 
 
 @dataclass(frozen=True)
@@ -72,15 +69,15 @@ class CompensationRow:
         return self.reason.startswith(ROLLBACK_PREFIX)
 
 
-_COLS = ("id, machine, run_id, family, state, values_json, confirmed_by, reason, created_at,"
-         " applied_at, verify_run_id, decision")
-
-
 def _row(r: tuple) -> CompensationRow:
     values = tuple(ValueChange.from_dict(d) for d in json.loads(r[5]))
     return CompensationRow(int(r[0]), r[1], r[2], r[3], r[4], values, r[6], r[7], float(r[8]),
                            None if r[9] is None else float(r[9]), r[10],
                            decision=None if r[11] is None else int(r[11]))
+
+
+def _json(values: list[ValueChange]) -> str:
+    return json.dumps([v.as_dict() for v in values])
 
 
 def record(store: Store, machine: str, run_id: str, family: str, state: State,
@@ -89,37 +86,24 @@ def record(store: Store, machine: str, run_id: str, family: str, state: State,
     """A new journal row; its id."""
     if state not in STATES:
         raise ValueError(f"compensation state {state!r} not one of {STATES}")
-    cur = store.db.execute(
-        "INSERT INTO compensations (machine, run_id, family, state, values_json, confirmed_by,"
-        " reason, created_at, applied_at) VALUES (?,?,?,?,?,?,?,?,?)",
-        (machine, run_id, family, state, json.dumps([v.as_dict() for v in values]),
-         confirmed_by, reason, time.time(), applied_at))
-    return int(cur.lastrowid or 0)
+    return table.insert(store, machine, run_id, family, state, _json(values), confirmed_by,
+                        reason, time.time(), applied_at)
 
 
 def update(store: Store, row_id: int, *, state: State | None = None,
            reason: str | None = None, confirmed_by: str | None = None,
            applied_at: float | None = None, verify_run_id: str | None = None) -> None:
-    store.db.execute(
-        "UPDATE compensations SET state=COALESCE(?, state), reason=COALESCE(?, reason),"
-        " confirmed_by=COALESCE(?, confirmed_by), applied_at=COALESCE(?, applied_at),"
-        " verify_run_id=COALESCE(?, verify_run_id) WHERE id=?",
-        (state, reason, confirmed_by, applied_at, verify_run_id, row_id))
+    table.update(store, row_id, state, reason, confirmed_by, applied_at, verify_run_id)
 
 
 def get(store: Store, row_id: int) -> CompensationRow | None:
-    r = store.db.execute(f"SELECT {_COLS} FROM compensations WHERE id=?", (row_id,)).fetchone()
+    r = table.row(store, row_id)
     return _row(r) if r else None
 
 
 def rows(store: Store, machine: str | None = None) -> list[CompensationRow]:
     """Oldest first."""
-    if machine is None:
-        q = store.db.execute(f"SELECT {_COLS} FROM compensations ORDER BY id")
-    else:
-        q = store.db.execute(f"SELECT {_COLS} FROM compensations WHERE machine=? ORDER BY id",
-                             (machine,))
-    return [_row(r) for r in q]
+    return [_row(r) for r in table.rows(store, machine)]
 
 
 def written(store: Store, machine: str, before: float | None = None) -> list[CompensationRow]:
@@ -153,9 +137,7 @@ def last_applied(store: Store, machine: str) -> CompensationRow | None:
 def decisions(store: Store, run_id: str) -> list[CompensationRow]:
     """The decisions to write ``run_id``'s values (applied, being applied, rolled back), in
     order; rollbacks and refusals are not decisions."""
-    q = store.db.execute(f"SELECT {_COLS} FROM compensations WHERE run_id=? AND decision IS "
-                         "NOT NULL ORDER BY decision", (run_id,))
-    return [_row(r) for r in q]
+    return [_row(r) for r in table.decision_rows(store, run_id)]
 
 
 def begin_apply(store: Store, machine: str, run_id: str, family: str,
@@ -163,29 +145,12 @@ def begin_apply(store: Store, machine: str, run_id: str, family: str,
     """Reserve decision ``decision`` of ``run_id`` as an 'applying' row before anything is
     written to the controller (BEGIN IMMEDIATE: the journal's unique indexes decide between
     concurrent writers); its id, else ``DecisionTaken``."""
-    try:
-        with store.transaction():
-            taken = store.db.execute(
-                "SELECT id, state FROM compensations WHERE run_id=? AND (state IN ('applied',"
-                " 'applying') OR decision=?)", (run_id, decision)).fetchone()
-            if taken is not None:
-                raise DecisionTaken(f"run {run_id} is already {taken[1]} (journal #{taken[0]})")
-            cur = store.db.execute(
-                "INSERT INTO compensations (machine, run_id, family, state, values_json,"
-                " confirmed_by, reason, created_at, decision) VALUES (?,?,?,?,?,?,?,?,?)",
-                (machine, run_id, family, "applying", json.dumps([v.as_dict() for v in values]),
-                 confirmed_by, "being written to the controller", time.time(), decision))
-    except sqlite3.IntegrityError as e:  # the index saw what the SELECT could not
-        raise DecisionTaken(f"run {run_id}: decision {decision} is already journaled ({e})"
-                            ) from None
-    return int(cur.lastrowid or 0)
+    return table.reserve_decision(store, machine, run_id, family, _json(values), confirmed_by,
+                                  "being written to the controller", time.time(), decision)
 
 
 def finish_apply(store: Store, row_id: int, state: State, values: list[ValueChange],
                  reason: str, applied_at: float | None) -> None:
     """The 'applying' row becomes 'applied' (with the values written) or 'refused' (its
     decision number freed: nothing was written, a later confirm may try again)."""
-    store.db.execute(
-        "UPDATE compensations SET state=?, values_json=?, reason=?, applied_at=?,"
-        " decision=CASE WHEN ?='applied' THEN decision END WHERE id=?",
-        (state, json.dumps([v.as_dict() for v in values]), reason, applied_at, state, row_id))
+    table.finish(store, row_id, state, _json(values), reason, applied_at)

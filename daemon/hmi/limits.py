@@ -16,6 +16,7 @@ from aiohttp.http_exceptions import HttpProcessingError
 from aiohttp.web import RequestPayloadError
 
 from daemon.authlimit import AuthLimiter, LockoutLimits, client_key  # noqa: F401
+from daemon.hosts import normal_host, normal_origin
 
 log = logging.getLogger("rumba.hmi")
 
@@ -40,14 +41,6 @@ class ServerLog(logging.LoggerAdapter):
             self.debug("%s: %s", msg % args if args else msg, first[0] if first else exc)
             return
         super().exception(msg, *args, exc_info=exc_info, **kw)
-
-
-_DEFAULT_PORT = {"http": 80, "https": 443}
-# Host header / origin authority: a DNS name, an IPv4 address or a bracketed IPv6 address, and
-# an optional port. Nothing else (no user info "a@b", no path): what is compared is what is seen.
-_HOSTPORT = r"(\[[0-9a-f:.]{2,45}\]|[a-z0-9](?:[a-z0-9.-]{0,252}))(?::([0-9]{1,5}))?"
-_HOST_RE = re.compile(_HOSTPORT)
-_ORIGIN_RE = re.compile(r"(https?)://" + _HOSTPORT)
 
 
 @dataclass(frozen=True)
@@ -75,22 +68,6 @@ class HmiLimits(LockoutLimits):
                 "auto_decompress": False,
                 "max_line_size": self.max_line_bytes, "max_field_size": self.max_field_bytes,
                 "max_headers": self.max_headers, "logger": ServerLog()}
-
-
-def normal_host(value: str, scheme: str) -> str | None:
-    """``host:port`` (lower case, explicit port) of a Host header value, None if malformed."""
-    m = _HOST_RE.fullmatch(value.lower())
-    if m is None:
-        return None
-    return f"{m[1]}:{int(m[2]) if m[2] else _DEFAULT_PORT[scheme]}"
-
-
-def normal_origin(value: str) -> str | None:
-    """``scheme://host:port`` of an Origin value, None if malformed (also "null")."""
-    m = _ORIGIN_RE.fullmatch(value.lower())
-    if m is None:
-        return None
-    return f"{m[1]}://{m[2]}:{int(m[3]) if m[3] else _DEFAULT_PORT[m[1]]}"
 
 
 def _bracket(host: str) -> str:

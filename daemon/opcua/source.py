@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import Any, Protocol
 
 from daemon.analysis.result import Analysis
-from daemon.store import map_results, pg_maps, report_jobs
+from daemon.store import map_results, pg_maps, pg_results, report_jobs
 from daemon.store.journal import RunRow, Store, StoreError, validate_run_id
 from daemon.store.map_results import MapResult
 
@@ -65,10 +65,6 @@ class JournalSource:
         return map_results.last(self.store, machine)
 
 
-_RUN = ("SELECT id, machine, trigger, state, reason, plan, artefact, dialect, touch_total,"
-        " started_at, ended_at, verdict, summary, imported FROM runs ")
-
-
 class FleetSource:
     """The PostgreSQL fleet store (``daemon.store.pg.PgStore``), read only."""
 
@@ -80,34 +76,28 @@ class FleetSource:
         return RunRow(*r[:13], bool(r[13]), 0)
 
     async def machines(self) -> list[str]:
-        rows = await self.pg._all("SELECT name FROM machines UNION SELECT DISTINCT machine"
-                                  " FROM runs ORDER BY 1")
-        return [r[0] for r in rows]
+        return await pg_results.machine_names(self.pg)
 
     async def runs(self, machine: str, limit: int) -> list[RunRow]:
-        rows = await self.pg._all(_RUN + "WHERE machine=%s ORDER BY started_at DESC LIMIT %s",
-                                  (machine, limit))
-        return [self._row(r) for r in rows]
+        return [self._row(r) for r in await pg_results.run_rows(self.pg, machine, limit)]
 
     async def run(self, run_id: str) -> RunRow | None:
         try:
             validate_run_id(run_id)
         except StoreError:
             return None
-        rows = await self.pg._all(_RUN + "WHERE id=%s", (run_id,))
-        return self._row(rows[0]) if rows else None
+        row = await pg_results.run_row(self.pg, run_id)
+        return self._row(row) if row else None
 
     async def verdict(self, run_id: str) -> dict[str, Any] | None:
-        rows = await self.pg._all("SELECT status, reasons, checks FROM verdicts WHERE run_id=%s",
-                                  (run_id,))
-        if not rows:
+        row = await pg_results.verdict_row(self.pg, run_id)
+        if row is None:
             return None
-        return {"status": rows[0][0], "reasons": json.loads(rows[0][1]),
-                "checks": json.loads(rows[0][2])}
+        return {"status": row[0], "reasons": json.loads(row[1]), "checks": json.loads(row[2])}
 
     async def analysis(self, run_id: str) -> Analysis | None:
-        rows = await self.pg._all("SELECT analysis FROM estimates WHERE run_id=%s", (run_id,))
-        return Analysis.from_json(json.loads(rows[0][0])) if rows else None
+        text = await pg_results.analysis_json(self.pg, run_id)
+        return Analysis.from_json(json.loads(text)) if text is not None else None
 
     async def report(self, run_id: str) -> Path | None:
         path = await self.pg.report_path(run_id)

@@ -41,14 +41,13 @@ from contracts.temperatures import TemperatureChannel
 from drivers.base import (
     Capabilities,
     CncLink,
-    ControllerAborted,
-    ControllerAlarm,
     LinkError,
     StartRequest,
 )
 from drivers.hits import HitFactory, MalformedResult
 from drivers.modbus.registers import keep_cancel, read_channel
 from drivers.modbus.schema import ModbusLinkConfig
+from drivers.result_ring import Feed, ResultRingReader, RingPoll
 from drivers.retry import Refused, with_backoff
 
 logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
@@ -135,7 +134,9 @@ def program_blocks(text: str) -> list[str]:
     return blocks
 
 
-class ModbusLink(CncLink):
+class ModbusLink(ResultRingReader, CncLink):
+    ring_slots = RING_SLOTS
+    overrun_since = "the last poll"
     capabilities = Capabilities(start_request=True, streams_blocks=True, loads_program=False,
                                 writes_verdict=True, can_abort=True)
 
@@ -291,75 +292,74 @@ class ModbusLink(CncLink):
             raise
 
     async def _run(self, job: ProgramJob) -> AsyncIterator[ProbeHit]:
-        blocks = program_blocks(job.text)
-        hits = HitFactory(job)
+        self._blocks = program_blocks(job.text)
+        self._hits = HitFactory(job)
         await self._command("BEGIN")
-        last = got = 0
-        i, seq, prev_seq, end_sent = 0, 0, 0, False
-        seen_running = False
-        poll = 0.0
-        progress_t = time.monotonic()
+        self._last = 0
+        self._next_block, self._seq, self._prev_seq, self._end_sent = 0, 0, 0, False
+        self._poll_s = 0.0
         self.blocks_sent = 0
-        while True:
-            st = await self._status()
-            check_mailbox(st, seq, prev_seq)
-            seen_running = seen_running or st["state"] in (STATE_CODES["running"],
-                                                           STATE_CODES["hold"])
-            new = (st["counter"] - last) & 0xFFFF
-            if new:
-                if job.touch_count and got + new > job.touch_count:
-                    raise MalformedResult(
-                        f"malformed status block: RESULT_COUNTER (register "
-                        f"{addr('RESULT_COUNTER')}) = {st['counter']}, expected at most "
-                        f"{(last + job.touch_count - got) & 0xFFFF} (the program has "
-                        f"{job.touch_count} touches, {got} read)")
-                if new > RING_SLOTS:
-                    raise LinkError(f"result ring overrun: {new} touches since the last poll, "
-                                    f"ring holds {RING_SLOTS}")
-                for n in range(last + 1, last + new + 1):
-                    slot = (n - 1) % RING_SLOTS
-                    hit = slot_hit(hits, await self._read(slot_address(slot), SLOT_WORDS), slot)
-                    got += 1
-                    yield hit
-                    if not hit.triggered:
-                        raise ControllerAlarm(f"probe did not trigger at touch seq {hit.seq}")
-                last = (last + new) & 0xFFFF
-                progress_t = time.monotonic()
-                poll = 0.0
-                continue
-            if st["state"] == STATE_CODES["alarm"]:
-                raise ControllerAlarm(f"controller alarm {st['alarm']}: "
-                                      f"{await self._alarm_text(st['alarm'])}")
-            if seen_running and st["state"] == STATE_CODES["idle"]:
-                # Running, then idle without reaching the end: RESET on the control itself.
-                raise ControllerAborted(f"program reset on the controller after {got} of "
-                                        f"{job.touch_count} touches")
-            if i < len(blocks):
-                if st["ready"] == 0 and st["ack"] == seq:
-                    prev_seq, seq = seq, seq % 65535 + 1
-                    await self._send_block(seq, blocks[i])
-                    i += 1
-                    self.blocks_sent = i
-                    progress_t = time.monotonic()
-                    poll = 0.0
-                    continue
-                if time.monotonic() - progress_t > self.cfg.block_timeout_s:
-                    raise LinkError(f"controller did not take block {seq} within "
-                                    f"{self.cfg.block_timeout_s:g} s")
-            elif not end_sent:
-                await self._command("END")
-                end_sent = True
-                continue
-            elif st["state"] == STATE_CODES["done"]:
-                if got < job.touch_count:
-                    raise LinkError(f"program ended with {got} of {job.touch_count} touches")
-                return
-            elif time.monotonic() - progress_t > self.cfg.result_timeout_s:
-                raise LinkError(f"no touch result for {self.cfg.result_timeout_s:g} s (state "
-                                f"{STATE_NAMES.get(st['state'], st['state'])})")
-            # Nothing changed: poll again soon, backing off to the configured interval.
-            await asyncio.sleep(poll)
-            poll = min(max(poll * 2, 0.0005), self.cfg.poll_interval_s)
+        async for hit in self._ring_results(job):
+            yield hit
+
+    # ------------------------------------------------------------------ the ring's reads
+
+    async def _poll_ring(self, job: ProgramJob, got: int) -> RingPoll:
+        st = await self._status()
+        check_mailbox(st, self._seq, self._prev_seq)
+        self._st = st
+        new = (st["counter"] - self._last) & 0xFFFF
+        if new and job.touch_count and got + new > job.touch_count:
+            raise MalformedResult(
+                f"malformed status block: RESULT_COUNTER (register "
+                f"{addr('RESULT_COUNTER')}) = {st['counter']}, expected at most "
+                f"{(self._last + job.touch_count - got) & 0xFFFF} (the program has "
+                f"{job.touch_count} touches, {got} read)")
+        return RingPoll(new, STATE_NAMES[st["state"]], st["alarm"])
+
+    async def _read_results(self, new: int) -> AsyncIterator[ProbeHit]:
+        first = self._last
+        for n in range(first + 1, first + new + 1):
+            slot = (n - 1) % RING_SLOTS
+            hit = slot_hit(self._hits, await self._read(slot_address(slot), SLOT_WORDS), slot)
+            self._last = n & 0xFFFF
+            yield hit
+
+    async def _alarm_message(self, poll: RingPoll) -> str:
+        return f"controller alarm {poll.alarm}: {await self._alarm_text(int(poll.alarm))}"
+
+    async def _feed(self, poll: RingPoll) -> Feed:
+        """The next program block into the mailbox once the CNC took the last one, then END."""
+        st = self._st
+        if self._next_block < len(self._blocks):
+            if st["ready"] == 0 and st["ack"] == self._seq:
+                self._prev_seq, self._seq = self._seq, self._seq % 65535 + 1
+                await self._send_block(self._seq, self._blocks[self._next_block])
+                self._next_block += 1
+                self.blocks_sent = self._next_block
+                return Feed.SENT
+            if time.monotonic() - self._progress_t > self.cfg.block_timeout_s:
+                raise LinkError(f"controller did not take block {self._seq} within "
+                                f"{self.cfg.block_timeout_s:g} s")
+            return Feed.WAITING
+        if not self._end_sent:
+            await self._command("END")
+            self._end_sent = True
+            return Feed.AGAIN
+        return Feed.DONE
+
+    def _result_timeout_s(self) -> float:
+        return self.cfg.result_timeout_s
+
+    def _timeout_message(self, poll: RingPoll, got: int, job: ProgramJob) -> str:
+        return f"no touch result for {self.cfg.result_timeout_s:g} s (state {poll.state})"
+
+    async def _wait(self, progressed: bool) -> None:
+        # Nothing changed: poll again soon, backing off to the configured interval.
+        if progressed:
+            self._poll_s = 0.0
+        await asyncio.sleep(self._poll_s)
+        self._poll_s = min(max(self._poll_s * 2, 0.0005), self.cfg.poll_interval_s)
 
     async def abort(self) -> None:
         if self._client is None or not self._client.connected:

@@ -30,8 +30,6 @@ from drivers.base import (
     Capabilities,
     ChannelMissing,
     CncLink,
-    ControllerAborted,
-    ControllerAlarm,
     LinkError,
     StartRequest,
 )
@@ -41,6 +39,7 @@ from drivers.opcua.reasons import MISSING_NODE, quiet_connection_loss, why
 from drivers.opcua.ring import _number, check_counter, ring_hit
 from drivers.opcua.schema import OpcUaLinkConfig
 from drivers.opcua_client import secure_client
+from drivers.result_ring import ResultRingReader, RingPoll
 from drivers.retry import Refused, wait_event, with_backoff
 
 logging.getLogger("asyncua").setLevel(logging.ERROR)
@@ -72,7 +71,8 @@ def _double(value: float) -> ua.DataValue:
     return ua.DataValue(ua.Variant(float(value), ua.VariantType.Double))
 
 
-class OpcUaLink(CncLink):
+class OpcUaLink(ResultRingReader, CncLink):
+    ring_slots = RING_SLOTS
     capabilities = Capabilities(start_request=True, streams_blocks=False, loads_program=True,
                                 writes_verdict=True, can_abort=True)
 
@@ -275,53 +275,50 @@ class OpcUaLink(CncLink):
         (last,) = await self._read(("touch_counter",))
         last = int(_number(last, "touch_counter", "after LoadProgram", integer=True))
         high = last + job.touch_count if job.touch_count else None
-        hits = HitFactory(job)
+        self._hits, self._last, self._high = HitFactory(job), last, high
         await self._call("start")
-        got = 0
-        seen_running = False
-        progress_t = time.monotonic()
-        while True:
-            counter, state, alarm = await self._read_during_run(("touch_counter", "state",
-                                                                 "alarm"))
-            seen_running = seen_running or state in ("running", "hold")
+        async for hit in self._ring_results(job):
+            yield hit
+
+    # ------------------------------------------------------------------ the ring's reads
+
+    async def _poll_ring(self, job: ProgramJob, got: int) -> RingPoll:
+        counter, state, alarm = await self._read_during_run(("touch_counter", "state",
+                                                             "alarm"))
+        try:
+            counter = check_counter(counter, state, self._last, self._high)
+        except MalformedResult:
+            await self._abort_quietly()
+            raise
+        return RingPoll(counter - self._last, state, alarm)
+
+    async def _read_results(self, new: int) -> AsyncIterator[ProbeHit]:
+        rows = await self._read_during_run(RESULT_ROLES)
+        for n in range(self._last + 1, self._last + new + 1):
             try:
-                counter = check_counter(counter, state, last, high)
+                hit = ring_hit(self._hits, rows, n)
             except MalformedResult:
                 await self._abort_quietly()
                 raise
-            if counter > last:
-                progress_t = time.monotonic()
-                if counter - last > RING_SLOTS:
-                    raise LinkError(f"result ring overrun: {counter - last} touches since the "
-                                    f"last read, ring holds {RING_SLOTS}")
-                rows = await self._read_during_run(RESULT_ROLES)
-                for n in range(last + 1, counter + 1):
-                    try:
-                        hit = ring_hit(hits, rows, n)
-                    except MalformedResult:
-                        await self._abort_quietly()
-                        raise
-                    last, got = n, got + 1
-                    yield hit
-                    if not hit.triggered:
-                        raise ControllerAlarm(f"probe did not trigger at touch seq {hit.seq}")
-                with contextlib.suppress(LinkError):  # re-sent with the next batch anyway
-                    await self._write("touch_ack", float(last))  # frees the slots for the CNC
-                continue  # re-read: more may have arrived meanwhile
-            if state == "alarm":
-                raise ControllerAlarm(f"controller alarm: {alarm or 'unknown'}")
-            if seen_running and state == "idle":
-                # Running, then idle without reaching the end: RESET on the control itself.
-                raise ControllerAborted(f"program reset on the controller after {got} of "
-                                        f"{job.touch_count} touches")
-            if state == "done":
-                if got < job.touch_count:
-                    raise LinkError(f"program ended with {got} of {job.touch_count} touches")
-                return
-            if time.monotonic() - progress_t >= self.cfg.result_timeout_s:
-                raise LinkError(f"no touch result for {self.cfg.result_timeout_s:g} s "
-                                f"(state {state}, {got} of {job.touch_count} touches)")
-            await self._sleep_for_change(POLL_S)
+            self._last = n
+            yield hit
+
+    async def _acknowledge(self) -> None:
+        with contextlib.suppress(LinkError):  # re-sent with the next batch anyway
+            await self._write("touch_ack", float(self._last))  # frees the slots for the CNC
+
+    async def _alarm_message(self, poll: RingPoll) -> str:
+        return f"controller alarm: {poll.alarm or 'unknown'}"
+
+    def _result_timeout_s(self) -> float:
+        return self.cfg.result_timeout_s
+
+    def _timeout_message(self, poll: RingPoll, got: int, job: ProgramJob) -> str:
+        return (f"no touch result for {self.cfg.result_timeout_s:g} s (state {poll.state}, "
+                f"{got} of {job.touch_count} touches)")
+
+    async def _wait(self, progressed: bool) -> None:
+        await self._sleep_for_change(POLL_S)
 
     async def abort(self) -> None:
         if self._client is None:  # never "done" silently: the program may still run there

@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import dataclasses
 
+from benchmarks.rigs.daemon_helpers import thesis_rows
 from daemon.analysis import pipeline
 from daemon.analysis.judge import Judgement, judge
 from daemon.store.journal import Store
-from tests.daemon_helpers import thesis_rows
 
 
 def journal_run(store: Store, setup, run_id: str, seed: int, started: float,

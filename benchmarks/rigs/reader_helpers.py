@@ -9,7 +9,7 @@ from pathlib import Path
 from contracts.centres_file import CentreRow
 from contracts.setup_files import load_artefact
 
-CONFIG = Path(__file__).resolve().parents[1] / "config"
+CONFIG = Path(__file__).resolve().parents[2] / "config"
 ARTEFACT = load_artefact(CONFIG / "artefacts/thesis_4ball.yaml")
 
 

@@ -13,14 +13,14 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
+from benchmarks.rigs.reader_helpers import ARTEFACT, CONFIG
 from contracts.centres_file import read_centres
 from contracts.importers import import_centres
 from contracts.probing_log import ProbeLogWarning, read_log
 from contracts.yaml_files import ConfigError, read_yaml
 from programs.model import load_targets
-from tests.reader_helpers import ARTEFACT, CONFIG
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 DATA = ROOT / "tests/data/centres"
 EXAMPLE_LOG = CONFIG / "examples/thesis_annexB_14poses.csv"
 HANG_S = 10  # CPU seconds: a runaway loop (an analysis takes under 1)

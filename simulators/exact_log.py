@@ -1,4 +1,4 @@
-"""Exact synthetic probing logs for tests (no probe physics; simulators/ has the full twin).
+"""Exact synthetic probing logs (no probe physics; simulators/controller.py is the full twin).
 
 For every pose and ball the true centre is the controller X, Y, Z that puts the true stylus tip
 on the true ball centre (``kinematics.solve_centre`` with the true links, setup and scale); the

@@ -12,7 +12,7 @@ from daemon.analysis.result import Analysis, LinkError, VolumetricPoint
 from daemon.opcua.config import NODESETS, IdentificationFile, OpcUaServerConfig
 from daemon.store.journal import Store
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 NODESETS_DIR = ROOT / ".peers" / "node" / "node_modules" / "node-opcua-nodesets" / "nodesets"
 USER, PASSWORD = "quality", "s3cret-password-for-tests"
 CLIENT_URI = "urn:rumba-cnc:test-client"

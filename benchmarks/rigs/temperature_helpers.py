@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from benchmarks.rigs.e2e_run import RUN_TIMEOUT_S, wait_verdict_on_cnc
 from contracts.temperatures import TemperatureChannel, TemperatureReading
 from daemon.config import DaemonConfig
 from daemon.run.temperatures import TemperatureRecorder
@@ -21,7 +22,6 @@ from daemon.service.service import Service
 from daemon.store.journal import Store
 from daemon.store.temperatures import temperatures
 from simulators.controller import VirtualController
-from tests.test_e2e_transports import RUN_TIMEOUT_S, wait_verdict_on_cnc
 
 
 @dataclass

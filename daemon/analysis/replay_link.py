@@ -1,7 +1,8 @@
-"""Test-only CNC link that replays probing-log rows as ProbeHits (state-machine tests only).
+"""A CNC link that replays probing-log rows as ProbeHits: the daemon's run without a controller.
 
-It stands in for a controller where none exists yet in-process; the real transports and the
-simulator are exercised by the end-to-end suite. Faults are switched by touch sequence number.
+It stands in for a controller in-process (the state machine's tests, the daemon's benchmarks,
+a dry run of a recorded log); the real transports and the simulator are exercised by the
+end-to-end suite. Faults are switched by touch sequence number.
 """
 
 from __future__ import annotations

@@ -5,13 +5,13 @@ from __future__ import annotations
 
 import pytest
 
+from benchmarks.rigs.sim_helpers import TABLE_B2, truth_with
 from contracts.jobs import ProgramJob
 from contracts.setup_files import plan_from_dict
 from drivers.base import ControllerAlarm
 from programs.generate import generate
 from simulators.controller import VirtualController
 from simulators.truth import TruthModel
-from tests.sim_helpers import TABLE_B2, truth_with
 
 # Where the start-of-shift macros read the verdict (gcode_templates/*/README.md), written out
 # here as the tests' own oracle for the table the dialects and the simulator share.

@@ -7,9 +7,9 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any
 
+from benchmarks.rigs.daemon_helpers import CONFIG
 from simulators.controller import VirtualController
 from simulators.truth import TruthModel
-from tests.daemon_helpers import CONFIG
 
 ERRORS = CONFIG / "errors/thesis_tableB2.yaml"
 BAUD = 921_600  # the highest rate a DNC link accepts (drivers/serial/schema.py)

@@ -17,7 +17,7 @@ from identification.gap.simlog import Truth
 from identification.kinematics import Machine
 from identification.model import Artefact
 
-CONFIG = Path(__file__).resolve().parents[1] / "config"
+CONFIG = Path(__file__).resolve().parents[2] / "config"
 MACHINE = CONFIG / "machines/thesis_wcbxfzyt.yaml"
 ARTEFACT = CONFIG / "artefacts/thesis_4ball.yaml"
 STYLUS_R = 3.0

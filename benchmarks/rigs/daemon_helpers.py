@@ -10,9 +10,9 @@ from contracts.probing_log import LogRow
 from contracts.setup_files import load_artefact, load_machine, load_plan
 from daemon.machines.setup import MachineSetup, TriggersFile
 from daemon.machines.tolerances import Limit, Tolerances
-from tests.synth import THESIS_LINKS_UM_URAD, Truth, make_rows, thesis_noise, to_internal
+from simulators.exact_log import THESIS_LINKS_UM_URAD, Truth, make_rows, thesis_noise, to_internal
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 CONFIG = ROOT / "config"
 
 TOLERANCES = Tolerances(
