@@ -131,6 +131,59 @@ async def test_another_client_on_the_data_port_is_caught_not_misread(truth, tmp_
         await fe.stop()
 
 
+async def test_a_request_stopped_before_its_answer_leaves_the_port_in_step(truth, tmp_path):
+    """A run stopped while it polls (its task cancelled with ``?Q600`` sent, the answer not yet
+    read): that answer arrives later and must be dropped, not taken for the stop request's
+    answer nor reported as another client's ("unexpected line 'MACRO, …' before '?E…'")."""
+    ctrl, fe, link = await rig(truth, tmp_path)
+    await link.connect()
+    try:
+        ctrl.variables["#599"] = 3.0
+        for _ in range(3):
+            t = asyncio.create_task(link._read(599))
+            for _ in range(100):  # (the answers still owed are read first: a few loop turns)
+                await asyncio.sleep(0)
+                if link._port._waiting:
+                    break
+            # sent, its answer not read yet (that needs the server's turn, then ours)
+            assert not t.done() and link._port._waiting
+            t.cancel()
+            with pytest.raises(asyncio.CancelledError):
+                await t
+        await link._write(689, 1.0)  # what abort() writes first
+        assert ctrl.variables["#689"] == 1.0
+        assert await link._read(599) == 3.0 and link._port._owed == 0
+    finally:
+        await link.close()
+        await fe.stop()
+
+
+async def test_stop_while_the_run_polls(truth, tmp_path):
+    """The session stops a run by cancelling the task that reads it, then calls abort(): at
+    whatever point of its polling the run was, the stop reaches the control."""
+    for delay_s in (0.0, 0.005, 0.013, 0.031):
+        ctrl, fe, link = await rig(truth, tmp_path)
+        await link.connect()
+        try:
+            got: list = []
+
+            async def consume(link: HaasLink = link, got: list = got) -> None:
+                async for h in link.run(job_for(truth)):
+                    got.append(h)
+            task = asyncio.create_task(consume())
+            await until(lambda got=got: len(got) >= 1)
+            await asyncio.sleep(delay_s)
+            task.cancel()
+            with pytest.raises(asyncio.CancelledError):
+                await task
+            await link.abort()
+            assert ctrl.state in ("done", "idle") and ctrl.alarm is None, delay_s
+            assert await link._read(599) >= 1.0  # in step for the next run
+        finally:
+            await link.close()
+            await fe.stop()
+
+
 async def test_legacy_numbering_and_refused_writes(truth, tmp_path):
     ctrl = VirtualController(truth, dialect="haas")
     fe = HaasFrontend(ctrl, tmp_path, variable_base=0)  # a control on the legacy numbers

@@ -62,6 +62,10 @@ class DataPort:
         self._lines: asyncio.Queue[str | BaseException] = asyncio.Queue()
         self._pump: asyncio.Task | None = None
         self._lock = asyncio.Lock()
+        # Answers still owed to requests cancelled after they were sent (a run stopped while it
+        # polled): each is read and dropped before the next request, never taken for its answer.
+        self._owed = 0
+        self._waiting = False
 
     @property
     def where(self) -> str:
@@ -81,6 +85,7 @@ class DataPort:
         except (TimeoutError, OSError) as e:
             raise LinkError(f"{self.where}: {e or type(e).__name__}") from None
         self._lines = asyncio.Queue()
+        self._owed, self._waiting = 0, False
         self._pump = asyncio.create_task(self._read_lines(reader, self._lines))
 
     async def close(self) -> None:
@@ -121,6 +126,7 @@ class DataPort:
         async with self._lock:
             if self._writer is None:
                 raise LinkError(f"{self.where}: not connected")
+            await self._settle_owed(command)
             if not self._lines.empty():
                 stray = self._lines.get_nowait()
                 if isinstance(stray, BaseException):
@@ -131,9 +137,15 @@ class DataPort:
                                 "sends every answer to all connections)")
             try:
                 self._writer.write(command.encode("ascii") + b"\r\n")
+                self._waiting = True
                 async with asyncio.timeout(self.timeout_s):
                     await self._writer.drain()
-                    answer = await keep_cancel(self._lines.get())
+                    answer = await keep_cancel(self._answer())
+            except asyncio.CancelledError:
+                if self._waiting:  # sent, its answer not read: the next request drops it
+                    self._owed += 1
+                    self._waiting = False
+                raise
             except (TimeoutError, OSError) as e:
                 await self.close()
                 raise LinkError(f"{self.where}: {command}: no answer "
@@ -142,6 +154,27 @@ class DataPort:
                 await self.close()
                 raise answer
             return answer
+
+    async def _answer(self) -> str | BaseException:
+        answer = await self._lines.get()
+        self._waiting = False
+        return answer
+
+    async def _settle_owed(self, command: str) -> None:
+        """Read and drop the answers of cancelled requests (within the request timeout each);
+        a connection that never gives them is closed: it is out of step."""
+        while self._owed:
+            try:
+                async with asyncio.timeout(self.timeout_s):
+                    line = await self._lines.get()
+            except TimeoutError:
+                await self.close()
+                raise LinkError(f"{self.where}: the answer to a request stopped before "
+                                f"{command!r} never came: connection closed") from None
+            self._owed -= 1
+            if isinstance(line, BaseException):
+                await self.close()
+                raise line
 
     async def read(self, n: int) -> float:
         return parse_macro(await self.request(f"?Q600 {n}"), n)
