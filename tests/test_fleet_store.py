@@ -269,3 +269,42 @@ async def test_unreachable_store_at_start_is_an_error_the_drainer_retries(pg, tm
     assert drainer.backlog() == 2
     await drainer.stop(flush_timeout_s=0.5)
     store.close()
+
+
+@peer
+async def test_a_map_job_done_without_a_verdict_is_not_the_machines_last_verdict(pg, tmp_path):
+    """A map job ends DONE without a verdict (it maps the axes, it judges nothing): the fleet's
+    last verdict stays the last check's, and the machine page shows no ERROR for it; a run
+    that failed still is one."""
+    from daemon.fleet.view import machine_page
+
+    dsn = fresh_db(pg)
+    store = Store(tmp_path / "j.sqlite")
+    drainer = Drainer(store, dsn)
+    try:
+        store.new_run("CHECK", "mill1", "cnc")
+        store.save_verdict("CHECK", "PASS", [], [], "all within")
+        store.set_state("CHECK", "DONE")
+        store.new_run("MAP", "mill1", "hmi")
+        store.set_state("MAP", "DONE", "map of the linear axes")
+        await drainer.drain()
+        pgs = await PgStore.connect(dsn, migrate=False)
+        try:
+            (row,) = await pgs.fleet()
+            assert (row["run_id"], row["verdict"], row["current_run"]) == ("CHECK", "PASS", "MAP")
+            runs = await pgs.runs("mill1", 10)
+            page = machine_page("mill1", await pgs.machine("mill1"), runs, [], 30)
+            assert page.count('class="badge ERROR"') == 0 and 'class="badge PASS"' in page
+            store.new_run("BROKEN", "mill1", "cnc")
+            store.set_state("BROKEN", "FAILED", "link lost")
+            await drainer.drain()
+            (row,) = await pgs.fleet()
+            assert (row["run_id"], row["verdict"]) == ("BROKEN", "ERROR")
+            page = machine_page("mill1", await pgs.machine("mill1"), await pgs.runs("mill1", 10),
+                                [], 30)
+            assert page.count('class="badge ERROR"') == 1
+        finally:
+            await pgs.close()
+    finally:
+        await drainer.stop()
+        store.close()

@@ -21,6 +21,8 @@ from daemon.reports.index_scatter import index_scatter_text
 UNITS = {"urad": "µrad", "um": "µm"}
 VERDICTS = ("PASS", "WARN", "FAIL", "ERROR")
 _ENDED = ("DONE", "FAILED", "ABORTED", "INTERRUPTED")  # a run in no other state is running
+# ended without a verdict: an error; DONE without one is a map job (it maps, it does not judge)
+_ERROR_ENDS = ("FAILED", "ABORTED", "INTERRUPTED")
 _H, _T, _B = 150, 10, 26  # the trend chart's height, top and bottom margins, px
 
 
@@ -252,7 +254,7 @@ def machine_page(name: str, machine: Mapping[str, Any] | None, runs: Sequence[Ma
     rows = "".join(
         f'<tr><td>{_e(r["id"])}</td><td>{_e(when(r["started_at"]))}</td>'
         f'<td>{_e(r["trigger"])}</td><td>{_e(r["state"])}</td>'
-        f'<td>{_badge(r["verdict"] or ("ERROR" if r["state"] in _ENDED else None))}</td>'
+        f'<td>{_badge(r["verdict"] or ("ERROR" if r["state"] in _ERROR_ENDS else None))}</td>'
         f'<td>{_e(r["summary"])}</td><td>{_e(temperatures_text(r.get("temperatures")))}</td>'
         f'<td class="index-scatter">{_e(index_scatter_text(r.get("index_scatter")))}</td>'
         f'<td class="baseline">{_e(drift_baseline(r))}</td><td>{report_cell(r)}</td></tr>'

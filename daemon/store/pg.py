@@ -177,12 +177,13 @@ class PgStore:
 
     async def fleet(self) -> list[dict[str, Any]]:
         """Every known machine with its last run that reached a verdict or an error end, and
-        its last run of any state (a run in progress), newest first per machine."""
+        its last run of any state (a run in progress), newest first per machine. A run done
+        without a verdict (a map job: it maps, it does not judge the machine) is neither."""
         rows = await self._all(
             "WITH names AS (SELECT name FROM machines UNION SELECT DISTINCT machine FROM runs),"
             " last_end AS (SELECT DISTINCT ON (machine) machine, id, state, verdict, summary,"
-            "   started_at, ended_at FROM runs WHERE state IN ('DONE','FAILED','ABORTED',"
-            "   'INTERRUPTED') ORDER BY machine, started_at DESC),"
+            "   started_at, ended_at FROM runs WHERE state IN ('FAILED','ABORTED','INTERRUPTED')"
+            "   OR (state = 'DONE' AND verdict IS NOT NULL) ORDER BY machine, started_at DESC),"
             " last_any AS (SELECT DISTINCT ON (machine) machine, id, state, started_at FROM runs"
             "   ORDER BY machine, started_at DESC)"
             " SELECT n.name, m.site, m.dialect, m.transport, e.id, e.state, e.verdict, e.summary,"
