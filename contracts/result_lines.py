@@ -6,13 +6,13 @@ from __future__ import annotations
 
 import math
 import re
-from typing import Literal
 
+from contracts.dialects import DIALECTS
 from contracts.messages import TOUCH_DIRECTIONS, ProbeHit
 
-DIALECT_NAMES = ("fanuc", "haas", "siemens", "heidenhain", "linuxcnc")
-"""Every controller dialect, in this order wherever they are listed."""
-DialectName = Literal[DIALECT_NAMES]  # type: ignore[valid-type]  # the same names, for schemas
+DIALECT_NAMES = tuple(DIALECTS)
+"""Every controller dialect (``contracts.dialects.DIALECTS``), in this order wherever they are
+listed."""
 
 VERDICT_VARIABLES = {"fanuc": "#598", "haas": "#598", "siemens": "R4", "heidenhain": "Q1598",
                      "linuxcnc": "#3998"}

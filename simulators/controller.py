@@ -294,11 +294,10 @@ class VirtualController(MachineSide):
 
     async def _run(self) -> None:
         assert self._blocks is not None
-        opts = {}
-        if self._dialect_now == "heidenhain":
-            opts = {"files": self.files, "measuring_path_mm": self.tnc_measuring_path_mm,
-                    "probe_feed_mm_min": self.tnc_probe_feed_mm_min,
-                    "stylus_radius_mm": self.truth.stylus_radius_mm}
+        # the settings an interpreter may take; its dialect record names those it does
+        opts = {"files": self.files, "measuring_path_mm": self.tnc_measuring_path_mm,
+                "probe_feed_mm_min": self.tnc_probe_feed_mm_min,
+                "stylus_radius_mm": self.truth.stylus_radius_mm}
         interp = make_interpreter(self._dialect_now, self, self.variables, **opts)
         try:
             await run(interp, self._blocks, self._before_block, self._program_stop)

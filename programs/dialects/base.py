@@ -12,6 +12,7 @@ from pathlib import Path
 import jinja2
 import numpy as np
 
+from contracts.dialects import dialect as dialect_record
 from contracts.jobs import VERDICT_CODES
 from contracts.messages import ProbeHit
 from contracts.result_lines import (
@@ -23,7 +24,6 @@ from contracts.result_lines import (
     parse_result_line,
 )
 from contracts.setup_files import SAFE_NAME
-from contracts.temperatures import MACRO_VARIABLE
 from programs.cycletime import CycleTime, estimate
 from programs.geometry import ProgramError
 from programs.model import Program, Touch
@@ -115,6 +115,7 @@ class Dialect:
     gcode_templates/<dialect>/README.md."""
 
     name = ""
+    record_name = ""  # the dialect record that made it (``get_dialect``), when not ``name``
     extension = ""
     counter = ""
     slot_prefix = ""
@@ -146,7 +147,7 @@ class Dialect:
     def label(self) -> str:
         """The dialect as the user named it (``--dialect``, daemon.yaml): what the program's
         header and the command's summary say; ``name`` is the template family."""
-        return self.name
+        return self.record_name or self.name
 
     # ---------------------------------------------------------------- capture
     def slot_address(self, seq: int, field: int | str) -> str:
@@ -273,17 +274,17 @@ class Dialect:
 
     def temperature_prints(self, program: Program) -> list[dict]:
         """The macro variables the program prints, each checked against the
-        dialect's variable form (contracts.temperatures.MACRO_VARIABLE): nothing else reaches
-        the program text."""
+        dialect's variable form (contracts.dialects: ``temperature_variable``): nothing else
+        reaches the program text."""
         if not program.temperature_vars:
             return []
-        pat = MACRO_VARIABLE.get(self.name)
-        if pat is None:
+        rec = dialect_record(self.label)
+        if rec.temperature_variable is None:
             raise ProgramError(f"the {self.name} dialect prints no temperature lines; read "
                                "the channels through a transmitter")
         out = []
         for k, var in enumerate(program.temperature_vars, 1):
-            if not isinstance(var, str) or not pat.fullmatch(var):
+            if not isinstance(var, str) or not rec.prints_temperature(var):
                 raise ProgramError(f"temperature variable {var!r} is not a {self.name} "
                                    "variable the program may print")
             out.append({"k": k, "var": Code(var)})
