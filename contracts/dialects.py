@@ -39,6 +39,16 @@ class DialectRecord:
     """``module:function`` writing a compensation program or file for this control."""
     kinematics_address: str
     """One of ``KINEMATICS_ADDRESSES``: the form of a controller-kinematics address."""
+    verdict_variable: str
+    """Where the verdict program writes the verdict code (``result_lines.VERDICT_VARIABLES``)."""
+    result_counter: str
+    """The variable the program sets to a touch's seq (``result_lines.RESULT_COUNTERS``)."""
+    handshake_variables: tuple[str, str] | None = None
+    """(ack, stop) when a link reads the results from the controller's variables
+    (``result_lines.HANDSHAKE_VARIABLES``)."""
+    stop_program: tuple[str, str] | None = None
+    """(program, variable) of the called stop program when the link writes files, not variables
+    (``result_lines.STOP_PROGRAMS``)."""
     kinematics_orientation: bool = True
     """Does the control hold orientation (angle) parameters, not only pivot positions?"""
     program_options: tuple[tuple[str, Any], ...] = ()
@@ -82,6 +92,7 @@ DIALECTS: dict[str, DialectRecord] = {r.name: r for r in (
         interpreter="simulators.gcode.fanuc:FanucInterpreter",
         compensation_writer="programs.compensation.fanuc:render",
         kinematics_address="parameter_or_macro",
+        verdict_variable="#598", result_counter="#599", handshake_variables=("#688", "#689"),
         temperature_variable=_FANUC_VARIABLE, temperature_form=_FANUC_FORM),
     DialectRecord(
         name="haas", family="fanuc", program="programs.dialects.fanuc:Fanuc",
@@ -89,12 +100,14 @@ DIALECTS: dict[str, DialectRecord] = {r.name: r for r in (
         interpreter="simulators.gcode.haas:HaasInterpreter",
         compensation_writer="programs.compensation.haas:render",
         kinematics_address="setting", kinematics_orientation=False,
+        verdict_variable="#598", result_counter="#599", handshake_variables=("#688", "#689"),
         temperature_variable=_FANUC_VARIABLE, temperature_form=_FANUC_FORM),
     DialectRecord(
         name="siemens", family="siemens", program="programs.dialects.siemens:Siemens",
         interpreter="simulators.gcode.siemens:SiemensInterpreter",
         compensation_writer="programs.compensation.siemens:render",
         kinematics_address="carrier",
+        verdict_variable="R4", result_counter="R99", handshake_variables=("R188", "R189"),
         temperature_variable=r"^R([5-9]|[1-8][0-9]|9[0-8])$",
         temperature_form="a Sinumerik R parameter R5-R98"),
     DialectRecord(
@@ -104,6 +117,7 @@ DIALECTS: dict[str, DialectRecord] = {r.name: r for r in (
                              "stylus_radius_mm"),
         compensation_writer="programs.compensation.heidenhain:render",
         kinematics_address="table_row",
+        verdict_variable="Q1598", result_counter="Q1599", stop_program=("RUMBASTP.H", "Q1689"),
         temperature_variable=r"^Q([0-9]|[1-9][0-9])$",
         temperature_form="a Heidenhain Q parameter Q0-Q99"),
     DialectRecord(
@@ -112,6 +126,7 @@ DIALECTS: dict[str, DialectRecord] = {r.name: r for r in (
         interpreter_variables=(("#<_task>", 1.0),),
         compensation_writer="programs.compensation.linuxcnc:render",
         kinematics_address="hal_pin",
+        verdict_variable="#3998", result_counter="#3999",
         # (PRINT,…)/(DEBUG,…) go to stderr or the GUI, (LOG,…) to a file
         temperature_refusal="LinuxCNC prints nothing on a serial line ((PRINT,…) and "
                             "(DEBUG,…) go to its stderr or GUI, (LOG,…) to a file): read the "

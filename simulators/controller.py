@@ -16,6 +16,7 @@ import asyncio
 import contextlib
 
 from contracts.controller_kinematics import controller_kinematics
+from contracts.dialects import DIALECTS
 from contracts.result_lines import VERDICT_VARIABLES
 from simulators.controller_events import (
     Block,
@@ -213,15 +214,20 @@ class VirtualController(MachineSide):
     def verdict(self, code: int) -> None:
         # Written by a front-end (OPC UA node, Modbus register): the macro variable shows it.
         self._verdict = int(code)
-        name = VERDICT_VARIABLE.get(self._dialect_now)
+        name = self._verdict_variable()
         if name is not None:
             dict.__setitem__(self.variables, name, float(code))
+
+    def _verdict_variable(self) -> str | None:
+        """The running dialect's verdict variable (its record's), None for an unknown name."""
+        rec = DIALECTS.get(self._dialect_now)
+        return None if rec is None else rec.verdict_variable
 
     def _variable_written(self, name: str, value: float | str) -> None:
         """A program wrote a variable: the verdict variable is the verdict arriving (DNC)."""
         for listener in list(self.variable_listeners):
             listener(name, value)
-        if name != VERDICT_VARIABLE.get(self._dialect_now) or isinstance(value, str):
+        if name != self._verdict_variable() or isinstance(value, str):
             return
         code = round(float(value))
         self._verdict = code if 0 <= code <= 4 else 0

@@ -16,11 +16,9 @@ from contracts.dialects import dialect as dialect_record
 from contracts.jobs import VERDICT_CODES
 from contracts.messages import ProbeHit
 from contracts.result_lines import (
-    HANDSHAKE_VARIABLES,
     RESULT_FIELDS,
     RING_SLOTS,
     SLOT_FIELDS,
-    STOP_PROGRAMS,
     parse_result_line,
 )
 from contracts.setup_files import SAFE_NAME
@@ -325,10 +323,11 @@ class Dialect:
         or None; a dialect without them refuses (its links read no variables)."""
         if not program.handshake:
             return None
-        stop = STOP_PROGRAMS.get(self.label)
+        rec = dialect_record(self.label)
+        stop = rec.stop_program
         if stop is not None:  # the link writes files, not variables: a called stop program
             return {"stop_program": Code(stop[0]), "stop": Code(stop[1])}
-        pair = HANDSHAKE_VARIABLES.get(self.label)
+        pair = rec.handshake_variables
         if pair is None:
             raise ProgramError(f"the {self.label} dialect has no result handshake: its links "
                                "read the results another way")
