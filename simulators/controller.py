@@ -246,18 +246,23 @@ class VirtualController(MachineSide):
     def halcmd_setp(self, pin: str, value: float) -> None:
         """``halcmd setp pin value`` on the simulated LinuxCNC (its compensation is halcmd
         lines, not G-code); only a declared kins pin: ``KeyError`` otherwise."""
-        self._kinematics_for(("linuxcnc",)).write(pin, value, "halcmd setp")
+        self._kinematics_for(("hal_pin",)).write(pin, value, "halcmd setp")
 
     def operator_entry(self, address: str, value: float) -> None:
         """What the operator types in on a Haas settings page or the Heidenhain kinematics
         table (these controls have no program write of these values); declared addresses
         only: ``KeyError`` otherwise."""
-        self._kinematics_for(("haas", "heidenhain")).write(address, value, "operator")
+        self._kinematics_for(("setting", "table_row")).write(address, value, "operator")
 
-    def _kinematics_for(self, families: tuple[str, ...]) -> KinematicsStore:
-        if self.kinematics is None or self.kinematics.family not in families:
+    def _kinematics_for(self, styles: tuple[str, ...]) -> KinematicsStore:
+        """The kinematic store when its dialect keeps its values in one of ``styles``
+        (``contracts.dialects.KINEMATICS_ADDRESSES``); ``KeyError`` naming those dialects."""
+        store = self.kinematics
+        rec = None if store is None else DIALECTS.get(store.family)
+        if store is None or rec is None or rec.kinematics_address not in styles:
+            families = [n for n, r in DIALECTS.items() if r.kinematics_address in styles]
             raise KeyError(f"this control keeps no {'/'.join(families)} kinematic values")
-        return self.kinematics
+        return store
 
     @property
     def thermal_time_s(self) -> float:

@@ -154,3 +154,30 @@ def test_a_new_record_reaches_controller_kinematics_and_compensation(acme):
          "value": 0.0}]
     with pytest.raises(Exception, match="a acme control has no orientation parameter"):
         machine_from_dict(doc, "m.yaml")
+
+
+# ------------------------------------------------------------------ no switch on the names
+_NAMES = "|".join(DIALECTS)
+_SWITCH = re.compile(rf"""(==|!=)\s*["']({_NAMES})["']|\bin\s*\(\s*["']({_NAMES})["']""")
+# a link checks the dialect it runs by name: it is that control's own file, not a switch
+# between dialects; a transport of the same name (linuxcnc, haas) is not a dialect, nor is
+# the simulator's --serve choice of a transport front-end
+_OWN = ("drivers/", "simulators/linuxcnc_peer.py", "simulators/serve.py")
+
+
+def test_no_layer_switches_on_dialect_names():
+    """Every layer reads the record: a comparison with a dialect's name outside the files of
+    one control is a switch a new dialect would have to find."""
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parent.parent
+    found = []
+    for pkg in ("contracts", "programs", "simulators", "daemon", "identification"):
+        for path in sorted((root / pkg).rglob("*.py")):
+            rel = path.relative_to(root).as_posix()
+            if rel == "contracts/dialects.py" or rel.startswith(_OWN):
+                continue
+            for n, line in enumerate(path.read_text(encoding="utf-8").splitlines(), 1):
+                if _SWITCH.search(line) and "transport" not in line:
+                    found.append(f"{rel}:{n}: {line.strip()}")
+    assert found == []
