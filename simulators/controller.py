@@ -17,7 +17,7 @@ import contextlib
 
 from contracts.controller_kinematics import controller_kinematics
 from contracts.dialects import DIALECTS
-from contracts.result_lines import VERDICT_VARIABLES
+from contracts.result_lines import VERDICT_VARIABLES as VERDICT_VARIABLE
 from simulators.controller_events import (
     Block,
     ControllerEvent,
@@ -42,10 +42,9 @@ __all__ = [  # the events and the touch types are re-exported: callers import th
     "VirtualController",
 ]
 
-VERDICT_VARIABLE = VERDICT_VARIABLES
-"""Where the CNC's start-of-shift macro reads the verdict (gcode_templates/*/README.md): a
-program writing it (a DNC link's verdict program) delivers the verdict, and a verdict written
-by OPC UA or Modbus appears in it too, so one macro serves every transport."""
+# VERDICT_VARIABLE: where the CNC's start-of-shift macro reads the verdict (gcode_templates/*/
+# README.md): a program writing it (a DNC link's verdict program) delivers the verdict, and a
+# verdict written by OPC UA or Modbus appears in it too, so one macro serves every transport.
 
 
 class _Variables(dict):
@@ -214,20 +213,16 @@ class VirtualController(MachineSide):
     def verdict(self, code: int) -> None:
         # Written by a front-end (OPC UA node, Modbus register): the macro variable shows it.
         self._verdict = int(code)
-        name = self._verdict_variable()
+        name = getattr(DIALECTS.get(self._dialect_now), "verdict_variable", None)
         if name is not None:
             dict.__setitem__(self.variables, name, float(code))
-
-    def _verdict_variable(self) -> str | None:
-        """The running dialect's verdict variable (its record's), None for an unknown name."""
-        rec = DIALECTS.get(self._dialect_now)
-        return None if rec is None else rec.verdict_variable
 
     def _variable_written(self, name: str, value: float | str) -> None:
         """A program wrote a variable: the verdict variable is the verdict arriving (DNC)."""
         for listener in list(self.variable_listeners):
             listener(name, value)
-        if name != self._verdict_variable() or isinstance(value, str):
+        verdict_name = getattr(DIALECTS.get(self._dialect_now), "verdict_variable", None)
+        if name != verdict_name or isinstance(value, str):
             return
         code = round(float(value))
         self._verdict = code if 0 <= code <= 4 else 0
@@ -255,14 +250,11 @@ class VirtualController(MachineSide):
         self._kinematics_for(("setting", "table_row")).write(address, value, "operator")
 
     def _kinematics_for(self, styles: tuple[str, ...]) -> KinematicsStore:
-        """The kinematic store when its dialect keeps its values in one of ``styles``
-        (``contracts.dialects.KINEMATICS_ADDRESSES``); ``KeyError`` naming those dialects."""
-        store = self.kinematics
-        rec = None if store is None else DIALECTS.get(store.family)
-        if store is None or rec is None or rec.kinematics_address not in styles:
+        rec = DIALECTS.get(getattr(self.kinematics, "family", ""))  # styles: its address forms
+        if self.kinematics is None or rec is None or rec.kinematics_address not in styles:
             families = [n for n, r in DIALECTS.items() if r.kinematics_address in styles]
             raise KeyError(f"this control keeps no {'/'.join(families)} kinematic values")
-        return store
+        return self.kinematics
 
     @property
     def thermal_time_s(self) -> float:
@@ -305,9 +297,8 @@ class VirtualController(MachineSide):
 
     async def _run(self) -> None:
         assert self._blocks is not None
-        # the settings an interpreter may take; its dialect record names those it does
         opts = {"files": self.files, "measuring_path_mm": self.tnc_measuring_path_mm,
-                "probe_feed_mm_min": self.tnc_probe_feed_mm_min,
+                "probe_feed_mm_min": self.tnc_probe_feed_mm_min,  # its record names those it takes
                 "stylus_radius_mm": self.truth.stylus_radius_mm}
         interp = make_interpreter(self._dialect_now, self, self.variables, **opts)
         try:
