@@ -39,6 +39,7 @@ from typing import TYPE_CHECKING, Annotated, Literal
 
 from pydantic import Field, field_validator
 
+from contracts.dialects import DialectName, dialect
 from contracts.setup_types import Bounded, Vec3, safe_name
 from contracts.siemens_carrier import (
     carr_component,
@@ -53,7 +54,6 @@ from identification.kinematics import Machine
 if TYPE_CHECKING:
     from identification.compensation import ControllerParam
 
-FAMILIES = ("linuxcnc", "fanuc", "haas", "siemens", "heidenhain")
 _HAL_PIN = re.compile(r"\A[A-Za-z0-9_][A-Za-z0-9_.-]{0,46}\Z")  # HAL_NAME_LEN 47
 _NUMBER = re.compile(r"\A[1-9][0-9]{0,4}\Z")
 _MACRO = re.compile(r"\A#[1-9][0-9]{0,4}\Z")
@@ -95,7 +95,7 @@ class ParamFile(StrictModel):
 
 
 class ControllerKinematicsFile(StrictModel):
-    family: Literal["linuxcnc", "fanuc", "haas", "siemens", "heidenhain"]
+    family: DialectName
     guards: GuardsFile = GuardsFile()
     params: list[ParamFile] = Field(min_length=1, max_length=32)
     # LinuxCNC on this PC: must the live pins be readable before identifying and writing?
@@ -179,20 +179,21 @@ class ControllerKinematics:
 
 def _check_address(family: str, p: ParamFile, address: str, what: str) -> None:
     """Refuse an address this family cannot hold; ``what`` names the key in the message."""
-    if family == "linuxcnc":
+    style = dialect(family).kinematics_address
+    if style == "hal_pin":
         if not _HAL_PIN.fullmatch(address):
             raise ValueError(f"{what}: {address!r} is not a HAL pin name (letters, digits, "
                              "'_', '.', '-', at most 47)")
-    elif family == "fanuc":
+    elif style == "parameter_or_macro":
         if not (_NUMBER.fullmatch(address) or _MACRO.fullmatch(address)):
             raise ValueError(f"{what}: {address!r} is neither a parameter number (e.g. 19700) "
                              "nor a macro variable (e.g. #500)")
-    elif family == "haas":
+    elif style == "setting":
         if not _NUMBER.fullmatch(address):
             raise ValueError(f"{what}: {address!r} is not a setting number (e.g. 255)")
-    elif family == "siemens":
+    elif style == "carrier":
         check_carr(p, address, what)
-    else:
+    else:  # table_row
         m = _HEIDENHAIN.fullmatch(address)
         if not m:
             raise ValueError(f"{what}: {address!r} is not a kinematics-table row/column "
@@ -204,6 +205,7 @@ def _check_address(family: str, p: ParamFile, address: str, what: str) -> None:
 
 
 def _param(family: str, machine: Machine, p: ParamFile, key: str) -> ControllerParamSpec:
+    rec = dialect(family)
     rotary = machine.rotary_axes
     tilt_axis: tuple[float, float, float] | None = None
     if p.kind == "pivot":
@@ -218,7 +220,7 @@ def _param(family: str, machine: Machine, p: ParamFile, key: str) -> ControllerP
         axes = tuple(p.axes)
         if len(set(axes)) != len(axes):
             raise ValueError(f"{key}.axes: {list(axes)} names an axis twice")
-        if family == "siemens" and p.closing is None:
+        if rec.carrier and p.closing is None:
             raise ValueError(f"{key}.closing: a Siemens offset vector needs the vector that "
                              "closes the chain (e.g. $TC_CARR18[1])")
     else:
@@ -226,7 +228,7 @@ def _param(family: str, machine: Machine, p: ParamFile, key: str) -> ControllerP
         if m is None or p.component not in machine.location_error_names():
             raise ValueError(f"{key}.component: {p.component!r} is not an orientation error of "
                              f"this machine (one of {_tilts(machine)})")
-        if family == "haas":
+        if not rec.kinematics_orientation:
             raise ValueError(f"{key}.kind: a {family} control has no orientation parameter "
                              "(its kinematics holds pivot positions only)")
         axes = (m.group(2),)
@@ -234,7 +236,7 @@ def _param(family: str, machine: Machine, p: ParamFile, key: str) -> ControllerP
             raise ValueError(f"{key}.axes: {p.component} belongs to axis {axes[0]}, not {p.axes}")
         if p.closing is not None or p.closing_value is not None:
             raise ValueError(f"{key}.closing: only a Siemens pivot takes a closing vector")
-        if family == "siemens":
+        if rec.carrier:
             if p.vector is None:
                 raise ValueError(f"{key}.vector: the control's nominal vector of axis "
                                  f"{axes[0]} is needed, e.g. [0, 0, -1]")
@@ -244,14 +246,14 @@ def _param(family: str, machine: Machine, p: ParamFile, key: str) -> ControllerP
             tilt_axis = check_vector(p, key, machine, axes[0])
         elif p.vector is not None:
             raise ValueError(f"{key}.vector: only a Siemens orientation takes an axis vector")
-    if p.also is not None and not (family == "siemens" and p.kind == "orientation"):
+    if p.also is not None and not (rec.carrier and p.kind == "orientation"):
         raise ValueError(f"{key}.also: only a Siemens orientation (inclined axis) takes "
                          "further vector components")
     for a in axes:
         if a not in rotary:
             raise ValueError(f"{key}.axes: {a} is not a rotary axis of this machine {rotary}")
     if p.closing is not None:
-        if family != "siemens":
+        if not rec.carrier:
             raise ValueError(f"{key}.closing: only a Siemens pivot takes a closing vector")
         if p.closing_value is None:
             raise ValueError(f"{key}.closing_value: the control's current value of "
@@ -311,6 +313,6 @@ def controller_kinematics(section: ControllerKinematicsFile, machine: Machine,
                                 g.min_effect_um)
 
 
-__all__ = ["FAMILIES", "ControllerKinematics", "ControllerKinematicsFile", "ControllerParamSpec",
+__all__ = ["ControllerKinematics", "ControllerKinematicsFile", "ControllerParamSpec",
            "GuardsFile", "ParamFile", "carr_component", "controller_kinematics", "siemens_tilt",
            "tilt_components"]

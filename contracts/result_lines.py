@@ -6,36 +6,34 @@ from __future__ import annotations
 
 import math
 import re
-from typing import Literal
 
+from contracts.dialects import DIALECTS
 from contracts.messages import TOUCH_DIRECTIONS, ProbeHit
 
-DIALECT_NAMES = ("fanuc", "haas", "siemens", "heidenhain", "linuxcnc")
-"""Every controller dialect, in this order wherever they are listed."""
-DialectName = Literal[DIALECT_NAMES]  # type: ignore[valid-type]  # the same names, for schemas
+DIALECT_NAMES = tuple(DIALECTS)
+"""Every controller dialect (``contracts.dialects.DIALECTS``), in this order wherever they are
+listed."""
 
-VERDICT_VARIABLES = {"fanuc": "#598", "haas": "#598", "siemens": "R4", "heidenhain": "Q1598",
-                     "linuxcnc": "#3998"}
+VERDICT_VARIABLES = {n: r.verdict_variable for n, r in DIALECTS.items()}
 """Where each dialect's verdict program writes the verdict code (1-4) and the start-of-shift
-macro reads it: Fanuc/Haas common variable #598 (retained, next to the ring), Siemens R4 (the
-OPC UA map's verdict node /Channel/Parameter/R[u1,4]), Heidenhain Q1598 (next to the ring
-counter Q1599), LinuxCNC user parameter #3998 (next to the ring)."""
+macro reads it (from the dialect records): Fanuc/Haas common variable #598 (retained, next to
+the ring), Siemens R4 (the OPC UA map's verdict node /Channel/Parameter/R[u1,4]), Heidenhain
+Q1598 (next to the ring counter Q1599), LinuxCNC user parameter #3998 (next to the ring)."""
 
 RING_SLOTS = 8
 """Result slots on the controller, reused in turn (touch seq k lands in slot (k-1) % 8)."""
 
-RESULT_COUNTERS = {"fanuc": "#599", "haas": "#599", "siemens": "R99", "heidenhain": "Q1599",
-                   "linuxcnc": "#3999"}
+RESULT_COUNTERS = {n: r.result_counter for n, r in DIALECTS.items()}
 """The variable each dialect's program sets to the touch's seq after writing its slot."""
 
-STOP_PROGRAMS = {"heidenhain": ("RUMBASTP.H", "Q1689")}
+STOP_PROGRAMS = {n: r.stop_program for n, r in DIALECTS.items() if r.stop_program}
 """(program, variable) of a dialect whose link cannot write the controller's variables (LSV2
 reads files and states, it writes no Q parameter): before each probing move the program calls
 the small stop program the link writes next to it and ends (M30, no error) when it set the
 variable to 1; the link writes it with 0 before the run and with 1 to stop it."""
 
-HANDSHAKE_VARIABLES = {"fanuc": ("#688", "#689"), "haas": ("#688", "#689"),
-                       "siemens": ("R188", "R189")}
+HANDSHAKE_VARIABLES = {n: r.handshake_variables for n, r in DIALECTS.items()
+                       if r.handshake_variables}
 """(ack, stop) of a program whose results a link reads from the controller's variables (the
 SINUMERIK OPC UA server, the Haas data port): the link writes ack = the last touch counter it has
 read, and the program waits before a probing move while counter - ack = ``RING_SLOTS`` (the slot

@@ -18,28 +18,16 @@ from typing import Any, Literal
 
 from pydantic import Field, field_validator, model_validator
 
+from contracts.dialects import dialect
 from contracts.setup_types import safe_name
 from contracts.yaml_files import StrictModel
 
 MODBUS_ADDRESS = re.compile(r"^(input|holding):([0-9]{1,5})$")
 OPCUA_ADDRESS = re.compile(r"^(ns=[0-9]{1,5};[isgb]=[^\x00-\x1f]{1,200}|/[^\x00-\x1f]{1,200})$")
 HAL_PIN = re.compile(r"^[A-Za-z0-9_.-]{1,100}$")
-# the macro variable a DNC program prints, per dialect family, restricted to the controls' user
-# ranges minus rumba's own (a PMC ladder, a PLC or a synchronous action copies the sensor there):
-# Fanuc/Haas common variables #100-#199, #500-#597, #700-#999 (DPRNT; #598-#699 are rumba's
-# verdict, counter and result ring); Sinumerik R parameters R5-R98 (WRITE like the result lines;
-# R4 verdict, R99 counter, R100-R187 ring); Heidenhain Q0-Q99, the TNC's "freely usable" range
-# (FN 16: F-PRINT like the result lines; Q100-Q199 are the TNC's, Q1575-Q1599 rumba's). LinuxCNC
-# has no print to a serial line: (PRINT,…)/(DEBUG,…) go to stderr or the GUI, (LOG,…) to a file;
-# its channels are HAL pins over the linuxcnc transport (check_address says so)
-MACRO_VARIABLE = {
-    "fanuc": re.compile(r"^#(1[0-9]{2}|5[0-8][0-9]|59[0-7]|[7-9][0-9]{2})$"),
-    "siemens": re.compile(r"^R([5-9]|[1-8][0-9]|9[0-8])$"),
-    "heidenhain": re.compile(r"^Q([0-9]|[1-9][0-9])$"),
-}
-VARIABLE_FORM = {"fanuc": "a Fanuc common variable #100-#199, #500-#597 or #700-#999",
-                 "siemens": "a Sinumerik R parameter R5-R98",
-                 "heidenhain": "a Heidenhain Q parameter Q0-Q99"}
+# the macro variable a DNC program prints is the dialect's (contracts.dialects:
+# DialectRecord.temperature_variable). LinuxCNC has no print to a serial line: its channels are
+# HAL pins over the linuxcnc transport (check_address says so)
 # what the program prints: RTEMP S|P<pose>|E <channel number> <°C> (gcode_templates/*/README.md);
 # the value as each control formats it: Fanuc DPRNT [53] 3 decimals, Sinumerik a REAL rounded to
 # 3 decimals in a string chain (no decimal point when whole), Heidenhain %.3LF
@@ -115,8 +103,9 @@ def modbus_address(address: str) -> tuple[str, int]:
     return m.group(1), int(m.group(2))
 
 
-def check_address(ch: TemperatureChannel, transport: str, family: str) -> None:
-    """A controller channel's address must suit the run's transport (ValueError otherwise)."""
+def check_address(ch: TemperatureChannel, transport: str, dialect_name: str) -> None:
+    """A controller channel's address must suit the run's transport and dialect (ValueError
+    otherwise)."""
     if ch.source == "transmitter":
         return
     if transport in ("opcua", "sinumerik"):  # sinumerik: an R parameter's node, a GUD's …
@@ -127,18 +116,14 @@ def check_address(ch: TemperatureChannel, transport: str, family: str) -> None:
     elif transport == "linuxcnc":
         ok, form = HAL_PIN.fullmatch(ch.address), "a HAL pin name"
     elif transport == "haas":  # a macro variable read over the data port (?Q600)
-        ok, form = MACRO_VARIABLE["fanuc"].fullmatch(ch.address), VARIABLE_FORM["fanuc"]
+        rec = dialect("haas")
+        ok, form = rec.prints_temperature(ch.address), rec.temperature_form
     elif transport == "serial":
-        pat = MACRO_VARIABLE.get(family)
-        if family == "linuxcnc":
-            raise ValueError("LinuxCNC prints nothing on a serial line ((PRINT,…) and "
-                             "(DEBUG,…) go to its stderr or GUI, (LOG,…) to a file): read the "
-                             "channel as a HAL pin over the linuxcnc transport, or use source: "
-                             "transmitter")
-        if pat is None:
-            raise ValueError(f"the {family} programs print no temperature over DNC; use "
-                             "source: transmitter")
-        ok, form = pat.fullmatch(ch.address), VARIABLE_FORM[family]
+        rec = dialect(dialect_name)
+        if rec.temperature_variable is None:
+            raise ValueError(rec.temperature_refusal or f"the {rec.family} programs print no "
+                             "temperature over DNC; use source: transmitter")
+        ok, form = rec.prints_temperature(ch.address), rec.temperature_form
     else:
         raise ValueError(f"the {transport} link cannot read temperatures; use source: "
                          "transmitter")

@@ -16,7 +16,8 @@ import asyncio
 import contextlib
 
 from contracts.controller_kinematics import controller_kinematics
-from contracts.result_lines import VERDICT_VARIABLES
+from contracts.dialects import DIALECTS
+from contracts.result_lines import VERDICT_VARIABLES as VERDICT_VARIABLE
 from simulators.controller_events import (
     Block,
     ControllerEvent,
@@ -41,10 +42,9 @@ __all__ = [  # the events and the touch types are re-exported: callers import th
     "VirtualController",
 ]
 
-VERDICT_VARIABLE = VERDICT_VARIABLES
-"""Where the CNC's start-of-shift macro reads the verdict (gcode_templates/*/README.md): a
-program writing it (a DNC link's verdict program) delivers the verdict, and a verdict written
-by OPC UA or Modbus appears in it too, so one macro serves every transport."""
+# VERDICT_VARIABLE: where the CNC's start-of-shift macro reads the verdict (gcode_templates/*/
+# README.md): a program writing it (a DNC link's verdict program) delivers the verdict, and a
+# verdict written by OPC UA or Modbus appears in it too, so one macro serves every transport.
 
 
 class _Variables(dict):
@@ -213,7 +213,7 @@ class VirtualController(MachineSide):
     def verdict(self, code: int) -> None:
         # Written by a front-end (OPC UA node, Modbus register): the macro variable shows it.
         self._verdict = int(code)
-        name = VERDICT_VARIABLE.get(self._dialect_now)
+        name = getattr(DIALECTS.get(self._dialect_now), "verdict_variable", None)
         if name is not None:
             dict.__setitem__(self.variables, name, float(code))
 
@@ -221,7 +221,8 @@ class VirtualController(MachineSide):
         """A program wrote a variable: the verdict variable is the verdict arriving (DNC)."""
         for listener in list(self.variable_listeners):
             listener(name, value)
-        if name != VERDICT_VARIABLE.get(self._dialect_now) or isinstance(value, str):
+        verdict_name = getattr(DIALECTS.get(self._dialect_now), "verdict_variable", None)
+        if name != verdict_name or isinstance(value, str):
             return
         code = round(float(value))
         self._verdict = code if 0 <= code <= 4 else 0
@@ -240,16 +241,18 @@ class VirtualController(MachineSide):
     def halcmd_setp(self, pin: str, value: float) -> None:
         """``halcmd setp pin value`` on the simulated LinuxCNC (its compensation is halcmd
         lines, not G-code); only a declared kins pin: ``KeyError`` otherwise."""
-        self._kinematics_for(("linuxcnc",)).write(pin, value, "halcmd setp")
+        self._kinematics_for(("hal_pin",)).write(pin, value, "halcmd setp")
 
     def operator_entry(self, address: str, value: float) -> None:
         """What the operator types in on a Haas settings page or the Heidenhain kinematics
         table (these controls have no program write of these values); declared addresses
         only: ``KeyError`` otherwise."""
-        self._kinematics_for(("haas", "heidenhain")).write(address, value, "operator")
+        self._kinematics_for(("setting", "table_row")).write(address, value, "operator")
 
-    def _kinematics_for(self, families: tuple[str, ...]) -> KinematicsStore:
-        if self.kinematics is None or self.kinematics.family not in families:
+    def _kinematics_for(self, styles: tuple[str, ...]) -> KinematicsStore:
+        rec = DIALECTS.get(getattr(self.kinematics, "family", ""))  # styles: its address forms
+        if self.kinematics is None or rec is None or rec.kinematics_address not in styles:
+            families = [n for n, r in DIALECTS.items() if r.kinematics_address in styles]
             raise KeyError(f"this control keeps no {'/'.join(families)} kinematic values")
         return self.kinematics
 
@@ -294,11 +297,9 @@ class VirtualController(MachineSide):
 
     async def _run(self) -> None:
         assert self._blocks is not None
-        opts = {}
-        if self._dialect_now == "heidenhain":
-            opts = {"files": self.files, "measuring_path_mm": self.tnc_measuring_path_mm,
-                    "probe_feed_mm_min": self.tnc_probe_feed_mm_min,
-                    "stylus_radius_mm": self.truth.stylus_radius_mm}
+        opts = {"files": self.files, "measuring_path_mm": self.tnc_measuring_path_mm,
+                "probe_feed_mm_min": self.tnc_probe_feed_mm_min,  # its record names those it takes
+                "stylus_radius_mm": self.truth.stylus_radius_mm}
         interp = make_interpreter(self._dialect_now, self, self.variables, **opts)
         try:
             await run(interp, self._blocks, self._before_block, self._program_stop)

@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from contracts.controller_kinematics import ControllerKinematics
+from contracts.dialects import dialect
 from contracts.setup_files import load_controller_kinematics
 
 
@@ -55,7 +56,7 @@ class KinematicsStore:
                 values[p.address] = float(p.value)
                 if p.closing is not None:
                     values[p.closing] = float(p.closing_value or 0.0)
-            elif spec.family == "siemens":  # the axis-vector components the tilt moves
+            elif dialect(spec.family).carrier:  # Siemens: the axis-vector components the tilt moves
                 values.update(p.vector_values(p.value * 1e-6))
             else:  # Fanuc parameter / Heidenhain SPA-SPC: the held link in degrees
                 values[p.address] = math.degrees(p.value * 1e-6)

@@ -18,7 +18,8 @@ from hypothesis import strategies as st
 from benchmarks.rigs.e2e_run import copy_aux_files
 from benchmarks.rigs.temperature_helpers import run_from_cnc
 from benchmarks.rigs.warm_cnc import machine_entry, sensor, write_config
-from contracts.temperatures import MACRO_VARIABLE, PRINTED_RANGE_C, parse_printed
+from contracts.dialects import dialect
+from contracts.temperatures import PRINTED_RANGE_C, parse_printed
 from contracts.yaml_files import ConfigError
 from daemon.config import load_daemon_config
 from daemon.run.session import State
@@ -119,8 +120,9 @@ def test_the_variable_ranges_leave_rumbas_own_alone():
            "siemens": ["R4", "R99", *[f"R{100 + i}" for i in range(88)]],
            "heidenhain": ["Q1598", "Q1599", *[f"Q{1575 + i}" for i in range(19)],
                           *[f"Q{1600 + i}" for i in range(88)], *[f"Q{115 + i}" for i in range(5)]]}
+    own["haas"] = own["fanuc"]
     for family, names in own.items():
-        assert not [n for n in names if MACRO_VARIABLE[family].fullmatch(n)], family
+        assert not [n for n in names if dialect(family).prints_temperature(n)], family
 
 
 # ------------------------------------------------------------------------------------ fuzz

@@ -18,6 +18,7 @@ GAP_FAMILIES = ("thermal_drift", "linear_scale", "straightness", "angular_motion
                 "artefact_instability")
 """``identification.effects.FAMILIES``: the effect families of `rumba gap --families`."""
 DIALECT_NAMES = ("fanuc", "haas", "siemens", "heidenhain", "linuxcnc")
-"""``contracts.result_lines.DIALECT_NAMES``: every controller dialect, in its order."""
+"""``tuple(contracts.dialects.DIALECTS)``: every controller dialect record, in its order."""
 GCODE_DIALECTS = ("fanuc", "heidenhain", "linuxcnc", "siemens")
-"""``sorted(programs.dialects.DIALECTS)``: the dialects `rumba gcode` generates itself."""
+"""The sorted template families of the dialect records (``contracts.dialects``): `rumba gcode`
+lists them, then haas (the fanuc family's variant)."""

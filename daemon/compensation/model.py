@@ -29,16 +29,13 @@ def spec_of(setup: MachineSetup) -> ControllerKinematics | None:
     return controller_kinematics(section, setup.machine, f"machine {setup.name}")
 
 
-# the controller family whose addresses each dialect's machine holds (daemon.yaml dialect)
-FAMILY_OF_DIALECT = {"fanuc": "fanuc", "haas": "haas", "siemens": "siemens",
-                     "heidenhain": "heidenhain", "linuxcnc": "linuxcnc"}
 
 
 def check_family(setup: MachineSetup, spec: ControllerKinematics) -> None:
     """The machine file's controller addresses are of the configured controller (
     $TC_CARR values proposed for a machine configured as Fanuc), else ``CompensationRefused``
     naming both."""
-    want = FAMILY_OF_DIALECT.get(str(setup.dialect), str(setup.dialect))
+    want = str(setup.dialect)  # a controller-kinematics family is a dialect name
     if spec.family != want:
         example = spec.params[0].address if spec.params else ""
         raise CompensationRefused(

@@ -10,8 +10,8 @@ from typing import Any, Literal
 
 from pydantic import Field, field_validator, model_validator
 
+from contracts.dialects import DialectName
 from contracts.map_job import MapJob, load_map_job
-from contracts.result_lines import DialectName
 from contracts.setup_files import (
     MachineFile,
     Plan,
@@ -265,10 +265,9 @@ def load_machines(entries: list[MachineEntry], base: Path, where: str
 def _check_temperatures(m: MachineEntry, key: str) -> None:
     """Each channel's address suits the run's link (a HAL pin on LinuxCNC, a macro variable of
     the dialect on a DNC line …); a limit names a configured channel."""
-    family = "fanuc" if m.dialect == "haas" else m.dialect
     for i, ch in enumerate(m.temperatures):
         try:
-            check_address(ch, str(m.link.get("transport")), family)
+            check_address(ch, str(m.link.get("transport")), m.dialect)
         except ValueError as e:
             raise ConfigError(f"{key}.temperatures.{i}.address: {e}") from None
     host = str(m.link.get("host", "127.0.0.1"))

@@ -6,7 +6,7 @@ from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING
 
 from contracts.controller_kinematics import ControllerKinematics
-from programs.compensation import fanuc, haas, heidenhain, linuxcnc, siemens
+from contracts.dialects import DIALECTS, load
 from programs.compensation.common import (
     CompensationError,
     CompensationOutput,
@@ -21,19 +21,20 @@ if TYPE_CHECKING:
     from identification.compensation import ParamChange
 
 Writer = Callable[..., CompensationOutput]
-WRITERS: dict[str, Writer] = {"linuxcnc": linuxcnc.render, "fanuc": fanuc.render,
-                              "haas": haas.render, "siemens": siemens.render,
-                              "heidenhain": heidenhain.render}
+
+
+def writer(family: str) -> Writer:
+    """The compensation writer of dialect ``family`` (its record's ``compensation_writer``)."""
+    if family not in DIALECTS:
+        raise CompensationError(f"no compensation writer for family {family!r}")
+    return load(DIALECTS[family].compensation_writer)
 
 
 def render(spec: ControllerKinematics, changes: Sequence[ParamChange], *, run_id: str,
            machine: str, rollback: bool = False) -> CompensationOutput:
     """The writer of ``spec.family``."""
-    if spec.family not in WRITERS:
-        raise CompensationError(f"no compensation writer for family {spec.family!r}")
-    return WRITERS[spec.family](spec, changes, run_id=run_id, machine=machine,
-                                rollback=rollback)
+    return writer(spec.family)(spec, changes, run_id=run_id, machine=machine, rollback=rollback)
 
 
-__all__ = ["WRITERS", "CompensationError", "CompensationOutput", "Listed", "Value", "fixed",
-           "fmt_value", "patch_hal_file", "render"]
+__all__ = ["CompensationError", "CompensationOutput", "Listed", "Value", "fixed",
+           "fmt_value", "patch_hal_file", "render", "writer"]

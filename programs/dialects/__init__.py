@@ -1,8 +1,10 @@
-"""Controller dialects: one module per dialect, found by name here."""
+"""Controller dialects: one module per dialect family, found through the dialect records
+(``contracts.dialects``)."""
 
 from __future__ import annotations
 
-from contracts.result_lines import DIALECT_NAMES
+from contracts.dialects import DIALECTS as RECORDS
+from contracts.dialects import dialect, load
 from programs.dialects.base import Block, BoundDialect, Dialect, safe_text
 from programs.dialects.fanuc import Fanuc
 from programs.dialects.heidenhain import Heidenhain
@@ -10,19 +12,22 @@ from programs.dialects.linuxcnc import LinuxCNC
 from programs.dialects.siemens import Siemens
 from programs.geometry import ProgramError
 
-# Haas is the fanuc dialect reading rotary skips by letter: a variant, not a class of its own.
+# the program writer of each family (Haas is the fanuc family reading rotary skips by letter:
+# a variant, not a class of its own)
 DIALECTS: dict[str, type[Dialect]] = {
     cls.name: cls for cls in (Fanuc, Siemens, Heidenhain, LinuxCNC)}
-assert set(DIALECTS) | {"haas"} == set(DIALECT_NAMES), "a dialect without a class (or a name)"
 
 
 def get_dialect(name: str) -> Dialect:
-    """A dialect by name (``haas`` is the fanuc dialect reading rotary skips by letter)."""
-    if name == "haas":
-        return Fanuc(haas=True)
-    if name not in DIALECTS:
-        raise ProgramError(f"unknown dialect {name!r} (known: {', '.join(sorted(DIALECTS))}, haas)")
-    return DIALECTS[name]()
+    """The program writer of dialect ``name`` (its record's class and options)."""
+    try:
+        rec = dialect(name)
+    except ValueError:
+        raise ProgramError(f"unknown dialect {name!r} (known: {', '.join(RECORDS)})") from None
+    d: Dialect = load(rec.program)(**dict(rec.program_options))
+    if d.label != rec.name:
+        d.record_name = rec.name
+    return d
 
 
 __all__ = ["DIALECTS", "Block", "BoundDialect", "Dialect", "Fanuc", "Heidenhain", "LinuxCNC",

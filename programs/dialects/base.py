@@ -12,18 +12,16 @@ from pathlib import Path
 import jinja2
 import numpy as np
 
+from contracts.dialects import dialect as dialect_record
 from contracts.jobs import VERDICT_CODES
 from contracts.messages import ProbeHit
 from contracts.result_lines import (
-    HANDSHAKE_VARIABLES,
     RESULT_FIELDS,
     RING_SLOTS,
     SLOT_FIELDS,
-    STOP_PROGRAMS,
     parse_result_line,
 )
 from contracts.setup_files import SAFE_NAME
-from contracts.temperatures import MACRO_VARIABLE
 from programs.cycletime import CycleTime, estimate
 from programs.geometry import ProgramError
 from programs.model import Program, Touch
@@ -115,6 +113,7 @@ class Dialect:
     gcode_templates/<dialect>/README.md."""
 
     name = ""
+    record_name = ""  # the dialect record that made it (``get_dialect``), when not ``name``
     extension = ""
     counter = ""
     slot_prefix = ""
@@ -146,7 +145,7 @@ class Dialect:
     def label(self) -> str:
         """The dialect as the user named it (``--dialect``, daemon.yaml): what the program's
         header and the command's summary say; ``name`` is the template family."""
-        return self.name
+        return self.record_name or self.name
 
     # ---------------------------------------------------------------- capture
     def slot_address(self, seq: int, field: int | str) -> str:
@@ -273,17 +272,17 @@ class Dialect:
 
     def temperature_prints(self, program: Program) -> list[dict]:
         """The macro variables the program prints, each checked against the
-        dialect's variable form (contracts.temperatures.MACRO_VARIABLE): nothing else reaches
-        the program text."""
+        dialect's variable form (contracts.dialects: ``temperature_variable``): nothing else
+        reaches the program text."""
         if not program.temperature_vars:
             return []
-        pat = MACRO_VARIABLE.get(self.name)
-        if pat is None:
+        rec = dialect_record(self.label)
+        if rec.temperature_variable is None:
             raise ProgramError(f"the {self.name} dialect prints no temperature lines; read "
                                "the channels through a transmitter")
         out = []
         for k, var in enumerate(program.temperature_vars, 1):
-            if not isinstance(var, str) or not pat.fullmatch(var):
+            if not isinstance(var, str) or not rec.prints_temperature(var):
                 raise ProgramError(f"temperature variable {var!r} is not a {self.name} "
                                    "variable the program may print")
             out.append({"k": k, "var": Code(var)})
@@ -324,10 +323,11 @@ class Dialect:
         or None; a dialect without them refuses (its links read no variables)."""
         if not program.handshake:
             return None
-        stop = STOP_PROGRAMS.get(self.label)
+        rec = dialect_record(self.label)
+        stop = rec.stop_program
         if stop is not None:  # the link writes files, not variables: a called stop program
             return {"stop_program": Code(stop[0]), "stop": Code(stop[1])}
-        pair = HANDSHAKE_VARIABLES.get(self.label)
+        pair = rec.handshake_variables
         if pair is None:
             raise ProgramError(f"the {self.label} dialect has no result handshake: its links "
                                "read the results another way")

@@ -33,7 +33,7 @@ class Fanuc(Dialect):
 
     @property
     def label(self) -> str:
-        return "haas" if self.haas else self.name
+        return "haas" if self.haas else super().label
 
     def check_ball_id(self, ball: str) -> None:
         if not re.fullmatch(r"[A-Z0-9]{1,12}", ball):

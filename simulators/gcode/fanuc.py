@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import re
 
+from contracts.dialects import dialect
 from simulators.gcode.core import END, NEXT, Alarm, Flow, Interpreter, split_words
 
 _COMMENT = re.compile(r"\([^)]*\)")
@@ -60,7 +61,9 @@ class FanucInterpreter(Interpreter):
     def kinematic_address(self, address: str) -> bool:
         """Does the control keep ``address`` as a Fanuc kinematic value?"""
         store = getattr(self.io, "kinematics", None)
-        return store is not None and store.family == "fanuc" and store.holds(address)
+        return (store is not None
+                and dialect(store.family).kinematics_address == "parameter_or_macro"
+                and store.holds(address))
 
     def parameter_block(self, raw: str) -> Flow:
         """One block of G10 L52 mode: ``N<param> R<value>`` or the closing ``G11``."""

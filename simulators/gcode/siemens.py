@@ -15,6 +15,7 @@ from __future__ import annotations
 import re
 from typing import TYPE_CHECKING
 
+from contracts.dialects import dialect
 from simulators.gcode.core import END, NEXT, Alarm, Flow, Interpreter
 
 if TYPE_CHECKING:
@@ -77,7 +78,7 @@ class SiemensInterpreter(Interpreter):
     def _carrier(self, address: str) -> KinematicsStore:
         """The kinematic store holding ``address`` (a declared tool-carrier value)."""
         store = getattr(self.io, "kinematics", None)
-        if store is None or store.family != "siemens" or not store.holds(address):
+        if store is None or not dialect(store.family).carrier or not store.holds(address):
             raise Alarm(f"{address}: not a tool-carrier value of this control")
         return store
 
