@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import yaml
 
+from benchmarks.rigs.daemon_helpers import CONFIG
 from simulators.truth import TruthModel
-from tests.daemon_helpers import CONFIG
 
 MACHINE = CONFIG / "machines/thesis_wcbxfzyt.yaml"
 ERRORS = CONFIG / "errors/thesis_map_demo.yaml"  # links and the 18 motion errors

@@ -14,6 +14,7 @@ import aiohttp
 import pytest
 import yaml
 
+from benchmarks.rigs.daemon_helpers import write_daemon_yaml
 from contracts.map_job import load_map_job
 from contracts.yaml_files import ConfigError
 from daemon.cli.main import main
@@ -23,7 +24,6 @@ from daemon.service.service import Service
 from daemon.store.journal import Store
 from simulators.controller import VirtualController
 from simulators.frontends.opcua import OpcUaFrontend
-from tests.daemon_helpers import write_daemon_yaml
 from tests.map_job_helpers import MACHINE, TOUCHES, truth, write_job
 
 TOKEN = "t0k3n-for-tests-0123456789"
@@ -179,8 +179,8 @@ async def test_unattended_starts_refuse_a_map_of_several_placements(rig):
 
 
 async def test_a_machine_without_a_map_job_refuses_one(tmp_path):
-    from tests.daemon_helpers import thesis_setup
-    from tests.replay_link import ReplayLink
+    from benchmarks.rigs.daemon_helpers import thesis_setup
+    from daemon.analysis.replay_link import ReplayLink
 
     setup = thesis_setup()
     store = Store(tmp_path / "j.sqlite")

@@ -7,9 +7,9 @@ import yaml
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from benchmarks.rigs.daemon_helpers import CONFIG
 from contracts.map_job import load_map_job
 from contracts.yaml_files import ConfigError
-from tests.daemon_helpers import CONFIG
 
 SCALARS = st.one_of(st.none(), st.booleans(), st.integers(-5, 5), st.floats(allow_nan=True),
                     st.text(max_size=12))

@@ -9,10 +9,10 @@ from contextlib import redirect_stderr, redirect_stdout
 
 import pytest
 
+from benchmarks.rigs.daemon_helpers import CONFIG
 from contracts.map_job import load_map_job
 from daemon.cli.main import main
 from programs import map_plan
-from tests.daemon_helpers import CONFIG
 
 MACHINE = str(CONFIG / "machines/thesis_wcbxfzyt.yaml")
 ARTEFACTS = [str(CONFIG / f"artefacts/{a}.yaml")
