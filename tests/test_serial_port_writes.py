@@ -7,9 +7,13 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import fcntl
 import os
 import select
+import struct
+import termios
 import threading
+import time
 import tty
 
 import pytest
@@ -35,8 +39,7 @@ class Pty:
                 return
             self.received += data
 
-    def fill(self) -> int:
-        """Write on the slave (a second descriptor) until the pty takes no more byte."""
+    def _fill_once(self) -> int:
         fd = os.open(self.path, os.O_WRONLY | os.O_NOCTTY | os.O_NONBLOCK)
         n = 0
         try:
@@ -47,6 +50,25 @@ class Pty:
                     return n
         finally:
             os.close(fd)
+
+    def _queued(self) -> int:
+        return struct.unpack("i", fcntl.ioctl(self.master, termios.FIONREAD, b"\0" * 4))[0]
+
+    def fill(self) -> int:
+        """Write on the slave (a second descriptor) until the pty takes no more byte. The
+        kernel moves what a write took into the master's read buffer later (a work queue), which
+        frees room again: so until a pass takes nothing and the master's queue has not moved
+        for 0.1 s (a fill that returned at the first EAGAIN once left room for the test's
+        write on a loaded box)."""
+        n, stable, last = 0, 0, -1
+        while stable < 5:
+            took = self._fill_once()
+            n += took
+            time.sleep(0.02)
+            queued = self._queued()
+            stable = stable + 1 if took == 0 and queued == last else 0
+            last = queued
+        return n
 
     def close(self) -> None:
         for fd in (self.master, self.slave):
