@@ -12,7 +12,7 @@ errors on a 1 m lever arm; every fold of the cross-validation is then a cheap so
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -37,6 +37,10 @@ class Twin:
     p: np.ndarray  # model units (mm, rad)
     names: list[str]
     dropped: dict[str, str]  # unobservable links and what absorbs them
+    # the base distortion per (groups, base prediction) the effects' columns are taken at: the
+    # same for every effect of a diagnosis (kept with its inputs, so an id is never reused)
+    _base_dist: list[tuple[Groups, np.ndarray, np.ndarray]] = field(
+        default_factory=list, init=False, repr=False, compare=False)
 
     def axis_map(self, centres: Centres, q_mm: np.ndarray, p: np.ndarray | None = None,
                  motion: dict[str, MotionErrorFn] | None = None) -> np.ndarray:
@@ -45,6 +49,15 @@ class Twin:
         (``identification.touch_frame.axis_maps``, the map the analysis fits spheres in)."""
         return axis_maps(self.machine, self.layout, self.p if p is None else p, centres, q_mm,
                          motion)
+
+    def base_distortion_um(self, groups: Groups, q_mm: np.ndarray) -> np.ndarray:
+        """``distortion_um`` of the twin's axis map at ``q_mm``, computed once per inputs."""
+        for g, q, d in self._base_dist:
+            if g is groups and q is q_mm:
+                return d
+        d = distortion_um(groups, self.axis_map(groups.centres, q_mm))
+        self._base_dist.append((groups, q_mm, d))
+        return d
 
     def predicted_um(self, centres: Centres, groups: Groups) -> np.ndarray:
         q, _ = predict(self.machine, self.artefact, self.layout, self.p, centres)
@@ -163,7 +176,7 @@ def effect_columns(effect: Effect, twin: Twin, groups: Groups, ctx: EffectContex
         q, _ = predict(twin.machine, twin.artefact, twin.layout, twin.p, tiled,
                        motion_errors=motion)
         amap = twin.axis_map(tiled, q, motion=motion)
-        base_dist = distortion_um(groups, twin.axis_map(c, base_pred_mm))
+        base_dist = twin.base_distortion_um(groups, base_pred_mm)
         for j in range(m):
             rows = slice(j * n, (j + 1) * n)
             out[:, :3, j] += (q[rows] - base_pred_mm) * 1e3
