@@ -44,6 +44,11 @@ async def finish(ctrl) -> None:
 async def test_start_of_shift_verdict_on_cnc_and_links_match_truth(cnc, tmp_path):
     ctrl, link = cnc
     ctrl.faults = FaultPlan()
+    # the noise of a fresh controller whatever ran on it before: in a shuffled order a fault
+    # test's runs drew from the sequence first, and one of 7 later draws put EX0C 4.5 u off
+    # (the pooled σ under-covers this machine's anisotropic centre noise: a known limit that a
+    # single-draw test must not sample by accident of order)
+    ctrl.reseed(0)
     s = session(link, tmp_path)
     ctrl.raise_start_request()
     req = await asyncio.wait_for(link.wait_start_request(), 10)
