@@ -6,6 +6,7 @@ from __future__ import annotations
 import asyncio
 import base64
 import contextlib
+import os
 import shutil
 from collections.abc import AsyncIterator
 from pathlib import Path
@@ -115,7 +116,10 @@ async def chromium(profile: Path, window: str = "1280,900") -> AsyncIterator[Cdp
         exe, "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
         "--disable-background-networking", "--disable-component-update", "--disable-sync",
         f"--user-data-dir={profile}", "--remote-debugging-port=0", f"--window-size={window}",
-        "about:blank", stdout=asyncio.subprocess.DEVNULL, stderr=asyncio.subprocess.DEVNULL)
+        "about:blank", stdout=asyncio.subprocess.DEVNULL, stderr=asyncio.subprocess.DEVNULL,
+        # its singleton socket and cookie go to a org.chromium.Chromium.* folder in TMPDIR,
+        # left behind when it is killed: in the test's own folder, removed with it
+        env={**os.environ, "TMPDIR": str(profile.parent)})
     try:
         port_file = profile / "DevToolsActivePort"
         async with asyncio.timeout(30):
@@ -129,6 +133,9 @@ async def chromium(profile: Path, window: str = "1280,900") -> AsyncIterator[Cdp
             with contextlib.suppress(Exception):
                 await cdp.call("Browser.close")
     finally:
+        if proc.returncode is None:
+            with contextlib.suppress(TimeoutError):  # closing: it removes what it made
+                await asyncio.wait_for(proc.wait(), 5)
         if proc.returncode is None:
             proc.kill()
         await proc.wait()
