@@ -8,6 +8,7 @@ import base64
 import contextlib
 import os
 import shutil
+import tempfile
 from collections.abc import AsyncIterator
 from pathlib import Path
 
@@ -112,14 +113,16 @@ async def chromium(profile: Path, window: str = "1280,900") -> AsyncIterator[Cdp
     exe = shutil.which("chromium") or shutil.which("chromium-browser")
     if exe is None:
         pytest.skip("chromium not installed (make peers)")
+    own_tmp = tempfile.mkdtemp(prefix="rumba-chromium-")
     proc = await asyncio.create_subprocess_exec(
         exe, "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
         "--disable-background-networking", "--disable-component-update", "--disable-sync",
         f"--user-data-dir={profile}", "--remote-debugging-port=0", f"--window-size={window}",
         "about:blank", stdout=asyncio.subprocess.DEVNULL, stderr=asyncio.subprocess.DEVNULL,
         # its singleton socket and cookie go to a org.chromium.Chromium.* folder in TMPDIR,
-        # left behind when it is killed: in the test's own folder, removed with it
-        env={**os.environ, "TMPDIR": str(profile.parent)})
+        # left behind when it is killed: a folder of its own, removed below (short: a socket
+        # path is at most 107 bytes, a test's tmp_path under xdist is longer)
+        env={**os.environ, "TMPDIR": own_tmp})
     try:
         port_file = profile / "DevToolsActivePort"
         async with asyncio.timeout(30):
@@ -139,6 +142,7 @@ async def chromium(profile: Path, window: str = "1280,900") -> AsyncIterator[Cdp
         if proc.returncode is None:
             proc.kill()
         await proc.wait()
+        shutil.rmtree(own_tmp, ignore_errors=True)
 
 
 async def tick_preflight(cdp: Cdp, sid: str, shot: Path | None = None) -> None:
