@@ -23,8 +23,10 @@ from tests.test_map_cli import files  # noqa: F401 (files: the fixture)
 pytestmark = [pytest.mark.peer]
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture
 def journaled(files, tmp_path_factory):  # noqa: F811
+    # one journal per test: the tests mark its maps copied and add maps (in a shuffled order
+    # a shared one reached the drainer test already drained)
     tmp = tmp_path_factory.mktemp("mapfleet")
     _, mjson, rep, _ = journaled_map(tmp, files[1])
     return tmp, mjson, rep
